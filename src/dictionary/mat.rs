@@ -1,0 +1,171 @@
+//! Reader for the authors' MATLAB dictionaries (MonoCap release): `B` (3k x p; rows
+//! 3i..3i+2 are basis i), `mu` (3 x p), `skel.tree(i).name`, `skel.tree(i).children`
+//! (1-based) and `skel.torso` (1-based).
+
+use std::path::Path;
+
+use matrw::MatVariable;
+
+use super::Dictionary;
+use crate::error::DictionaryError;
+use crate::skeleton::Skeleton;
+
+/// Loads a MATLAB v5/v7 dictionary file.
+pub fn load(path: &Path) -> Result<Dictionary, DictionaryError> {
+    let bytes = std::fs::read(path).map_err(|source| DictionaryError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    from_bytes(&bytes, path)
+}
+
+/// Parses a MATLAB dictionary from memory; `path` names it in errors.
+pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Dictionary, DictionaryError> {
+    let missing = |what: &str| DictionaryError::Missing {
+        path: path.to_path_buf(),
+        what: what.to_string(),
+    };
+    let shape = |detail: String| DictionaryError::Shape {
+        path: path.to_path_buf(),
+        detail,
+    };
+    // The MAT parser is third-party code fed untrusted bytes: contain any panic in it.
+    let parsed = std::panic::catch_unwind(|| matrw::load_matfile_from_u8(bytes));
+    let file = match parsed {
+        Ok(Ok(f)) => f,
+        Ok(Err(e)) => {
+            return Err(DictionaryError::Mat {
+                path: path.to_path_buf(),
+                reason: e.to_string(),
+            });
+        }
+        Err(_) => {
+            return Err(DictionaryError::Mat {
+                path: path.to_path_buf(),
+                reason: "malformed file".into(),
+            });
+        }
+    };
+    if !file.contains("B") {
+        return Err(missing("B"));
+    }
+    let b = &file["B"];
+    let (rows, p) = matrix_dims(b).ok_or_else(|| missing("B"))?;
+    if rows == 0 || rows % 3 != 0 || p == 0 {
+        return Err(shape(format!("B is {rows} x {p}, expected 3k x p")));
+    }
+    let b_colmajor = b.to_vec_f64().ok_or_else(|| missing("B"))?;
+    let k = rows / 3;
+    // Column-major (3k x p) to k row-major blocks of 3 x p.
+    let mut bases = vec![0.0; 3 * k * p];
+    for j in 0..p {
+        for r in 0..rows {
+            let (i, d) = (r / 3, r % 3);
+            bases[i * 3 * p + d * p + j] = b_colmajor[j * rows + r];
+        }
+    }
+    let mean = if file.contains("mu") {
+        let mu = &file["mu"];
+        if matrix_dims(mu) != Some((3, p)) {
+            return Err(shape(format!("mu is {:?}, expected 3 x {p}", mu.dim())));
+        }
+        let v = mu.to_vec_f64().ok_or_else(|| missing("mu"))?;
+        let mut m = vec![0.0; 3 * p];
+        for j in 0..p {
+            for d in 0..3 {
+                m[d * p + j] = v[j * 3 + d];
+            }
+        }
+        m
+    } else {
+        vec![0.0; 3 * p]
+    };
+    if !file.contains("skel") {
+        return Err(missing("skel"));
+    }
+    let skeleton = read_skeleton(&file["skel"], p, path)?;
+    Dictionary::new(skeleton, bases, mean).map_err(|detail| {
+        if detail.contains("non-finite") {
+            DictionaryError::NonFinite {
+                path: path.to_path_buf(),
+                what: "B or mu".into(),
+            }
+        } else {
+            shape(detail)
+        }
+    })
+}
+
+fn matrix_dims(v: &MatVariable) -> Option<(usize, usize)> {
+    match v {
+        MatVariable::NumericArray(_) => match v.dim().as_slice() {
+            [r, c] => Some((*r, *c)),
+            _ => None,
+        },
+        _ => None,
+    }
+}
+
+fn read_skeleton(skel: &MatVariable, p: usize, path: &Path) -> Result<Skeleton, DictionaryError> {
+    let missing = |what: &str| DictionaryError::Missing {
+        path: path.to_path_buf(),
+        what: what.to_string(),
+    };
+    let fields = skel.fieldnames().ok_or_else(|| missing("skel"))?;
+    if !fields.iter().any(|f| f == "tree") {
+        return Err(missing("skel.tree"));
+    }
+    let tree = &skel["tree"];
+    let n = tree.dim().iter().product::<usize>();
+    if n != p {
+        return Err(DictionaryError::Shape {
+            path: path.to_path_buf(),
+            detail: format!("skel.tree has {n} joints but B has {p}"),
+        });
+    }
+    let mut joints = Vec::with_capacity(p);
+    let mut parents = vec![None; p];
+    for j in 0..p {
+        let node = &tree[j];
+        let name: String = node["name"]
+            .to_vec::<char>()
+            .ok_or_else(|| missing("skel.tree.name"))?
+            .into_iter()
+            .collect();
+        joints.push(name);
+        let children = match &node["children"] {
+            MatVariable::NumericArray(_) => node["children"].to_vec_f64().unwrap_or_default(),
+            _ => Vec::new(),
+        };
+        for c in children {
+            let ci = c as usize;
+            if c < 1.0 || ci > p || c.fract() != 0.0 {
+                return Err(DictionaryError::Skeleton {
+                    path: path.to_path_buf(),
+                    detail: format!("joint {} lists child {c}", j + 1),
+                });
+            }
+            if parents[ci - 1].is_some() {
+                return Err(DictionaryError::Skeleton {
+                    path: path.to_path_buf(),
+                    detail: format!("joint {ci} has two parents"),
+                });
+            }
+            parents[ci - 1] = Some(j);
+        }
+    }
+    let torso = if fields.iter().any(|f| f == "torso") {
+        skel["torso"]
+            .to_vec_f64()
+            .unwrap_or_default()
+            .into_iter()
+            .map(|t| (t as usize).wrapping_sub(1))
+            .collect()
+    } else {
+        Vec::new()
+    };
+    Skeleton::new(joints, parents, torso).map_err(|detail| DictionaryError::Skeleton {
+        path: path.to_path_buf(),
+        detail,
+    })
+}

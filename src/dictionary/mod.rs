@@ -1,0 +1,140 @@
+//! The pose dictionary: `k` basis poses `B_i` (3 x p each) and a mean shape, over a
+//! [`Skeleton`]. A pose is `S = sum_i c_i B_i` (paper, eq. 1).
+//!
+//! Two file formats load into it:
+//! - the authors' MATLAB release (`.mat`, variables `B` (3k x p), `mu` (3 x p) and
+//!   `skel` with `tree(i).name`, `tree(i).children` and `torso`, 1-based), see [`mat`];
+//! - posestream's own JSON format, see [`json`].
+//!
+//! Bases are centred on load (each basis has zero mean over the joints on every axis),
+//! as the reference solver assumes.
+
+pub mod json;
+pub mod mat;
+
+use std::path::Path;
+
+use crate::error::DictionaryError;
+use crate::skeleton::Skeleton;
+
+/// `k` basis poses of `p` joints and a mean shape.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Dictionary {
+    skeleton: Skeleton,
+    k: usize,
+    /// Basis `i` occupies `bases[3p*i .. 3p*(i+1)]`, row-major 3 x p (x row, y row, z row).
+    bases: Vec<f64>,
+    /// Mean shape, row-major 3 x p.
+    mean: Vec<f64>,
+}
+
+impl Dictionary {
+    /// Builds a dictionary from row-major bases (`k` blocks of 3 x p) and a mean (3 x p).
+    /// Centres every basis and the mean over the joints.
+    pub fn new(
+        skeleton: Skeleton,
+        bases: Vec<f64>,
+        mean: Vec<f64>,
+    ) -> Result<Self, String> {
+        let p = skeleton.len();
+        if bases.is_empty() || bases.len() % (3 * p) != 0 {
+            return Err(format!(
+                "bases hold {} values, not a multiple of 3 x {p} joints",
+                bases.len()
+            ));
+        }
+        if mean.len() != 3 * p {
+            return Err(format!("mean holds {} values, expected 3 x {p}", mean.len()));
+        }
+        if bases.iter().chain(mean.iter()).any(|v| !v.is_finite()) {
+            return Err("non-finite value in bases or mean".into());
+        }
+        let k = bases.len() / (3 * p);
+        let mut d = Self {
+            skeleton,
+            k,
+            bases,
+            mean,
+        };
+        for row in d.bases.chunks_exact_mut(p).chain(d.mean.chunks_exact_mut(p)) {
+            let m = row.iter().sum::<f64>() / p as f64;
+            row.iter_mut().for_each(|v| *v -= m);
+        }
+        Ok(d)
+    }
+
+    /// Loads a dictionary, choosing the format by extension (`.mat` or `.json`).
+    pub fn load(path: impl AsRef<Path>) -> Result<Self, DictionaryError> {
+        let path = path.as_ref();
+        match path.extension().and_then(|e| e.to_str()) {
+            Some(e) if e.eq_ignore_ascii_case("mat") => mat::load(path),
+            Some(e) if e.eq_ignore_ascii_case("json") => json::load(path),
+            _ => Err(DictionaryError::UnknownFormat {
+                path: path.to_path_buf(),
+            }),
+        }
+    }
+
+    /// The joint layout.
+    pub fn skeleton(&self) -> &Skeleton {
+        &self.skeleton
+    }
+
+    /// Number of basis poses.
+    pub fn num_bases(&self) -> usize {
+        self.k
+    }
+
+    /// Number of joints.
+    pub fn num_joints(&self) -> usize {
+        self.skeleton.len()
+    }
+
+    /// Basis `i`, row-major 3 x p.
+    pub fn basis(&self, i: usize) -> &[f64] {
+        let n = 3 * self.num_joints();
+        &self.bases[n * i..n * (i + 1)]
+    }
+
+    /// All bases, `k` row-major 3 x p blocks.
+    pub fn bases(&self) -> &[f64] {
+        &self.bases
+    }
+
+    /// The mean shape, row-major 3 x p.
+    pub fn mean(&self) -> &[f64] {
+        &self.mean
+    }
+
+    /// The average of the bases (row-major 3 x p): the reference's starting shape for the
+    /// alternating initialisation.
+    pub fn average_basis(&self) -> Vec<f64> {
+        let n = 3 * self.num_joints();
+        let mut s = vec![0.0; n];
+        for b in self.bases.chunks_exact(n) {
+            s.iter_mut().zip(b).for_each(|(s, b)| *s += b);
+        }
+        s.iter_mut().for_each(|v| *v /= self.k as f64);
+        s
+    }
+
+    /// Writes `sum_i c_i B_i` into `out` (row-major 3 x p), skipping zero coefficients.
+    pub fn compose_into(&self, c: &[f64], out: &mut [f64]) {
+        let n = 3 * self.num_joints();
+        debug_assert_eq!(c.len(), self.k);
+        debug_assert_eq!(out.len(), n);
+        out.iter_mut().for_each(|v| *v = 0.0);
+        for (ci, b) in c.iter().zip(self.bases.chunks_exact(n)) {
+            if *ci != 0.0 {
+                out.iter_mut().zip(b).for_each(|(o, b)| *o += ci * b);
+            }
+        }
+    }
+
+    /// `sum_i c_i B_i`, row-major 3 x p.
+    pub fn compose(&self, c: &[f64]) -> Vec<f64> {
+        let mut out = vec![0.0; 3 * self.num_joints()];
+        self.compose_into(c, &mut out);
+        out
+    }
+}

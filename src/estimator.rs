@@ -1,0 +1,283 @@
+//! [`Estimator`]: a [`Dictionary`] plus [`Params`], lifting 2D joints or heat maps of a
+//! sequence to 3D poses. The entry point of the library; the batch `lift` command and the
+//! streaming nodes are thin adapters over it.
+
+use std::time::Instant;
+
+use nalgebra::Vector3;
+use serde::Serialize;
+
+use crate::dictionary::Dictionary;
+use crate::error::EstimateError;
+use crate::heatmaps::HeatMaps;
+use crate::solver::bcd::{self, BcdWorkspace};
+use crate::solver::coefficients::basis_gram_max;
+use crate::solver::em::{self, EmWorkspace, PreparedMaps};
+use crate::solver::init::{InitCache, initialise_frame};
+use crate::solver::normalise::{heatmap_scale, keypoint_scale};
+use crate::solver::{FrameFit, Observations, Params};
+
+/// 2D joints of a sequence in pixels, with optional per-joint confidence in [0, 1].
+#[derive(Debug, Clone, PartialEq)]
+pub struct Keypoints {
+    /// Joints per frame.
+    pub joints: usize,
+    /// `[x, y]` per joint, frame-major (x right, y down).
+    pub xy: Vec<f64>,
+    /// Confidence per joint (`t*p + j`); `None` means all 1. A joint with confidence 0 is
+    /// not observed.
+    pub confidence: Option<Vec<f64>>,
+}
+
+impl Keypoints {
+    /// Number of frames.
+    pub fn frames(&self) -> usize {
+        if self.joints == 0 { 0 } else { self.xy.len() / (2 * self.joints) }
+    }
+}
+
+/// How the estimate was reached.
+#[derive(Debug, Clone, PartialEq, Serialize, Default)]
+pub struct Report {
+    /// Frames.
+    pub frames: usize,
+    /// Initialisation method.
+    pub init: String,
+    /// EM iterations (1 for given 2D joints).
+    pub em_iterations: usize,
+    /// Block-coordinate rounds per EM iteration.
+    pub rounds: Vec<usize>,
+    /// Objective after initialisation.
+    pub objective_init: f64,
+    /// Objective at the end.
+    pub objective: f64,
+    /// Objective history of the (last) Algorithm 1 run: before it, then after each round.
+    pub objective_rounds: Vec<f64>,
+    /// Seconds spent initialising.
+    pub seconds_init: f64,
+    /// Seconds in total.
+    pub seconds: f64,
+}
+
+/// The result of lifting a sequence.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Estimate {
+    /// Joints per frame.
+    pub joints: usize,
+    /// 3D poses `R_t S_t`, camera frame (x right, y down, z forward), dictionary units,
+    /// centred: `[x, y, z]` per joint, frame-major.
+    pub poses: Vec<f64>,
+    /// The 2D joints the model was fitted to, in input pixels: the given keypoints, or the
+    /// EM's expected joints.
+    pub keypoints: Vec<f64>,
+    /// The model's reprojection `Pi R_t S_t + T_t`, in input pixels.
+    pub projected: Vec<f64>,
+    /// Per-joint 2D variance (trace of the covariance, pixels^2) from the E-step; heat-map
+    /// input only.
+    pub variance: Option<Vec<f64>>,
+    /// The model parameters per frame (normalised units).
+    pub fits: Vec<FrameFit>,
+    /// How it was reached.
+    pub report: Report,
+}
+
+/// Lifts 2D joints or heat maps to 3D with one dictionary and one parameter set.
+#[derive(Debug, Clone)]
+pub struct Estimator {
+    dict: Dictionary,
+    params: Params,
+    cache: InitCache,
+    gram_max: f64,
+}
+
+impl Estimator {
+    /// Prepares an estimator (precomputes the dictionary's factorisations).
+    pub fn new(dict: Dictionary, params: Params) -> Result<Self, EstimateError> {
+        params.validate()?;
+        let gram_max = basis_gram_max(&dict);
+        let cache = InitCache::new(&dict, gram_max);
+        Ok(Self {
+            dict,
+            params,
+            cache,
+            gram_max,
+        })
+    }
+
+    /// The dictionary.
+    pub fn dictionary(&self) -> &Dictionary {
+        &self.dict
+    }
+
+    /// The parameters.
+    pub fn params(&self) -> &Params {
+        &self.params
+    }
+
+    /// Precomputed quantities of the initialisation.
+    pub fn init_cache(&self) -> &InitCache {
+        &self.cache
+    }
+
+    /// `lambda_max` of the vectorised bases' Gram matrix (Lipschitz bound of the C-step).
+    pub fn basis_gram_max(&self) -> f64 {
+        self.gram_max
+    }
+
+    /// Algorithm 1 on given 2D joints.
+    pub fn lift_keypoints(&self, kp: &Keypoints) -> Result<Estimate, EstimateError> {
+        let start = Instant::now();
+        let p = self.dict.num_joints();
+        if kp.joints != p {
+            return Err(EstimateError::JointCount { expected: p, found: kp.joints });
+        }
+        let f = kp.frames();
+        if f == 0 {
+            return Err(EstimateError::NoFrames);
+        }
+        let weights = match &kp.confidence {
+            Some(c) => {
+                if c.len() != f * p {
+                    return Err(EstimateError::Parameter(format!(
+                        "confidence holds {} values, expected {f} x {p}",
+                        c.len()
+                    )));
+                }
+                if let Some(i) = c.iter().position(|v| !v.is_finite() || *v < 0.0 || *v > 1.0) {
+                    return Err(EstimateError::Parameter(format!(
+                        "confidence of frame {}, joint {} is {}, expected a value in [0, 1]",
+                        i / p,
+                        i % p,
+                        c[i]
+                    )));
+                }
+                c.clone()
+            }
+            None => vec![1.0; f * p],
+        };
+        for (i, v) in kp.xy.iter().enumerate() {
+            if !v.is_finite() {
+                return Err(EstimateError::NonFinite { frame: i / (2 * p), joint: (i / 2) % p });
+            }
+        }
+        for t in 0..f {
+            let observed = weights[t * p..(t + 1) * p].iter().filter(|&&w| w > 0.0).count();
+            if observed < 2 {
+                return Err(EstimateError::TooFewJoints { frame: t, observed });
+            }
+        }
+        let scale = keypoint_scale(&kp.xy, &weights, p);
+        if !(scale > 0.0 && scale.is_finite()) {
+            return Err(EstimateError::Degenerate);
+        }
+        let obs = Observations {
+            joints: p,
+            xy: kp.xy.iter().map(|v| v / scale).collect(),
+            weights,
+        };
+        let mut fits = Vec::with_capacity(f);
+        for t in 0..f {
+            let visible: Vec<bool> = obs.frame_weights(t).iter().map(|&w| w > 0.0).collect();
+            fits.push(initialise_frame(&self.dict, &self.cache, obs.frame(t), &visible, &self.params).0);
+        }
+        let seconds_init = start.elapsed().as_secs_f64();
+        let mut ws = BcdWorkspace::default();
+        let info = bcd::solve(&self.dict, self.gram_max, &obs, &mut fits, &self.params, &mut ws);
+        let mut est = self.finish(fits, &obs.xy, scale, None);
+        est.report = Report {
+            frames: f,
+            init: self.params.init.to_string(),
+            em_iterations: 1,
+            rounds: vec![info.rounds],
+            objective_init: info.objective[0],
+            objective: info.objective.last().copied().unwrap_or(f64::NAN),
+            objective_rounds: info.objective,
+            seconds_init,
+            seconds: start.elapsed().as_secs_f64(),
+        };
+        Ok(est)
+    }
+
+    /// Algorithm 2 (EM) on heat maps. Output 2D values are in heat-map pixels.
+    pub fn lift_heatmaps(&self, maps: &HeatMaps) -> Result<Estimate, EstimateError> {
+        let start = Instant::now();
+        let p = self.dict.num_joints();
+        if maps.joints != p {
+            return Err(EstimateError::JointCount { expected: p, found: maps.joints });
+        }
+        if maps.frames == 0 {
+            return Err(EstimateError::NoFrames);
+        }
+        let f = maps.frames;
+        let scale = heatmap_scale(maps.height);
+        let prepared = PreparedMaps::new(maps);
+        // Initialise each frame from the arg-max of each map.
+        let mut fits = Vec::with_capacity(f);
+        for t in 0..f {
+            let mut w = vec![0.0; 2 * p];
+            let mut visible = vec![false; p];
+            for j in 0..p {
+                let (x, y, peak) = maps.argmax(t, j);
+                w[2 * j] = x / scale;
+                w[2 * j + 1] = y / scale;
+                visible[j] = f64::from(peak) > self.params.visibility_threshold;
+            }
+            if visible.iter().filter(|&&v| v).count() < 2 {
+                visible.iter_mut().for_each(|v| *v = true);
+            }
+            fits.push(initialise_frame(&self.dict, &self.cache, &w, &visible, &self.params).0);
+        }
+        let seconds_init = start.elapsed().as_secs_f64();
+        let objective_init = {
+            let mut obs = Observations::new(p, vec![0.0; 2 * p * f]);
+            let mut ws = EmWorkspace::default();
+            em::e_step(&self.dict, &prepared, &fits, scale, self.params.sigma, &mut obs, None, &mut ws);
+            bcd::objective(&self.dict, &obs, &fits, &self.params)
+        };
+        let mut ws = EmWorkspace::default();
+        let (obs, info) = em::run(&self.dict, self.gram_max, &prepared, &mut fits, scale, &self.params, &mut ws);
+        let mut variance = vec![0.0; f * p];
+        let mut scratch = Observations::new(p, vec![0.0; 2 * p * f]);
+        em::e_step(&self.dict, &prepared, &fits, scale, self.params.sigma, &mut scratch, Some(&mut variance), &mut ws);
+        let mut est = self.finish(fits, &obs.xy, scale, Some(variance));
+        est.report = Report {
+            frames: f,
+            init: self.params.init.to_string(),
+            em_iterations: info.iterations,
+            rounds: info.rounds,
+            objective_init,
+            objective: info.objective.last().copied().unwrap_or(f64::NAN),
+            objective_rounds: info.objective,
+            seconds_init,
+            seconds: start.elapsed().as_secs_f64(),
+        };
+        Ok(est)
+    }
+
+    /// Poses and 2D outputs from the fits.
+    fn finish(&self, fits: Vec<FrameFit>, xy: &[f64], scale: f64, variance: Option<Vec<f64>>) -> Estimate {
+        let p = self.dict.num_joints();
+        let f = fits.len();
+        let mut poses = vec![0.0; 3 * p * f];
+        let mut projected = vec![0.0; 2 * p * f];
+        let mut s = vec![0.0; 3 * p];
+        for (t, fit) in fits.iter().enumerate() {
+            self.dict.compose_into(&fit.coefficients, &mut s);
+            for j in 0..p {
+                let q = fit.rotation * Vector3::new(s[j], s[p + j], s[2 * p + j]);
+                poses[3 * (t * p + j)..3 * (t * p + j) + 3].copy_from_slice(q.as_slice());
+                projected[2 * (t * p + j)] = (q.x + fit.translation.x) * scale;
+                projected[2 * (t * p + j) + 1] = (q.y + fit.translation.y) * scale;
+            }
+        }
+        Estimate {
+            joints: p,
+            poses,
+            keypoints: xy.iter().map(|v| v * scale).collect(),
+            projected,
+            variance,
+            fits,
+            report: Report::default(),
+        }
+    }
+}

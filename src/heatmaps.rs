@@ -1,0 +1,80 @@
+//! [`HeatMaps`]: per-frame, per-joint 2D score maps from a detector.
+//!
+//! Pixel `(row r, col c)` is centred at `x = c, y = r` (x right, y down). Values are
+//! scores, not necessarily normalised; negative values are clipped to 0 by the E-step,
+//! as in the reference. A map with no positive value locates nothing and is rejected.
+
+use crate::error::EstimateError;
+
+/// Heat maps of F frames x p joints, each h x w, row-major `values[((t*p + j)*h + r)*w + c]`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct HeatMaps {
+    /// Frames.
+    pub frames: usize,
+    /// Joints per frame.
+    pub joints: usize,
+    /// Map height (rows).
+    pub height: usize,
+    /// Map width (columns).
+    pub width: usize,
+    /// The scores.
+    pub values: Vec<f32>,
+}
+
+impl HeatMaps {
+    /// Wraps `values`, checking the size, finiteness and that every map has a positive value.
+    pub fn new(
+        frames: usize,
+        joints: usize,
+        height: usize,
+        width: usize,
+        values: Vec<f32>,
+    ) -> Result<Self, EstimateError> {
+        if frames == 0 {
+            return Err(EstimateError::NoFrames);
+        }
+        let n = height * width;
+        if values.len() != frames * joints * n || n == 0 {
+            return Err(EstimateError::Parameter(format!(
+                "heat maps hold {} values, expected {frames} x {joints} x {height} x {width}",
+                values.len()
+            )));
+        }
+        for (m, map) in values.chunks_exact(n).enumerate() {
+            let (frame, joint) = (m / joints, m % joints);
+            if map.iter().any(|v| !v.is_finite()) {
+                return Err(EstimateError::NonFinite { frame, joint });
+            }
+            if !map.iter().any(|&v| v > 0.0) {
+                return Err(EstimateError::EmptyHeatMap { frame, joint });
+            }
+        }
+        Ok(Self {
+            frames,
+            joints,
+            height,
+            width,
+            values,
+        })
+    }
+
+    /// The map of frame `t`, joint `j` (h*w values, row-major).
+    pub fn map(&self, t: usize, j: usize) -> &[f32] {
+        let n = self.height * self.width;
+        let m = t * self.joints + j;
+        &self.values[m * n..(m + 1) * n]
+    }
+
+    /// The arg-max pixel `(x, y)` of a map and its value (first maximum in row-major order).
+    pub fn argmax(&self, t: usize, j: usize) -> (f64, f64, f32) {
+        let map = self.map(t, j);
+        let (mut best, mut at) = (f32::NEG_INFINITY, 0);
+        for (i, &v) in map.iter().enumerate() {
+            if v > best {
+                best = v;
+                at = i;
+            }
+        }
+        ((at % self.width) as f64, (at / self.width) as f64, best)
+    }
+}

@@ -1,0 +1,39 @@
+//! # posestream
+//!
+//! Monocular 3D human pose estimation after Zhou et al., "Sparseness Meets Deepness: 3D
+//! Human Pose Estimation from Monocular Video" (CVPR 2016): a sparse [`Dictionary`] of
+//! 3D basis poses, a weak-perspective camera, temporal smoothness, and an EM algorithm
+//! that treats the 2D joints as latent variables under [`HeatMaps`].
+//!
+//! The math lives in [`solver`] and knows nothing of files or transports; [`Estimator`]
+//! is its entry point:
+//!
+//! ```no_run
+//! use posestream::{Dictionary, Estimator, Params};
+//! let dict = Dictionary::load("poseDict-all-K128.mat")?;
+//! let estimator = Estimator::new(dict, Params::default())?;
+//! # let keypoints: posestream::Keypoints = unimplemented!();
+//! let estimate = estimator.lift_keypoints(&keypoints)?;
+//! println!("{} frames, objective {}", estimate.report.frames, estimate.report.objective);
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+//!
+//! Vocabulary: a *Pose* is 3 x p joint positions; a [`Dictionary`] holds basis poses over
+//! a [`Skeleton`]; [`HeatMaps`] are a detector's per-joint score maps; a
+//! [`solver::Window`] is the frames solved together.
+
+pub mod dictionary;
+pub mod error;
+pub mod estimator;
+pub mod heatmaps;
+pub mod metrics;
+pub mod npy;
+pub mod skeleton;
+pub mod solver;
+
+pub use dictionary::Dictionary;
+pub use error::{ArrayError, DictionaryError, EstimateError};
+pub use estimator::{Estimate, Estimator, Keypoints, Report};
+pub use heatmaps::HeatMaps;
+pub use skeleton::Skeleton;
+pub use solver::{InitMethod, Params};

@@ -1,0 +1,130 @@
+//! Evaluation metrics. Poses are `[x, y, z]` per joint, frame-major; 2D joints `[x, y]`.
+//!
+//! P-MPJPE aligns each predicted frame to the ground truth by a similarity transform
+//! (centre, best *proper* rotation, best scale), the standard protocol. The reference's
+//! own helper allows reflections; [`p_mpjpe_with_reflections`] reproduces it.
+
+use nalgebra::{Matrix3, Vector3};
+
+/// Mean per-joint position error, no alignment.
+pub fn mpjpe(pred: &[f64], truth: &[f64]) -> f64 {
+    let n = pred.len() / 3;
+    pred.chunks_exact(3)
+        .zip(truth.chunks_exact(3))
+        .map(|(a, b)| ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt())
+        .sum::<f64>()
+        / n as f64
+}
+
+/// Similarity Procrustes of one frame: the aligned copy of `pred` (`p` joints).
+pub fn procrustes_align(pred: &[f64], truth: &[f64], allow_reflection: bool) -> Vec<f64> {
+    let p = pred.len() / 3;
+    let pts = |v: &[f64]| -> Vec<Vector3<f64>> { v.chunks_exact(3).map(|c| Vector3::new(c[0], c[1], c[2])).collect() };
+    let (x, y) = (pts(pred), pts(truth));
+    let mx = x.iter().sum::<Vector3<f64>>() / p as f64;
+    let my = y.iter().sum::<Vector3<f64>>() / p as f64;
+    let mut h = Matrix3::zeros();
+    let mut xx = 0.0;
+    for (a, b) in x.iter().zip(&y) {
+        let (a, b) = (a - mx, b - my);
+        h += b * a.transpose();
+        xx += a.norm_squared();
+    }
+    let svd = h.svd(true, true);
+    let (Some(u), Some(vt)) = (svd.u, svd.v_t) else {
+        return truth.to_vec();
+    };
+    let mut d = Matrix3::identity();
+    if !allow_reflection && (u * vt).determinant() < 0.0 {
+        d[(2, 2)] = -1.0;
+    }
+    let r = u * d * vt;
+    let trace: f64 = (0..3).map(|i| svd.singular_values[i] * d[(i, i)]).sum();
+    let s = if xx > 0.0 { trace / xx } else { 0.0 };
+    x.iter()
+        .flat_map(|a| {
+            let q = s * r * (a - mx) + my;
+            [q.x, q.y, q.z]
+        })
+        .collect()
+}
+
+fn aligned_error(pred: &[f64], truth: &[f64], joints: usize, allow_reflection: bool) -> f64 {
+    let n = 3 * joints;
+    let frames = pred.len() / n;
+    let mut total = 0.0;
+    for t in 0..frames {
+        let (a, b) = (&pred[t * n..(t + 1) * n], &truth[t * n..(t + 1) * n]);
+        total += mpjpe(&procrustes_align(a, b, allow_reflection), b);
+    }
+    total / frames as f64
+}
+
+/// P-MPJPE: per-frame similarity alignment with a proper rotation, then MPJPE.
+pub fn p_mpjpe(pred: &[f64], truth: &[f64], joints: usize) -> f64 {
+    aligned_error(pred, truth, joints, false)
+}
+
+/// P-MPJPE allowing reflections in the alignment (the reference helper's variant).
+pub fn p_mpjpe_with_reflections(pred: &[f64], truth: &[f64], joints: usize) -> f64 {
+    aligned_error(pred, truth, joints, true)
+}
+
+/// Mean 2D distance.
+pub fn mean_error_2d(pred: &[f64], truth: &[f64]) -> f64 {
+    let n = pred.len() / 2;
+    pred.chunks_exact(2)
+        .zip(truth.chunks_exact(2))
+        .map(|(a, b)| ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt())
+        .sum::<f64>()
+        / n as f64
+}
+
+/// Percentage of correct keypoints: the fraction of 2D joints within `threshold`.
+pub fn pck(pred: &[f64], truth: &[f64], threshold: f64) -> f64 {
+    let n = pred.len() / 2;
+    pred.chunks_exact(2)
+        .zip(truth.chunks_exact(2))
+        .filter(|(a, b)| ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt() <= threshold)
+        .count() as f64
+        / n as f64
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Rotation3;
+
+    #[test]
+    fn procrustes_of_a_rotated_scaled_copy_is_zero() {
+        let p = 11;
+        let truth: Vec<f64> = (0..3 * p).map(|i| ((i * 31 % 17) as f64 - 8.0) / 3.0).collect();
+        let r = Rotation3::from_euler_angles(0.7, -0.2, 2.1);
+        let pred: Vec<f64> = truth
+            .chunks_exact(3)
+            .flat_map(|c| {
+                let q = 2.5 * (r * Vector3::new(c[0], c[1], c[2])) + Vector3::new(1.0, -3.0, 0.5);
+                [q.x, q.y, q.z]
+            })
+            .collect();
+        assert!(p_mpjpe(&pred, &truth, p) < 1e-10);
+        assert!(mpjpe(&pred, &truth) > 1.0);
+    }
+
+    #[test]
+    fn a_mirrored_copy_is_only_zero_when_reflections_are_allowed() {
+        let p = 9;
+        let truth: Vec<f64> = (0..3 * p).map(|i| ((i * 13 % 7) as f64 - 3.0) / 2.0).collect();
+        let pred: Vec<f64> = truth.chunks_exact(3).flat_map(|c| [-c[0], c[1], c[2]]).collect();
+        assert!(p_mpjpe_with_reflections(&pred, &truth, p) < 1e-10);
+        assert!(p_mpjpe(&pred, &truth, p) > 0.1);
+    }
+
+    #[test]
+    fn pck_counts_joints_within_the_threshold() {
+        let truth = [0.0, 0.0, 10.0, 10.0];
+        let pred = [1.0, 0.0, 10.0, 13.0];
+        assert_eq!(pck(&pred, &truth, 2.0), 0.5);
+        assert!((mean_error_2d(&pred, &truth) - 2.0).abs() < 1e-12);
+    }
+}

@@ -1,0 +1,214 @@
+//! NPY arrays in and out (numpy's format, via `npyz`): f32 or f64, C or Fortran order.
+//! Every reader checks the shape and finiteness and names the file in its error.
+
+use std::io::BufWriter;
+use std::path::Path;
+
+use npyz::WriterBuilder;
+
+use crate::error::ArrayError;
+
+/// A dense array read from an NPY file, in C (row-major) order.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Array<T> {
+    /// Sizes, slowest first.
+    pub shape: Vec<usize>,
+    /// Values, row-major.
+    pub data: Vec<T>,
+}
+
+/// Element types that can be read from f32 or f64 files.
+pub trait Element: Copy + Default {
+    /// Converts from f64.
+    fn from_f64(v: f64) -> Self;
+    /// Converts from f32.
+    fn from_f32(v: f32) -> Self;
+    /// True for NaN or infinity.
+    fn non_finite(self) -> bool;
+}
+
+impl Element for f64 {
+    fn from_f64(v: f64) -> Self {
+        v
+    }
+    fn from_f32(v: f32) -> Self {
+        f64::from(v)
+    }
+    fn non_finite(self) -> bool {
+        !self.is_finite()
+    }
+}
+
+impl Element for f32 {
+    fn from_f64(v: f64) -> Self {
+        v as f32
+    }
+    fn from_f32(v: f32) -> Self {
+        v
+    }
+    fn non_finite(self) -> bool {
+        !self.is_finite()
+    }
+}
+
+/// Reads an f32/f64 array, rejecting empty arrays and non-finite values.
+pub fn read<T: Element>(path: &Path) -> Result<Array<T>, ArrayError> {
+    let fmt = |reason: String| ArrayError::Format {
+        path: path.to_path_buf(),
+        reason,
+    };
+    let bytes = std::fs::read(path).map_err(|source| ArrayError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let file = npyz::NpyFile::new(&bytes[..]).map_err(|e| fmt(e.to_string()))?;
+    let shape: Vec<usize> = file.shape().iter().map(|&s| s as usize).collect();
+    let order = file.order();
+    let type_str = match file.dtype() {
+        npyz::DType::Plain(ts) => ts.to_string(),
+        other => return Err(fmt(format!("unsupported dtype {other:?}"))),
+    };
+    let flat: Vec<T> = match type_str.as_str() {
+        "<f8" | ">f8" => file
+            .into_vec::<f64>()
+            .map_err(|e| fmt(e.to_string()))?
+            .into_iter()
+            .map(T::from_f64)
+            .collect(),
+        "<f4" | ">f4" => file
+            .into_vec::<f32>()
+            .map_err(|e| fmt(e.to_string()))?
+            .into_iter()
+            .map(T::from_f32)
+            .collect(),
+        other => return Err(fmt(format!("dtype {other} is not f32 or f64"))),
+    };
+    if flat.is_empty() {
+        return Err(ArrayError::Empty {
+            path: path.to_path_buf(),
+        });
+    }
+    if let Some(index) = flat.iter().position(|v| v.non_finite()) {
+        return Err(ArrayError::NonFinite {
+            path: path.to_path_buf(),
+            index,
+        });
+    }
+    let data = match order {
+        npyz::Order::C => flat,
+        npyz::Order::Fortran => fortran_to_c(&flat, &shape),
+    };
+    Ok(Array { shape, data })
+}
+
+/// Reorders a Fortran-order buffer to C order.
+fn fortran_to_c<T: Copy + Default>(flat: &[T], shape: &[usize]) -> Vec<T> {
+    let n = flat.len();
+    let mut out = vec![T::default(); n];
+    let mut idx = vec![0usize; shape.len()];
+    for (c_pos, slot) in out.iter_mut().enumerate() {
+        let mut rem = c_pos;
+        for d in (0..shape.len()).rev() {
+            idx[d] = rem % shape[d];
+            rem /= shape[d];
+        }
+        let mut f_pos = 0;
+        for d in (0..shape.len()).rev() {
+            f_pos = f_pos * shape[d] + idx[d];
+        }
+        *slot = flat[f_pos];
+    }
+    out
+}
+
+/// Checks the array has `expected.len()` dimensions and that each fixed size matches
+/// (`None` accepts any size). `what` describes the shape in errors.
+pub fn expect_shape<T>(
+    a: &Array<T>,
+    path: &Path,
+    expected: &[Option<usize>],
+    what: &str,
+) -> Result<(), ArrayError> {
+    let ok = a.shape.len() == expected.len()
+        && a.shape
+            .iter()
+            .zip(expected)
+            .all(|(s, e)| e.is_none_or(|e| e == *s));
+    if ok {
+        Ok(())
+    } else {
+        Err(ArrayError::Shape {
+            path: path.to_path_buf(),
+            expected: what.to_string(),
+            found: a.shape.iter().map(|&s| s as u64).collect(),
+        })
+    }
+}
+
+/// Writes an f64 array of `shape` (C order). Writes a sibling temporary file and renames
+/// it, so an existing file is never left half-written.
+pub fn write(path: &Path, shape: &[usize], data: &[f64]) -> Result<(), ArrayError> {
+    let io = |source: std::io::Error| ArrayError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let mut tmp_name = path.as_os_str().to_owned();
+    tmp_name.push(".partial");
+    let tmp = std::path::PathBuf::from(tmp_name);
+    {
+        let file = std::fs::File::create(&tmp).map_err(io)?;
+        let mut w = BufWriter::new(file);
+        let shape64: Vec<u64> = shape.iter().map(|&s| s as u64).collect();
+        let mut writer = npyz::WriteOptions::new()
+            .default_dtype()
+            .shape(&shape64)
+            .writer(&mut w)
+            .begin_nd()
+            .map_err(io)?;
+        writer.extend(data.iter().copied()).map_err(io)?;
+        writer.finish().map_err(io)?;
+        std::io::Write::flush(&mut w).map_err(io)?;
+    }
+    std::fs::rename(&tmp, path).map_err(io)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn round_trips_and_checks_shape() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("a.npy");
+        let data: Vec<f64> = (0..24).map(f64::from).collect();
+        write(&path, &[2, 3, 4], &data).expect("write");
+        let a: Array<f64> = read(&path).expect("read");
+        assert_eq!(a.shape, vec![2, 3, 4]);
+        assert_eq!(a.data, data);
+        assert!(expect_shape(&a, &path, &[None, Some(3), Some(4)], "(F, 3, 4)").is_ok());
+        assert!(matches!(
+            expect_shape(&a, &path, &[None, Some(17), Some(2)], "(F, 17, 2)"),
+            Err(ArrayError::Shape { .. })
+        ));
+    }
+
+    #[test]
+    fn rejects_garbage_and_empty_files() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("bad.npy");
+        std::fs::write(&path, b"not an npy file").expect("write");
+        assert!(matches!(read::<f64>(&path), Err(ArrayError::Format { .. })));
+        std::fs::write(&path, b"").expect("write");
+        assert!(matches!(read::<f64>(&path), Err(ArrayError::Format { .. })));
+        write(&path, &[0, 2], &[]).expect("write");
+        assert!(matches!(read::<f64>(&path), Err(ArrayError::Empty { .. })));
+        write(&path, &[2], &[1.0, f64::NAN]).expect("write");
+        assert!(matches!(read::<f64>(&path), Err(ArrayError::NonFinite { index: 1, .. })));
+    }
+
+    #[test]
+    fn reorders_fortran_arrays() {
+        let flat = [1, 4, 2, 5, 3, 6]; // 2 x 3 [[1,2,3],[4,5,6]] in Fortran order
+        assert_eq!(fortran_to_c(&flat, &[2, 3]), vec![1, 2, 3, 4, 5, 6]);
+    }
+}

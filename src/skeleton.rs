@@ -1,0 +1,138 @@
+//! The joint layout of a pose: names, the parent tree, torso joints and left/right pairs.
+
+use serde::{Deserialize, Serialize};
+
+/// Joint names, the kinematic tree and the joints used for torso alignment.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Skeleton {
+    /// Joint names, in the order of every pose array.
+    pub joints: Vec<String>,
+    /// Parent of each joint; `None` for the root.
+    pub parents: Vec<Option<usize>>,
+    /// Joints used to align poses on the torso (0-based).
+    pub torso: Vec<usize>,
+}
+
+impl Skeleton {
+    /// Builds a skeleton and checks that `parents` forms a single tree over the joints.
+    pub fn new(
+        joints: Vec<String>,
+        parents: Vec<Option<usize>>,
+        torso: Vec<usize>,
+    ) -> Result<Self, String> {
+        let p = joints.len();
+        if p == 0 {
+            return Err("no joints".into());
+        }
+        if parents.len() != p {
+            return Err(format!("{} parents for {} joints", parents.len(), p));
+        }
+        let roots = parents.iter().filter(|q| q.is_none()).count();
+        if roots != 1 {
+            return Err(format!("expected one root joint, found {roots}"));
+        }
+        for (j, q) in parents.iter().enumerate() {
+            if let Some(q) = *q {
+                if q >= p {
+                    return Err(format!("joint {j} has parent index {q} out of range"));
+                }
+            }
+        }
+        // Every joint must reach the root in fewer than p steps (no cycles).
+        for start in 0..p {
+            let mut j = start;
+            let mut steps = 0;
+            while let Some(q) = parents[j] {
+                j = q;
+                steps += 1;
+                if steps > p {
+                    return Err(format!("joint {start} is on a cycle"));
+                }
+            }
+        }
+        if let Some(&t) = torso.iter().find(|&&t| t >= p) {
+            return Err(format!("torso joint index {t} out of range"));
+        }
+        Ok(Self {
+            joints,
+            parents,
+            torso,
+        })
+    }
+
+    /// Number of joints.
+    pub fn len(&self) -> usize {
+        self.joints.len()
+    }
+
+    /// True when the skeleton has no joints (never, for a validated skeleton).
+    pub fn is_empty(&self) -> bool {
+        self.joints.is_empty()
+    }
+
+    /// Index of the joint called `name`.
+    pub fn index_of(&self, name: &str) -> Option<usize> {
+        self.joints.iter().position(|j| j == name)
+    }
+
+    /// The bones as (parent, child) pairs.
+    pub fn bones(&self) -> impl Iterator<Item = (usize, usize)> + '_ {
+        self.parents
+            .iter()
+            .enumerate()
+            .filter_map(|(j, q)| q.map(|q| (q, j)))
+    }
+
+    /// Left/right joint pairs, found by name: `l`/`r` prefixes (`lhumerus`/`rhumerus`,
+    /// `l-knee`/`r-knee`) or `left`/`right` (`LeftArm`/`RightArm`).
+    pub fn left_right_pairs(&self) -> Vec<(usize, usize)> {
+        let mut pairs = Vec::new();
+        for (i, name) in self.joints.iter().enumerate() {
+            let lower = name.to_ascii_lowercase();
+            let counterpart = if let Some(rest) = lower.strip_prefix("left") {
+                format!("right{rest}")
+            } else if let Some(rest) = lower.strip_prefix('l') {
+                format!("r{rest}")
+            } else {
+                continue;
+            };
+            if let Some(j) = self
+                .joints
+                .iter()
+                .position(|n| n.to_ascii_lowercase() == counterpart)
+            {
+                pairs.push((i, j));
+            }
+        }
+        pairs
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn names(v: &[&str]) -> Vec<String> {
+        v.iter().map(|s| s.to_string()).collect()
+    }
+
+    #[test]
+    fn rejects_cycles_and_several_roots() {
+        assert!(Skeleton::new(names(&["a", "b"]), vec![Some(1), Some(0)], vec![]).is_err());
+        assert!(Skeleton::new(names(&["a", "b"]), vec![None, None], vec![]).is_err());
+        assert!(Skeleton::new(names(&["a", "b"]), vec![None, Some(5)], vec![]).is_err());
+        assert!(Skeleton::new(names(&["a", "b"]), vec![None, Some(0)], vec![2]).is_err());
+    }
+
+    #[test]
+    fn finds_left_right_pairs_by_name() {
+        let s = Skeleton::new(
+            names(&["root", "lhip", "rhip", "LeftArm", "RightArm", "spine"]),
+            vec![None, Some(0), Some(0), Some(5), Some(5), Some(0)],
+            vec![0],
+        )
+        .expect("valid");
+        assert_eq!(s.left_right_pairs(), vec![(1, 2), (3, 4)]);
+        assert_eq!(s.bones().count(), 5);
+    }
+}

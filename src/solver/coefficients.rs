@@ -1,0 +1,306 @@
+//! The C-step: minimise over the coefficients C (F x k)
+//!
+//! ```text
+//! f(C) = 1/2 sum_t |y_t - X_t c_t|^2 + alpha ||C||_1 + beta/2 sum_t |c_t - c_t+1|^2
+//! ```
+//!
+//! where column `i` of `X_t` (2p) is `vec(Pi R_t B_i)` scaled by the square roots of the
+//! joint weights, and `y_t` the weighted, centred 2D joints. Accelerated proximal
+//! gradient (Nesterov) with step `1/L`, soft threshold `alpha/L`, adaptive restart
+//! (O'Donoghue & Candès, gradient scheme), stop on relative change of C.
+//!
+//! `L` must bound the Hessian `blockdiag(X_t' X_t) + beta (Lap ⊗ I)`: see
+//! [`lipschitz_bound`]. The reference takes it from the first frame only, which can be
+//! too small; ours holds for every frame.
+
+use nalgebra::Matrix3;
+
+use super::{Observations, soft, sq_norm};
+use crate::dictionary::Dictionary;
+
+/// Per-frame design matrices and data of one C-step.
+#[derive(Debug, Clone, Default)]
+pub struct CoefficientProblem {
+    k: usize,
+    rows: usize,
+    frames: usize,
+    /// Frame t, column i at `x[(t*k + i)*rows ..][..rows]`.
+    x: Vec<f64>,
+    /// Frame t at `y[t*rows..][..rows]`.
+    y: Vec<f64>,
+    /// `X_t' y_t`, frame t at `xty[t*k..][..k]`.
+    xty: Vec<f64>,
+    /// `|y_t|^2` summed over frames.
+    yy: f64,
+}
+
+/// What one C-step did.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CoefficientInfo {
+    /// APG steps taken.
+    pub steps: usize,
+    /// Objective before the step.
+    pub objective_before: f64,
+    /// Objective after the step (never above `objective_before`).
+    pub objective_after: f64,
+    /// The penalty part of `objective_after`: `alpha ||C||_1 + beta/2 |grad_t C|^2`.
+    pub penalty: f64,
+}
+
+/// Largest eigenvalue of the path-graph Laplacian on `f` nodes, `2 - 2 cos(pi (f-1)/f)`.
+pub fn laplacian_max_eigenvalue(f: usize) -> f64 {
+    if f < 2 {
+        0.0
+    } else {
+        2.0 - 2.0 * (std::f64::consts::PI * (f as f64 - 1.0) / f as f64).cos()
+    }
+}
+
+/// A Lipschitz bound for the gradient of the smooth part, valid for every frame:
+/// `max_weight * lambda_max(Bvec' Bvec) + beta * lambda_max(Lap_F)`, where `Bvec` holds
+/// `vec(B_i)` as columns. It holds because every `R_t` has orthonormal rows.
+pub fn lipschitz_bound(basis_gram_max: f64, max_weight: f64, beta: f64, frames: usize) -> f64 {
+    basis_gram_max * max_weight + beta * laplacian_max_eigenvalue(frames)
+}
+
+/// `lambda_max(Bvec' Bvec)` of a dictionary (the squared largest singular value of the
+/// 3p x k matrix of vectorised bases), via faer.
+pub fn basis_gram_max(dict: &Dictionary) -> f64 {
+    let n = 3 * dict.num_joints();
+    let k = dict.num_bases();
+    let m = faer::Mat::<f64>::from_fn(n, k, |r, i| dict.basis(i)[r]);
+    match m.singular_values() {
+        Ok(s) => s.first().map_or(0.0, |s| s * s),
+        // Fallback: the Frobenius norm bounds the spectral norm.
+        Err(_) => sq_norm(dict.bases()),
+    }
+}
+
+impl CoefficientProblem {
+    /// Fills the design for `frames` frames: centred joints `obs` minus each frame's
+    /// translation, rotations `rotations`.
+    pub fn build(
+        &mut self,
+        dict: &Dictionary,
+        obs: &Observations,
+        rotations: impl Iterator<Item = Matrix3<f64>>,
+        translations: &[nalgebra::Vector2<f64>],
+    ) {
+        let p = dict.num_joints();
+        let k = dict.num_bases();
+        let rows = 2 * p;
+        let frames = obs.frames();
+        self.k = k;
+        self.rows = rows;
+        self.frames = frames;
+        self.x.resize(frames * k * rows, 0.0);
+        self.y.resize(frames * rows, 0.0);
+        self.xty.resize(frames * k, 0.0);
+        self.yy = 0.0;
+        let mut sw = vec![0.0; p];
+        for (t, r) in rotations.enumerate().take(frames) {
+            for (s, w) in sw.iter_mut().zip(obs.frame_weights(t)) {
+                *s = w.sqrt();
+            }
+            let xy = obs.frame(t);
+            let tr = translations[t];
+            let y = &mut self.y[t * rows..(t + 1) * rows];
+            for j in 0..p {
+                y[2 * j] = sw[j] * (xy[2 * j] - tr.x);
+                y[2 * j + 1] = sw[j] * (xy[2 * j + 1] - tr.y);
+            }
+            self.yy += sq_norm(y);
+            for i in 0..k {
+                let b = dict.basis(i);
+                let col = &mut self.x[(t * k + i) * rows..(t * k + i + 1) * rows];
+                for j in 0..p {
+                    let (bx, by, bz) = (b[j], b[p + j], b[2 * p + j]);
+                    col[2 * j] = sw[j] * (r[(0, 0)] * bx + r[(0, 1)] * by + r[(0, 2)] * bz);
+                    col[2 * j + 1] = sw[j] * (r[(1, 0)] * bx + r[(1, 1)] * by + r[(1, 2)] * bz);
+                }
+                self.xty[t * k + i] = dot(col, &self.y[t * rows..(t + 1) * rows]);
+            }
+        }
+    }
+
+    fn frame_x(&self, t: usize) -> &[f64] {
+        &self.x[t * self.k * self.rows..(t + 1) * self.k * self.rows]
+    }
+
+    /// The smooth data part `1/2 sum_t |y_t - X_t c_t|^2`.
+    pub fn loss(&self, c: &[f64], scratch: &mut Vec<f64>) -> f64 {
+        scratch.resize(self.rows, 0.0);
+        let mut loss = 0.0;
+        for t in 0..self.frames {
+            let u = &mut scratch[..];
+            x_times(self.frame_x(t), &c[t * self.k..(t + 1) * self.k], u);
+            let y = &self.y[t * self.rows..(t + 1) * self.rows];
+            loss += u.iter().zip(y).map(|(u, y)| (u - y) * (u - y)).sum::<f64>();
+        }
+        0.5 * loss
+    }
+
+    /// `alpha ||C||_1 + beta/2 sum_t |c_t - c_t+1|^2`.
+    pub fn penalty(&self, c: &[f64], alpha: f64, beta: f64) -> f64 {
+        let l1: f64 = c.iter().map(|v| v.abs()).sum();
+        let mut smooth = 0.0;
+        for t in 1..self.frames {
+            let (a, b) = (&c[(t - 1) * self.k..t * self.k], &c[t * self.k..(t + 1) * self.k]);
+            smooth += a.iter().zip(b).map(|(a, b)| (a - b) * (a - b)).sum::<f64>();
+        }
+        alpha * l1 + 0.5 * beta * smooth
+    }
+
+    /// Runs APG from `c` (F*k values, frame-major) and leaves the result in `c`.
+    /// Never returns a worse point than it was given.
+    #[allow(clippy::too_many_arguments)]
+    pub fn solve(
+        &self,
+        c: &mut [f64],
+        alpha: f64,
+        beta: f64,
+        lipschitz: f64,
+        tol: f64,
+        max_steps: usize,
+        ws: &mut ApgWorkspace,
+    ) -> CoefficientInfo {
+        let n = self.frames * self.k;
+        debug_assert_eq!(c.len(), n);
+        ws.prepare(n, self.rows);
+        let objective_before = self.loss(c, &mut ws.u) + self.penalty(c, alpha, beta);
+        ws.start.copy_from_slice(c);
+        ws.prev.copy_from_slice(c);
+        let step = 1.0 / lipschitz.max(f64::MIN_POSITIVE);
+        let thresh = alpha * step;
+        let (mut t_prev, mut t_cur) = (1.0_f64, 1.0_f64);
+        let mut steps = 0;
+        for _ in 0..max_steps {
+            steps += 1;
+            // Extrapolated point z = c + (t_prev - 1)/t_cur (c - prev).
+            let mom = (t_prev - 1.0) / t_cur;
+            for ((z, &ci), &pi) in ws.z.iter_mut().zip(c.iter()).zip(ws.prev.iter()) {
+                *z = ci + mom * (ci - pi);
+            }
+            self.gradient(&ws.z, beta, &mut ws.grad, &mut ws.u);
+            // Proximal step; restart test (z - c_new)'(c_new - c) > 0.
+            let (mut restart, mut change, mut norm_old) = (0.0, 0.0, 0.0);
+            for i in 0..n {
+                let new = soft(ws.z[i] - step * ws.grad[i], thresh);
+                let old = c[i];
+                restart += (ws.z[i] - new) * (new - old);
+                change += (new - old) * (new - old);
+                norm_old += old * old;
+                ws.prev[i] = old;
+                c[i] = new;
+            }
+            if restart > 0.0 {
+                t_prev = 1.0;
+                t_cur = 1.0;
+            } else {
+                t_prev = t_cur;
+                t_cur = 0.5 * (1.0 + (1.0 + 4.0 * t_cur * t_cur).sqrt());
+            }
+            if change.sqrt() < tol * (norm_old.sqrt() + f64::EPSILON) {
+                break;
+            }
+        }
+        let loss = self.loss(c, &mut ws.u);
+        let penalty = self.penalty(c, alpha, beta);
+        if loss + penalty > objective_before {
+            c.copy_from_slice(&ws.start);
+            let penalty = self.penalty(c, alpha, beta);
+            return CoefficientInfo {
+                steps,
+                objective_before,
+                objective_after: objective_before,
+                penalty,
+            };
+        }
+        CoefficientInfo {
+            steps,
+            objective_before,
+            objective_after: loss + penalty,
+            penalty,
+        }
+    }
+
+    /// Gradient of the smooth part at `z` into `g`.
+    fn gradient(&self, z: &[f64], beta: f64, g: &mut [f64], u: &mut [f64]) {
+        let (k, f) = (self.k, self.frames);
+        for t in 0..f {
+            let x = self.frame_x(t);
+            let zt = &z[t * k..(t + 1) * k];
+            x_times(x, zt, u);
+            let gt = &mut g[t * k..(t + 1) * k];
+            xt_times(x, u, gt);
+            for (g, b) in gt.iter_mut().zip(&self.xty[t * k..(t + 1) * k]) {
+                *g -= b;
+            }
+        }
+        if beta > 0.0 && f > 1 {
+            for t in 0..f {
+                let gt = &mut g[t * k..(t + 1) * k];
+                let zt = &z[t * k..(t + 1) * k];
+                if t > 0 {
+                    let zp = &z[(t - 1) * k..t * k];
+                    for i in 0..k {
+                        gt[i] += beta * (zt[i] - zp[i]);
+                    }
+                }
+                if t + 1 < f {
+                    let zn = &z[(t + 1) * k..(t + 2) * k];
+                    for i in 0..k {
+                        gt[i] += beta * (zt[i] - zn[i]);
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Reusable buffers of [`CoefficientProblem::solve`].
+#[derive(Debug, Clone, Default)]
+pub struct ApgWorkspace {
+    z: Vec<f64>,
+    grad: Vec<f64>,
+    prev: Vec<f64>,
+    start: Vec<f64>,
+    u: Vec<f64>,
+}
+
+impl ApgWorkspace {
+    fn prepare(&mut self, n: usize, rows: usize) {
+        self.z.resize(n, 0.0);
+        self.grad.resize(n, 0.0);
+        self.prev.resize(n, 0.0);
+        self.start.resize(n, 0.0);
+        self.u.resize(rows, 0.0);
+    }
+}
+
+#[inline]
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(a, b)| a * b).sum()
+}
+
+/// `out = X z` for column-major `x` (columns of `out.len()`), skipping zero coefficients.
+#[inline]
+fn x_times(x: &[f64], z: &[f64], out: &mut [f64]) {
+    let rows = out.len();
+    out.iter_mut().for_each(|v| *v = 0.0);
+    for (col, &zi) in x.chunks_exact(rows).zip(z) {
+        if zi != 0.0 {
+            for (o, c) in out.iter_mut().zip(col) {
+                *o += zi * c;
+            }
+        }
+    }
+}
+
+/// `out = X' u`.
+#[inline]
+fn xt_times(x: &[f64], u: &[f64], out: &mut [f64]) {
+    for (o, col) in out.iter_mut().zip(x.chunks_exact(u.len())) {
+        *o = dot(col, u);
+    }
+}

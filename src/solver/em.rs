@@ -1,0 +1,139 @@
+//! Algorithm 2: EM over heat maps. The E-step ([`super::estep`]) replaces the 2D joints
+//! by their expectation under heat map x Gaussian around the current projection; the
+//! M-step is Algorithm 1 ([`super::bcd`]) warm-started from the current fit. Stops when
+//! the relative change of C falls below the tolerance, or at the iteration cap.
+
+use super::bcd::{self, BcdWorkspace};
+use super::estep::{self, EStepWorkspace, MapMoments};
+use super::{FrameFit, Observations, Params};
+use crate::dictionary::Dictionary;
+use crate::heatmaps::HeatMaps;
+
+/// What the EM did.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct EmInfo {
+    /// EM iterations run.
+    pub iterations: usize,
+    /// Block-coordinate rounds of each M-step.
+    pub rounds: Vec<usize>,
+    /// Objective after each M-step.
+    pub objective: Vec<f64>,
+    /// Relative change of C of each iteration.
+    pub relative_change: Vec<f64>,
+}
+
+/// Reusable buffers of [`run`].
+#[derive(Debug, Clone, Default)]
+pub struct EmWorkspace {
+    /// Buffers of the M-step.
+    pub bcd: BcdWorkspace,
+    estep: EStepWorkspace,
+    shape: Vec<f64>,
+    c_prev: Vec<f64>,
+}
+
+/// Heat maps prepared for the E-step: clipped at 0, with their moments.
+#[derive(Debug, Clone)]
+pub struct PreparedMaps {
+    /// The maps, negatives clipped to 0.
+    pub maps: HeatMaps,
+    /// Moments per (frame, joint).
+    pub moments: Vec<MapMoments>,
+}
+
+impl PreparedMaps {
+    /// Clips and computes moments.
+    pub fn new(maps: &HeatMaps) -> Self {
+        let mut maps = maps.clone();
+        maps.values.iter_mut().for_each(|v| *v = v.max(0.0));
+        let moments = maps
+            .values
+            .chunks_exact(maps.height * maps.width)
+            .map(|m| MapMoments::new(m, maps.width))
+            .collect();
+        Self { maps, moments }
+    }
+}
+
+/// The E-step for frames `fits` (frame `t` of `maps` is fit `t`): writes the expected
+/// joints (normalised units) into `obs` and, if given, the variance (pixels^2) into `var`.
+/// `scale` is pixels per unit; `sigma` in normalised units.
+pub fn e_step(
+    dict: &Dictionary,
+    maps: &PreparedMaps,
+    fits: &[FrameFit],
+    scale: f64,
+    sigma: f64,
+    obs: &mut Observations,
+    mut var: Option<&mut [f64]>,
+    ws: &mut EmWorkspace,
+) {
+    let p = dict.num_joints();
+    let (h, w) = (maps.maps.height, maps.maps.width);
+    ws.shape.resize(3 * p, 0.0);
+    for (t, fit) in fits.iter().enumerate() {
+        dict.compose_into(&fit.coefficients, &mut ws.shape);
+        let s = &ws.shape;
+        let r = &fit.rotation;
+        for j in 0..p {
+            let (x, y, z) = (s[j], s[p + j], s[2 * p + j]);
+            let u = r[(0, 0)] * x + r[(0, 1)] * y + r[(0, 2)] * z + fit.translation.x;
+            let v = r[(1, 0)] * x + r[(1, 1)] * y + r[(1, 2)] * z + fit.translation.y;
+            let e = estep::expectation(
+                maps.maps.map(t, j),
+                h,
+                w,
+                &maps.moments[t * p + j],
+                u * scale,
+                v * scale,
+                sigma * scale,
+                &mut ws.estep,
+            );
+            obs.xy[2 * (t * p + j)] = e.x / scale;
+            obs.xy[2 * (t * p + j) + 1] = e.y / scale;
+            if let Some(var) = var.as_deref_mut() {
+                var[t * p + j] = e.variance;
+            }
+        }
+    }
+}
+
+/// Runs EM from `fits` (initialised), in place; returns the last E-step's expected joints
+/// (normalised units) and what it did.
+pub fn run(
+    dict: &Dictionary,
+    basis_gram_max: f64,
+    maps: &PreparedMaps,
+    fits: &mut [FrameFit],
+    scale: f64,
+    params: &Params,
+    ws: &mut EmWorkspace,
+) -> (Observations, EmInfo) {
+    let (p, k) = (dict.num_joints(), dict.num_bases());
+    let mut obs = Observations::new(p, vec![0.0; 2 * p * fits.len()]);
+    let mut info = EmInfo::default();
+    for _ in 0..params.max_em_iterations {
+        info.iterations += 1;
+        e_step(dict, maps, fits, scale, params.sigma, &mut obs, None, ws);
+        ws.c_prev.clear();
+        for fit in fits.iter() {
+            ws.c_prev.extend_from_slice(&fit.coefficients);
+        }
+        let m = bcd::solve(dict, basis_gram_max, &obs, fits, params, &mut ws.bcd);
+        info.rounds.push(m.rounds);
+        info.objective.push(m.objective.last().copied().unwrap_or(f64::NAN));
+        let (mut diff, mut norm) = (0.0, 0.0);
+        for (t, fit) in fits.iter().enumerate() {
+            for (a, b) in fit.coefficients.iter().zip(&ws.c_prev[t * k..(t + 1) * k]) {
+                diff += (a - b) * (a - b);
+                norm += b * b;
+            }
+        }
+        let rel = diff.sqrt() / norm.sqrt().max(f64::MIN_POSITIVE);
+        info.relative_change.push(rel);
+        if rel < params.tolerance {
+            break;
+        }
+    }
+    (obs, info)
+}

@@ -1,0 +1,270 @@
+//! The estimator of Zhou et al. (CVPR 2016), §2–3.
+//!
+//! Model: frame `t` has coefficients `c_t` (k), a rotation `R_t` in SO(3) and a
+//! translation `T_t` (2). The pose is `S_t = sum_i c_it B_i`; its weak-perspective image
+//! is `Pi R_t S_t + T_t 1'` with `Pi` the first two rows of the identity. The objective
+//! over a [`Window`] of F frames, with per-joint weights `w_tj` (1 by default), is
+//!
+//! ```text
+//! J = 1/2 sum_t sum_j w_tj |W_tj - Pi R_t S_tj - T_t|^2
+//!   + alpha ||C||_1 + beta/2 sum_t |c_t - c_t+1|^2 + gamma/2 sum_t ||R_t - R_t+1||_F^2
+//! ```
+//!
+//! - [`coefficients`]: the C-step, accelerated proximal gradient (APG) with restart;
+//! - [`rotations`]: the R-step, block Riemannian Newton on SO(3) with backtracking;
+//! - [`bcd`]: Algorithm 1, block coordinate descent (C, R, T) given 2D joints;
+//! - [`init`]: per-frame initialisation, convex relaxation (ADMM) or alternation;
+//! - [`estep`]: the E-step over heat maps; [`em`]: Algorithm 2.
+//!
+//! Units: every step works in normalised image units (see [`normalise`]); weights are
+//! those of the authors' release (alpha 0.5, beta 20, gamma 2, sigma 0.5).
+
+pub mod bcd;
+pub mod coefficients;
+pub mod em;
+pub mod estep;
+pub mod init;
+pub mod normalise;
+pub mod rotations;
+
+use nalgebra::{Matrix3, Vector2};
+use serde::{Deserialize, Serialize};
+
+use crate::error::EstimateError;
+
+/// How each frame is initialised before the joint optimisation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum InitMethod {
+    /// Convex relaxation (spectral-norm ADMM), then rotation recovery and refinement
+    /// by alternation. The reference's `convex+refine`.
+    ConvexRefine,
+    /// Convex relaxation with an L1 outlier term, then refinement. The reference's
+    /// default `convex+robust+refine`.
+    #[default]
+    ConvexRobustRefine,
+    /// Alternate a greedy rotation (projected least squares) and an APG coefficient step.
+    /// The reference's `altern`; about 10x faster than the convex initialisation.
+    Altern,
+}
+
+impl std::str::FromStr for InitMethod {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "convex+refine" | "convex-refine" => Ok(Self::ConvexRefine),
+            "convex+robust+refine" | "convex-robust-refine" | "convex" => {
+                Ok(Self::ConvexRobustRefine)
+            }
+            "altern" => Ok(Self::Altern),
+            other => Err(format!(
+                "unknown init method `{other}` (expected convex+robust+refine, convex+refine or altern)"
+            )),
+        }
+    }
+}
+
+impl std::fmt::Display for InitMethod {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::ConvexRefine => "convex+refine",
+            Self::ConvexRobustRefine => "convex+robust+refine",
+            Self::Altern => "altern",
+        })
+    }
+}
+
+/// Every weight, cap and tolerance of the estimator. Defaults are the reference's.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Params {
+    /// L1 weight on the coefficients (sparsity).
+    pub alpha: f64,
+    /// Temporal smoothness of the coefficients.
+    pub beta: f64,
+    /// Temporal smoothness of the rotations.
+    pub gamma: f64,
+    /// Standard deviation of the Gaussian around the projection in the E-step
+    /// (normalised units: a heat map is 6 units high).
+    pub sigma: f64,
+    /// Outlier threshold of the robust convex initialisation (normalised units).
+    pub robust_threshold: f64,
+    /// Heat-map joints whose peak is not above this are left out of the initialisation.
+    pub visibility_threshold: f64,
+    /// EM iterations at most.
+    pub max_em_iterations: usize,
+    /// Block-coordinate rounds (C, R, T) per M-step at most.
+    pub max_rounds: usize,
+    /// APG steps per C-step at most.
+    pub max_apg_steps: usize,
+    /// Newton sweeps over the frames per R-step at most.
+    pub max_rotation_sweeps: usize,
+    /// Iterations of the per-frame initialisation at most.
+    pub max_init_iterations: usize,
+    /// Relative tolerance of every stopping rule (objective decrease, change of C).
+    pub tolerance: f64,
+    /// Per-frame initialisation.
+    pub init: InitMethod,
+}
+
+impl Default for Params {
+    fn default() -> Self {
+        Self {
+            alpha: 0.5,
+            beta: 20.0,
+            gamma: 2.0,
+            sigma: 0.5,
+            robust_threshold: 1.0,
+            visibility_threshold: 0.0,
+            max_em_iterations: 10,
+            max_rounds: 10,
+            max_apg_steps: 500,
+            max_rotation_sweeps: 50,
+            max_init_iterations: 1000,
+            tolerance: 1e-4,
+            init: InitMethod::default(),
+        }
+    }
+}
+
+impl Params {
+    /// The paper's "no smoothness" ablation: `beta = gamma = 0`.
+    pub fn without_smoothness(mut self) -> Self {
+        self.beta = 0.0;
+        self.gamma = 0.0;
+        self
+    }
+
+    /// Checks every value is in its domain.
+    pub fn validate(&self) -> Result<(), EstimateError> {
+        let nonneg = [
+            ("alpha", self.alpha),
+            ("beta", self.beta),
+            ("gamma", self.gamma),
+            ("robust_threshold", self.robust_threshold),
+        ];
+        for (name, v) in nonneg {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(EstimateError::Parameter(format!(
+                    "{name} must be finite and >= 0, got {v}"
+                )));
+            }
+        }
+        if !(self.sigma.is_finite() && self.sigma > 0.0) {
+            return Err(EstimateError::Parameter(format!(
+                "sigma must be finite and > 0, got {}",
+                self.sigma
+            )));
+        }
+        if !(self.tolerance.is_finite() && self.tolerance > 0.0) {
+            return Err(EstimateError::Parameter(format!(
+                "tolerance must be finite and > 0, got {}",
+                self.tolerance
+            )));
+        }
+        if !self.visibility_threshold.is_finite() {
+            return Err(EstimateError::Parameter("visibility_threshold must be finite".into()));
+        }
+        if self.max_rounds == 0 || self.max_apg_steps == 0 || self.max_em_iterations == 0 {
+            return Err(EstimateError::Parameter(
+                "iteration caps must be at least 1".into(),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// The model parameters of one frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrameFit {
+    /// Coefficients `c_t` of the bases (k).
+    pub coefficients: Vec<f64>,
+    /// Camera rotation `R_t` (a proper rotation; its first two rows project).
+    pub rotation: Matrix3<f64>,
+    /// Image translation `T_t` (normalised units).
+    pub translation: Vector2<f64>,
+}
+
+impl FrameFit {
+    /// A frame at rest: zero coefficients, identity rotation, zero translation.
+    pub fn zero(k: usize) -> Self {
+        Self {
+            coefficients: vec![0.0; k],
+            rotation: Matrix3::identity(),
+            translation: Vector2::zeros(),
+        }
+    }
+}
+
+/// 2D joints of F frames (normalised units) with a weight per joint: the data of
+/// Algorithm 1, and the expected joints the E-step hands to it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Observations {
+    /// Joints per frame.
+    pub joints: usize,
+    /// `[x, y]` per joint, frame-major: `xy[2*(t*p + j) + d]`.
+    pub xy: Vec<f64>,
+    /// Weight per joint, `weights[t*p + j]`, >= 0; 0 means "not observed".
+    pub weights: Vec<f64>,
+}
+
+impl Observations {
+    /// Observations with unit weights.
+    pub fn new(joints: usize, xy: Vec<f64>) -> Self {
+        let n = xy.len() / 2;
+        Self {
+            joints,
+            xy,
+            weights: vec![1.0; n],
+        }
+    }
+
+    /// Number of frames.
+    pub fn frames(&self) -> usize {
+        if self.joints == 0 {
+            0
+        } else {
+            self.xy.len() / (2 * self.joints)
+        }
+    }
+
+    /// The `[x, y]` values of frame `t` (2p values).
+    pub fn frame(&self, t: usize) -> &[f64] {
+        let n = 2 * self.joints;
+        &self.xy[n * t..n * (t + 1)]
+    }
+
+    /// The weights of frame `t` (p values).
+    pub fn frame_weights(&self, t: usize) -> &[f64] {
+        &self.weights[self.joints * t..self.joints * (t + 1)]
+    }
+
+    /// True when every weight is one (the reference's unweighted model).
+    pub fn unweighted(&self) -> bool {
+        self.weights.iter().all(|&w| w == 1.0)
+    }
+}
+
+/// The frames solved together and their current fit.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Window {
+    /// One fit per frame, oldest first.
+    pub fits: Vec<FrameFit>,
+}
+
+/// Sum of squares.
+pub(crate) fn sq_norm(v: &[f64]) -> f64 {
+    v.iter().map(|x| x * x).sum()
+}
+
+/// Soft threshold `sign(x) max(|x| - tau, 0)`.
+#[inline]
+pub(crate) fn soft(x: f64, tau: f64) -> f64 {
+    if x > tau {
+        x - tau
+    } else if x < -tau {
+        x + tau
+    } else {
+        0.0
+    }
+}
