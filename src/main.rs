@@ -1,1 +1,313 @@
-fn main() {}
+//! The `posestream` command line.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use clap::{Args, Parser, Subcommand};
+use posestream::npy::{self, Array};
+use posestream::solver::coefficients::CoefficientSolver;
+use posestream::{
+    ArrayError, Dictionary, DictionaryError, Estimate, EstimateError, Estimator, HeatMaps,
+    InitMethod, Keypoints, Params, metrics,
+};
+
+/// Monocular 3D human pose estimation (Zhou et al., CVPR 2016).
+#[derive(Debug, Parser)]
+#[command(name = "posestream", version, about)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Lift a sequence of 2D keypoints or heat maps (NPY) to 3D poses (NPY).
+    Lift(LiftArgs),
+    /// Run the estimator on the reference parity fixtures and compare with the
+    /// reference implementation's results.
+    Parity(ParityArgs),
+}
+
+#[derive(Debug, Args)]
+struct LiftArgs {
+    /// Pose dictionary: the authors' .mat or posestream's .json.
+    #[arg(long)]
+    dict: PathBuf,
+    /// 2D keypoints (F, p, 2), pixels, x right, y down.
+    #[arg(long, conflicts_with = "heatmaps", required_unless_present = "heatmaps")]
+    keypoints: Option<PathBuf>,
+    /// Per-joint confidence (F, p) in [0, 1] for --keypoints; 0 = not observed.
+    #[arg(long, requires = "keypoints")]
+    confidence: Option<PathBuf>,
+    /// Heat maps (F, p, h, w); pixel (row r, col c) is centred at x = c, y = r.
+    #[arg(long)]
+    heatmaps: Option<PathBuf>,
+    /// Output 3D poses (F, p, 3): camera frame (x right, y down, z forward),
+    /// dictionary units, dictionary joint order.
+    #[arg(long)]
+    out: PathBuf,
+    /// Output 2D joints (F, p, 2) the model was fitted to (heat maps: the EM's expected
+    /// joints, in heat-map pixels).
+    #[arg(long)]
+    out_2d: Option<PathBuf>,
+    /// Output reprojected 2D joints (F, p, 2) of the 3D model.
+    #[arg(long)]
+    out_proj: Option<PathBuf>,
+    /// Output per-joint 2D variance (F, p), pixels^2 (heat maps only).
+    #[arg(long, requires = "heatmaps")]
+    out_var: Option<PathBuf>,
+    /// Print a JSON summary (frames, iterations, objective, time) on stdout.
+    #[arg(long)]
+    json: bool,
+    #[command(flatten)]
+    solver: SolverArgs,
+}
+
+#[derive(Debug, Args)]
+struct SolverArgs {
+    /// L1 weight on the coefficients.
+    #[arg(long, default_value_t = Params::default().alpha)]
+    alpha: f64,
+    /// Temporal smoothness of the coefficients.
+    #[arg(long, default_value_t = Params::default().beta)]
+    beta: f64,
+    /// Temporal smoothness of the rotations.
+    #[arg(long, default_value_t = Params::default().gamma)]
+    gamma: f64,
+    /// E-step Gaussian std (normalised units; a heat map is 6 units high).
+    #[arg(long, default_value_t = Params::default().sigma)]
+    sigma: f64,
+    /// Turn temporal smoothness off (beta = gamma = 0).
+    #[arg(long)]
+    no_smooth: bool,
+    /// Initialisation: convex+robust+refine, convex+refine or altern [default: convex+robust+refine
+    /// for keypoints, altern for heat maps].
+    #[arg(long)]
+    init: Option<InitMethod>,
+    /// C-step solver: cd (coordinate descent) or apg.
+    #[arg(long, default_value = "cd")]
+    c_solver: CoefficientSolver,
+    /// Outlier threshold of the robust convex initialisation (normalised units).
+    #[arg(long, default_value_t = Params::default().robust_threshold)]
+    robust_threshold: f64,
+    /// Heat-map joints whose peak is not above this are left out of the initialisation.
+    #[arg(long, default_value_t = Params::default().visibility_threshold)]
+    visibility_threshold: f64,
+    /// EM iterations at most.
+    #[arg(long, default_value_t = Params::default().max_em_iterations)]
+    max_em_iterations: usize,
+    /// Block-coordinate rounds per M-step at most.
+    #[arg(long, default_value_t = Params::default().max_rounds)]
+    max_rounds: usize,
+    /// APG steps (or CD sweeps) per C-step at most.
+    #[arg(long, default_value_t = Params::default().max_apg_steps)]
+    max_apg_steps: usize,
+    /// Newton sweeps per R-step at most.
+    #[arg(long, default_value_t = Params::default().max_rotation_sweeps)]
+    max_rotation_sweeps: usize,
+    /// Iterations of the per-frame initialisation at most.
+    #[arg(long, default_value_t = Params::default().max_init_iterations)]
+    max_init_iterations: usize,
+    /// Relative tolerance of the stopping rules.
+    #[arg(long, default_value_t = Params::default().tolerance)]
+    tolerance: f64,
+}
+
+impl SolverArgs {
+    fn params(&self) -> Params {
+        let p = Params {
+            alpha: self.alpha,
+            beta: self.beta,
+            gamma: self.gamma,
+            sigma: self.sigma,
+            robust_threshold: self.robust_threshold,
+            visibility_threshold: self.visibility_threshold,
+            max_em_iterations: self.max_em_iterations,
+            max_rounds: self.max_rounds,
+            max_apg_steps: self.max_apg_steps,
+            max_rotation_sweeps: self.max_rotation_sweeps,
+            max_init_iterations: self.max_init_iterations,
+            tolerance: self.tolerance,
+            init: self.init,
+            coefficient_solver: self.c_solver,
+            ..Params::default()
+        };
+        if self.no_smooth { p.without_smoothness() } else { p }
+    }
+}
+
+#[derive(Debug, Args)]
+struct ParityArgs {
+    /// Folder of parity fixtures (each with keypoints.npy, heatmaps.npy, gt_3d.npy,
+    /// gt_2d_heatmap.npy, reference/summary.json).
+    #[arg(long, default_value = "../shared/reference/parity")]
+    fixtures: PathBuf,
+    /// Pose dictionary the fixtures were made with.
+    #[arg(long, default_value = "../shared/reference/monocap-dicts/poseDict-all-K128.mat")]
+    dict: PathBuf,
+    #[command(flatten)]
+    solver: SolverArgs,
+}
+
+/// Everything that can stop the command, one line each.
+#[derive(Debug, thiserror::Error)]
+enum CliError {
+    #[error(transparent)]
+    Dictionary(#[from] DictionaryError),
+    #[error(transparent)]
+    Array(#[from] ArrayError),
+    #[error("{0}")]
+    Input(String),
+    #[error(transparent)]
+    Estimate(#[from] EstimateError),
+    #[error("{path}: {source}")]
+    Json {
+        path: PathBuf,
+        source: serde_json::Error,
+    },
+}
+
+fn main() -> ExitCode {
+    tracing_subscriber::fmt()
+        .with_writer(std::io::stderr)
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
+        )
+        .init();
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Lift(args) => lift(&args),
+        Command::Parity(args) => parity(&args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("posestream: error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn input_error(path: &Path, e: EstimateError) -> CliError {
+    CliError::Input(format!("{}: {e}", path.display()))
+}
+
+fn read_keypoints(path: &Path, p: usize) -> Result<Array<f64>, CliError> {
+    let kp: Array<f64> = npy::read(path)?;
+    npy::expect_shape(&kp, path, &[None, None, Some(2)], "(F, p, 2)")?;
+    if kp.shape[1] != p {
+        return Err(input_error(path, EstimateError::JointCount { expected: p, found: kp.shape[1] }));
+    }
+    Ok(kp)
+}
+
+fn read_heatmaps(path: &Path, p: usize) -> Result<HeatMaps, CliError> {
+    let hm: Array<f32> = npy::read(path)?;
+    npy::expect_shape(&hm, path, &[None, None, None, None], "(F, p, h, w)")?;
+    let (f, j, h, w) = (hm.shape[0], hm.shape[1], hm.shape[2], hm.shape[3]);
+    if j != p {
+        return Err(input_error(path, EstimateError::JointCount { expected: p, found: j }));
+    }
+    HeatMaps::new(f, j, h, w, hm.data).map_err(|e| input_error(path, e))
+}
+
+fn lift(args: &LiftArgs) -> Result<(), CliError> {
+    let dict = Dictionary::load(&args.dict)?;
+    let p = dict.num_joints();
+    let estimator = Estimator::new(dict, args.solver.params())?;
+    let estimate: Estimate = if let Some(path) = &args.keypoints {
+        let kp = read_keypoints(path, p)?;
+        let confidence = match &args.confidence {
+            Some(cpath) => {
+                let c: Array<f64> = npy::read(cpath)?;
+                npy::expect_shape(&c, cpath, &[Some(kp.shape[0]), Some(p)], &format!("({}, {p})", kp.shape[0]))?;
+                Some(c.data)
+            }
+            None => None,
+        };
+        estimator
+            .lift_keypoints(&Keypoints { joints: p, xy: kp.data, confidence })
+            .map_err(|e| input_error(path, e))?
+    } else if let Some(path) = &args.heatmaps {
+        let maps = read_heatmaps(path, p)?;
+        estimator.lift_heatmaps(&maps).map_err(|e| input_error(path, e))?
+    } else {
+        return Err(CliError::Input("one of --keypoints or --heatmaps is required".into()));
+    };
+    let f = estimate.report.frames;
+    npy::write(&args.out, &[f, p, 3], &estimate.poses)?;
+    if let Some(path) = &args.out_2d {
+        npy::write(path, &[f, p, 2], &estimate.keypoints)?;
+    }
+    if let Some(path) = &args.out_proj {
+        npy::write(path, &[f, p, 2], &estimate.projected)?;
+    }
+    if let (Some(path), Some(var)) = (&args.out_var, &estimate.variance) {
+        npy::write(path, &[f, p], var)?;
+    }
+    tracing::info!(frames = f, seconds = estimate.report.seconds, "lifted");
+    if args.json {
+        let mut summary = serde_json::to_value(&estimate.report).map_err(|source| CliError::Json {
+            path: args.out.clone(),
+            source,
+        })?;
+        summary["seconds_per_frame"] = (estimate.report.seconds / f as f64).into();
+        summary["joints"] = p.into();
+        println!("{summary}");
+    }
+    Ok(())
+}
+
+fn parity(args: &ParityArgs) -> Result<(), CliError> {
+    let dict = Dictionary::load(&args.dict)?;
+    let p = dict.num_joints();
+    let estimator = Estimator::new(dict, args.solver.params())?;
+    let mut dirs: Vec<PathBuf> = std::fs::read_dir(&args.fixtures)
+        .map_err(|source| ArrayError::Io { path: args.fixtures.clone(), source })?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|d| d.join("gt_3d.npy").is_file())
+        .collect();
+    dirs.sort();
+    println!("| fixture | input | P-MPJPE | reference best | 2D error (px) | reference 2D | s/frame | reference s/frame |");
+    println!("|---|---|---|---|---|---|---|---|");
+    for dir in dirs {
+        let name = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        let gt: Array<f64> = npy::read(&dir.join("gt_3d.npy"))?;
+        let gt2: Array<f64> = npy::read(&dir.join("gt_2d_heatmap.npy"))?;
+        let summary_path = dir.join("reference/summary.json");
+        let summary: serde_json::Value = std::fs::read(&summary_path)
+            .map_err(|source| CliError::Array(ArrayError::Io { path: summary_path.clone(), source }))
+            .and_then(|b| serde_json::from_slice(&b).map_err(|source| CliError::Json { path: summary_path.clone(), source }))?;
+        let best = |input: &str, key: &str| -> Option<f64> {
+            summary.as_object()?.values()
+                .filter(|m| m["input"] == input)
+                .filter_map(|m| m[key].as_f64())
+                .fold(None, |a: Option<f64>, v| Some(a.map_or(v, |a| a.min(v))))
+        };
+        let fmt = |v: Option<f64>, d: usize| v.map_or("-".to_string(), |v| format!("{v:.d$}"));
+        if summary.as_object().is_some_and(|o| o.values().any(|m| m["input"] == "keypoints.npy")) {
+            let kp = read_keypoints(&dir.join("keypoints.npy"), p)?;
+            let e = estimator.lift_keypoints(&Keypoints { joints: p, xy: kp.data, confidence: None })?;
+            println!(
+                "| {name} | keypoints | {:.4} | {} | - | - | {:.4} | {} |",
+                metrics::p_mpjpe(&e.poses, &gt.data, p),
+                fmt(best("keypoints.npy", "p_mpjpe"), 4),
+                e.report.seconds / e.report.frames as f64,
+                fmt(best("keypoints.npy", "seconds_per_frame"), 3),
+            );
+        }
+        let maps = read_heatmaps(&dir.join("heatmaps.npy"), p)?;
+        let e = estimator.lift_heatmaps(&maps)?;
+        println!(
+            "| {name} | heat maps | {:.4} | {} | {:.4} | {} | {:.4} | {} |",
+            metrics::p_mpjpe(&e.poses, &gt.data, p),
+            fmt(best("heatmaps.npy", "p_mpjpe"), 4),
+            metrics::mean_error_2d(&e.keypoints, &gt2.data),
+            fmt(best("heatmaps.npy", "err2d_px"), 4),
+            e.report.seconds / e.report.frames as f64,
+            fmt(best("heatmaps.npy", "seconds_per_frame"), 3),
+        );
+    }
+    Ok(())
+}

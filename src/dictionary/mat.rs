@@ -29,8 +29,13 @@ pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Dictionary, DictionaryErr
         path: path.to_path_buf(),
         detail,
     };
-    // The MAT parser is third-party code fed untrusted bytes: contain any panic in it.
+    // The MAT parser (matrw 0.1) panics on some malformed inputs (e.g. a truncated
+    // deflate stream): contain the panic, and keep its message off stderr so the caller
+    // reports one clear error.
+    let hook = std::panic::take_hook();
+    std::panic::set_hook(Box::new(|_| {}));
     let parsed = std::panic::catch_unwind(|| matrw::load_matfile_from_u8(bytes));
+    std::panic::set_hook(hook);
     let file = match parsed {
         Ok(Ok(f)) => f,
         Ok(Err(e)) => {

@@ -141,12 +141,14 @@ pub fn solve(
         // C-step.
         ws.problem
             .build(dict, obs, ws.rotations.iter().copied(), &ws.translations);
-        let cinfo = ws.problem.solve(
+        let cinfo = ws.problem.solve_with(
+            params.coefficient_solver,
             &mut ws.c,
             params.alpha,
             params.beta,
             lipschitz,
             params.tolerance,
+            params.cd_objective_tolerance,
             params.max_apg_steps,
             &mut ws.apg,
         );

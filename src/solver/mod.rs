@@ -95,7 +95,7 @@ pub struct Params {
     pub max_em_iterations: usize,
     /// Block-coordinate rounds (C, R, T) per M-step at most.
     pub max_rounds: usize,
-    /// APG steps per C-step at most.
+    /// APG steps (or coordinate-descent sweeps) per C-step at most.
     pub max_apg_steps: usize,
     /// Newton sweeps over the frames per R-step at most.
     pub max_rotation_sweeps: usize,
@@ -103,8 +103,14 @@ pub struct Params {
     pub max_init_iterations: usize,
     /// Relative tolerance of every stopping rule (objective decrease, change of C).
     pub tolerance: f64,
-    /// Per-frame initialisation.
-    pub init: InitMethod,
+    /// Per-frame initialisation; `None` chooses by input: the convex relaxation for given
+    /// 2D joints, alternation for heat maps (the reference's best mode for each).
+    pub init: Option<InitMethod>,
+    /// Algorithm of the C-step.
+    pub coefficient_solver: coefficients::CoefficientSolver,
+    /// Coordinate descent also stops when a sweep lowers the C-step objective by less
+    /// than this (relative).
+    pub cd_objective_tolerance: f64,
 }
 
 impl Default for Params {
@@ -122,7 +128,9 @@ impl Default for Params {
             max_rotation_sweeps: 50,
             max_init_iterations: 1000,
             tolerance: 1e-4,
-            init: InitMethod::default(),
+            init: None,
+            coefficient_solver: coefficients::CoefficientSolver::default(),
+            cd_objective_tolerance: 1e-6,
         }
     }
 }
@@ -154,6 +162,12 @@ impl Params {
             return Err(EstimateError::Parameter(format!(
                 "sigma must be finite and > 0, got {}",
                 self.sigma
+            )));
+        }
+        if !(self.cd_objective_tolerance.is_finite() && self.cd_objective_tolerance >= 0.0) {
+            return Err(EstimateError::Parameter(format!(
+                "cd_objective_tolerance must be finite and >= 0, got {}",
+                self.cd_objective_tolerance
             )));
         }
         if !(self.tolerance.is_finite() && self.tolerance > 0.0) {

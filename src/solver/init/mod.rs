@@ -52,9 +52,10 @@ pub fn initialise_frame(
     cache: &InitCache,
     w: &[f64],
     visible: &[bool],
+    method: InitMethod,
     params: &Params,
 ) -> (FrameFit, InitInfo) {
-    match params.init {
+    match method {
         InitMethod::Altern => altern::initialise(dict, cache, w, visible, params),
         InitMethod::ConvexRefine => convex::initialise(dict, cache, w, visible, params, false),
         InitMethod::ConvexRobustRefine => {
@@ -98,12 +99,14 @@ pub(crate) fn single_frame_coefficients(
     };
     problem.build(dict, &obs, std::iter::once(*r), &[nalgebra::Vector2::zeros()]);
     let lipschitz = cache.basis_gram_max * weights.iter().cloned().fold(0.0, f64::max);
-    problem.solve(
+    problem.solve_with(
+        params.coefficient_solver,
         c,
         params.alpha,
         0.0,
         lipschitz,
         params.tolerance,
+        params.cd_objective_tolerance,
         params.max_apg_steps.max(1000),
         apg,
     );
