@@ -32,7 +32,11 @@ pub struct Keypoints {
 impl Keypoints {
     /// Number of frames.
     pub fn frames(&self) -> usize {
-        if self.joints == 0 { 0 } else { self.xy.len() / (2 * self.joints) }
+        if self.joints == 0 {
+            0
+        } else {
+            self.xy.len() / (2 * self.joints)
+        }
     }
 }
 
@@ -140,7 +144,10 @@ impl Estimator {
         let start = Instant::now();
         let p = self.dict.num_joints();
         if kp.joints != p {
-            return Err(EstimateError::JointCount { expected: p, found: kp.joints });
+            return Err(EstimateError::JointCount {
+                expected: p,
+                found: kp.joints,
+            });
         }
         let f = kp.frames();
         if f == 0 {
@@ -154,7 +161,10 @@ impl Estimator {
                         c.len()
                     )));
                 }
-                if let Some(i) = c.iter().position(|v| !v.is_finite() || *v < 0.0 || *v > 1.0) {
+                if let Some(i) = c
+                    .iter()
+                    .position(|v| !v.is_finite() || *v < 0.0 || *v > 1.0)
+                {
                     return Err(EstimateError::Parameter(format!(
                         "confidence of frame {}, joint {} is {}, expected a value in [0, 1]",
                         i / p,
@@ -168,11 +178,17 @@ impl Estimator {
         };
         for (i, v) in kp.xy.iter().enumerate() {
             if !v.is_finite() {
-                return Err(EstimateError::NonFinite { frame: i / (2 * p), joint: (i / 2) % p });
+                return Err(EstimateError::NonFinite {
+                    frame: i / (2 * p),
+                    joint: (i / 2) % p,
+                });
             }
         }
         for t in 0..f {
-            let observed = weights[t * p..(t + 1) * p].iter().filter(|&&w| w > 0.0).count();
+            let observed = weights[t * p..(t + 1) * p]
+                .iter()
+                .filter(|&&w| w > 0.0)
+                .count();
             if observed < 2 {
                 return Err(EstimateError::TooFewJoints { frame: t, observed });
             }
@@ -189,11 +205,28 @@ impl Estimator {
         let mut fits = Vec::with_capacity(f);
         for t in 0..f {
             let visible: Vec<bool> = obs.frame_weights(t).iter().map(|&w| w > 0.0).collect();
-            fits.push(initialise_frame(&self.dict, &self.cache, obs.frame(t), &visible, self.keypoint_init(), &self.params).0);
+            fits.push(
+                initialise_frame(
+                    &self.dict,
+                    &self.cache,
+                    obs.frame(t),
+                    &visible,
+                    self.keypoint_init(),
+                    &self.params,
+                )
+                .0,
+            );
         }
         let seconds_init = start.elapsed().as_secs_f64();
         let mut ws = BcdWorkspace::default();
-        let info = bcd::solve(&self.dict, self.gram_max, &obs, &mut fits, &self.params, &mut ws);
+        let info = bcd::solve(
+            &self.dict,
+            self.gram_max,
+            &obs,
+            &mut fits,
+            &self.params,
+            &mut ws,
+        );
         let mut est = self.finish(fits, &obs.xy, scale, None);
         est.report = Report {
             frames: f,
@@ -214,7 +247,10 @@ impl Estimator {
         let start = Instant::now();
         let p = self.dict.num_joints();
         if maps.joints != p {
-            return Err(EstimateError::JointCount { expected: p, found: maps.joints });
+            return Err(EstimateError::JointCount {
+                expected: p,
+                found: maps.joints,
+            });
         }
         if maps.frames == 0 {
             return Err(EstimateError::NoFrames);
@@ -236,20 +272,56 @@ impl Estimator {
             if visible.iter().filter(|&&v| v).count() < 2 {
                 visible.iter_mut().for_each(|v| *v = true);
             }
-            fits.push(initialise_frame(&self.dict, &self.cache, &w, &visible, self.heatmap_init(), &self.params).0);
+            fits.push(
+                initialise_frame(
+                    &self.dict,
+                    &self.cache,
+                    &w,
+                    &visible,
+                    self.heatmap_init(),
+                    &self.params,
+                )
+                .0,
+            );
         }
         let seconds_init = start.elapsed().as_secs_f64();
         let objective_init = {
             let mut obs = Observations::new(p, vec![0.0; 2 * p * f]);
             let mut ws = EmWorkspace::default();
-            em::e_step(&self.dict, &prepared, &fits, scale, self.params.sigma, &mut obs, None, &mut ws);
+            em::e_step(
+                &self.dict,
+                &prepared,
+                &fits,
+                scale,
+                self.params.sigma,
+                &mut obs,
+                None,
+                &mut ws,
+            );
             bcd::objective(&self.dict, &obs, &fits, &self.params)
         };
         let mut ws = EmWorkspace::default();
-        let (obs, info) = em::run(&self.dict, self.gram_max, &prepared, &mut fits, scale, &self.params, &mut ws);
+        let (obs, info) = em::run(
+            &self.dict,
+            self.gram_max,
+            &prepared,
+            &mut fits,
+            scale,
+            &self.params,
+            &mut ws,
+        );
         let mut variance = vec![0.0; f * p];
         let mut scratch = Observations::new(p, vec![0.0; 2 * p * f]);
-        em::e_step(&self.dict, &prepared, &fits, scale, self.params.sigma, &mut scratch, Some(&mut variance), &mut ws);
+        em::e_step(
+            &self.dict,
+            &prepared,
+            &fits,
+            scale,
+            self.params.sigma,
+            &mut scratch,
+            Some(&mut variance),
+            &mut ws,
+        );
         let mut est = self.finish(fits, &obs.xy, scale, Some(variance));
         est.report = Report {
             frames: f,
@@ -266,7 +338,13 @@ impl Estimator {
     }
 
     /// Poses and 2D outputs from the fits.
-    fn finish(&self, fits: Vec<FrameFit>, xy: &[f64], scale: f64, variance: Option<Vec<f64>>) -> Estimate {
+    fn finish(
+        &self,
+        fits: Vec<FrameFit>,
+        xy: &[f64],
+        scale: f64,
+        variance: Option<Vec<f64>>,
+    ) -> Estimate {
         let p = self.dict.num_joints();
         let f = fits.len();
         let mut poses = vec![0.0; 3 * p * f];

@@ -29,12 +29,17 @@ enum Command {
 }
 
 #[derive(Debug, Args)]
+#[command(allow_negative_numbers = true)]
 struct LiftArgs {
     /// Pose dictionary: the authors' .mat or posestream's .json.
     #[arg(long)]
     dict: PathBuf,
     /// 2D keypoints (F, p, 2), pixels, x right, y down.
-    #[arg(long, conflicts_with = "heatmaps", required_unless_present = "heatmaps")]
+    #[arg(
+        long,
+        conflicts_with = "heatmaps",
+        required_unless_present = "heatmaps"
+    )]
     keypoints: Option<PathBuf>,
     /// Per-joint confidence (F, p) in [0, 1] for --keypoints; 0 = not observed.
     #[arg(long, requires = "keypoints")]
@@ -132,7 +137,11 @@ impl SolverArgs {
             coefficient_solver: self.c_solver,
             ..Params::default()
         };
-        if self.no_smooth { p.without_smoothness() } else { p }
+        if self.no_smooth {
+            p.without_smoothness()
+        } else {
+            p
+        }
     }
 }
 
@@ -143,7 +152,10 @@ struct ParityArgs {
     #[arg(long, default_value = "../shared/reference/parity")]
     fixtures: PathBuf,
     /// Pose dictionary the fixtures were made with.
-    #[arg(long, default_value = "../shared/reference/monocap-dicts/poseDict-all-K128.mat")]
+    #[arg(
+        long,
+        default_value = "../shared/reference/monocap-dicts/poseDict-all-K128.mat"
+    )]
     dict: PathBuf,
     #[command(flatten)]
     solver: SolverArgs,
@@ -175,6 +187,11 @@ fn main() -> ExitCode {
                 .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
         )
         .init();
+    // Input errors are reported as values; should a dependency panic on malformed input,
+    // say so in one line rather than with a backtrace.
+    std::panic::set_hook(Box::new(|info| {
+        tracing::debug!("{info}");
+    }));
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Lift(args) => lift(&args),
@@ -197,7 +214,13 @@ fn read_keypoints(path: &Path, p: usize) -> Result<Array<f64>, CliError> {
     let kp: Array<f64> = npy::read(path)?;
     npy::expect_shape(&kp, path, &[None, None, Some(2)], "(F, p, 2)")?;
     if kp.shape[1] != p {
-        return Err(input_error(path, EstimateError::JointCount { expected: p, found: kp.shape[1] }));
+        return Err(input_error(
+            path,
+            EstimateError::JointCount {
+                expected: p,
+                found: kp.shape[1],
+            },
+        ));
     }
     Ok(kp)
 }
@@ -207,7 +230,13 @@ fn read_heatmaps(path: &Path, p: usize) -> Result<HeatMaps, CliError> {
     npy::expect_shape(&hm, path, &[None, None, None, None], "(F, p, h, w)")?;
     let (f, j, h, w) = (hm.shape[0], hm.shape[1], hm.shape[2], hm.shape[3]);
     if j != p {
-        return Err(input_error(path, EstimateError::JointCount { expected: p, found: j }));
+        return Err(input_error(
+            path,
+            EstimateError::JointCount {
+                expected: p,
+                found: j,
+            },
+        ));
     }
     HeatMaps::new(f, j, h, w, hm.data).map_err(|e| input_error(path, e))
 }
@@ -221,19 +250,32 @@ fn lift(args: &LiftArgs) -> Result<(), CliError> {
         let confidence = match &args.confidence {
             Some(cpath) => {
                 let c: Array<f64> = npy::read(cpath)?;
-                npy::expect_shape(&c, cpath, &[Some(kp.shape[0]), Some(p)], &format!("({}, {p})", kp.shape[0]))?;
+                npy::expect_shape(
+                    &c,
+                    cpath,
+                    &[Some(kp.shape[0]), Some(p)],
+                    &format!("({}, {p})", kp.shape[0]),
+                )?;
                 Some(c.data)
             }
             None => None,
         };
         estimator
-            .lift_keypoints(&Keypoints { joints: p, xy: kp.data, confidence })
+            .lift_keypoints(&Keypoints {
+                joints: p,
+                xy: kp.data,
+                confidence,
+            })
             .map_err(|e| input_error(path, e))?
     } else if let Some(path) = &args.heatmaps {
         let maps = read_heatmaps(path, p)?;
-        estimator.lift_heatmaps(&maps).map_err(|e| input_error(path, e))?
+        estimator
+            .lift_heatmaps(&maps)
+            .map_err(|e| input_error(path, e))?
     } else {
-        return Err(CliError::Input("one of --keypoints or --heatmaps is required".into()));
+        return Err(CliError::Input(
+            "one of --keypoints or --heatmaps is required".into(),
+        ));
     };
     let f = estimate.report.frames;
     npy::write(&args.out, &[f, p, 3], &estimate.poses)?;
@@ -248,10 +290,11 @@ fn lift(args: &LiftArgs) -> Result<(), CliError> {
     }
     tracing::info!(frames = f, seconds = estimate.report.seconds, "lifted");
     if args.json {
-        let mut summary = serde_json::to_value(&estimate.report).map_err(|source| CliError::Json {
-            path: args.out.clone(),
-            source,
-        })?;
+        let mut summary =
+            serde_json::to_value(&estimate.report).map_err(|source| CliError::Json {
+                path: args.out.clone(),
+                source,
+            })?;
         summary["seconds_per_frame"] = (estimate.report.seconds / f as f64).into();
         summary["joints"] = p.into();
         println!("{summary}");
@@ -264,31 +307,58 @@ fn parity(args: &ParityArgs) -> Result<(), CliError> {
     let p = dict.num_joints();
     let estimator = Estimator::new(dict, args.solver.params())?;
     let mut dirs: Vec<PathBuf> = std::fs::read_dir(&args.fixtures)
-        .map_err(|source| ArrayError::Io { path: args.fixtures.clone(), source })?
+        .map_err(|source| ArrayError::Io {
+            path: args.fixtures.clone(),
+            source,
+        })?
         .filter_map(|e| e.ok().map(|e| e.path()))
         .filter(|d| d.join("gt_3d.npy").is_file())
         .collect();
     dirs.sort();
-    println!("| fixture | input | P-MPJPE | reference best | 2D error (px) | reference 2D | s/frame | reference s/frame |");
+    println!(
+        "| fixture | input | P-MPJPE | reference best | 2D error (px) | reference 2D | s/frame | reference s/frame |"
+    );
     println!("|---|---|---|---|---|---|---|---|");
     for dir in dirs {
-        let name = dir.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        let name = dir
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
         let gt: Array<f64> = npy::read(&dir.join("gt_3d.npy"))?;
         let gt2: Array<f64> = npy::read(&dir.join("gt_2d_heatmap.npy"))?;
         let summary_path = dir.join("reference/summary.json");
         let summary: serde_json::Value = std::fs::read(&summary_path)
-            .map_err(|source| CliError::Array(ArrayError::Io { path: summary_path.clone(), source }))
-            .and_then(|b| serde_json::from_slice(&b).map_err(|source| CliError::Json { path: summary_path.clone(), source }))?;
+            .map_err(|source| {
+                CliError::Array(ArrayError::Io {
+                    path: summary_path.clone(),
+                    source,
+                })
+            })
+            .and_then(|b| {
+                serde_json::from_slice(&b).map_err(|source| CliError::Json {
+                    path: summary_path.clone(),
+                    source,
+                })
+            })?;
         let best = |input: &str, key: &str| -> Option<f64> {
-            summary.as_object()?.values()
+            summary
+                .as_object()?
+                .values()
                 .filter(|m| m["input"] == input)
                 .filter_map(|m| m[key].as_f64())
                 .fold(None, |a: Option<f64>, v| Some(a.map_or(v, |a| a.min(v))))
         };
         let fmt = |v: Option<f64>, d: usize| v.map_or("-".to_string(), |v| format!("{v:.d$}"));
-        if summary.as_object().is_some_and(|o| o.values().any(|m| m["input"] == "keypoints.npy")) {
+        if summary
+            .as_object()
+            .is_some_and(|o| o.values().any(|m| m["input"] == "keypoints.npy"))
+        {
             let kp = read_keypoints(&dir.join("keypoints.npy"), p)?;
-            let e = estimator.lift_keypoints(&Keypoints { joints: p, xy: kp.data, confidence: None })?;
+            let e = estimator.lift_keypoints(&Keypoints {
+                joints: p,
+                xy: kp.data,
+                confidence: None,
+            })?;
             println!(
                 "| {name} | keypoints | {:.4} | {} | - | - | {:.4} | {} |",
                 metrics::p_mpjpe(&e.poses, &gt.data, p),

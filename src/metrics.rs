@@ -11,7 +11,9 @@ pub fn mpjpe(pred: &[f64], truth: &[f64]) -> f64 {
     let n = pred.len() / 3;
     pred.chunks_exact(3)
         .zip(truth.chunks_exact(3))
-        .map(|(a, b)| ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt())
+        .map(|(a, b)| {
+            ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+        })
         .sum::<f64>()
         / n as f64
 }
@@ -19,7 +21,11 @@ pub fn mpjpe(pred: &[f64], truth: &[f64]) -> f64 {
 /// Similarity Procrustes of one frame: the aligned copy of `pred` (`p` joints).
 pub fn procrustes_align(pred: &[f64], truth: &[f64], allow_reflection: bool) -> Vec<f64> {
     let p = pred.len() / 3;
-    let pts = |v: &[f64]| -> Vec<Vector3<f64>> { v.chunks_exact(3).map(|c| Vector3::new(c[0], c[1], c[2])).collect() };
+    let pts = |v: &[f64]| -> Vec<Vector3<f64>> {
+        v.chunks_exact(3)
+            .map(|c| Vector3::new(c[0], c[1], c[2]))
+            .collect()
+    };
     let (x, y) = (pts(pred), pts(truth));
     let mx = x.iter().sum::<Vector3<f64>>() / p as f64;
     let my = y.iter().sum::<Vector3<f64>>() / p as f64;
@@ -98,7 +104,9 @@ mod tests {
     #[test]
     fn procrustes_of_a_rotated_scaled_copy_is_zero() {
         let p = 11;
-        let truth: Vec<f64> = (0..3 * p).map(|i| ((i * 31 % 17) as f64 - 8.0) / 3.0).collect();
+        let truth: Vec<f64> = (0..3 * p)
+            .map(|i| ((i * 31 % 17) as f64 - 8.0) / 3.0)
+            .collect();
         let r = Rotation3::from_euler_angles(0.7, -0.2, 2.1);
         let pred: Vec<f64> = truth
             .chunks_exact(3)
@@ -114,8 +122,13 @@ mod tests {
     #[test]
     fn a_mirrored_copy_is_only_zero_when_reflections_are_allowed() {
         let p = 9;
-        let truth: Vec<f64> = (0..3 * p).map(|i| ((i * 13 % 7) as f64 - 3.0) / 2.0).collect();
-        let pred: Vec<f64> = truth.chunks_exact(3).flat_map(|c| [-c[0], c[1], c[2]]).collect();
+        let truth: Vec<f64> = (0..3 * p)
+            .map(|i| ((i * 13 % 7) as f64 - 3.0) / 2.0)
+            .collect();
+        let pred: Vec<f64> = truth
+            .chunks_exact(3)
+            .flat_map(|c| [-c[0], c[1], c[2]])
+            .collect();
         assert!(p_mpjpe_with_reflections(&pred, &truth, p) < 1e-10);
         assert!(p_mpjpe(&pred, &truth, p) > 0.1);
     }

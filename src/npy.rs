@@ -203,7 +203,10 @@ mod tests {
         write(&path, &[0, 2], &[]).expect("write");
         assert!(matches!(read::<f64>(&path), Err(ArrayError::Empty { .. })));
         write(&path, &[2], &[1.0, f64::NAN]).expect("write");
-        assert!(matches!(read::<f64>(&path), Err(ArrayError::NonFinite { index: 1, .. })));
+        assert!(matches!(
+            read::<f64>(&path),
+            Err(ArrayError::NonFinite { index: 1, .. })
+        ));
     }
 
     #[test]

@@ -91,7 +91,10 @@ pub fn from_file(file: DictionaryFile, path: &Path) -> Result<Dictionary, Dictio
     for (i, b) in file.bases.iter().enumerate() {
         for row in b {
             if row.len() != p {
-                return Err(shape(format!("basis {i} has a row of {} values, expected {p}", row.len())));
+                return Err(shape(format!(
+                    "basis {i} has a row of {} values, expected {p}",
+                    row.len()
+                )));
             }
             bases.extend_from_slice(row);
         }
@@ -99,7 +102,10 @@ pub fn from_file(file: DictionaryFile, path: &Path) -> Result<Dictionary, Dictio
     let mut mean = Vec::with_capacity(3 * p);
     for row in &file.mean {
         if row.len() != p {
-            return Err(shape(format!("mean has a row of {} values, expected {p}", row.len())));
+            return Err(shape(format!(
+                "mean has a row of {} values, expected {p}",
+                row.len()
+            )));
         }
         mean.extend_from_slice(row);
     }
@@ -107,7 +113,11 @@ pub fn from_file(file: DictionaryFile, path: &Path) -> Result<Dictionary, Dictio
 }
 
 /// The document for `dict`, ready to serialise.
-pub fn to_file(dict: &Dictionary, source: Option<String>, license: Option<String>) -> DictionaryFile {
+pub fn to_file(
+    dict: &Dictionary,
+    source: Option<String>,
+    license: Option<String>,
+) -> DictionaryFile {
     let p = dict.num_joints();
     let rows = |block: &[f64]| -> [Vec<f64>; 3] {
         [

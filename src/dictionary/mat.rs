@@ -30,18 +30,15 @@ pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Dictionary, DictionaryErr
         detail,
     };
     // The MAT parser (matrw 0.1) panics on some malformed inputs (e.g. a truncated
-    // deflate stream): contain the panic, and keep its message off stderr so the caller
-    // reports one clear error.
-    let hook = std::panic::take_hook();
-    std::panic::set_hook(Box::new(|_| {}));
+    // deflate stream): contain the panic and report it as an error. (The panic hook still
+    // runs; the CLI installs a quiet one.)
     let parsed = std::panic::catch_unwind(|| matrw::load_matfile_from_u8(bytes));
-    std::panic::set_hook(hook);
     let file = match parsed {
         Ok(Ok(f)) => f,
         Ok(Err(e)) => {
             return Err(DictionaryError::Mat {
                 path: path.to_path_buf(),
-                reason: e.to_string(),
+                reason: one_line(&e.to_string()),
             });
         }
         Err(_) => {
@@ -99,6 +96,38 @@ pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Dictionary, DictionaryErr
             shape(detail)
         }
     })
+}
+
+/// The reader's (multi-line, colourised) message as one plain line: the first line that
+/// names an error, else the first line.
+fn one_line(msg: &str) -> String {
+    let mut plain = String::with_capacity(msg.len());
+    let mut chars = msg.chars();
+    while let Some(c) = chars.next() {
+        if c == '\u{1b}' {
+            // Skip an ANSI escape sequence up to its final letter.
+            for d in chars.by_ref() {
+                if d.is_ascii_alphabetic() {
+                    break;
+                }
+            }
+        } else {
+            plain.push(c);
+        }
+    }
+    let lines: Vec<&str> = plain
+        .lines()
+        .map(str::trim)
+        .filter(|l| !l.is_empty())
+        .collect();
+    let line = lines
+        .iter()
+        .find(|l| l.contains("Error:"))
+        .or(lines.first())
+        .copied()
+        .unwrap_or("malformed file");
+    line.trim_start_matches(|c: char| c.is_ascii_digit() || c == ':' || c == ' ')
+        .to_string()
 }
 
 fn matrix_dims(v: &MatVariable) -> Option<(usize, usize)> {

@@ -31,11 +31,7 @@ pub struct Dictionary {
 impl Dictionary {
     /// Builds a dictionary from row-major bases (`k` blocks of 3 x p) and a mean (3 x p).
     /// Centres every basis and the mean over the joints.
-    pub fn new(
-        skeleton: Skeleton,
-        bases: Vec<f64>,
-        mean: Vec<f64>,
-    ) -> Result<Self, String> {
+    pub fn new(skeleton: Skeleton, bases: Vec<f64>, mean: Vec<f64>) -> Result<Self, String> {
         let p = skeleton.len();
         if bases.is_empty() || bases.len() % (3 * p) != 0 {
             return Err(format!(
@@ -44,7 +40,10 @@ impl Dictionary {
             ));
         }
         if mean.len() != 3 * p {
-            return Err(format!("mean holds {} values, expected 3 x {p}", mean.len()));
+            return Err(format!(
+                "mean holds {} values, expected 3 x {p}",
+                mean.len()
+            ));
         }
         if bases.iter().chain(mean.iter()).any(|v| !v.is_finite()) {
             return Err("non-finite value in bases or mean".into());
@@ -56,9 +55,17 @@ impl Dictionary {
             bases,
             mean,
         };
-        for row in d.bases.chunks_exact_mut(p).chain(d.mean.chunks_exact_mut(p)) {
+        for row in d
+            .bases
+            .chunks_exact_mut(p)
+            .chain(d.mean.chunks_exact_mut(p))
+        {
             let m = row.iter().sum::<f64>() / p as f64;
-            row.iter_mut().for_each(|v| *v -= m);
+            let size = row.iter().fold(0.0_f64, |a, v| a.max(v.abs()));
+            // Leave rows that are centred to rounding alone, so loading is idempotent.
+            if m.abs() > 1e-12 * size {
+                row.iter_mut().for_each(|v| *v -= m);
+            }
         }
         Ok(d)
     }

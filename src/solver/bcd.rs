@@ -45,7 +45,13 @@ pub fn objective(dict: &Dictionary, obs: &Observations, fits: &[FrameFit], param
     let mut j_total = 0.0;
     for (t, fit) in fits.iter().enumerate() {
         dict.compose_into(&fit.coefficients, &mut s);
-        j_total += frame_data_cost(&s, obs.frame(t), obs.frame_weights(t), &fit.rotation, &fit.translation);
+        j_total += frame_data_cost(
+            &s,
+            obs.frame(t),
+            obs.frame_weights(t),
+            &fit.rotation,
+            &fit.translation,
+        );
         j_total += params.alpha * fit.coefficients.iter().map(|c| c.abs()).sum::<f64>();
     }
     for w in fits.windows(2) {

@@ -61,7 +61,9 @@ impl std::str::FromStr for CoefficientSolver {
         match s {
             "cd" | "coordinate-descent" => Ok(Self::CoordinateDescent),
             "apg" => Ok(Self::Apg),
-            other => Err(format!("unknown C-step solver `{other}` (expected cd or apg)")),
+            other => Err(format!(
+                "unknown C-step solver `{other}` (expected cd or apg)"
+            )),
         }
     }
 }
@@ -179,7 +181,10 @@ impl CoefficientProblem {
         let l1: f64 = c.iter().map(|v| v.abs()).sum();
         let mut smooth = 0.0;
         for t in 1..self.frames {
-            let (a, b) = (&c[(t - 1) * self.k..t * self.k], &c[t * self.k..(t + 1) * self.k]);
+            let (a, b) = (
+                &c[(t - 1) * self.k..t * self.k],
+                &c[t * self.k..(t + 1) * self.k],
+            );
             smooth += a.iter().zip(b).map(|(a, b)| (a - b) * (a - b)).sum::<f64>();
         }
         alpha * l1 + 0.5 * beta * smooth
@@ -259,7 +264,6 @@ impl CoefficientProblem {
             if change.sqrt() < tol * (norm_old.sqrt() + f64::EPSILON) {
                 break;
             }
-
         }
         let loss = self.loss(c, &mut ws.u);
         let penalty = self.penalty(c, alpha, beta);
@@ -368,7 +372,15 @@ impl CoefficientProblem {
 
     /// Exact minimisation along coefficient `(t, i)`; returns its change.
     #[inline]
-    fn update(&self, c: &mut [f64], t: usize, i: usize, alpha: f64, beta: f64, resid: &mut [f64]) -> f64 {
+    fn update(
+        &self,
+        c: &mut [f64],
+        t: usize,
+        i: usize,
+        alpha: f64,
+        beta: f64,
+        resid: &mut [f64],
+    ) -> f64 {
         let (k, f, rows) = (self.k, self.frames, self.rows);
         let col = &self.x[(t * k + i) * rows..(t * k + i + 1) * rows];
         let r = &mut resid[t * rows..(t + 1) * rows];

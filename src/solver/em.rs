@@ -121,7 +121,8 @@ pub fn run(
         }
         let m = bcd::solve(dict, basis_gram_max, &obs, fits, params, &mut ws.bcd);
         info.rounds.push(m.rounds);
-        info.objective.push(m.objective.last().copied().unwrap_or(f64::NAN));
+        info.objective
+            .push(m.objective.last().copied().unwrap_or(f64::NAN));
         let (mut diff, mut norm) = (0.0, 0.0);
         for (t, fit) in fits.iter().enumerate() {
             for (a, b) in fit.coefficients.iter().zip(&ws.c_prev[t * k..(t + 1) * k]) {

@@ -88,8 +88,10 @@ pub fn expectation(
     ws.gy.clear();
     ws.gxc.clear();
     ws.gxc2.clear();
-    ws.gx.extend((0..w).map(|c| ((c as f64 - px).powi(2) * inv).exp()));
-    ws.gy.extend((0..h).map(|r| ((r as f64 - py).powi(2) * inv).exp()));
+    ws.gx
+        .extend((0..w).map(|c| ((c as f64 - px).powi(2) * inv).exp()));
+    ws.gy
+        .extend((0..h).map(|r| ((r as f64 - py).powi(2) * inv).exp()));
     let window = |g: &[f64]| -> (usize, usize) {
         let lo = g.iter().position(|&v| v >= CUTOFF).unwrap_or(g.len());
         let hi = g.iter().rposition(|&v| v >= CUTOFF).map_or(lo, |i| i + 1);
@@ -131,7 +133,12 @@ pub fn expectation(
     let (gxs, gxcs, gxc2s) = (sum(&ws.gx), sum(&ws.gxc), sum(&ws.gxc2));
     let gys = sum(&ws.gy);
     let gyrs: f64 = ws.gy.iter().enumerate().map(|(r, g)| g * r as f64).sum();
-    let gyr2s: f64 = ws.gy.iter().enumerate().map(|(r, g)| g * (r * r) as f64).sum();
+    let gyr2s: f64 = ws
+        .gy
+        .iter()
+        .enumerate()
+        .map(|(r, g)| g * (r * r) as f64)
+        .sum();
     let (hf, wf) = (h as f64, w as f64);
     let n = hf * wf;
     let grid_x = hf * wf * (wf - 1.0) / 2.0;
@@ -176,7 +183,11 @@ mod tests {
             .map(|(c, r, wt)| wt * ((c - x).powi(2) + (r - y).powi(2)))
             .sum::<f64>()
             / z;
-        Expectation { x, y, variance: var }
+        Expectation {
+            x,
+            y,
+            variance: var,
+        }
     }
 
     #[test]

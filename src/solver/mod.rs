@@ -177,7 +177,9 @@ impl Params {
             )));
         }
         if !self.visibility_threshold.is_finite() {
-            return Err(EstimateError::Parameter("visibility_threshold must be finite".into()));
+            return Err(EstimateError::Parameter(
+                "visibility_threshold must be finite".into(),
+            ));
         }
         if self.max_rounds == 0 || self.max_apg_steps == 0 || self.max_em_iterations == 0 {
             return Err(EstimateError::Parameter(

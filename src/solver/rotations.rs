@@ -173,7 +173,8 @@ fn newton_step(
         return (*r, 0.0);
     }
     // Riemannian Hessian in body coordinates.
-    let v: [Matrix2x3<f64>; 3] = std::array::from_fn(|i| (r * e[i]).fixed_rows::<2>(0).into_owned());
+    let v: [Matrix2x3<f64>; 3] =
+        std::array::from_fn(|i| (r * e[i]).fixed_rows::<2>(0).into_owned());
     let mut h = Matrix3::zeros();
     for i in 0..3 {
         let via = v[i] * term.a;
@@ -191,7 +192,11 @@ fn newton_step(
         if let Some(ch) = hs.cholesky() {
             break -ch.solve(&g);
         }
-        shift = if shift == 0.0 { 1e-8 * scale } else { shift * 10.0 };
+        shift = if shift == 0.0 {
+            1e-8 * scale
+        } else {
+            shift * 10.0
+        };
         if shift > 1e8 * scale {
             break -g / scale;
         }
@@ -218,7 +223,9 @@ mod tests {
     fn recovers_a_rotation_from_noise_free_projections() {
         // A random rigid point set seen by a known rotation; start from identity.
         let p = 9;
-        let s: Vec<f64> = (0..3 * p).map(|i| ((i * 37 % 11) as f64 - 5.0) / 3.0).collect();
+        let s: Vec<f64> = (0..3 * p)
+            .map(|i| ((i * 37 % 11) as f64 - 5.0) / 3.0)
+            .collect();
         let truth = Rotation3::from_euler_angles(0.4, -0.7, 1.1).into_inner();
         let mut w = vec![0.0; 2 * p];
         for j in 0..p {
@@ -240,15 +247,28 @@ mod tests {
         let mut terms = Vec::new();
         let mut rots = Vec::new();
         for t in 0..5 {
-            let s: Vec<f64> = (0..3 * p).map(|i| (((i + t) * 53 % 13) as f64 - 6.0) / 4.0).collect();
-            let w: Vec<f64> = (0..2 * p).map(|i| (((i * 7 + t) % 5) as f64 - 2.0) / 2.0).collect();
-            terms.push(FrameTerms::new(&s, &w, nalgebra::Vector2::zeros(), &vec![1.0; p]));
+            let s: Vec<f64> = (0..3 * p)
+                .map(|i| (((i + t) * 53 % 13) as f64 - 6.0) / 4.0)
+                .collect();
+            let w: Vec<f64> = (0..2 * p)
+                .map(|i| (((i * 7 + t) % 5) as f64 - 2.0) / 2.0)
+                .collect();
+            terms.push(FrameTerms::new(
+                &s,
+                &w,
+                nalgebra::Vector2::zeros(),
+                &vec![1.0; p],
+            ));
             rots.push(Rotation3::from_euler_angles(t as f64, 0.5, -(t as f64)).into_inner());
         }
         let mut prev = objective(&terms, &rots, 2.0);
         for _ in 0..10 {
             let info = solve(&terms, &mut rots, 2.0, 0.0, 1);
-            assert!(info.objective <= prev + 1e-12, "{} > {prev}", info.objective);
+            assert!(
+                info.objective <= prev + 1e-12,
+                "{} > {prev}",
+                info.objective
+            );
             prev = info.objective;
         }
         for r in &rots {

@@ -6,7 +6,9 @@
 
 use nalgebra::{Matrix2x3, Matrix3};
 
-use super::{InitCache, InitInfo, complete_rotation, nearest_orthonormal_rows, single_frame_coefficients};
+use super::{
+    InitCache, InitInfo, complete_rotation, nearest_orthonormal_rows, single_frame_coefficients,
+};
 use crate::dictionary::Dictionary;
 use crate::solver::bcd::{best_translation, frame_data_cost};
 use crate::solver::coefficients::{ApgWorkspace, CoefficientProblem};
@@ -45,7 +47,17 @@ pub fn initialise(
                 r = complete_rotation(&q);
             }
         }
-        single_frame_coefficients(dict, cache, &wc, &d, &r, &mut c, params, &mut problem, &mut apg);
+        single_frame_coefficients(
+            dict,
+            cache,
+            &wc,
+            &d,
+            &r,
+            &mut c,
+            params,
+            &mut problem,
+            &mut apg,
+        );
         dict.compose_into(&c, &mut s);
         let prev = fval;
         fval = frame_data_cost(&s, &wc, &d, &r, &nalgebra::Vector2::zeros())

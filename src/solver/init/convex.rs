@@ -19,9 +19,7 @@
 
 use nalgebra::{Matrix2, Matrix2x3, Matrix3, Matrix3x2, Vector2};
 
-use super::{
-    InitCache, InitInfo, complete_rotation, fit_rotation, single_frame_coefficients,
-};
+use super::{InitCache, InitInfo, complete_rotation, fit_rotation, single_frame_coefficients};
 use crate::dictionary::Dictionary;
 use crate::solver::coefficients::{ApgWorkspace, CoefficientProblem};
 use crate::solver::{FrameFit, Params, soft};
@@ -128,8 +126,19 @@ pub fn initialise(
         .iter()
         .flat_map(|&j| [w[2 * j], w[2 * j + 1]])
         .collect();
-    let beta_o = if robust { params.robust_threshold } else { f64::INFINITY };
-    let admm = admm(factor, &wv, q, params.alpha, beta_o, params.max_init_iterations);
+    let beta_o = if robust {
+        params.robust_threshold
+    } else {
+        f64::INFINITY
+    };
+    let admm = admm(
+        factor,
+        &wv,
+        q,
+        params.alpha,
+        beta_o,
+        params.max_init_iterations,
+    );
     let (r, c) = synchronise_rotation(&admm.m, dict.num_bases());
     // Outliers back on the full joint list.
     let mut e_full = vec![0.0; w.len()];
@@ -294,7 +303,12 @@ pub fn admm(
             mu /= 2.0;
         }
     }
-    AdmmResult { m, e, t, iterations }
+    AdmmResult {
+        m,
+        e,
+        t,
+        iterations,
+    }
 }
 
 /// Recovers one rotation and signed coefficients from the blocks `M_i ≈ c_i R`
@@ -302,9 +316,8 @@ pub fn admm(
 /// on the stacked transposed blocks, with the sign fixed by the largest coefficient.
 pub fn synchronise_rotation(m: &[f64], k: usize) -> (Matrix3<f64>, Vec<f64>) {
     let n = 3 * k;
-    let block = |i: usize| -> Matrix3x2<f64> {
-        Matrix3x2::from_fn(|d, row| m[row * n + 3 * i + d])
-    };
+    let block =
+        |i: usize| -> Matrix3x2<f64> { Matrix3x2::from_fn(|d, row| m[row * n + 3 * i + d]) };
     let mut a = Matrix3::zeros();
     for i in 0..k {
         let ai = block(i);
@@ -312,7 +325,8 @@ pub fn synchronise_rotation(m: &[f64], k: usize) -> (Matrix3<f64>, Vec<f64>) {
     }
     let (vals, vecs) = sorted_eigen3(&a);
     let _ = vals;
-    let mut qm = Matrix3x2::from_columns(&[vecs.column(0).into_owned(), vecs.column(1).into_owned()]);
+    let mut qm =
+        Matrix3x2::from_columns(&[vecs.column(0).into_owned(), vecs.column(1).into_owned()]);
     let (mut g1, mut g2) = (Matrix2::zeros(), Matrix2::zeros());
     for i in 0..k {
         let ti = qm.transpose() * block(i);
@@ -335,7 +349,11 @@ pub fn synchronise_rotation(m: &[f64], k: usize) -> (Matrix3<f64>, Vec<f64>) {
     let imax = (0..k)
         .max_by(|&a, &b| c[a].abs().total_cmp(&c[b].abs()))
         .unwrap_or(0);
-    let sign = if c.get(imax).copied().unwrap_or(0.0) < 0.0 { -1.0 } else { 1.0 };
+    let sign = if c.get(imax).copied().unwrap_or(0.0) < 0.0 {
+        -1.0
+    } else {
+        1.0
+    };
     c.iter_mut().for_each(|v| *v *= sign);
     let r2 = qm.transpose() * sign;
     (complete_rotation(&r2), c)
@@ -358,7 +376,11 @@ fn sorted_eigen3(a: &Matrix3<f64>) -> (nalgebra::Vector3<f64>, Matrix3<f64>) {
 /// Largest eigenvalue and its eigenvector of a symmetric 2 x 2 matrix (nalgebra).
 fn top_eigen2(a: &Matrix2<f64>) -> (f64, nalgebra::Vector2<f64>) {
     let eig = a.symmetric_eigen();
-    let i = if eig.eigenvalues[0] >= eig.eigenvalues[1] { 0 } else { 1 };
+    let i = if eig.eigenvalues[0] >= eig.eigenvalues[1] {
+        0
+    } else {
+        1
+    };
     (eig.eigenvalues[i], eig.eigenvectors.column(i).into_owned())
 }
 
@@ -387,9 +409,9 @@ fn refine(
         }
         Vector2::new(sx / nvis, sy / nvis)
     };
-    let w_max = (0..p)
-        .filter(|&j| visible[j])
-        .fold(0.0_f64, |a, j| a.max(w[2 * j].abs()).max(w[2 * j + 1].abs()));
+    let w_max = (0..p).filter(|&j| visible[j]).fold(0.0_f64, |a, j| {
+        a.max(w[2 * j].abs()).max(w[2 * j + 1].abs())
+    });
     let robust = beta_o <= w_max;
     if !robust {
         e.iter_mut().for_each(|v| *v = 0.0);
@@ -408,7 +430,17 @@ fn refine(
             fit_w[2 * j + 1] = w[2 * j + 1] - e[2 * j + 1] - t.y;
         }
         fit_rotation(&s, &fit_w, &d, &mut r);
-        single_frame_coefficients(dict, cache, &fit_w, &d, &r, &mut c, params, &mut problem, &mut apg);
+        single_frame_coefficients(
+            dict,
+            cache,
+            &fit_w,
+            &d,
+            &r,
+            &mut c,
+            params,
+            &mut problem,
+            &mut apg,
+        );
         dict.compose_into(&c, &mut s);
         // Projection of the current shape.
         let mut proj = vec![0.0; 2 * p];
@@ -422,7 +454,11 @@ fn refine(
             for j in 0..p {
                 for a in 0..2 {
                     let i = 2 * j + a;
-                    e[i] = if visible[j] { soft(w[i] - proj[i] - t[a], beta_o) } else { 0.0 };
+                    e[i] = if visible[j] {
+                        soft(w[i] - proj[i] - t[a], beta_o)
+                    } else {
+                        0.0
+                    };
                     l1e += e[i].abs();
                 }
             }

@@ -58,9 +58,7 @@ pub fn initialise_frame(
     match method {
         InitMethod::Altern => altern::initialise(dict, cache, w, visible, params),
         InitMethod::ConvexRefine => convex::initialise(dict, cache, w, visible, params, false),
-        InitMethod::ConvexRobustRefine => {
-            convex::initialise(dict, cache, w, visible, params, true)
-        }
+        InitMethod::ConvexRobustRefine => convex::initialise(dict, cache, w, visible, params, true),
     }
 }
 
@@ -97,7 +95,12 @@ pub(crate) fn single_frame_coefficients(
         xy: w.to_vec(),
         weights: weights.to_vec(),
     };
-    problem.build(dict, &obs, std::iter::once(*r), &[nalgebra::Vector2::zeros()]);
+    problem.build(
+        dict,
+        &obs,
+        std::iter::once(*r),
+        &[nalgebra::Vector2::zeros()],
+    );
     let lipschitz = cache.basis_gram_max * weights.iter().cloned().fold(0.0, f64::max);
     problem.solve_with(
         params.coefficient_solver,

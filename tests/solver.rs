@@ -1,0 +1,182 @@
+//! Properties of the solver that must hold whatever the data.
+
+mod common;
+
+use common::{fixture, k128, read};
+use nalgebra::{Rotation3, Vector3};
+use posestream::solver::coefficients::CoefficientSolver;
+use posestream::solver::normalise::keypoint_scale;
+use posestream::{Dictionary, Estimator, InitMethod, Keypoints, Params};
+
+/// Frames of a pose built from 3 bases, seen under known rotations (noise-free).
+fn three_basis_sequence(dict: &Dictionary, frames: usize) -> (Vec<f64>, Vec<f64>) {
+    let p = dict.num_joints();
+    let mut c = vec![0.0; dict.num_bases()];
+    c[1] = 0.9;
+    c[4] = 0.5;
+    c[6] = 0.7;
+    let s = dict.compose(&c);
+    let (mut xy, mut truth) = (Vec::new(), Vec::new());
+    for t in 0..frames {
+        let r = Rotation3::from_euler_angles(0.3, 0.8 + 0.02 * t as f64, -0.2);
+        for j in 0..p {
+            let q = r * Vector3::new(s[j], s[p + j], s[2 * p + j]);
+            xy.extend([q.x + 10.0, q.y - 4.0]);
+            truth.extend([q.x, q.y, q.z]);
+        }
+    }
+    (xy, truth)
+}
+
+/// The first `k` bases of the authors' K128 dictionary.
+fn small_dictionary(k: usize) -> Dictionary {
+    let full = Dictionary::load(k128()).expect("dictionary");
+    let n = 3 * full.num_joints();
+    Dictionary::new(
+        full.skeleton().clone(),
+        full.bases()[..k * n].to_vec(),
+        full.mean().to_vec(),
+    )
+    .expect("sub-dictionary")
+}
+
+#[test]
+fn recovers_a_three_basis_pose_exactly_from_noise_free_2d() {
+    // 8 bases: 2D joints of 17 joints determine pose and rotation (with all 128 they do
+    // not, and only the sparsity prior picks a pose).
+    let dict = small_dictionary(8);
+    let p = dict.num_joints();
+    let (xy, truth) = three_basis_sequence(&dict, 3);
+    // The convex initialisations; alternation is a local method and may land on the
+    // depth-flipped pose.
+    for init in [InitMethod::ConvexRobustRefine, InitMethod::ConvexRefine] {
+        let params = Params {
+            alpha: 1e-6,
+            init: Some(init),
+            tolerance: 1e-10,
+            cd_objective_tolerance: 0.0,
+            max_apg_steps: 2000,
+            max_rounds: 30,
+            ..Params::default().without_smoothness()
+        };
+        let est = Estimator::new(dict.clone(), params).expect("estimator");
+        let e = est
+            .lift_keypoints(&Keypoints {
+                joints: p,
+                xy: xy.clone(),
+                confidence: None,
+            })
+            .expect("lift");
+        // Poses come out in normalised units: undo the keypoint scale.
+        let scale = keypoint_scale(&xy, &vec![1.0; xy.len() / 2], p);
+        let num: f64 = e
+            .poses
+            .iter()
+            .zip(&truth)
+            .map(|(a, b)| (a * scale - b).powi(2))
+            .sum();
+        let den: f64 = truth.iter().map(|b| b * b).sum();
+        let rel = (num / den).sqrt();
+        println!("{init}: relative error {rel:.2e}");
+        assert!(rel < 1e-3, "{init}: relative error {rel}");
+    }
+}
+
+#[test]
+fn the_objective_never_increases_over_rounds() {
+    let dict = Dictionary::load(k128()).expect("dictionary");
+    let kp = read(fixture("synthetic-s1").join("keypoints.npy"));
+    for solver in [CoefficientSolver::CoordinateDescent, CoefficientSolver::Apg] {
+        for init in [InitMethod::Altern, InitMethod::ConvexRobustRefine] {
+            let params = Params {
+                init: Some(init),
+                coefficient_solver: solver,
+                max_rounds: 20,
+                tolerance: 1e-9,
+                ..Params::default()
+            };
+            let est = Estimator::new(dict.clone(), params).expect("estimator");
+            let e = est
+                .lift_keypoints(&Keypoints {
+                    joints: 17,
+                    xy: kp.data.clone(),
+                    confidence: None,
+                })
+                .expect("lift");
+            let obj = &e.report.objective_rounds;
+            assert!(obj.len() >= 2);
+            for w in obj.windows(2) {
+                assert!(w[1] <= w[0] * (1.0 + 1e-12), "{solver:?} {init}: {obj:?}");
+            }
+        }
+    }
+}
+
+#[test]
+fn smoothness_lowers_the_temporal_variation_of_the_coefficients() {
+    let dict = Dictionary::load(k128()).expect("dictionary");
+    let kp = read(fixture("synthetic-s0").join("keypoints.npy"));
+    let variation = |params: Params| {
+        let e = Estimator::new(dict.clone(), params)
+            .expect("estimator")
+            .lift_keypoints(&Keypoints {
+                joints: 17,
+                xy: kp.data.clone(),
+                confidence: None,
+            })
+            .expect("lift");
+        e.fits
+            .windows(2)
+            .map(|w| {
+                w[0].coefficients
+                    .iter()
+                    .zip(&w[1].coefficients)
+                    .map(|(a, b)| (a - b).powi(2))
+                    .sum::<f64>()
+            })
+            .sum::<f64>()
+    };
+    let smooth = variation(Params::default());
+    let rough = variation(Params::default().without_smoothness());
+    assert!(smooth < rough, "smooth {smooth} rough {rough}");
+}
+
+#[test]
+fn zero_confidence_joints_do_not_move_the_fit() {
+    let dict = small_dictionary(8);
+    let p = dict.num_joints();
+    let (xy, _) = three_basis_sequence(&dict, 2);
+    let params = Params {
+        init: Some(InitMethod::Altern),
+        ..Params::default()
+    };
+    let est = Estimator::new(dict, params).expect("estimator");
+    let mut conf = vec![1.0; 2 * p];
+    conf[5] = 0.0;
+    conf[p + 9] = 0.0;
+    let mut corrupted = xy.clone();
+    corrupted[2 * 5] += 50.0;
+    corrupted[2 * (p + 9) + 1] -= 80.0;
+    let a = est
+        .lift_keypoints(&Keypoints {
+            joints: p,
+            xy: xy.clone(),
+            confidence: Some(conf.clone()),
+        })
+        .expect("lift");
+    let b = est
+        .lift_keypoints(&Keypoints {
+            joints: p,
+            xy: corrupted,
+            confidence: Some(conf),
+        })
+        .expect("lift");
+    // The keypoint scale uses only confident joints, so the two fits must coincide.
+    let diff: f64 = a
+        .poses
+        .iter()
+        .zip(&b.poses)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max);
+    assert!(diff < 1e-9, "max difference {diff}");
+}
