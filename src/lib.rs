@@ -12,7 +12,9 @@
 //! use posestream::{Dictionary, Estimator, Params};
 //! let dict = Dictionary::load("poseDict-all-K128.mat")?;
 //! let estimator = Estimator::new(dict, Params::default())?;
-//! # let keypoints: posestream::Keypoints = unimplemented!();
+//! // One frame of 17 joints, pixels (x right, y down).
+//! let xy: Vec<f64> = (0..34).map(|i| (i * 7 % 13) as f64).collect();
+//! let keypoints = posestream::Keypoints { joints: 17, xy, confidence: None };
 //! let estimate = estimator.lift_keypoints(&keypoints)?;
 //! println!("{} frames, objective {}", estimate.report.frames, estimate.report.objective);
 //! # Ok::<(), Box<dyn std::error::Error>>(())
