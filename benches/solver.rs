@@ -7,10 +7,10 @@ use std::path::PathBuf;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use posestream::npy::{self, Array};
+use posestream::solver::Observations;
 use posestream::solver::em::{self, EmWorkspace, PreparedMaps};
 use posestream::solver::init::convex;
 use posestream::solver::normalise::heatmap_scale;
-use posestream::solver::{FrameFit, Observations};
 use posestream::{Dictionary, Estimator, HeatMaps, Keypoints, Params};
 
 fn shared() -> PathBuf {
@@ -31,7 +31,6 @@ fn bench(c: &mut Criterion) {
         xy: kp.data.clone(),
         confidence: None,
     };
-    let frames = maps.frames as f64;
 
     let mut g = c.benchmark_group("synthetic-s0 (60 frames)");
     g.sample_size(10);
@@ -68,7 +67,6 @@ fn bench(c: &mut Criterion) {
     c.bench_function("ADMM (robust convex relaxation), one frame", |b| {
         b.iter(|| black_box(convex::admm(factor, &w, 17, 0.5, 1.0, 1000)))
     });
-    let _ = (frames, FrameFit::zero(1));
 }
 
 criterion_group!(benches, bench);

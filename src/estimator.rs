@@ -285,22 +285,21 @@ impl Estimator {
             );
         }
         let seconds_init = start.elapsed().as_secs_f64();
+        let mut ws = EmWorkspace::default();
+        let mut scratch = Observations::new(p, vec![0.0; 2 * p * f]);
         let objective_init = {
-            let mut obs = Observations::new(p, vec![0.0; 2 * p * f]);
-            let mut ws = EmWorkspace::default();
             em::e_step(
                 &self.dict,
                 &prepared,
                 &fits,
                 scale,
                 self.params.sigma,
-                &mut obs,
+                &mut scratch,
                 None,
                 &mut ws,
             );
-            bcd::objective(&self.dict, &obs, &fits, &self.params)
+            bcd::objective(&self.dict, &scratch, &fits, &self.params)
         };
-        let mut ws = EmWorkspace::default();
         let (obs, info) = em::run(
             &self.dict,
             self.gram_max,
@@ -311,7 +310,6 @@ impl Estimator {
             &mut ws,
         );
         let mut variance = vec![0.0; f * p];
-        let mut scratch = Observations::new(p, vec![0.0; 2 * p * f]);
         em::e_step(
             &self.dict,
             &prepared,

@@ -38,8 +38,6 @@ pub struct CoefficientProblem {
     y: Vec<f64>,
     /// `X_t' y_t`, frame t at `xty[t*k..][..k]`.
     xty: Vec<f64>,
-    /// `|y_t|^2` summed over frames.
-    yy: f64,
     /// `|X_t[:, i]|^2`, frame t at `h[t*k..][..k]`.
     h: Vec<f64>,
 }
@@ -131,7 +129,6 @@ impl CoefficientProblem {
         self.y.resize(frames * rows, 0.0);
         self.xty.resize(frames * k, 0.0);
         self.h.resize(frames * k, 0.0);
-        self.yy = 0.0;
         let mut sw = vec![0.0; p];
         for (t, r) in rotations.enumerate().take(frames) {
             for (s, w) in sw.iter_mut().zip(obs.frame_weights(t)) {
@@ -144,7 +141,6 @@ impl CoefficientProblem {
                 y[2 * j] = sw[j] * (xy[2 * j] - tr.x);
                 y[2 * j + 1] = sw[j] * (xy[2 * j + 1] - tr.y);
             }
-            self.yy += sq_norm(y);
             for i in 0..k {
                 let b = dict.basis(i);
                 let col = &mut self.x[(t * k + i) * rows..(t * k + i + 1) * rows];

@@ -323,8 +323,7 @@ pub fn synchronise_rotation(m: &[f64], k: usize) -> (Matrix3<f64>, Vec<f64>) {
         let ai = block(i);
         a += ai * ai.transpose();
     }
-    let (vals, vecs) = sorted_eigen3(&a);
-    let _ = vals;
+    let vecs = sorted_eigenvectors3(&a);
     let mut qm =
         Matrix3x2::from_columns(&[vecs.column(0).into_owned(), vecs.column(1).into_owned()]);
     let (mut g1, mut g2) = (Matrix2::zeros(), Matrix2::zeros());
@@ -359,18 +358,16 @@ pub fn synchronise_rotation(m: &[f64], k: usize) -> (Matrix3<f64>, Vec<f64>) {
     (complete_rotation(&r2), c)
 }
 
-/// Eigen-decomposition of a symmetric 3 x 3 matrix, eigenvalues descending (nalgebra).
-fn sorted_eigen3(a: &Matrix3<f64>) -> (nalgebra::Vector3<f64>, Matrix3<f64>) {
+/// Eigenvectors of a symmetric 3 x 3 matrix as columns, eigenvalues descending (nalgebra).
+fn sorted_eigenvectors3(a: &Matrix3<f64>) -> Matrix3<f64> {
     let eig = a.symmetric_eigen();
     let mut idx = [0usize, 1, 2];
     idx.sort_by(|&i, &j| eig.eigenvalues[j].total_cmp(&eig.eigenvalues[i]));
-    let vals = nalgebra::Vector3::from_fn(|i, _| eig.eigenvalues[idx[i]]);
-    let vecs = Matrix3::from_columns(&[
+    Matrix3::from_columns(&[
         eig.eigenvectors.column(idx[0]).into_owned(),
         eig.eigenvectors.column(idx[1]).into_owned(),
         eig.eigenvectors.column(idx[2]).into_owned(),
-    ]);
-    (vals, vecs)
+    ])
 }
 
 /// Largest eigenvalue and its eigenvector of a symmetric 2 x 2 matrix (nalgebra).
@@ -420,6 +417,7 @@ fn refine(
     let mut r = r0;
     let mut c = vec![0.0; k];
     let mut fit_w = vec![0.0; 2 * p];
+    let mut proj = vec![0.0; 2 * p];
     let (mut problem, mut apg) = (CoefficientProblem::default(), ApgWorkspace::default());
     let mut fval = f64::INFINITY;
     let mut iterations = 0;
@@ -443,7 +441,6 @@ fn refine(
         );
         dict.compose_into(&c, &mut s);
         // Projection of the current shape.
-        let mut proj = vec![0.0; 2 * p];
         for j in 0..p {
             let (x, y, z) = (s[j], s[p + j], s[2 * p + j]);
             proj[2 * j] = r[(0, 0)] * x + r[(0, 1)] * y + r[(0, 2)] * z;
