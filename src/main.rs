@@ -89,8 +89,9 @@ struct SolverArgs {
     /// for keypoints, altern for heat maps].
     #[arg(long)]
     init: Option<InitMethod>,
-    /// C-step solver: cd (coordinate descent) or apg.
-    #[arg(long, default_value = "cd")]
+    /// C-step solver: active-set (Newton steps on the active coefficients), cd
+    /// (coordinate descent) or apg (accelerated proximal gradient, the paper's).
+    #[arg(long, default_value = "active-set")]
     c_solver: CoefficientSolver,
     /// Outlier threshold of the robust convex initialisation (normalised units).
     #[arg(long, default_value_t = Params::default().robust_threshold)]

@@ -4,7 +4,10 @@ mod common;
 
 use common::{fixture, k128, read};
 use nalgebra::{Rotation3, Vector3};
-use posestream::solver::coefficients::CoefficientSolver;
+use posestream::solver::Observations;
+use posestream::solver::coefficients::{
+    CoefficientProblem, CoefficientSolver, CoefficientWorkspace, basis_gram_max, lipschitz_bound,
+};
 use posestream::solver::normalise::keypoint_scale;
 use posestream::{Dictionary, Estimator, InitMethod, Keypoints, Params};
 
@@ -86,7 +89,11 @@ fn recovers_a_three_basis_pose_exactly_from_noise_free_2d() {
 fn the_objective_never_increases_over_rounds() {
     let dict = Dictionary::load(k128()).expect("dictionary");
     let kp = read(fixture("synthetic-s1").join("keypoints.npy"));
-    for solver in [CoefficientSolver::CoordinateDescent, CoefficientSolver::Apg] {
+    for solver in [
+        CoefficientSolver::ActiveSet,
+        CoefficientSolver::CoordinateDescent,
+        CoefficientSolver::Apg,
+    ] {
         for init in [InitMethod::Altern, InitMethod::ConvexRobustRefine] {
             let params = Params {
                 init: Some(init),
@@ -110,6 +117,60 @@ fn the_objective_never_increases_over_rounds() {
             }
         }
     }
+}
+
+#[test]
+fn the_c_step_solvers_reach_the_same_minimum() {
+    let dict = Dictionary::load(k128()).expect("dictionary");
+    let kp = read(fixture("synthetic-s0").join("keypoints.npy"));
+    let fits = Estimator::new(dict.clone(), Params::default())
+        .expect("estimator")
+        .lift_keypoints(&Keypoints {
+            joints: 17,
+            xy: kp.data.clone(),
+            confidence: None,
+        })
+        .expect("lift")
+        .fits;
+    // A window of 12 frames under the estimate's rotations and translations.
+    let f = 12;
+    let scale = keypoint_scale(&kp.data, &vec![1.0; kp.data.len() / 2], 17);
+    let obs = Observations {
+        joints: 17,
+        xy: kp.data[..f * 34].iter().map(|v| v / scale).collect(),
+        weights: vec![1.0; f * 17],
+    };
+    let translations: Vec<_> = fits[..f].iter().map(|x| x.translation).collect();
+    let mut problem = CoefficientProblem::default();
+    problem.build(
+        &dict,
+        &obs,
+        fits[..f].iter().map(|x| x.rotation),
+        &translations,
+    );
+    let (alpha, beta) = (0.5, 20.0);
+    let lipschitz = lipschitz_bound(basis_gram_max(&dict), 1.0, beta, f);
+    let mut ws = CoefficientWorkspace::default();
+    let mut reached = Vec::new();
+    for solver in [
+        CoefficientSolver::ActiveSet,
+        CoefficientSolver::CoordinateDescent,
+        CoefficientSolver::Apg,
+    ] {
+        let mut c = vec![0.0; f * dict.num_bases()];
+        let info = problem.solve_with(
+            solver, &mut c, alpha, beta, lipschitz, 1e-14, 0.0, 20_000, &mut ws,
+        );
+        assert!(info.objective_after <= info.objective_before);
+        reached.push(info.objective_after);
+    }
+    println!("active set, cd, apg: {reached:?}");
+    let (active, cd, apg) = (reached[0], reached[1], reached[2]);
+    // The active-set method ends at a KKT point: nothing below it, and the first-order
+    // methods approach it from above.
+    assert!(active <= cd.min(apg) + 1e-9 * active.abs(), "{reached:?}");
+    assert!(cd - active <= 1e-5 * active.abs(), "{reached:?}");
+    assert!(apg - active <= 1e-3 * active.abs(), "{reached:?}");
 }
 
 #[test]

@@ -8,7 +8,7 @@
 
 use nalgebra::{Matrix3, Vector2};
 
-use super::coefficients::{ApgWorkspace, CoefficientProblem, lipschitz_bound};
+use super::coefficients::{CoefficientProblem, CoefficientWorkspace, lipschitz_bound};
 use super::rotations::{self, FrameTerms};
 use super::{FrameFit, Observations, Params};
 use crate::dictionary::Dictionary;
@@ -30,7 +30,7 @@ pub struct BcdInfo {
 #[derive(Debug, Clone, Default)]
 pub struct BcdWorkspace {
     problem: CoefficientProblem,
-    apg: ApgWorkspace,
+    apg: CoefficientWorkspace,
     c: Vec<f64>,
     shapes: Vec<f64>,
     terms: Vec<FrameTerms>,

@@ -20,6 +20,7 @@
 //! those of the authors' release (alpha 0.5, beta 20, gamma 2, sigma 0.5).
 
 pub mod bcd;
+pub mod block_tridiagonal;
 pub mod coefficients;
 pub mod em;
 pub mod estep;

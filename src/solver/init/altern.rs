@@ -11,7 +11,7 @@ use super::{
 };
 use crate::dictionary::Dictionary;
 use crate::solver::bcd::{best_translation, frame_data_cost};
-use crate::solver::coefficients::{ApgWorkspace, CoefficientProblem};
+use crate::solver::coefficients::{CoefficientProblem, CoefficientWorkspace};
 use crate::solver::rotations::FrameTerms;
 use crate::solver::{FrameFit, Params};
 
@@ -34,7 +34,10 @@ pub fn initialise(
         .flat_map(|xy| [xy[0] - tr.x, xy[1] - tr.y])
         .collect();
     let mut c = vec![0.0; k];
-    let (mut problem, mut apg) = (CoefficientProblem::default(), ApgWorkspace::default());
+    let (mut problem, mut apg) = (
+        CoefficientProblem::default(),
+        CoefficientWorkspace::default(),
+    );
     let mut fval = f64::INFINITY;
     let mut iterations = 0;
     for _ in 0..params.max_init_iterations {

@@ -21,7 +21,7 @@ use nalgebra::{Matrix2, Matrix2x3, Matrix3, Matrix3x2, Vector2};
 
 use super::{InitCache, InitInfo, complete_rotation, fit_rotation, single_frame_coefficients};
 use crate::dictionary::Dictionary;
-use crate::solver::coefficients::{ApgWorkspace, CoefficientProblem};
+use crate::solver::coefficients::{CoefficientProblem, CoefficientWorkspace};
 use crate::solver::{FrameFit, Params, soft};
 
 /// The basis matrix restricted to some joints and its thin SVD.
@@ -418,7 +418,10 @@ fn refine(
     let mut c = vec![0.0; k];
     let mut fit_w = vec![0.0; 2 * p];
     let mut proj = vec![0.0; 2 * p];
-    let (mut problem, mut apg) = (CoefficientProblem::default(), ApgWorkspace::default());
+    let (mut problem, mut apg) = (
+        CoefficientProblem::default(),
+        CoefficientWorkspace::default(),
+    );
     let mut fval = f64::INFINITY;
     let mut iterations = 0;
     for _ in 0..params.max_init_iterations {

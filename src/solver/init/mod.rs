@@ -11,7 +11,7 @@ pub mod convex;
 
 use nalgebra::{Matrix2x3, Matrix3, Vector3};
 
-use super::coefficients::{ApgWorkspace, CoefficientProblem};
+use super::coefficients::{CoefficientProblem, CoefficientWorkspace};
 use super::rotations::{self, FrameTerms};
 use super::{FrameFit, InitMethod, Observations, Params};
 use crate::dictionary::Dictionary;
@@ -88,7 +88,7 @@ pub(crate) fn single_frame_coefficients(
     c: &mut [f64],
     params: &Params,
     problem: &mut CoefficientProblem,
-    apg: &mut ApgWorkspace,
+    apg: &mut CoefficientWorkspace,
 ) {
     let obs = Observations {
         joints: dict.num_joints(),

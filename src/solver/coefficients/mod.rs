@@ -9,21 +9,27 @@
 //! gradient (Nesterov) with step `1/L`, soft threshold `alpha/L`, adaptive restart
 //! (O'Donoghue & Candès, gradient scheme), stop on relative change of C.
 //!
-//! Two solvers minimise it ([`CoefficientSolver`]):
-//! - APG, the paper's method: `L` must bound the Hessian `blockdiag(X_t' X_t) + beta (Lap ⊗ I)`: see
-//! [`lipschitz_bound`]. The reference takes it from the first frame only, which can be
-//! too small; ours holds for every frame.
-//! - Coordinate descent with an active set (the default): exact minimisation along one
-//!   coefficient at a time, with that coefficient's own curvature
-//!   `|X_t[:, i]|^2 + beta deg(t)`. The dictionaries' atoms are strongly correlated
-//!   (for the K128 dictionary `lambda_max(Bvec'Bvec)` = 7015 against 65 per atom), so the
-//!   global step `1/L` of APG is ~100x shorter than a coordinate's and APG needs hundreds
-//!   of steps; coordinate descent reaches the same minimum in a few sweeps. Each update
-//!   is exact, so the objective never increases.
+//! Three solvers minimise it ([`CoefficientSolver`]):
+//! - [`active_set`] (the default): feature-sign active-set steps with exact Newton
+//!   solves over the window (block-tridiagonal in time);
+//! - [`apg`]: accelerated proximal gradient, the paper's method. `L` must bound the
+//!   Hessian `blockdiag(X_t' X_t) + beta (Lap ⊗ I)`: see [`lipschitz_bound`]. The
+//!   reference takes it from the first frame only, which can be too small; ours holds
+//!   for every frame;
+//! - [`cd`]: coordinate descent with an active set.
+//!
+//! The dictionaries' atoms are strongly correlated (for the K128 dictionary
+//! `lambda_max(Bvec'Bvec)` = 7015 against 65 per atom), so the global step `1/L` of APG
+//! is ~100x shorter than a coordinate's, and even coordinate descent needs hundreds of
+//! sweeps to settle; the active-set method's Newton steps do not care.
+
+pub mod active_set;
+pub mod apg;
+pub mod cd;
 
 use nalgebra::Matrix3;
 
-use super::{Observations, soft, sq_norm};
+use super::{Observations, sq_norm};
 use crate::dictionary::Dictionary;
 
 /// Per-frame design matrices and data of one C-step.
@@ -46,8 +52,10 @@ pub struct CoefficientProblem {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum CoefficientSolver {
-    /// Coordinate descent with an active set.
+    /// Active-set (feature-sign) method with Newton steps over the window.
     #[default]
+    ActiveSet,
+    /// Coordinate descent with an active set.
     CoordinateDescent,
     /// Accelerated proximal gradient with restart (the paper's choice).
     Apg,
@@ -57,10 +65,11 @@ impl std::str::FromStr for CoefficientSolver {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
         match s {
+            "active-set" | "as" => Ok(Self::ActiveSet),
             "cd" | "coordinate-descent" => Ok(Self::CoordinateDescent),
             "apg" => Ok(Self::Apg),
             other => Err(format!(
-                "unknown C-step solver `{other}` (expected cd or apg)"
+                "unknown C-step solver `{other}` (expected active-set, cd or apg)"
             )),
         }
     }
@@ -198,213 +207,17 @@ impl CoefficientProblem {
         tol: f64,
         objective_tol: f64,
         max_steps: usize,
-        ws: &mut ApgWorkspace,
+        ws: &mut CoefficientWorkspace,
     ) -> CoefficientInfo {
         match solver {
-            CoefficientSolver::Apg => self.solve(c, alpha, beta, lipschitz, tol, max_steps, ws),
+            CoefficientSolver::ActiveSet => {
+                self.solve_active_set(c, alpha, beta, objective_tol, max_steps, ws)
+            }
+            CoefficientSolver::Apg => self.solve_apg(c, alpha, beta, lipschitz, tol, max_steps, ws),
             CoefficientSolver::CoordinateDescent => {
                 self.solve_cd(c, alpha, beta, tol, objective_tol, max_steps, ws)
             }
         }
-    }
-
-    /// Runs APG from `c` (F*k values, frame-major) and leaves the result in `c`.
-    /// Never returns a worse point than it was given.
-    #[allow(clippy::too_many_arguments)]
-    pub fn solve(
-        &self,
-        c: &mut [f64],
-        alpha: f64,
-        beta: f64,
-        lipschitz: f64,
-        tol: f64,
-        max_steps: usize,
-        ws: &mut ApgWorkspace,
-    ) -> CoefficientInfo {
-        let n = self.frames * self.k;
-        debug_assert_eq!(c.len(), n);
-        ws.prepare(n, self.rows);
-        let objective_before = self.loss(c, &mut ws.u) + self.penalty(c, alpha, beta);
-        ws.start.copy_from_slice(c);
-        ws.prev.copy_from_slice(c);
-        let step = 1.0 / lipschitz.max(f64::MIN_POSITIVE);
-        let thresh = alpha * step;
-        let (mut t_prev, mut t_cur) = (1.0_f64, 1.0_f64);
-        let mut steps = 0;
-        for _ in 0..max_steps {
-            steps += 1;
-            // Extrapolated point z = c + (t_prev - 1)/t_cur (c - prev).
-            let mom = (t_prev - 1.0) / t_cur;
-            for ((z, &ci), &pi) in ws.z.iter_mut().zip(c.iter()).zip(ws.prev.iter()) {
-                *z = ci + mom * (ci - pi);
-            }
-            self.gradient(&ws.z, beta, &mut ws.grad, &mut ws.u);
-            // Proximal step; restart test (z - c_new)'(c_new - c) > 0.
-            let (mut restart, mut change, mut norm_old) = (0.0, 0.0, 0.0);
-            for i in 0..n {
-                let new = soft(ws.z[i] - step * ws.grad[i], thresh);
-                let old = c[i];
-                restart += (ws.z[i] - new) * (new - old);
-                change += (new - old) * (new - old);
-                norm_old += old * old;
-                ws.prev[i] = old;
-                c[i] = new;
-            }
-            if restart > 0.0 {
-                t_prev = 1.0;
-                t_cur = 1.0;
-            } else {
-                t_prev = t_cur;
-                t_cur = 0.5 * (1.0 + (1.0 + 4.0 * t_cur * t_cur).sqrt());
-            }
-            if change.sqrt() < tol * (norm_old.sqrt() + f64::EPSILON) {
-                break;
-            }
-        }
-        let loss = self.loss(c, &mut ws.u);
-        let penalty = self.penalty(c, alpha, beta);
-        if loss + penalty > objective_before {
-            c.copy_from_slice(&ws.start);
-            let penalty = self.penalty(c, alpha, beta);
-            return CoefficientInfo {
-                steps,
-                objective_before,
-                objective_after: objective_before,
-                penalty,
-            };
-        }
-        CoefficientInfo {
-            steps,
-            objective_before,
-            objective_after: loss + penalty,
-            penalty,
-        }
-    }
-
-    /// Minimises by coordinate descent from `c`, in place: full sweeps alternate with
-    /// sweeps over the active (non-zero) coefficients until the relative change of a
-    /// sweep is below `tol`; stops when a full sweep after convergence changes nothing
-    /// more than `tol`, or when a sweep lowers the objective by less than
-    /// `objective_tol` (relative). `max_sweeps` caps the sweeps of both kinds together.
-    #[allow(clippy::too_many_arguments)]
-    pub fn solve_cd(
-        &self,
-        c: &mut [f64],
-        alpha: f64,
-        beta: f64,
-        tol: f64,
-        objective_tol: f64,
-        max_sweeps: usize,
-        ws: &mut ApgWorkspace,
-    ) -> CoefficientInfo {
-        let (k, f, rows) = (self.k, self.frames, self.rows);
-        let n = f * k;
-        ws.prepare(n, rows);
-        let objective_before = self.loss(c, &mut ws.u) + self.penalty(c, alpha, beta);
-        // Residuals r_t = y_t - X_t c_t, kept up to date (stored in ws.grad's first f*rows).
-        ws.resid.resize(f * rows, 0.0);
-        for t in 0..f {
-            let r = &mut ws.resid[t * rows..(t + 1) * rows];
-            x_times(self.frame_x(t), &c[t * k..(t + 1) * k], r);
-            for (ri, yi) in r.iter_mut().zip(&self.y[t * rows..(t + 1) * rows]) {
-                *ri = yi - *ri;
-            }
-        }
-        let mut sweeps = 0;
-        let mut full = true;
-        let mut active: Vec<u32> = Vec::new();
-        let mut f_prev = f64::INFINITY;
-        while sweeps < max_sweeps {
-            sweeps += 1;
-            let (mut change, mut norm) = (0.0, 0.0);
-            let mut entered = false;
-            if full {
-                active.clear();
-                for t in 0..f {
-                    for i in 0..k {
-                        let was_zero = c[t * k + i] == 0.0;
-                        let d = self.update(c, t, i, alpha, beta, &mut ws.resid);
-                        change += d * d;
-                        let v = c[t * k + i];
-                        norm += v * v;
-                        if v != 0.0 {
-                            active.push((t * k + i) as u32);
-                            entered |= was_zero;
-                        }
-                    }
-                }
-            } else {
-                for &idx in &active {
-                    let (t, i) = (idx as usize / k, idx as usize % k);
-                    let d = self.update(c, t, i, alpha, beta, &mut ws.resid);
-                    change += d * d;
-                    norm += c[t * k + i] * c[t * k + i];
-                }
-            }
-            let fval = 0.5 * sq_norm(&ws.resid) + self.penalty(c, alpha, beta);
-            let settled = f_prev - fval <= objective_tol * fval.abs();
-            f_prev = fval;
-            let small = change.sqrt() <= tol * (norm.sqrt() + f64::EPSILON);
-            if full {
-                // Done when a full sweep changes little and admits nothing new, or when
-                // even a full sweep no longer lowers the objective.
-                if (small && !entered) || settled {
-                    break;
-                }
-                full = false;
-            } else if small || settled {
-                full = true;
-            }
-        }
-        let loss = self.loss(c, &mut ws.u);
-        let penalty = self.penalty(c, alpha, beta);
-        CoefficientInfo {
-            steps: sweeps,
-            objective_before,
-            objective_after: loss + penalty,
-            penalty,
-        }
-    }
-
-    /// Exact minimisation along coefficient `(t, i)`; returns its change.
-    #[inline]
-    fn update(
-        &self,
-        c: &mut [f64],
-        t: usize,
-        i: usize,
-        alpha: f64,
-        beta: f64,
-        resid: &mut [f64],
-    ) -> f64 {
-        let (k, f, rows) = (self.k, self.frames, self.rows);
-        let col = &self.x[(t * k + i) * rows..(t * k + i + 1) * rows];
-        let r = &mut resid[t * rows..(t + 1) * rows];
-        let cur = c[t * k + i];
-        let mut grad = -dot(col, r);
-        let mut curv = self.h[t * k + i];
-        if beta > 0.0 {
-            if t > 0 {
-                grad += beta * (cur - c[(t - 1) * k + i]);
-                curv += beta;
-            }
-            if t + 1 < f {
-                grad += beta * (cur - c[(t + 1) * k + i]);
-                curv += beta;
-            }
-        }
-        if curv <= 0.0 {
-            return 0.0;
-        }
-        let new = soft(cur - grad / curv, alpha / curv);
-        let d = new - cur;
-        if d != 0.0 {
-            for (ri, xi) in r.iter_mut().zip(col) {
-                *ri -= d * xi;
-            }
-            c[t * k + i] = new;
-        }
-        d
     }
 
     /// Gradient of the smooth part at `z` into `g`.
@@ -441,9 +254,10 @@ impl CoefficientProblem {
     }
 }
 
-/// Reusable buffers of [`CoefficientProblem::solve`].
+/// Reusable buffers of the C-step solvers: allocate once, reuse for every window.
 #[derive(Debug, Clone, Default)]
-pub struct ApgWorkspace {
+pub struct CoefficientWorkspace {
+    active_set: active_set::ActiveSetWorkspace,
     z: Vec<f64>,
     grad: Vec<f64>,
     prev: Vec<f64>,
@@ -452,7 +266,7 @@ pub struct ApgWorkspace {
     resid: Vec<f64>,
 }
 
-impl ApgWorkspace {
+impl CoefficientWorkspace {
     fn prepare(&mut self, n: usize, rows: usize) {
         self.z.resize(n, 0.0);
         self.grad.resize(n, 0.0);
