@@ -13,7 +13,7 @@ use crate::heatmaps::HeatMaps;
 use crate::solver::bcd::{self, BcdWorkspace};
 use crate::solver::coefficients::basis_gram_max;
 use crate::solver::em::{self, EmWorkspace, PreparedMaps};
-use crate::solver::init::{InitCache, initialise_frame};
+use crate::solver::init::{InitCache, InitWorkspace, initialise_frame};
 use crate::solver::normalise::{heatmap_scale, keypoint_scale};
 use crate::solver::{FrameFit, InitMethod, Observations, Params};
 
@@ -203,6 +203,7 @@ impl Estimator {
             weights,
         };
         let mut fits = Vec::with_capacity(f);
+        let mut init_ws = InitWorkspace::default();
         for t in 0..f {
             let visible: Vec<bool> = obs.frame_weights(t).iter().map(|&w| w > 0.0).collect();
             fits.push(
@@ -213,6 +214,7 @@ impl Estimator {
                     &visible,
                     self.keypoint_init(),
                     &self.params,
+                    &mut init_ws,
                 )
                 .0,
             );
@@ -260,6 +262,7 @@ impl Estimator {
         let prepared = PreparedMaps::new(maps);
         // Initialise each frame from the arg-max of each map.
         let mut fits = Vec::with_capacity(f);
+        let mut init_ws = InitWorkspace::default();
         for t in 0..f {
             let mut w = vec![0.0; 2 * p];
             let mut visible = vec![false; p];
@@ -280,6 +283,7 @@ impl Estimator {
                     &visible,
                     self.heatmap_init(),
                     &self.params,
+                    &mut init_ws,
                 )
                 .0,
             );

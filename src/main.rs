@@ -108,6 +108,9 @@ struct SolverArgs {
     /// APG steps (or CD sweeps) per C-step at most.
     #[arg(long, default_value_t = Params::default().max_apg_steps)]
     max_apg_steps: usize,
+    /// Newton steps of the active-set C-step per round at most.
+    #[arg(long, default_value_t = Params::default().max_newton_steps)]
+    max_newton_steps: usize,
     /// Newton sweeps per R-step at most.
     #[arg(long, default_value_t = Params::default().max_rotation_sweeps)]
     max_rotation_sweeps: usize,
@@ -131,6 +134,7 @@ impl SolverArgs {
             max_em_iterations: self.max_em_iterations,
             max_rounds: self.max_rounds,
             max_apg_steps: self.max_apg_steps,
+            max_newton_steps: self.max_newton_steps,
             max_rotation_sweeps: self.max_rotation_sweeps,
             max_init_iterations: self.max_init_iterations,
             tolerance: self.tolerance,

@@ -8,7 +8,9 @@
 
 use nalgebra::{Matrix3, Vector2};
 
-use super::coefficients::{CoefficientProblem, CoefficientWorkspace, lipschitz_bound};
+use super::coefficients::{
+    CoefficientProblem, CoefficientSolver, CoefficientWorkspace, lipschitz_bound,
+};
 use super::rotations::{self, FrameTerms};
 use super::{FrameFit, Observations, Params};
 use crate::dictionary::Dictionary;
@@ -155,7 +157,10 @@ pub fn solve(
             lipschitz,
             params.tolerance,
             params.cd_objective_tolerance,
-            params.max_apg_steps,
+            match params.coefficient_solver {
+                CoefficientSolver::ActiveSet => params.max_newton_steps,
+                _ => params.max_apg_steps,
+            },
             &mut ws.apg,
         );
         info.apg_steps += cinfo.steps;

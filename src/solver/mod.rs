@@ -98,6 +98,11 @@ pub struct Params {
     pub max_rounds: usize,
     /// APG steps (or coordinate-descent sweeps) per C-step at most.
     pub max_apg_steps: usize,
+    /// Newton steps of the active-set C-step per round over a window at most. One step
+    /// already lowers the objective, and the next round continues from there (inexact
+    /// block coordinate descent); more steps solve each C-step more exactly for little
+    /// gain in accuracy (README, "Speed").
+    pub max_newton_steps: usize,
     /// Newton sweeps over the frames per R-step at most.
     pub max_rotation_sweeps: usize,
     /// Iterations of the per-frame initialisation at most.
@@ -126,6 +131,7 @@ impl Default for Params {
             max_em_iterations: 10,
             max_rounds: 10,
             max_apg_steps: 500,
+            max_newton_steps: 1,
             max_rotation_sweeps: 50,
             max_init_iterations: 1000,
             tolerance: 1e-4,
@@ -215,7 +221,7 @@ impl FrameFit {
 
 /// 2D joints of F frames (normalised units) with a weight per joint: the data of
 /// Algorithm 1, and the expected joints the E-step hands to it.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Default)]
 pub struct Observations {
     /// Joints per frame.
     pub joints: usize,
@@ -271,7 +277,36 @@ pub struct Window {
 
 /// Sum of squares.
 pub(crate) fn sq_norm(v: &[f64]) -> f64 {
-    v.iter().map(|x| x * x).sum()
+    dot(v, v)
+}
+
+/// Dot product with four independent partial sums, so that the compiler can vectorise
+/// it (a single running sum fixes the order of the additions and forbids that).
+#[inline]
+pub(crate) fn dot(a: &[f64], b: &[f64]) -> f64 {
+    let n = a.len().min(b.len());
+    let (a, b) = (&a[..n], &b[..n]);
+    let mut acc = [0.0; 4];
+    let (ca, cb) = (a.chunks_exact(4), b.chunks_exact(4));
+    let (ra, rb) = (ca.remainder(), cb.remainder());
+    for (x, y) in ca.zip(cb) {
+        for l in 0..4 {
+            acc[l] += x[l] * y[l];
+        }
+    }
+    let mut tail = 0.0;
+    for (x, y) in ra.iter().zip(rb) {
+        tail += x * y;
+    }
+    (acc[0] + acc[1]) + (acc[2] + acc[3]) + tail
+}
+
+/// `y += a x`.
+#[inline]
+pub(crate) fn axpy(a: f64, x: &[f64], y: &mut [f64]) {
+    for (y, x) in y.iter_mut().zip(x) {
+        *y += a * x;
+    }
 }
 
 /// Soft threshold `sign(x) max(|x| - tau, 0)`.

@@ -29,6 +29,7 @@ pub mod cd;
 
 use nalgebra::Matrix3;
 
+pub(crate) use super::dot;
 use super::{Observations, sq_norm};
 use crate::dictionary::Dictionary;
 
@@ -274,11 +275,6 @@ impl CoefficientWorkspace {
         self.start.resize(n, 0.0);
         self.u.resize(rows, 0.0);
     }
-}
-
-#[inline]
-fn dot(a: &[f64], b: &[f64]) -> f64 {
-    a.iter().zip(b).map(|(a, b)| a * b).sum()
 }
 
 /// `out = X z` for column-major `x` (columns of `out.len()`), skipping zero coefficients.

@@ -7,11 +7,11 @@
 use nalgebra::{Matrix2x3, Matrix3};
 
 use super::{
-    InitCache, InitInfo, complete_rotation, nearest_orthonormal_rows, single_frame_coefficients,
+    InitCache, InitInfo, InitWorkspace, complete_rotation, nearest_orthonormal_rows,
+    single_frame_coefficients,
 };
 use crate::dictionary::Dictionary;
 use crate::solver::bcd::{best_translation, frame_data_cost};
-use crate::solver::coefficients::{CoefficientProblem, CoefficientWorkspace};
 use crate::solver::rotations::FrameTerms;
 use crate::solver::{FrameFit, Params};
 
@@ -22,6 +22,7 @@ pub fn initialise(
     w: &[f64],
     visible: &[bool],
     params: &Params,
+    ws: &mut InitWorkspace,
 ) -> (FrameFit, InitInfo) {
     let (k, p) = (dict.num_bases(), dict.num_joints());
     let d: Vec<f64> = visible.iter().map(|&v| if v { 1.0 } else { 0.0 }).collect();
@@ -34,10 +35,6 @@ pub fn initialise(
         .flat_map(|xy| [xy[0] - tr.x, xy[1] - tr.y])
         .collect();
     let mut c = vec![0.0; k];
-    let (mut problem, mut apg) = (
-        CoefficientProblem::default(),
-        CoefficientWorkspace::default(),
-    );
     let mut fval = f64::INFINITY;
     let mut iterations = 0;
     for _ in 0..params.max_init_iterations {
@@ -50,17 +47,7 @@ pub fn initialise(
                 r = complete_rotation(&q);
             }
         }
-        single_frame_coefficients(
-            dict,
-            cache,
-            &wc,
-            &d,
-            &r,
-            &mut c,
-            params,
-            &mut problem,
-            &mut apg,
-        );
+        single_frame_coefficients(dict, cache, &wc, &d, &r, &mut c, params, ws);
         dict.compose_into(&c, &mut s);
         let prev = fval;
         fval = frame_data_cost(&s, &wc, &d, &r, &nalgebra::Vector2::zeros())

@@ -19,10 +19,11 @@
 
 use nalgebra::{Matrix2, Matrix2x3, Matrix3, Matrix3x2, Vector2};
 
-use super::{InitCache, InitInfo, complete_rotation, fit_rotation, single_frame_coefficients};
+use super::{
+    InitCache, InitInfo, InitWorkspace, complete_rotation, fit_rotation, single_frame_coefficients,
+};
 use crate::dictionary::Dictionary;
-use crate::solver::coefficients::{CoefficientProblem, CoefficientWorkspace};
-use crate::solver::{FrameFit, Params, soft};
+use crate::solver::{FrameFit, Params, axpy, dot, soft};
 
 /// The basis matrix restricted to some joints and its thin SVD.
 #[derive(Debug, Clone)]
@@ -31,12 +32,14 @@ pub struct BasisFactor {
     pub joints: Vec<usize>,
     /// Rows `3k`.
     rows: usize,
-    /// `B` restricted to `joints`, row-major (3k x q).
-    b: Vec<f64>,
     /// Left singular vectors, column-major (3k x r).
     u: Vec<f64>,
     /// Squared singular values (r).
     s2: Vec<f64>,
+    /// `B' U`, column-major (q x r): the image of the data in the range of `U`.
+    bu: Vec<f64>,
+    /// `B` column-major (each joint's 3k values contiguous).
+    b_cols: Vec<f64>,
 }
 
 impl BasisFactor {
@@ -66,42 +69,62 @@ impl BasisFactor {
                 }
             }
         }
+        let r = s2.len();
+        let mut bu = vec![0.0; q * r];
+        for c in 0..r {
+            for jj in 0..q {
+                bu[c * q + jj] = (0..rows)
+                    .map(|row| b[row * q + jj] * u[c * rows + row])
+                    .sum();
+            }
+        }
+        let b_cols = (0..q)
+            .flat_map(|jj| (0..rows).map(move |row| (row, jj)))
+            .map(|(row, jj)| b[row * q + jj])
+            .collect();
         Self {
             joints: joints.to_vec(),
             rows,
-            b,
             u,
             s2,
+            bu,
+            b_cols,
         }
     }
 }
 
 /// Prox of `lam ||.||_2` (spectral norm) of a 2 x 3 block: returns the block and its
 /// spectral norm.
+///
+/// With `Q = U S V'`, the prox shrinks the singular values: both to `w = (s1+s2-lam)/2`
+/// when they are within `lam` of each other, else only the largest by `lam`. Both cases
+/// are closed-form matrix functions of the 2 x 2 Gram matrix `A = Q Q'` (Cayley-Hamilton),
+/// with `s1^2 + s2^2 = tr A` and `s1 s2 = sqrt(det A)`:
+/// - `w U V' = w (s1 + s2) (A + s1 s2 I)^-1 Q`, since `sqrt(A) = (A + s1 s2 I)/(s1 + s2)`;
+/// - `Q - lam u1 v1' = Q - lam/s1 (A - s2^2 I)/(s1^2 - s2^2) Q`, the projector on the top
+///   singular direction being `(A - s2^2 I)/(s1^2 - s2^2)`.
 fn prox_spectral(q: &Matrix2x3<f64>, lam: f64) -> (Matrix2x3<f64>, f64) {
-    let svd = q.svd(true, true);
-    let (Some(u), Some(vt)) = (svd.u, svd.v_t) else {
-        return (Matrix2x3::zeros(), 0.0);
-    };
-    let (mut s1, mut s2) = (svd.singular_values[0], svd.singular_values[1]);
-    let swap = s2 > s1;
-    if swap {
-        std::mem::swap(&mut s1, &mut s2);
-    }
-    let (w1, w2) = if s1 + s2 <= lam {
-        (0.0, 0.0)
+    let a = q * q.transpose();
+    let (tr, det) = (a.trace(), a.determinant().max(0.0));
+    let half_gap = (0.25 * tr * tr - det).max(0.0).sqrt();
+    let (l1, l2) = (0.5 * tr + half_gap, (0.5 * tr - half_gap).max(0.0));
+    let (s1, s2) = (l1.sqrt(), l2.sqrt());
+    if s1 + s2 <= lam {
+        (Matrix2x3::zeros(), 0.0)
     } else if s1 - s2 <= lam {
+        // Here s2 > 0 (s2 = 0 would need s1 > lam and s1 <= lam at once), so the
+        // shifted Gram matrix is positive definite.
         let w = 0.5 * (s1 + s2 - lam);
-        (w, w)
+        let shifted = a + Matrix2::identity() * (s1 * s2);
+        match shifted.try_inverse() {
+            Some(inv) => (inv * q * (w * (s1 + s2)), w),
+            None => (Matrix2x3::zeros(), 0.0),
+        }
     } else {
-        (s1 - lam, s2)
-    };
-    let d = if swap {
-        Matrix2::new(w2, 0.0, 0.0, w1)
-    } else {
-        Matrix2::new(w1, 0.0, 0.0, w2)
-    };
-    (u * d * vt, w1)
+        // Here s1^2 - s2^2 > lam (s1 + s2) > 0.
+        let projector = (a - Matrix2::identity() * l2) / (l1 - l2);
+        (q - projector * q * (lam / s1), s1 - lam)
+    }
 }
 
 /// Initialises one frame by the convex relaxation, then refines.
@@ -112,6 +135,7 @@ pub fn initialise(
     visible: &[bool],
     params: &Params,
     robust: bool,
+    ws: &mut InitWorkspace,
 ) -> (FrameFit, InitInfo) {
     let joints: Vec<usize> = (0..visible.len()).filter(|&j| visible[j]).collect();
     let owned;
@@ -131,46 +155,67 @@ pub fn initialise(
     } else {
         f64::INFINITY
     };
-    let admm = admm(
+    let admm_iterations = admm(
         factor,
         &wv,
         q,
         params.alpha,
         beta_o,
         params.max_init_iterations,
+        &mut ws.admm,
     );
-    let (r, c) = synchronise_rotation(&admm.m, dict.num_bases());
+    let (r, c) = synchronise_rotation(&ws.admm.m, dict.num_bases());
     // Outliers back on the full joint list.
     let mut e_full = vec![0.0; w.len()];
     for (jj, &j) in joints.iter().enumerate() {
-        e_full[2 * j] = admm.e[2 * jj];
-        e_full[2 * j + 1] = admm.e[2 * jj + 1];
+        e_full[2 * j] = ws.admm.e[2 * jj];
+        e_full[2 * j + 1] = ws.admm.e[2 * jj + 1];
     }
     let s0 = dict.compose(&c);
-    let (fit, alternations) = refine(dict, cache, w, visible, params, beta_o, &s0, r, e_full);
+    let (fit, alternations) = refine(dict, cache, w, visible, params, beta_o, &s0, r, e_full, ws);
     (
         fit,
         InitInfo {
-            admm_iterations: admm.iterations,
+            admm_iterations,
             alternations,
         },
     )
 }
 
-/// Result of the ADMM.
-#[derive(Debug, Clone)]
-pub struct AdmmResult {
+/// The ADMM's iterates, kept from one call to the next: a frame's ADMM starts from the
+/// previous frame's solution. The problem is convex, so the start changes the number of
+/// iterations, not the minimiser (up to the stopping tolerance).
+#[derive(Debug, Clone, Default)]
+pub struct AdmmState {
     /// Blocks `M_i`, row-major 2 x 3k.
     pub m: Vec<f64>,
     /// Outliers, `[x, y]` per kept joint.
     pub e: Vec<f64>,
     /// Translation.
     pub t: Vector2<f64>,
-    /// Iterations run.
-    pub iterations: usize,
+    y: Vec<f64>,
+    mu: f64,
+    /// Shape `(3k, q)` of the problem the iterates belong to; `None`: cold start.
+    shape: Option<(usize, usize)>,
+    z: Vec<f64>,
+    z0: Vec<f64>,
+    tmp: Vec<f64>,
+    coef: Vec<f64>,
+    data_u: Vec<f64>,
+    resid: Vec<f64>,
+    zb: Vec<f64>,
 }
 
-/// ADMM on the convex relaxation; `w` holds `[x, y]` of the `q` kept joints.
+impl AdmmState {
+    /// Forgets the iterates: the next call starts cold.
+    pub fn reset(&mut self) {
+        self.shape = None;
+    }
+}
+
+/// ADMM on the convex relaxation; `w` holds `[x, y]` of the `q` kept joints. Starts from
+/// `state` when it holds a problem of the same shape; returns the iterations run and
+/// leaves the solution in `state`.
 pub fn admm(
     f: &BasisFactor,
     w: &[f64],
@@ -178,20 +223,13 @@ pub fn admm(
     lam: f64,
     beta_o: f64,
     max_iterations: usize,
-) -> AdmmResult {
+    state: &mut AdmmState,
+) -> usize {
     let n = f.rows; // 3k
     let k = n / 3;
     let r = f.s2.len();
     let tol = 1e-3;
-    let mut m = vec![0.0; 2 * n];
-    let mut z = vec![0.0; 2 * n];
-    let mut y = vec![0.0; 2 * n];
-    let mut z0 = vec![0.0; 2 * n];
-    let mut rhs = vec![0.0; 2 * n];
-    let mut e = vec![0.0; 2 * q];
-    let mut zb = vec![0.0; 2 * q];
-    let mut resid = vec![0.0; 2 * q];
-    let mut ru = vec![0.0; 2 * r];
+    let st = state;
     let mean = |v: &[f64]| -> Vector2<f64> {
         let (mut sx, mut sy) = (0.0, 0.0);
         for xy in v.chunks_exact(2) {
@@ -200,95 +238,100 @@ pub fn admm(
         }
         Vector2::new(sx / q as f64, sy / q as f64)
     };
-    let mut t = mean(w);
-    let mean_abs = w.iter().map(|v| v.abs()).sum::<f64>() / w.len() as f64;
-    let mut mu = 1.0 / mean_abs.max(f64::MIN_POSITIVE);
+    if st.shape != Some((n, q)) {
+        st.m.clear();
+        st.m.resize(2 * n, 0.0);
+        st.y.clear();
+        st.y.resize(2 * n, 0.0);
+        st.z.clear();
+        st.z.resize(2 * n, 0.0);
+        st.e.clear();
+        st.e.resize(2 * q, 0.0);
+        st.t = mean(w);
+        let mean_abs = w.iter().map(|v| v.abs()).sum::<f64>() / w.len() as f64;
+        st.mu = 1.0 / mean_abs.max(f64::MIN_POSITIVE);
+        st.shape = Some((n, q));
+    }
+    st.z0.resize(2 * n, 0.0);
+    st.tmp.resize(2 * n, 0.0);
+    st.coef.resize(2 * r, 0.0);
+    st.data_u.resize(2 * r, 0.0);
+    st.resid.resize(2 * q, 0.0);
+    st.zb.resize(2 * q, 0.0);
     let w_max = w.iter().fold(0.0_f64, |a, v| a.max(v.abs()));
     let robust = beta_o <= w_max;
+    if !robust {
+        st.e.iter_mut().for_each(|v| *v = 0.0);
+        st.t = mean(w);
+    }
     let mut iterations = 0;
     for _ in 0..max_iterations {
         iterations += 1;
-        z0.copy_from_slice(&z);
-        // rhs = (W - E - T 1') B' + mu M + Y, as 2 rows of length 3k.
+        let mu = st.mu;
+        st.z0.copy_from_slice(&st.z);
+        // Z-step: Z = ((W - E - T 1') B' + mu M + Y) (B B' + mu I)^-1. With B = U S V'
+        // and D = W - E - T 1', D B' = (D B'U) U', so
+        // Z = M + Y/mu + [D B'U / mu + (D B'U + (mu M + Y) U) diag(1/(s2+mu) - 1/mu)] U'.
         for row in 0..2 {
             for jj in 0..q {
-                resid[row * q + jj] = w[2 * jj + row] - e[2 * jj + row] - t[row];
+                st.resid[row * q + jj] = w[2 * jj + row] - st.e[2 * jj + row] - st.t[row];
             }
         }
         for row in 0..2 {
-            let d = &resid[row * q..(row + 1) * q];
-            let out = &mut rhs[row * n..(row + 1) * n];
-            for (col, o) in out.iter_mut().enumerate() {
-                let b = &f.b[col * q..(col + 1) * q];
-                *o = b.iter().zip(d).map(|(b, d)| b * d).sum::<f64>();
-            }
-            for col in 0..n {
-                out[col] += mu * m[row * n + col] + y[row * n + col];
-            }
-        }
-        // z = rhs (B B' + mu I)^-1 = rhs/mu + (rhs U) diag(1/(s2+mu) - 1/mu) U'.
-        for row in 0..2 {
-            let h = &rhs[row * n..(row + 1) * n];
-            for c in 0..r {
-                let uc = &f.u[c * n..(c + 1) * n];
-                let dot: f64 = h.iter().zip(uc).map(|(a, b)| a * b).sum();
-                ru[row * r + c] = dot * (1.0 / (f.s2[c] + mu) - 1.0 / mu);
-            }
-            let zr = &mut z[row * n..(row + 1) * n];
-            for (zv, hv) in zr.iter_mut().zip(h) {
-                *zv = hv / mu;
+            let d = &st.resid[row * q..(row + 1) * q];
+            let tmp = &mut st.tmp[row * n..(row + 1) * n];
+            for ((tmp, m), y) in tmp.iter_mut().zip(&st.m[row * n..]).zip(&st.y[row * n..]) {
+                *tmp = mu * m + y;
             }
             for c in 0..r {
-                let coef = ru[row * r + c];
-                let uc = &f.u[c * n..(c + 1) * n];
-                for (zv, uv) in zr.iter_mut().zip(uc) {
-                    *zv += coef * uv;
-                }
+                let du = dot(d, &f.bu[c * q..(c + 1) * q]);
+                let mu_u = dot(tmp, &f.u[c * n..(c + 1) * n]);
+                st.coef[row * r + c] = du / mu + (du + mu_u) * (1.0 / (f.s2[c] + mu) - 1.0 / mu);
+            }
+            let z = &mut st.z[row * n..(row + 1) * n];
+            for ((z, m), y) in z.iter_mut().zip(&st.m[row * n..]).zip(&st.y[row * n..]) {
+                *z = m + y / mu;
+            }
+            for c in 0..r {
+                axpy(st.coef[row * r + c], &f.u[c * n..(c + 1) * n], z);
             }
         }
-        // M: per-block prox of the spectral norm at z - y/mu.
+        // M-step: per-block prox of the spectral norm at Z - Y/mu.
         for i in 0..k {
-            let mut qb = Matrix2x3::zeros();
-            for row in 0..2 {
-                for d in 0..3 {
-                    let idx = row * n + 3 * i + d;
-                    qb[(row, d)] = z[idx] - y[idx] / mu;
-                }
-            }
+            let qb = Matrix2x3::from_fn(|row, d| {
+                let idx = row * n + 3 * i + d;
+                st.z[idx] - st.y[idx] / mu
+            });
             let (mb, _) = prox_spectral(&qb, lam / mu);
             for row in 0..2 {
                 for d in 0..3 {
-                    m[row * n + 3 * i + d] = mb[(row, d)];
+                    st.m[row * n + 3 * i + d] = mb[(row, d)];
                 }
             }
         }
         if robust {
-            // zb = Z B (2 x q); E = soft(W - ZB - T); T = mean(W - ZB - E).
-            for row in 0..2 {
-                for jj in 0..q {
-                    let mut acc = 0.0;
-                    for col in 0..n {
-                        acc += z[row * n + col] * f.b[col * q + jj];
-                    }
-                    zb[2 * jj + row] = acc;
-                }
+            // E = soft(W - Z B - T), T = mean(W - Z B - E).
+            for jj in 0..q {
+                let col = &f.b_cols[jj * n..(jj + 1) * n];
+                st.zb[2 * jj] = dot(&st.z[..n], col);
+                st.zb[2 * jj + 1] = dot(&st.z[n..], col);
             }
             for i in 0..2 * q {
-                e[i] = soft(w[i] - zb[i] - t[i % 2], beta_o);
+                st.e[i] = soft(w[i] - st.zb[i] - st.t[i % 2], beta_o);
             }
             let (mut sx, mut sy) = (0.0, 0.0);
             for jj in 0..q {
-                sx += w[2 * jj] - zb[2 * jj] - e[2 * jj];
-                sy += w[2 * jj + 1] - zb[2 * jj + 1] - e[2 * jj + 1];
+                sx += w[2 * jj] - st.zb[2 * jj] - st.e[2 * jj];
+                sy += w[2 * jj + 1] - st.zb[2 * jj + 1] - st.e[2 * jj + 1];
             }
-            t = Vector2::new(sx / q as f64, sy / q as f64);
+            st.t = Vector2::new(sx / q as f64, sy / q as f64);
         }
         let (mut prim, mut dual, mut nz0) = (0.0, 0.0, 0.0);
         for i in 0..2 * n {
-            y[i] += mu * (m[i] - z[i]);
-            prim += (m[i] - z[i]).powi(2);
-            dual += (z[i] - z0[i]).powi(2);
-            nz0 += z0[i] * z0[i];
+            st.y[i] += mu * (st.m[i] - st.z[i]);
+            prim += (st.m[i] - st.z[i]).powi(2);
+            dual += (st.z[i] - st.z0[i]).powi(2);
+            nz0 += st.z0[i] * st.z0[i];
         }
         if nz0 == 0.0 {
             continue; // first step: residuals undefined, as in the reference
@@ -298,17 +341,12 @@ pub fn admm(
             break;
         }
         if prim > 10.0 * dual {
-            mu *= 2.0;
+            st.mu *= 2.0;
         } else if dual > 10.0 * prim {
-            mu /= 2.0;
+            st.mu /= 2.0;
         }
     }
-    AdmmResult {
-        m,
-        e,
-        t,
-        iterations,
-    }
+    iterations
 }
 
 /// Recovers one rotation and signed coefficients from the blocks `M_i ≈ c_i R`
@@ -394,6 +432,7 @@ fn refine(
     s0: &[f64],
     r0: Matrix3<f64>,
     mut e: Vec<f64>,
+    ws: &mut InitWorkspace,
 ) -> (FrameFit, usize) {
     let (k, p) = (dict.num_bases(), dict.num_joints());
     let d: Vec<f64> = visible.iter().map(|&v| if v { 1.0 } else { 0.0 }).collect();
@@ -418,10 +457,6 @@ fn refine(
     let mut c = vec![0.0; k];
     let mut fit_w = vec![0.0; 2 * p];
     let mut proj = vec![0.0; 2 * p];
-    let (mut problem, mut apg) = (
-        CoefficientProblem::default(),
-        CoefficientWorkspace::default(),
-    );
     let mut fval = f64::INFINITY;
     let mut iterations = 0;
     for _ in 0..params.max_init_iterations {
@@ -431,17 +466,7 @@ fn refine(
             fit_w[2 * j + 1] = w[2 * j + 1] - e[2 * j + 1] - t.y;
         }
         fit_rotation(&s, &fit_w, &d, &mut r);
-        single_frame_coefficients(
-            dict,
-            cache,
-            &fit_w,
-            &d,
-            &r,
-            &mut c,
-            params,
-            &mut problem,
-            &mut apg,
-        );
+        single_frame_coefficients(dict, cache, &fit_w, &d, &r, &mut c, params, ws);
         dict.compose_into(&c, &mut s);
         // Projection of the current shape.
         for j in 0..p {
@@ -501,19 +526,30 @@ mod tests {
     #[test]
     fn prox_of_spectral_norm_matches_its_definition() {
         let q = Matrix2x3::new(1.0, 2.0, -0.5, 0.3, -1.0, 2.5);
-        let lam = 0.7;
-        let (x, nrm) = prox_spectral(&q, lam);
-        let obj = |x: &Matrix2x3<f64>| {
-            0.5 * (x - q).norm_squared() + lam * x.svd(false, false).singular_values.max()
-        };
-        let best = obj(&x);
-        assert!((x.svd(false, false).singular_values.max() - nrm).abs() < 1e-9);
-        // Any perturbation is no better.
-        for i in 0..6 {
-            for s in [-1e-3, 1e-3] {
-                let mut y = x;
-                y[i] += s;
-                assert!(obj(&y) >= best - 1e-12);
+        let rank_one = Matrix2x3::new(1.0, 2.0, -0.5, 2.0, 4.0, -1.0);
+        let equal = Matrix2x3::new(2.0, 0.0, 0.0, 0.0, 0.0, 2.0);
+        // Singular values of q: 3.27, 2.25. Zero, both shrink, only the top one shrinks.
+        for (q, lam) in [
+            (q, 0.7),
+            (q, 2.0),
+            (q, 6.0),
+            (rank_one, 0.5),
+            (rank_one, 8.0),
+            (equal, 0.3),
+        ] {
+            let (x, nrm) = prox_spectral(&q, lam);
+            let obj = |x: &Matrix2x3<f64>| {
+                0.5 * (x - q).norm_squared() + lam * x.svd(false, false).singular_values.max()
+            };
+            let best = obj(&x);
+            assert!((x.svd(false, false).singular_values.max() - nrm).abs() < 1e-9);
+            // Any perturbation is no better.
+            for i in 0..6 {
+                for s in [-1e-3, 1e-3] {
+                    let mut y = x;
+                    y[i] += s;
+                    assert!(obj(&y) >= best - 1e-12, "{q} {lam}");
+                }
             }
         }
     }

@@ -45,6 +45,17 @@ impl InitCache {
     }
 }
 
+/// Buffers of the initialisation, reused from frame to frame; the convex ADMM also
+/// starts from the previous frame's solution ([`convex::AdmmState`]).
+#[derive(Debug, Clone, Default)]
+pub struct InitWorkspace {
+    /// The ADMM's iterates.
+    pub admm: convex::AdmmState,
+    problem: CoefficientProblem,
+    coefficients: CoefficientWorkspace,
+    obs: Observations,
+}
+
 /// Initialises one frame from its 2D joints `w` (`[x, y]` per joint, normalised units);
 /// joints with `visible[j] == false` are left out.
 pub fn initialise_frame(
@@ -54,11 +65,14 @@ pub fn initialise_frame(
     visible: &[bool],
     method: InitMethod,
     params: &Params,
+    ws: &mut InitWorkspace,
 ) -> (FrameFit, InitInfo) {
     match method {
-        InitMethod::Altern => altern::initialise(dict, cache, w, visible, params),
-        InitMethod::ConvexRefine => convex::initialise(dict, cache, w, visible, params, false),
-        InitMethod::ConvexRobustRefine => convex::initialise(dict, cache, w, visible, params, true),
+        InitMethod::Altern => altern::initialise(dict, cache, w, visible, params, ws),
+        InitMethod::ConvexRefine => convex::initialise(dict, cache, w, visible, params, false, ws),
+        InitMethod::ConvexRobustRefine => {
+            convex::initialise(dict, cache, w, visible, params, true, ws)
+        }
     }
 }
 
@@ -87,17 +101,22 @@ pub(crate) fn single_frame_coefficients(
     r: &Matrix3<f64>,
     c: &mut [f64],
     params: &Params,
-    problem: &mut CoefficientProblem,
-    apg: &mut CoefficientWorkspace,
+    ws: &mut InitWorkspace,
 ) {
-    let obs = Observations {
-        joints: dict.num_joints(),
-        xy: w.to_vec(),
-        weights: weights.to_vec(),
-    };
+    let InitWorkspace {
+        problem,
+        coefficients,
+        obs,
+        ..
+    } = ws;
+    obs.joints = dict.num_joints();
+    obs.xy.clear();
+    obs.xy.extend_from_slice(w);
+    obs.weights.clear();
+    obs.weights.extend_from_slice(weights);
     problem.build(
         dict,
-        &obs,
+        obs,
         std::iter::once(*r),
         &[nalgebra::Vector2::zeros()],
     );
@@ -111,7 +130,7 @@ pub(crate) fn single_frame_coefficients(
         params.tolerance,
         params.cd_objective_tolerance,
         params.max_apg_steps.max(1000),
-        apg,
+        coefficients,
     );
 }
 
