@@ -1,20 +1,39 @@
-//! Criterion benchmarks of the estimator on the parity fixtures (one core):
-//! given 2D per frame (init + BCD), heat-map EM per frame, the E-step alone, and the ADMM
-//! initialisation alone. Run: `cargo bench --bench solver`.
+//! Criterion benchmarks of the estimator on the parity fixture `synthetic-s0` (60 frames,
+//! K128 dictionary, one core). Every figure is **per frame**: a whole-sequence run timed
+//! and divided by the number of frames (`iter_custom`), so init, the window solve and
+//! the E-steps are all included where they belong.
+//!
+//! - given 2D per frame: initialisation (convex+robust+refine) + Algorithm 1;
+//! - heat-map EM per frame: initialisation (altern) + Algorithm 2;
+//! - E-step per frame: the 17 joints of a frame, at a fitted state;
+//! - ADMM per frame: the robust convex relaxation of one frame, cold and warm-started
+//!   from the previous frame (as the estimator runs it).
+//!
+//! Run: `cargo bench --bench solver`.
 
 use std::hint::black_box;
 use std::path::PathBuf;
+use std::time::{Duration, Instant};
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use posestream::npy::{self, Array};
 use posestream::solver::Observations;
 use posestream::solver::em::{self, EmWorkspace, PreparedMaps};
-use posestream::solver::init::convex;
-use posestream::solver::normalise::heatmap_scale;
+use posestream::solver::init::convex::{self, AdmmState};
+use posestream::solver::normalise::{heatmap_scale, keypoint_scale};
 use posestream::{Dictionary, Estimator, HeatMaps, Keypoints, Params};
 
 fn shared() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/reference")
+}
+
+/// Times `iters` runs of `run` over `frames` frames and reports the time per frame.
+fn per_frame(iters: u64, frames: usize, mut run: impl FnMut()) -> Duration {
+    let start = Instant::now();
+    for _ in 0..iters {
+        run();
+    }
+    start.elapsed() / frames as u32
 }
 
 fn bench(c: &mut Criterion) {
@@ -25,6 +44,7 @@ fn bench(c: &mut Criterion) {
     let hm: Array<f32> = npy::read(&dir.join("heatmaps.npy")).expect("heatmaps");
     let maps =
         HeatMaps::new(hm.shape[0], hm.shape[1], hm.shape[2], hm.shape[3], hm.data).expect("maps");
+    let frames = maps.frames;
     let est = Estimator::new(dict.clone(), Params::default()).expect("estimator");
     let keypoints = Keypoints {
         joints: 17,
@@ -32,41 +52,72 @@ fn bench(c: &mut Criterion) {
         confidence: None,
     };
 
-    let mut g = c.benchmark_group("synthetic-s0 (60 frames)");
-    g.sample_size(10);
-    g.bench_function("given 2D: init + BCD, whole sequence", |b| {
-        b.iter(|| black_box(est.lift_keypoints(&keypoints).expect("lift")))
+    let mut g = c.benchmark_group("synthetic-s0, per frame");
+    g.sample_size(20);
+    g.bench_function("given 2D: init + BCD", |b| {
+        b.iter_custom(|iters| {
+            per_frame(iters, frames, || {
+                black_box(est.lift_keypoints(&keypoints).expect("lift"));
+            })
+        })
     });
-    g.bench_function("heat maps: init + EM, whole sequence", |b| {
-        b.iter(|| black_box(est.lift_heatmaps(&maps).expect("lift")))
+    g.bench_function("heat maps: init + EM", |b| {
+        b.iter_custom(|iters| {
+            per_frame(iters, frames, || {
+                black_box(est.lift_heatmaps(&maps).expect("lift"));
+            })
+        })
     });
-    // E-step alone: all 60 x 17 maps once, at a fitted state.
+    // E-step alone at a fitted state.
     let fitted = est.lift_heatmaps(&maps).expect("lift");
     let prepared = PreparedMaps::new(&maps);
-    let mut obs = Observations::new(17, vec![0.0; 2 * 17 * maps.frames]);
+    let mut obs = Observations::new(17, vec![0.0; 2 * 17 * frames]);
     let mut ws = EmWorkspace::default();
     let scale = heatmap_scale(maps.height);
-    g.bench_function("E-step, whole sequence", |b| {
-        b.iter(|| {
-            em::e_step(
-                &dict,
-                &prepared,
-                &fitted.fits,
-                scale,
-                0.5,
-                &mut obs,
-                None,
-                &mut ws,
-            )
+    g.bench_function("E-step (17 joints)", |b| {
+        b.iter_custom(|iters| {
+            per_frame(iters, frames, || {
+                em::e_step(
+                    &dict,
+                    &prepared,
+                    &fitted.fits,
+                    scale,
+                    0.5,
+                    &mut obs,
+                    None,
+                    &mut ws,
+                )
+            })
+        })
+    });
+    // ADMM alone, on the keypoints normalised as the estimator does.
+    let factor = &est.init_cache().all_visible;
+    let kscale = keypoint_scale(&kp.data, &vec![1.0; 17 * frames], 17);
+    let w: Vec<f64> = kp.data.iter().map(|v| v / kscale).collect();
+    let mut state = AdmmState::default();
+    g.bench_function("ADMM (robust), cold start", |b| {
+        b.iter_custom(|iters| {
+            per_frame(iters, frames, || {
+                for t in 0..frames {
+                    state.reset();
+                    let wt = &w[34 * t..34 * (t + 1)];
+                    black_box(convex::admm(factor, wt, 17, 0.5, 1.0, 1000, &mut state));
+                }
+            })
+        })
+    });
+    g.bench_function("ADMM (robust), warm start", |b| {
+        b.iter_custom(|iters| {
+            per_frame(iters, frames, || {
+                state.reset();
+                for t in 0..frames {
+                    let wt = &w[34 * t..34 * (t + 1)];
+                    black_box(convex::admm(factor, wt, 17, 0.5, 1.0, 1000, &mut state));
+                }
+            })
         })
     });
     g.finish();
-    // ADMM alone on one frame of keypoints (normalised as the estimator does).
-    let factor = &est.init_cache().all_visible;
-    let w: Vec<f64> = kp.data[..34].iter().map(|v| v / 0.9).collect();
-    c.bench_function("ADMM (robust convex relaxation), one frame", |b| {
-        b.iter(|| black_box(convex::admm(factor, &w, 17, 0.5, 1.0, 1000)))
-    });
 }
 
 criterion_group!(benches, bench);
