@@ -11,6 +11,7 @@
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::cholesky::llt::factor::{LltRegularization, cholesky_in_place};
 use faer::linalg::matmul::matmul;
+use faer::linalg::matmul::triangular::{self, BlockStructure};
 use faer::linalg::triangular_solve::{
     solve_lower_triangular_in_place, solve_upper_triangular_in_place,
 };
@@ -154,7 +155,17 @@ impl BlockTridiagonal {
                 solve_lower_triangular_in_place(l_prev, e.as_mut().transpose_mut(), Par::Seq);
                 let e = e.as_ref();
                 let d = MatMut::from_column_major_slice_mut(&mut self.diag[d0..d1], a, a);
-                matmul(d, Accum::Add, e, e.transpose(), -1.0, Par::Seq);
+                triangular::matmul(
+                    d,
+                    BlockStructure::TriangularLower,
+                    Accum::Add,
+                    e,
+                    BlockStructure::Rectangular,
+                    e.transpose(),
+                    BlockStructure::Rectangular,
+                    -1.0,
+                    Par::Seq,
+                );
             }
             self.backup.clear();
             self.backup.extend_from_slice(&self.diag[d0..d1]);

@@ -27,6 +27,7 @@
 //! and a warm-started C-step takes a few iterations.
 
 use faer::linalg::matmul::matmul;
+use faer::linalg::matmul::triangular::{self, BlockStructure};
 use faer::{Accum, MatMut, MatRef, Par};
 
 use super::{CoefficientInfo, CoefficientProblem, CoefficientWorkspace, dot};
@@ -320,11 +321,15 @@ impl CoefficientProblem {
             }
             let xa = MatRef::from_column_major_slice(xa, rows, na);
             let mut d = a.system.diag_mut(t);
-            matmul(
+            // Lower triangle only: the Cholesky factorisation reads nothing else.
+            triangular::matmul(
                 d.as_mut(),
+                BlockStructure::TriangularLower,
                 Accum::Replace,
                 xa.transpose(),
+                BlockStructure::Rectangular,
                 xa,
+                BlockStructure::Rectangular,
                 1.0,
                 Par::Seq,
             );
