@@ -231,13 +231,12 @@ impl CoefficientProblem {
                 break;
             }
         }
-        let loss = self.loss(c, &mut ws.u);
-        let penalty = self.penalty(c, alpha, beta);
+        // `fval` tracks the objective at `c` after every change (residuals kept up to date).
         CoefficientInfo {
             steps: iterations,
             objective_before,
-            objective_after: loss + penalty,
-            penalty,
+            objective_after: fval,
+            penalty: penalty(c),
         }
     }
 
