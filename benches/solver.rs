@@ -7,7 +7,8 @@
 //! - heat-map EM per frame: initialisation (altern) + Algorithm 2;
 //! - E-step per frame: the 17 joints of a frame, at a fitted state;
 //! - ADMM per frame: the robust convex relaxation of one frame, cold and warm-started
-//!   from the previous frame (as the estimator runs it).
+//!   from the previous frame (as the estimator runs it);
+//! - perspective adjustment per frame, of the heat-map estimate (default settings).
 //!
 //! Run: `cargo bench --bench solver`.
 
@@ -21,7 +22,8 @@ use posestream::solver::Observations;
 use posestream::solver::em::{self, EmWorkspace, PreparedMaps};
 use posestream::solver::init::convex::{self, AdmmState};
 use posestream::solver::normalise::{heatmap_scale, keypoint_scale};
-use posestream::{Dictionary, Estimator, HeatMaps, Keypoints, Params};
+use posestream::solver::perspective::PerspectiveParams;
+use posestream::{CropBox, Dictionary, Estimator, HeatMaps, Intrinsics, Keypoints, Params};
 
 fn shared() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/reference")
@@ -114,6 +116,23 @@ fn bench(c: &mut Criterion) {
                     let wt = &w[34 * t..34 * (t + 1)];
                     black_box(convex::admm(factor, wt, 17, 0.5, 1.0, 1000, &mut state));
                 }
+            })
+        })
+    });
+    // The perspective adjustment of the fitted heat-map estimate, the maps taken as
+    // 256-pixel crops seen by a 1000-pixel focal length.
+    let camera = Intrinsics::new(1000.0, 1000.0, 640.0, 360.0).expect("camera");
+    let to_image = [CropBox::new(300.0, 100.0, 256.0, 256.0)
+        .expect("box")
+        .pixel_map(maps.width, maps.height)];
+    let perspective = PerspectiveParams::default();
+    g.bench_function("perspective adjustment", |b| {
+        b.iter_custom(|iters| {
+            per_frame(iters, frames, || {
+                black_box(
+                    est.adjust_perspective(&fitted, &camera, &to_image, &perspective)
+                        .expect("adjust"),
+                );
             })
         })
     });

@@ -122,6 +122,27 @@ pub enum ArrayError {
     },
 }
 
+/// Reading camera intrinsics failed.
+#[derive(Debug, thiserror::Error)]
+pub enum CameraError {
+    /// The file could not be read.
+    #[error("cannot read intrinsics {path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// The file is not valid intrinsics JSON, or holds impossible values.
+    #[error("intrinsics {path}: {detail}")]
+    Invalid {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        detail: String,
+    },
+}
+
 /// The inputs handed to the estimator do not fit together.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum EstimateError {
@@ -163,6 +184,12 @@ pub enum EstimateError {
     /// The keypoints do not spread (all joints at one point), so the scale is undefined.
     #[error("keypoints have zero spread; cannot normalise")]
     Degenerate,
+    /// A fitted pose has no size (every coefficient zero), so no metric scale can be set.
+    #[error("frame {frame}: the fitted pose has zero size; cannot set a metric scale")]
+    ZeroSize {
+        /// Frame index.
+        frame: usize,
+    },
     /// A parameter is outside its domain.
     #[error("invalid parameter: {0}")]
     Parameter(String),

@@ -7,6 +7,7 @@ use std::time::Instant;
 use nalgebra::Vector3;
 use serde::Serialize;
 
+use crate::camera::{Intrinsics, PixelMap};
 use crate::dictionary::Dictionary;
 use crate::error::EstimateError;
 use crate::heatmaps::HeatMaps;
@@ -15,6 +16,9 @@ use crate::solver::coefficients::basis_gram_max;
 use crate::solver::em::{self, EmWorkspace, PreparedMaps};
 use crate::solver::init::{InitCache, InitWorkspace, initialise_frame};
 use crate::solver::normalise::{heatmap_scale, keypoint_scale};
+use crate::solver::perspective::{
+    self, PerspectiveFit, PerspectiveParams, PerspectiveWorkspace, start_from_weak_fit,
+};
 use crate::solver::{FrameFit, InitMethod, Observations, Params};
 
 /// 2D joints of a sequence in pixels, with optional per-joint confidence in [0, 1].
@@ -81,8 +85,31 @@ pub struct Estimate {
     pub variance: Option<Vec<f64>>,
     /// The model parameters per frame (normalised units).
     pub fits: Vec<FrameFit>,
+    /// Input pixels per normalised unit (the fits' units).
+    pub pixels_per_unit: f64,
+    /// Weight of each joint in the fit (`t*p + j`): the keypoints' confidence, or 1.
+    pub weights: Vec<f64>,
     /// How it was reached.
     pub report: Report,
+}
+
+/// The result of the perspective adjustment of an [`Estimate`]
+/// ([`Estimator::adjust_perspective`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct MetricEstimate {
+    /// Joints per frame.
+    pub joints: usize,
+    /// 3D poses, metres, camera frame (x right, y down, z forward), absolute position:
+    /// `[x, y, z]` per joint, frame-major.
+    pub poses: Vec<f64>,
+    /// The 2D joints the model was fitted to, image pixels.
+    pub keypoints: Vec<f64>,
+    /// The perspective projection of the poses, image pixels.
+    pub projected: Vec<f64>,
+    /// The model per frame.
+    pub fits: Vec<PerspectiveFit>,
+    /// Seconds spent.
+    pub seconds: f64,
 }
 
 /// Lifts 2D joints or heat maps to 3D with one dictionary and one parameter set.
@@ -230,6 +257,7 @@ impl Estimator {
             &mut ws,
         );
         let mut est = self.finish(fits, &obs.xy, scale, None);
+        est.weights = obs.weights;
         est.report = Report {
             frames: f,
             init: self.keypoint_init().to_string(),
@@ -325,6 +353,7 @@ impl Estimator {
             &mut ws,
         );
         let mut est = self.finish(fits, &obs.xy, scale, Some(variance));
+        est.weights = obs.weights;
         est.report = Report {
             frames: f,
             init: self.heatmap_init().to_string(),
@@ -368,7 +397,75 @@ impl Estimator {
             projected,
             variance,
             fits,
+            pixels_per_unit: scale,
+            weights: vec![1.0; f * p],
             report: Report::default(),
         }
+    }
+
+    /// The perspective adjustment (see [`perspective`]): metric poses in the camera frame
+    /// under the pinhole `camera`. `to_image` maps the estimate's input pixels to image
+    /// pixels, one map per frame or one for all (keypoints in image pixels:
+    /// [`PixelMap::IDENTITY`]; heat maps: [`CropBox::pixel_map`](crate::CropBox::pixel_map)).
+    pub fn adjust_perspective(
+        &self,
+        est: &Estimate,
+        camera: &Intrinsics,
+        to_image: &[PixelMap],
+        params: &PerspectiveParams,
+    ) -> Result<MetricEstimate, EstimateError> {
+        let start = Instant::now();
+        params.validate()?;
+        let p = self.dict.num_joints();
+        let f = est.fits.len();
+        if to_image.len() != f && to_image.len() != 1 {
+            return Err(EstimateError::Parameter(format!(
+                "{} crop boxes for {f} frames",
+                to_image.len()
+            )));
+        }
+        let mut poses = Vec::with_capacity(3 * p * f);
+        let mut keypoints = Vec::with_capacity(2 * p * f);
+        let mut projected = Vec::with_capacity(2 * p * f);
+        let mut fits = Vec::with_capacity(f);
+        let mut ws = PerspectiveWorkspace::default();
+        for (t, fit) in est.fits.iter().enumerate() {
+            let map = to_image[t.min(to_image.len() - 1)];
+            let uv: Vec<f64> = est.keypoints[2 * p * t..2 * p * (t + 1)]
+                .chunks_exact(2)
+                .flat_map(|xy| map.apply(xy[0], xy[1]))
+                .collect();
+            let units_to_image = PixelMap {
+                scale: map.scale.map(|s| s * est.pixels_per_unit),
+                offset: map.offset,
+            };
+            let mut pf = start_from_weak_fit(&self.dict, fit, &units_to_image, camera, params)
+                .ok_or(EstimateError::ZeroSize { frame: t })?;
+            perspective::adjust_frame(
+                &self.dict,
+                self.gram_max,
+                camera,
+                &uv,
+                &est.weights[p * t..p * (t + 1)],
+                &mut pf,
+                params,
+                &mut ws,
+            );
+            let joints = pf.joints(&self.dict);
+            for q in joints.chunks_exact(3) {
+                projected.extend(camera.project(&Vector3::new(q[0], q[1], q[2])));
+            }
+            poses.extend(joints);
+            keypoints.extend(uv);
+            fits.push(pf);
+        }
+        Ok(MetricEstimate {
+            joints: p,
+            poses,
+            keypoints,
+            projected,
+            fits,
+            seconds: start.elapsed().as_secs_f64(),
+        })
     }
 }

@@ -24,6 +24,7 @@
 //! a [`Skeleton`]; [`HeatMaps`] are a detector's per-joint score maps; a
 //! [`solver::Window`] is the frames solved together.
 
+pub mod camera;
 pub mod dictionary;
 pub mod error;
 pub mod estimator;
@@ -33,9 +34,10 @@ pub mod npy;
 pub mod skeleton;
 pub mod solver;
 
+pub use camera::{CropBox, Intrinsics, PixelMap};
 pub use dictionary::Dictionary;
-pub use error::{ArrayError, DictionaryError, EstimateError};
-pub use estimator::{Estimate, Estimator, Keypoints, Report};
+pub use error::{ArrayError, CameraError, DictionaryError, EstimateError};
+pub use estimator::{Estimate, Estimator, Keypoints, MetricEstimate, Report};
 pub use heatmaps::HeatMaps;
 pub use skeleton::Skeleton;
 pub use solver::{InitMethod, Params};

@@ -6,9 +6,10 @@ use std::process::ExitCode;
 use clap::{Args, Parser, Subcommand};
 use posestream::npy::{self, Array};
 use posestream::solver::coefficients::CoefficientSolver;
+use posestream::solver::perspective::PerspectiveParams;
 use posestream::{
-    ArrayError, Dictionary, DictionaryError, Estimate, EstimateError, Estimator, HeatMaps,
-    InitMethod, Keypoints, Params, metrics,
+    ArrayError, CameraError, CropBox, Dictionary, DictionaryError, Estimate, EstimateError,
+    Estimator, HeatMaps, InitMethod, Intrinsics, Keypoints, Params, PixelMap, metrics,
 };
 
 /// Monocular 3D human pose estimation (Zhou et al., CVPR 2016).
@@ -20,6 +21,7 @@ struct Cli {
 }
 
 #[derive(Debug, Subcommand)]
+#[allow(clippy::large_enum_variant)] // parsed once
 enum Command {
     /// Lift a sequence of 2D keypoints or heat maps (NPY) to 3D poses (NPY).
     Lift(LiftArgs),
@@ -47,8 +49,9 @@ struct LiftArgs {
     /// Heat maps (F, p, h, w); pixel (row r, col c) is centred at x = c, y = r.
     #[arg(long)]
     heatmaps: Option<PathBuf>,
-    /// Output 3D poses (F, p, 3): camera frame (x right, y down, z forward),
-    /// dictionary units, dictionary joint order.
+    /// Output 3D poses (F, p, 3): camera frame (x right, y down, z forward), dictionary
+    /// joint order; dictionary units, centred, or with --intrinsics metres at the body's
+    /// position.
     #[arg(long)]
     out: PathBuf,
     /// Output 2D joints (F, p, 2) the model was fitted to (heat maps: the EM's expected
@@ -66,6 +69,46 @@ struct LiftArgs {
     json: bool,
     #[command(flatten)]
     solver: SolverArgs,
+    #[command(flatten)]
+    perspective: PerspectiveArgs,
+}
+
+/// The perspective adjustment: metric poses under a pinhole camera.
+#[derive(Debug, Args)]
+struct PerspectiveArgs {
+    /// Camera intrinsics (JSON: {"fx", "fy", "cx", "cy"} or {"K": 3 x 3 rows}, pixels).
+    /// Turns on the perspective adjustment: --out then holds metres in the camera frame
+    /// (absolute position) and every 2D output is in image pixels. Keypoints must then be
+    /// in image pixels; heat maps need --boxes.
+    #[arg(long)]
+    intrinsics: Option<PathBuf>,
+    /// Crop box of each frame's heat maps (F, 4): x0, y0, width, height in image pixels.
+    #[arg(long, requires_all = ["intrinsics", "heatmaps"])]
+    boxes: Option<PathBuf>,
+    /// Mean bone length of the skeleton, metres (sets the metric scale).
+    #[arg(long, default_value_t = PerspectiveParams::default().mean_limb_length)]
+    mean_limb_length: f64,
+    /// L1 weight of the perspective C-step (units of --alpha).
+    #[arg(long, default_value_t = PerspectiveParams::default().alpha)]
+    perspective_alpha: f64,
+    /// Iterations of the perspective adjustment per frame at most.
+    #[arg(long, default_value_t = PerspectiveParams::default().max_iterations)]
+    perspective_iterations: usize,
+    /// APG steps per perspective C-step.
+    #[arg(long, default_value_t = PerspectiveParams::default().apg_steps)]
+    perspective_apg_steps: usize,
+}
+
+impl PerspectiveArgs {
+    fn params(&self) -> PerspectiveParams {
+        PerspectiveParams {
+            mean_limb_length: self.mean_limb_length,
+            alpha: self.perspective_alpha,
+            max_iterations: self.perspective_iterations,
+            apg_steps: self.perspective_apg_steps,
+            ..PerspectiveParams::default()
+        }
+    }
 }
 
 #[derive(Debug, Args)]
@@ -177,6 +220,8 @@ enum CliError {
     Input(String),
     #[error(transparent)]
     Estimate(#[from] EstimateError),
+    #[error(transparent)]
+    Camera(#[from] CameraError),
     #[error("{path}: {source}")]
     Json {
         path: PathBuf,
@@ -250,6 +295,26 @@ fn lift(args: &LiftArgs) -> Result<(), CliError> {
     let dict = Dictionary::load(&args.dict)?;
     let p = dict.num_joints();
     let estimator = Estimator::new(dict, args.solver.params())?;
+    // Read everything before the (long) solve, so bad input fails at once.
+    let perspective = match &args.perspective.intrinsics {
+        Some(path) => {
+            let params = args.perspective.params();
+            params.validate()?;
+            Some((Intrinsics::load(path)?, params))
+        }
+        None => None,
+    };
+    let boxes = match &args.perspective.boxes {
+        Some(path) => Some(read_boxes(path)?),
+        None => None,
+    };
+    if perspective.is_some() && args.heatmaps.is_some() && boxes.is_none() {
+        return Err(CliError::Input(
+            "--intrinsics with --heatmaps needs --boxes (the crop of each frame's heat maps)"
+                .into(),
+        ));
+    }
+    let mut map_size = None;
     let estimate: Estimate = if let Some(path) = &args.keypoints {
         let kp = read_keypoints(path, p)?;
         let confidence = match &args.confidence {
@@ -274,6 +339,17 @@ fn lift(args: &LiftArgs) -> Result<(), CliError> {
             .map_err(|e| input_error(path, e))?
     } else if let Some(path) = &args.heatmaps {
         let maps = read_heatmaps(path, p)?;
+        if let Some(b) = &boxes {
+            if b.len() != maps.frames {
+                return Err(CliError::Input(format!(
+                    "{}: {} crop boxes for {} frames of heat maps",
+                    args.perspective.boxes.as_deref().unwrap_or(path).display(),
+                    b.len(),
+                    maps.frames
+                )));
+            }
+        }
+        map_size = Some((maps.width, maps.height));
         estimator
             .lift_heatmaps(&maps)
             .map_err(|e| input_error(path, e))?
@@ -283,28 +359,74 @@ fn lift(args: &LiftArgs) -> Result<(), CliError> {
         ));
     };
     let f = estimate.report.frames;
-    npy::write(&args.out, &[f, p, 3], &estimate.poses)?;
-    if let Some(path) = &args.out_2d {
-        npy::write(path, &[f, p, 2], &estimate.keypoints)?;
+    let mut summary = serde_json::to_value(&estimate.report).map_err(|source| CliError::Json {
+        path: args.out.clone(),
+        source,
+    })?;
+    let mut seconds = estimate.report.seconds;
+    if let Some((camera, params)) = &perspective {
+        let to_image: Vec<PixelMap> = match (&boxes, map_size) {
+            (Some(b), Some((w, h))) => b.iter().map(|b| b.pixel_map(w, h)).collect(),
+            _ => vec![PixelMap::IDENTITY],
+        };
+        let metric = estimator.adjust_perspective(&estimate, camera, &to_image, params)?;
+        npy::write(&args.out, &[f, p, 3], &metric.poses)?;
+        if let Some(path) = &args.out_2d {
+            npy::write(path, &[f, p, 2], &metric.keypoints)?;
+        }
+        if let Some(path) = &args.out_proj {
+            npy::write(path, &[f, p, 2], &metric.projected)?;
+        }
+        if let (Some(path), Some(var)) = (&args.out_var, &estimate.variance) {
+            let var: Vec<f64> = var
+                .iter()
+                .enumerate()
+                .map(|(i, v)| to_image[(i / p).min(to_image.len() - 1)].variance(*v))
+                .collect();
+            npy::write(path, &[f, p], &var)?;
+        }
+        seconds += metric.seconds;
+        let n = metric.fits.len() as f64;
+        summary["perspective"] = serde_json::json!({
+            "mean_iterations": metric.fits.iter().map(|f| f.iterations as f64).sum::<f64>() / n,
+            "mean_ray_distance_m": metric.fits.iter().map(|f| f.ray_distance).sum::<f64>() / n,
+            "mean_reprojection_px": metrics::mean_error_2d(&metric.projected, &metric.keypoints),
+            "seconds": metric.seconds,
+        });
+    } else {
+        npy::write(&args.out, &[f, p, 3], &estimate.poses)?;
+        if let Some(path) = &args.out_2d {
+            npy::write(path, &[f, p, 2], &estimate.keypoints)?;
+        }
+        if let Some(path) = &args.out_proj {
+            npy::write(path, &[f, p, 2], &estimate.projected)?;
+        }
+        if let (Some(path), Some(var)) = (&args.out_var, &estimate.variance) {
+            npy::write(path, &[f, p], var)?;
+        }
     }
-    if let Some(path) = &args.out_proj {
-        npy::write(path, &[f, p, 2], &estimate.projected)?;
-    }
-    if let (Some(path), Some(var)) = (&args.out_var, &estimate.variance) {
-        npy::write(path, &[f, p], var)?;
-    }
-    tracing::info!(frames = f, seconds = estimate.report.seconds, "lifted");
+    tracing::info!(frames = f, seconds, "lifted");
     if args.json {
-        let mut summary =
-            serde_json::to_value(&estimate.report).map_err(|source| CliError::Json {
-                path: args.out.clone(),
-                source,
-            })?;
-        summary["seconds_per_frame"] = (estimate.report.seconds / f as f64).into();
+        summary["seconds"] = seconds.into();
+        summary["seconds_per_frame"] = (seconds / f as f64).into();
         summary["joints"] = p.into();
         println!("{summary}");
     }
     Ok(())
+}
+
+/// Crop boxes (F, 4): x0, y0, width, height, image pixels.
+fn read_boxes(path: &Path) -> Result<Vec<CropBox>, CliError> {
+    let b: Array<f64> = npy::read(path)?;
+    npy::expect_shape(&b, path, &[None, Some(4)], "(F, 4)")?;
+    b.data
+        .chunks_exact(4)
+        .enumerate()
+        .map(|(t, v)| {
+            CropBox::new(v[0], v[1], v[2], v[3])
+                .map_err(|e| CliError::Input(format!("{}: box {t}: {e}", path.display())))
+        })
+        .collect()
 }
 
 fn parity(args: &ParityArgs) -> Result<(), CliError> {

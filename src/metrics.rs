@@ -76,6 +76,25 @@ pub fn p_mpjpe_with_reflections(pred: &[f64], truth: &[f64], joints: usize) -> f
     aligned_error(pred, truth, joints, true)
 }
 
+/// MPJPE after subtracting each frame's `root` joint from both poses (no rotation or
+/// scale alignment): the Human3.6M protocol of the paper's Table 3.
+pub fn root_aligned_mpjpe(pred: &[f64], truth: &[f64], joints: usize, root: usize) -> f64 {
+    let n = 3 * joints;
+    let frames = pred.len() / n;
+    let mut total = 0.0;
+    for t in 0..frames {
+        let (a, b) = (&pred[t * n..(t + 1) * n], &truth[t * n..(t + 1) * n]);
+        let (ra, rb) = (&a[3 * root..3 * root + 3], &b[3 * root..3 * root + 3]);
+        for j in 0..joints {
+            let d: f64 = (0..3)
+                .map(|i| (a[3 * j + i] - ra[i] - b[3 * j + i] + rb[i]).powi(2))
+                .sum();
+            total += d.sqrt();
+        }
+    }
+    total / (frames * joints) as f64
+}
+
 /// Mean 2D distance.
 pub fn mean_error_2d(pred: &[f64], truth: &[f64]) -> f64 {
     let n = pred.len() / 2;
@@ -117,6 +136,14 @@ mod tests {
             .collect();
         assert!(p_mpjpe(&pred, &truth, p) < 1e-10);
         assert!(mpjpe(&pred, &truth) > 1.0);
+        // A translated copy is zero once root-aligned; a rotated one is not.
+        let shifted: Vec<f64> = truth
+            .iter()
+            .enumerate()
+            .map(|(i, v)| v + [1.0, -2.0, 3.0][i % 3])
+            .collect();
+        assert!(root_aligned_mpjpe(&shifted, &truth, p, 4) < 1e-12);
+        assert!(root_aligned_mpjpe(&pred, &truth, p, 4) > 0.1);
     }
 
     #[test]

@@ -40,104 +40,230 @@ fn lifts_keypoints_to_an_npy_of_poses() {
 }
 
 #[test]
+fn lifts_heat_maps_to_metres_with_intrinsics_and_boxes() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let path = |name: &str| tmp.path().join(name).to_string_lossy().into_owned();
+    // The s0 heat maps (64 x 64) as crops of 256 x 256 image pixels at (300, 100).
+    let boxes: Vec<f64> = (0..60).flat_map(|_| [300.0, 100.0, 256.0, 256.0]).collect();
+    npy::write(&tmp.path().join("boxes.npy"), &[60, 4], &boxes).expect("write");
+    std::fs::write(
+        tmp.path().join("K.json"),
+        r#"{"K": [[1000, 0, 640], [0, 1000, 360], [0, 0, 1]]}"#,
+    )
+    .expect("write");
+    let heat = fixture("synthetic-s0").join("heatmaps.npy");
+    let o = lift(&[
+        "--dict",
+        &k128().to_string_lossy(),
+        "--heatmaps",
+        &heat.to_string_lossy(),
+        "--intrinsics",
+        &path("K.json"),
+        "--boxes",
+        &path("boxes.npy"),
+        "--mean-limb-length",
+        "0.25",
+        "--out",
+        &path("S.npy"),
+        "--out-2d",
+        &path("W.npy"),
+        "--out-proj",
+        &path("P.npy"),
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s: Array<f64> = npy::read(&tmp.path().join("S.npy")).expect("poses");
+    let w: Array<f64> = npy::read(&tmp.path().join("W.npy")).expect("2d");
+    let proj: Array<f64> = npy::read(&tmp.path().join("P.npy")).expect("projection");
+    assert_eq!(s.shape, vec![60, 17, 3]);
+    // In front of the camera, and 2D outputs in image pixels inside the boxes.
+    assert!(s.data.chunks_exact(3).all(|q| q[2] > 0.5));
+    assert!(
+        w.data
+            .chunks_exact(2)
+            .all(|q| (299.5..555.5).contains(&q[0]) && (99.5..355.5).contains(&q[1]))
+    );
+    let reprojection = posestream::metrics::mean_error_2d(&proj.data, &w.data);
+    assert!(reprojection < 2.0, "reprojection {reprojection} px");
+    let summary: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json summary");
+    assert!(summary["perspective"]["mean_iterations"].as_f64() > Some(1.0));
+}
+
+#[test]
 fn bad_inputs_give_one_error_line_and_no_panic() {
     let tmp = tempfile::tempdir().expect("tempdir");
-    let out = tmp.path().join("S.npy");
-    let heat = fixture("synthetic-s0").join("heatmaps.npy");
-    let truncated = tmp.path().join("trunc.npy");
+    let path = |name: &str| tmp.path().join(name).to_string_lossy().into_owned();
+    let out = path("S.npy");
+    let heat = fixture("synthetic-s0")
+        .join("heatmaps.npy")
+        .to_string_lossy()
+        .into_owned();
     let bytes = std::fs::read(fixture("synthetic-s0").join("keypoints.npy")).expect("read");
-    std::fs::write(&truncated, &bytes[..200]).expect("write");
-    let empty = tmp.path().join("empty.npy");
-    std::fs::write(&empty, b"").expect("write");
-    let nan = tmp.path().join("nan.npy");
-    npy::write(&nan, &[1, 17, 2], &[f64::NAN; 34]).expect("write");
-    let joints = tmp.path().join("joints.npy");
-    npy::write(&joints, &[2, 15, 2], &[1.0; 60]).expect("write");
-    let zero_maps = tmp.path().join("zero.npy");
-    npy::write(&zero_maps, &[1, 17, 8, 8], &[0.0; 17 * 64]).expect("write");
-    let bad_dict = tmp.path().join("d.mat");
-    std::fs::write(&bad_dict, b"MATLAB 5.0 MAT-file, nonsense").expect("write");
-    let d = k128();
-    let d = d.to_str().unwrap_or_default();
-    let o = out.to_str().unwrap_or_default();
-    let cases: Vec<Vec<&str>> = vec![
-        vec![
-            "--dict",
-            d,
-            "--keypoints",
-            heat.to_str().unwrap_or_default(),
-            "--out",
-            o,
-        ],
-        vec![
-            "--dict",
-            d,
-            "--keypoints",
-            truncated.to_str().unwrap_or_default(),
-            "--out",
-            o,
-        ],
-        vec![
-            "--dict",
-            d,
-            "--keypoints",
-            empty.to_str().unwrap_or_default(),
-            "--out",
-            o,
-        ],
-        vec![
-            "--dict",
-            d,
-            "--keypoints",
-            nan.to_str().unwrap_or_default(),
-            "--out",
-            o,
-        ],
-        vec![
-            "--dict",
-            d,
-            "--keypoints",
-            joints.to_str().unwrap_or_default(),
-            "--out",
-            o,
-        ],
-        vec![
-            "--dict",
-            d,
-            "--heatmaps",
-            zero_maps.to_str().unwrap_or_default(),
-            "--out",
-            o,
-        ],
-        vec![
-            "--dict",
-            bad_dict.to_str().unwrap_or_default(),
-            "--heatmaps",
-            heat.to_str().unwrap_or_default(),
-            "--out",
-            o,
-        ],
-        vec![
-            "--dict",
-            d,
-            "--keypoints",
-            joints.to_str().unwrap_or_default(),
-            "--out",
-            o,
-            "--alpha",
-            "-1",
-        ],
+    std::fs::write(path("trunc.npy"), &bytes[..200]).expect("write");
+    std::fs::write(path("empty.npy"), b"").expect("write");
+    npy::write(
+        tmp.path().join("nan.npy").as_path(),
+        &[1, 17, 2],
+        &[f64::NAN; 34],
+    )
+    .expect("write");
+    npy::write(
+        tmp.path().join("joints.npy").as_path(),
+        &[2, 15, 2],
+        &[1.0; 60],
+    )
+    .expect("write");
+    npy::write(
+        tmp.path().join("zero.npy").as_path(),
+        &[1, 17, 8, 8],
+        &[0.0; 17 * 64],
+    )
+    .expect("write");
+    std::fs::write(path("d.mat"), b"MATLAB 5.0 MAT-file, nonsense").expect("write");
+    std::fs::write(
+        path("K.json"),
+        r#"{"fx": 1000, "fy": 1000, "cx": 640, "cy": 360}"#,
+    )
+    .expect("write");
+    std::fs::write(
+        path("K-neg.json"),
+        r#"{"fx": -1000, "fy": 1000, "cx": 640, "cy": 360}"#,
+    )
+    .expect("write");
+    std::fs::write(path("K-bad.json"), r#"{"fx": 1000"#).expect("write");
+    npy::write(
+        tmp.path().join("boxes3.npy").as_path(),
+        &[60, 3],
+        &[10.0; 180],
+    )
+    .expect("write");
+    npy::write(
+        tmp.path().join("boxes1.npy").as_path(),
+        &[1, 4],
+        &[0.0, 0.0, 64.0, 64.0],
+    )
+    .expect("write");
+    let flat: Vec<f64> = (0..60).flat_map(|_| [0.0, 0.0, 0.0, 64.0]).collect();
+    npy::write(tmp.path().join("boxes0.npy").as_path(), &[60, 4], &flat).expect("write");
+    let d = k128().to_string_lossy().into_owned();
+    let kp = |file: &str| vec!["--dict".into(), d.clone(), "--keypoints".into(), path(file)];
+    let hm = |file: &str| vec!["--dict".into(), d.clone(), "--heatmaps".into(), file.into()];
+    let with = |mut a: Vec<String>, more: &[&str]| {
+        a.extend(more.iter().map(|s| s.to_string()));
+        a
+    };
+    let s0_keypoints = fixture("synthetic-s0")
+        .join("keypoints.npy")
+        .to_string_lossy()
+        .into_owned();
+    let cases: Vec<(&str, Vec<String>)> = vec![
+        (
+            "heat maps as keypoints",
+            vec![
+                "--dict".into(),
+                d.clone(),
+                "--keypoints".into(),
+                heat.clone(),
+            ],
+        ),
+        ("truncated file", kp("trunc.npy")),
+        ("empty file", kp("empty.npy")),
+        ("NaN", kp("nan.npy")),
+        ("wrong joint count", kp("joints.npy")),
+        ("all-zero heat maps", hm(&path("zero.npy"))),
+        (
+            "unreadable dictionary",
+            vec![
+                "--dict".into(),
+                path("d.mat"),
+                "--heatmaps".into(),
+                heat.clone(),
+            ],
+        ),
+        ("negative alpha", with(kp("joints.npy"), &["--alpha", "-1"])),
+        (
+            "malformed intrinsics",
+            with(kp("joints.npy"), &["--intrinsics", &path("K-bad.json")]),
+        ),
+        (
+            "negative focal length",
+            with(kp("joints.npy"), &["--intrinsics", &path("K-neg.json")]),
+        ),
+        (
+            "missing intrinsics file",
+            with(kp("joints.npy"), &["--intrinsics", &path("none.json")]),
+        ),
+        (
+            "zero limb length",
+            with(
+                vec![
+                    "--dict".into(),
+                    d.clone(),
+                    "--keypoints".into(),
+                    s0_keypoints.clone(),
+                ],
+                &["--intrinsics", &path("K.json"), "--mean-limb-length", "0"],
+            ),
+        ),
+        (
+            "heat maps without boxes",
+            with(hm(&heat), &["--intrinsics", &path("K.json")]),
+        ),
+        (
+            "boxes of 3 values",
+            with(
+                hm(&heat),
+                &[
+                    "--intrinsics",
+                    &path("K.json"),
+                    "--boxes",
+                    &path("boxes3.npy"),
+                ],
+            ),
+        ),
+        (
+            "one box for 60 frames",
+            with(
+                hm(&heat),
+                &[
+                    "--intrinsics",
+                    &path("K.json"),
+                    "--boxes",
+                    &path("boxes1.npy"),
+                ],
+            ),
+        ),
+        (
+            "zero-width boxes",
+            with(
+                hm(&heat),
+                &[
+                    "--intrinsics",
+                    &path("K.json"),
+                    "--boxes",
+                    &path("boxes0.npy"),
+                ],
+            ),
+        ),
     ];
-    for args in cases {
-        let r = lift(&args);
+    for (name, args) in cases {
+        let r = lift(
+            &with(args, &["--out", &out])
+                .iter()
+                .map(String::as_str)
+                .collect::<Vec<_>>(),
+        );
         let stderr = String::from_utf8_lossy(&r.stderr);
-        assert!(!r.status.success(), "{args:?} succeeded");
-        assert!(!stderr.contains("panicked"), "{args:?}: {stderr}");
-        assert_eq!(stderr.trim().lines().count(), 1, "{args:?}: {stderr}");
+        assert!(!r.status.success(), "{name}: succeeded");
+        assert!(!stderr.contains("panicked"), "{name}: {stderr}");
+        assert_eq!(stderr.trim().lines().count(), 1, "{name}: {stderr}");
         assert!(
             stderr.starts_with("posestream: error: "),
-            "{args:?}: {stderr}"
+            "{name}: {stderr}"
         );
-        assert!(!out.exists(), "{args:?} wrote an output");
+        assert!(
+            !std::path::Path::new(&out).exists(),
+            "{name}: wrote an output"
+        );
     }
 }

@@ -14,7 +14,8 @@
 //! - [`rotations`]: the R-step, block Riemannian Newton on SO(3) with backtracking;
 //! - [`bcd`]: Algorithm 1, block coordinate descent (C, R, T) given 2D joints;
 //! - [`init`]: per-frame initialisation, convex relaxation (ADMM) or alternation;
-//! - [`estep`]: the E-step over heat maps; [`em`]: Algorithm 2.
+//! - [`estep`]: the E-step over heat maps; [`em`]: Algorithm 2;
+//! - [`perspective`]: the perspective adjustment, metric poses under a pinhole camera.
 //!
 //! Units: every step works in normalised image units (see [`normalise`]); weights are
 //! those of the authors' release (alpha 0.5, beta 20, gamma 2, sigma 0.5).
@@ -26,6 +27,7 @@ pub mod em;
 pub mod estep;
 pub mod init;
 pub mod normalise;
+pub mod perspective;
 pub mod rotations;
 
 use nalgebra::{Matrix3, Vector2};

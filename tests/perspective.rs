@@ -1,0 +1,234 @@
+//! The perspective adjustment: metric poses under a pinhole camera.
+
+mod common;
+
+use common::{fixture, k128, read};
+use nalgebra::{Rotation3, Vector3};
+use posestream::metrics::root_aligned_mpjpe;
+use posestream::solver::perspective::PerspectiveParams;
+use posestream::{Dictionary, Estimator, Intrinsics, Keypoints, Params, PixelMap, Skeleton};
+
+const LIMB: f64 = 0.25;
+
+fn camera() -> Intrinsics {
+    Intrinsics::new(1000.0, 1000.0, 640.0, 360.0).expect("camera")
+}
+
+/// Mean bone length of a pose given as `[x, y, z]` per joint.
+fn mean_limb(skeleton: &Skeleton, pose: &[f64]) -> f64 {
+    let bones: Vec<(usize, usize)> = skeleton.bones().collect();
+    bones
+        .iter()
+        .map(|&(a, b)| {
+            (0..3)
+                .map(|i| (pose[3 * a + i] - pose[3 * b + i]).powi(2))
+                .sum::<f64>()
+                .sqrt()
+        })
+        .sum::<f64>()
+        / bones.len() as f64
+}
+
+/// Each frame of `poses` (`[x, y, z]` per joint, any units) scaled to mean limb `LIMB` and
+/// moved by `offset` (metres); with their perspective images.
+fn place(skeleton: &Skeleton, poses: &[f64], offset: Vector3<f64>) -> (Vec<f64>, Vec<f64>) {
+    let p = skeleton.len();
+    let cam = camera();
+    let (mut metric, mut uv) = (Vec::new(), Vec::new());
+    for pose in poses.chunks_exact(3 * p) {
+        let s = LIMB / mean_limb(skeleton, pose);
+        let mean: Vector3<f64> = pose
+            .chunks_exact(3)
+            .map(|c| Vector3::new(c[0], c[1], c[2]))
+            .sum::<Vector3<f64>>()
+            / p as f64;
+        for c in pose.chunks_exact(3) {
+            let q = (Vector3::new(c[0], c[1], c[2]) - mean) * s + offset;
+            metric.extend([q.x, q.y, q.z]);
+            uv.extend(cam.project(&q));
+        }
+    }
+    (metric, uv)
+}
+
+/// The weak-perspective poses of an estimate scaled to mean limb `LIMB`, frame by frame.
+fn weak_metric(skeleton: &Skeleton, poses: &[f64]) -> Vec<f64> {
+    let p = skeleton.len();
+    poses
+        .chunks_exact(3 * p)
+        .flat_map(|pose| {
+            let s = LIMB / mean_limb(skeleton, pose);
+            pose.iter().map(move |v| v * s).collect::<Vec<_>>()
+        })
+        .collect()
+}
+
+fn root(skeleton: &Skeleton) -> usize {
+    skeleton
+        .parents
+        .iter()
+        .position(|q| q.is_none())
+        .expect("root")
+}
+
+#[test]
+fn recovers_a_three_basis_pose_seen_close_up_in_perspective() {
+    // The first 8 bases of K128, a pose of 3 of them 1.8 m in front of the camera and off
+    // its axis: the body's depth range changes its image scale by about +-10 %.
+    let full = Dictionary::load(k128()).expect("dictionary");
+    let n = 3 * full.num_joints();
+    let dict = Dictionary::new(
+        full.skeleton().clone(),
+        full.bases()[..8 * n].to_vec(),
+        full.mean().to_vec(),
+    )
+    .expect("sub-dictionary");
+    let skel = dict.skeleton().clone();
+    let p = dict.num_joints();
+    let mut c = vec![0.0; dict.num_bases()];
+    c[1] = 0.9;
+    c[4] = 0.5;
+    c[6] = 0.7;
+    let s = dict.compose(&c);
+    let mut poses = Vec::new();
+    for t in 0..3 {
+        let r = Rotation3::from_euler_angles(0.3, 0.8 + 0.02 * t as f64, -0.2);
+        for j in 0..p {
+            let q = r * Vector3::new(s[j], s[p + j], s[2 * p + j]);
+            poses.extend([q.x, q.y, q.z]);
+        }
+    }
+    let (truth, uv) = place(&skel, &poses, Vector3::new(0.4, -0.2, 1.8));
+    let params = Params {
+        alpha: 1e-6,
+        tolerance: 1e-10,
+        max_rounds: 30,
+        ..Params::default().without_smoothness()
+    };
+    let est = Estimator::new(dict, params).expect("estimator");
+    let weak = est
+        .lift_keypoints(&Keypoints {
+            joints: p,
+            xy: uv,
+            confidence: None,
+        })
+        .expect("lift");
+    let adjusted = est
+        .adjust_perspective(
+            &weak,
+            &camera(),
+            &[PixelMap::IDENTITY],
+            &PerspectiveParams {
+                alpha: 1e-6,
+                tolerance: 1e-14,
+                max_iterations: 5000,
+                apg_steps: 20,
+                ..PerspectiveParams::default()
+            },
+        )
+        .expect("adjust");
+    let weak_error = root_aligned_mpjpe(&weak_metric(&skel, &weak.poses), &truth, p, root(&skel));
+    let error = root_aligned_mpjpe(&adjusted.poses, &truth, p, root(&skel));
+    let absolute = posestream::metrics::mpjpe(&adjusted.poses, &truth);
+    let reprojection = posestream::metrics::mean_error_2d(&adjusted.projected, &adjusted.keypoints);
+    eprintln!(
+        "weak {weak_error:.5} m, perspective {error:.6} m root-aligned, {absolute:.6} m absolute, \
+         reprojection {reprojection:.5} px, iterations {:?}",
+        adjusted
+            .fits
+            .iter()
+            .map(|f| f.iterations)
+            .collect::<Vec<_>>()
+    );
+    assert!(
+        weak_error > 0.01,
+        "the weak fit should be visibly off: {weak_error}"
+    );
+    assert!(error < 1e-3, "root-aligned error {error} m");
+    assert!(absolute < 2e-3, "absolute error {absolute} m");
+    assert!(reprojection < 0.05, "reprojection {reprojection} px");
+}
+
+#[test]
+fn perspective_beats_weak_perspective_on_a_close_sequence() {
+    // The s0 fixture's poses at 2.5 m, seen by a pinhole camera; the full K128 dictionary
+    // and default settings.
+    let dict = Dictionary::load(k128()).expect("dictionary");
+    let skel = dict.skeleton().clone();
+    let p = dict.num_joints();
+    let gt = read(fixture("synthetic-s0").join("gt_3d.npy"));
+    let offset = Vector3::new(-0.3, 0.1, 2.5);
+    let (truth, uv) = place(&skel, &gt.data, offset);
+    let est = Estimator::new(dict, Params::default()).expect("estimator");
+    let weak = est
+        .lift_keypoints(&Keypoints {
+            joints: p,
+            xy: uv,
+            confidence: None,
+        })
+        .expect("lift");
+    let adjusted = est
+        .adjust_perspective(
+            &weak,
+            &camera(),
+            &[PixelMap::IDENTITY],
+            &PerspectiveParams::default(),
+        )
+        .expect("adjust");
+    let weak_error = root_aligned_mpjpe(&weak_metric(&skel, &weak.poses), &truth, p, root(&skel));
+    let error = root_aligned_mpjpe(&adjusted.poses, &truth, p, root(&skel));
+    let depth_error = adjusted
+        .fits
+        .iter()
+        .map(|f| (f.translation.z - offset.z).abs() / offset.z)
+        .fold(0.0, f64::max);
+    let iterations: usize = adjusted.fits.iter().map(|f| f.iterations).sum();
+    eprintln!(
+        "weak {weak_error:.4} m, perspective {error:.4} m, worst depth error {:.2} %, \
+         {:.1} iterations/frame, {:.3} ms/frame",
+        100.0 * depth_error,
+        iterations as f64 / adjusted.fits.len() as f64,
+        1e3 * adjusted.seconds / adjusted.fits.len() as f64
+    );
+    assert!(
+        error < 0.8 * weak_error,
+        "perspective {error} m against weak {weak_error} m"
+    );
+    assert!(depth_error < 0.03, "depth off by {} %", 100.0 * depth_error);
+    assert!(adjusted.poses.iter().all(|v| v.is_finite()));
+}
+
+#[test]
+fn bad_settings_and_box_counts_are_errors() {
+    let dict = Dictionary::load(k128()).expect("dictionary");
+    let p = dict.num_joints();
+    let gt = read(fixture("synthetic-s0").join("keypoints.npy"));
+    let est = Estimator::new(dict, Params::default()).expect("estimator");
+    let weak = est
+        .lift_keypoints(&Keypoints {
+            joints: p,
+            xy: gt.data[..2 * p * 3].to_vec(),
+            confidence: None,
+        })
+        .expect("lift");
+    let two = [PixelMap::IDENTITY; 2];
+    assert!(
+        est.adjust_perspective(&weak, &camera(), &two, &PerspectiveParams::default())
+            .is_err()
+    );
+    for bad in [
+        PerspectiveParams {
+            mean_limb_length: 0.0,
+            ..PerspectiveParams::default()
+        },
+        PerspectiveParams {
+            alpha: f64::NAN,
+            ..PerspectiveParams::default()
+        },
+    ] {
+        assert!(
+            est.adjust_perspective(&weak, &camera(), &[PixelMap::IDENTITY], &bad)
+                .is_err()
+        );
+    }
+}
