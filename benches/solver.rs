@@ -44,8 +44,10 @@ fn bench(c: &mut Criterion) {
     let dir = shared().join("parity/synthetic-s0");
     let kp: Array<f64> = npy::read(&dir.join("keypoints.npy")).expect("keypoints");
     let hm: Array<f32> = npy::read(&dir.join("heatmaps.npy")).expect("heatmaps");
-    let maps =
+    let mut maps =
         HeatMaps::new(hm.shape[0], hm.shape[1], hm.shape[2], hm.shape[3], hm.data).expect("maps");
+    // As `posestream lift` reads them.
+    maps.clip_negatives();
     let frames = maps.frames;
     let est = Estimator::new(dict.clone(), Params::default()).expect("estimator");
     let keypoints = Keypoints {

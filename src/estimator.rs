@@ -319,19 +319,6 @@ impl Estimator {
         let seconds_init = start.elapsed().as_secs_f64();
         let mut ws = EmWorkspace::default();
         let mut scratch = Observations::new(p, vec![0.0; 2 * p * f]);
-        let objective_init = {
-            em::e_step(
-                &self.dict,
-                &prepared,
-                &fits,
-                scale,
-                self.params.sigma,
-                &mut scratch,
-                None,
-                &mut ws,
-            );
-            bcd::objective(&self.dict, &scratch, &fits, &self.params)
-        };
         let (obs, info) = em::run(
             &self.dict,
             self.gram_max,
@@ -359,7 +346,7 @@ impl Estimator {
             init: self.heatmap_init().to_string(),
             em_iterations: info.iterations,
             rounds: info.rounds,
-            objective_init,
+            objective_init: info.objective_start,
             objective: info.objective.last().copied().unwrap_or(f64::NAN),
             objective_rounds: info.objective,
             seconds_init,

@@ -58,6 +58,12 @@ impl HeatMaps {
         })
     }
 
+    /// Sets negative scores to 0, as the E-step reads them; then the estimator works on
+    /// these maps without a clipped copy.
+    pub fn clip_negatives(&mut self) {
+        self.values.iter_mut().for_each(|v| *v = v.max(0.0));
+    }
+
     /// The map of frame `t`, joint `j` (h*w values, row-major).
     pub fn map(&self, t: usize, j: usize) -> &[f32] {
         let n = self.height * self.width;

@@ -145,9 +145,12 @@ struct SolverArgs {
     /// EM iterations at most.
     #[arg(long, default_value_t = Params::default().max_em_iterations)]
     max_em_iterations: usize,
-    /// Block-coordinate rounds per M-step at most.
+    /// Block-coordinate rounds of Algorithm 1 on keypoints at most.
     #[arg(long, default_value_t = Params::default().max_rounds)]
     max_rounds: usize,
+    /// Block-coordinate rounds per EM M-step at most (heat maps).
+    #[arg(long, default_value_t = Params::default().max_em_rounds)]
+    max_em_rounds: usize,
     /// APG steps (or CD sweeps) per C-step at most.
     #[arg(long, default_value_t = Params::default().max_apg_steps)]
     max_apg_steps: usize,
@@ -176,6 +179,7 @@ impl SolverArgs {
             visibility_threshold: self.visibility_threshold,
             max_em_iterations: self.max_em_iterations,
             max_rounds: self.max_rounds,
+            max_em_rounds: self.max_em_rounds,
             max_apg_steps: self.max_apg_steps,
             max_newton_steps: self.max_newton_steps,
             max_rotation_sweeps: self.max_rotation_sweeps,
@@ -288,7 +292,9 @@ fn read_heatmaps(path: &Path, p: usize) -> Result<HeatMaps, CliError> {
             },
         ));
     }
-    HeatMaps::new(f, j, h, w, hm.data).map_err(|e| input_error(path, e))
+    let mut maps = HeatMaps::new(f, j, h, w, hm.data).map_err(|e| input_error(path, e))?;
+    maps.clip_negatives();
+    Ok(maps)
 }
 
 fn lift(args: &LiftArgs) -> Result<(), CliError> {

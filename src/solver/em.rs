@@ -3,9 +3,12 @@
 //! M-step is Algorithm 1 ([`super::bcd`]) warm-started from the current fit. Stops when
 //! the relative change of C falls below the tolerance, or at the iteration cap.
 
+use std::borrow::Cow;
+
 use super::bcd::{self, BcdWorkspace};
 use super::estep::{self, EStepWorkspace, MapMoments};
 use super::{FrameFit, Observations, Params};
+
 use crate::dictionary::Dictionary;
 use crate::heatmaps::HeatMaps;
 
@@ -16,6 +19,8 @@ pub struct EmInfo {
     pub iterations: usize,
     /// Block-coordinate rounds of each M-step.
     pub rounds: Vec<usize>,
+    /// Objective after the first E-step (at the initialisation).
+    pub objective_start: f64,
     /// Objective after each M-step.
     pub objective: Vec<f64>,
     /// Relative change of C of each iteration.
@@ -34,18 +39,23 @@ pub struct EmWorkspace {
 
 /// Heat maps prepared for the E-step: clipped at 0, with their moments.
 #[derive(Debug, Clone)]
-pub struct PreparedMaps {
-    /// The maps, negatives clipped to 0.
-    pub maps: HeatMaps,
+pub struct PreparedMaps<'a> {
+    /// The maps, negatives clipped to 0 (borrowed when there is nothing to clip).
+    pub maps: Cow<'a, HeatMaps>,
     /// Moments per (frame, joint).
     pub moments: Vec<MapMoments>,
 }
 
-impl PreparedMaps {
-    /// Clips and computes moments.
-    pub fn new(maps: &HeatMaps) -> Self {
-        let mut maps = maps.clone();
-        maps.values.iter_mut().for_each(|v| *v = v.max(0.0));
+impl<'a> PreparedMaps<'a> {
+    /// Clips (in a copy, only if a value is negative) and computes moments.
+    pub fn new(maps: &'a HeatMaps) -> Self {
+        let mut maps = Cow::Borrowed(maps);
+        if maps.values.iter().any(|&v| v < 0.0) {
+            maps.to_mut()
+                .values
+                .iter_mut()
+                .for_each(|v| *v = v.max(0.0));
+        }
         let moments = maps
             .values
             .chunks_exact(maps.height * maps.width)
@@ -60,7 +70,7 @@ impl PreparedMaps {
 /// `scale` is pixels per unit; `sigma` in normalised units.
 pub fn e_step(
     dict: &Dictionary,
-    maps: &PreparedMaps,
+    maps: &PreparedMaps<'_>,
     fits: &[FrameFit],
     scale: f64,
     sigma: f64,
@@ -103,7 +113,7 @@ pub fn e_step(
 pub fn run(
     dict: &Dictionary,
     basis_gram_max: f64,
-    maps: &PreparedMaps,
+    maps: &PreparedMaps<'_>,
     fits: &mut [FrameFit],
     scale: f64,
     params: &Params,
@@ -111,7 +121,14 @@ pub fn run(
 ) -> (Observations, EmInfo) {
     let (p, k) = (dict.num_joints(), dict.num_bases());
     let mut obs = Observations::new(p, vec![0.0; 2 * p * fits.len()]);
-    let mut info = EmInfo::default();
+    let mut info = EmInfo {
+        objective_start: f64::NAN,
+        ..EmInfo::default()
+    };
+    let m_step = Params {
+        max_rounds: params.max_em_rounds,
+        ..params.clone()
+    };
     for _ in 0..params.max_em_iterations {
         info.iterations += 1;
         e_step(dict, maps, fits, scale, params.sigma, &mut obs, None, ws);
@@ -119,7 +136,10 @@ pub fn run(
         for fit in fits.iter() {
             ws.c_prev.extend_from_slice(&fit.coefficients);
         }
-        let m = bcd::solve(dict, basis_gram_max, &obs, fits, params, &mut ws.bcd);
+        let m = bcd::solve(dict, basis_gram_max, &obs, fits, &m_step, &mut ws.bcd);
+        if info.iterations == 1 {
+            info.objective_start = m.objective[0];
+        }
         info.rounds.push(m.rounds);
         info.objective
             .push(m.objective.last().copied().unwrap_or(f64::NAN));
