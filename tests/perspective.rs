@@ -199,6 +199,45 @@ fn perspective_beats_weak_perspective_on_a_close_sequence() {
 }
 
 #[test]
+fn unobserved_joints_follow_the_model() {
+    // As above, 10 frames, with two joints (a wrist and an ankle) not observed.
+    let dict = Dictionary::load(k128()).expect("dictionary");
+    let skel = dict.skeleton().clone();
+    let p = dict.num_joints();
+    let gt = read(fixture("synthetic-s0").join("gt_3d.npy"));
+    let (truth, uv) = place(&skel, &gt.data[..10 * 3 * p], Vector3::new(-0.3, 0.1, 2.5));
+    let mut confidence = vec![1.0; 10 * p];
+    for t in 0..10 {
+        confidence[t * p + 3] = 0.0;
+        confidence[t * p + p - 1] = 0.0;
+    }
+    let est = Estimator::new(dict, Params::default()).expect("estimator");
+    let weak = est
+        .lift_keypoints(&Keypoints {
+            joints: p,
+            xy: uv,
+            confidence: Some(confidence),
+        })
+        .expect("lift");
+    let adjusted = est
+        .adjust_perspective(
+            &weak,
+            &camera(),
+            &[PixelMap::IDENTITY],
+            &PerspectiveParams::default(),
+        )
+        .expect("adjust");
+    assert!(adjusted.poses.iter().all(|v| v.is_finite()));
+    let weak_error = root_aligned_mpjpe(&weak_metric(&skel, &weak.poses), &truth, p, root(&skel));
+    let error = root_aligned_mpjpe(&adjusted.poses, &truth, p, root(&skel));
+    eprintln!("two joints unobserved: weak {weak_error:.4} m, perspective {error:.4} m");
+    assert!(
+        error < weak_error,
+        "perspective {error} m against weak {weak_error} m"
+    );
+}
+
+#[test]
 fn bad_settings_and_box_counts_are_errors() {
     let dict = Dictionary::load(k128()).expect("dictionary");
     let p = dict.num_joints();
