@@ -63,23 +63,6 @@ impl CoefficientProblem {
                 break;
             }
         }
-        let loss = self.loss(c, &mut ws.u);
-        let penalty = self.penalty(c, alpha, beta);
-        if loss + penalty > objective_before {
-            c.copy_from_slice(&ws.start);
-            let penalty = self.penalty(c, alpha, beta);
-            return CoefficientInfo {
-                steps,
-                objective_before,
-                objective_after: objective_before,
-                penalty,
-            };
-        }
-        CoefficientInfo {
-            steps,
-            objective_before,
-            objective_after: loss + penalty,
-            penalty,
-        }
+        self.conclude(c, steps, objective_before, alpha, beta, ws)
     }
 }

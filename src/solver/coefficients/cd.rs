@@ -26,6 +26,7 @@ impl CoefficientProblem {
         let n = f * k;
         ws.prepare(n, rows);
         let objective_before = self.loss(c, &mut ws.u) + self.penalty(c, alpha, beta);
+        ws.start.copy_from_slice(c);
         // Residuals r_t = y_t - X_t c_t, kept up to date (stored in ws.grad's first f*rows).
         ws.resid.resize(f * rows, 0.0);
         for t in 0..f {
@@ -81,14 +82,7 @@ impl CoefficientProblem {
                 full = true;
             }
         }
-        let loss = self.loss(c, &mut ws.u);
-        let penalty = self.penalty(c, alpha, beta);
-        CoefficientInfo {
-            steps: sweeps,
-            objective_before,
-            objective_after: loss + penalty,
-            penalty,
-        }
+        self.conclude(c, sweeps, objective_before, alpha, beta, ws)
     }
 
     /// Exact minimisation along coefficient `(t, i)`; returns its change.

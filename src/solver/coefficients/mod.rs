@@ -89,6 +89,33 @@ pub struct CoefficientInfo {
     pub penalty: f64,
 }
 
+impl CoefficientProblem {
+    /// The report of a finished iterative solve started at `ws.start` with objective
+    /// `objective_before`: the objective at `c`, or, if `c` is worse, `c` put back to the
+    /// start (so no solver ever returns a worse point than it was given).
+    fn conclude(
+        &self,
+        c: &mut [f64],
+        steps: usize,
+        objective_before: f64,
+        alpha: f64,
+        beta: f64,
+        ws: &mut CoefficientWorkspace,
+    ) -> CoefficientInfo {
+        let mut objective_after = self.loss(c, &mut ws.u) + self.penalty(c, alpha, beta);
+        if objective_after > objective_before {
+            c.copy_from_slice(&ws.start);
+            objective_after = objective_before;
+        }
+        CoefficientInfo {
+            steps,
+            objective_before,
+            objective_after,
+            penalty: self.penalty(c, alpha, beta),
+        }
+    }
+}
+
 /// Largest eigenvalue of the path-graph Laplacian on `f` nodes, `2 - 2 cos(pi (f-1)/f)`.
 pub fn laplacian_max_eigenvalue(f: usize) -> f64 {
     if f < 2 {
