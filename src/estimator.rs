@@ -59,7 +59,9 @@ pub struct Report {
     pub objective_init: f64,
     /// Objective at the end.
     pub objective: f64,
-    /// Objective history of the (last) Algorithm 1 run: before it, then after each round.
+    /// Objective history: for given 2D joints, before Algorithm 1 and after each of its
+    /// rounds (never increasing); for heat maps, after each EM iteration's M-step (each
+    /// E-step changes the data, so this sequence may rise slightly).
     pub objective_rounds: Vec<f64>,
     /// Seconds spent initialising.
     pub seconds_init: f64,
@@ -256,8 +258,7 @@ impl Estimator {
             &self.params,
             &mut ws,
         );
-        let mut est = self.finish(fits, &obs.xy, scale, None);
-        est.weights = obs.weights;
+        let mut est = self.finish(fits, obs, scale, None);
         est.report = Report {
             frames: f,
             init: self.keypoint_init().to_string(),
@@ -339,8 +340,7 @@ impl Estimator {
             Some(&mut variance),
             &mut ws,
         );
-        let mut est = self.finish(fits, &obs.xy, scale, Some(variance));
-        est.weights = obs.weights;
+        let mut est = self.finish(fits, obs, scale, Some(variance));
         est.report = Report {
             frames: f,
             init: self.heatmap_init().to_string(),
@@ -355,11 +355,11 @@ impl Estimator {
         Ok(est)
     }
 
-    /// Poses and 2D outputs from the fits.
+    /// Poses and 2D outputs from the fits and the observations they were fitted to.
     fn finish(
         &self,
         fits: Vec<FrameFit>,
-        xy: &[f64],
+        obs: Observations,
         scale: f64,
         variance: Option<Vec<f64>>,
     ) -> Estimate {
@@ -380,12 +380,12 @@ impl Estimator {
         Estimate {
             joints: p,
             poses,
-            keypoints: xy.iter().map(|v| v * scale).collect(),
+            keypoints: obs.xy.iter().map(|v| v * scale).collect(),
             projected,
             variance,
             fits,
             pixels_per_unit: scale,
-            weights: vec![1.0; f * p],
+            weights: obs.weights,
             report: Report::default(),
         }
     }

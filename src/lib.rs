@@ -28,6 +28,7 @@ pub mod camera;
 pub mod dictionary;
 pub mod error;
 pub mod estimator;
+pub mod geometry;
 pub mod heatmaps;
 pub mod metrics;
 pub mod npy;

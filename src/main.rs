@@ -370,46 +370,46 @@ fn lift(args: &LiftArgs) -> Result<(), CliError> {
         source,
     })?;
     let mut seconds = estimate.report.seconds;
-    if let Some((camera, params)) = &perspective {
-        let to_image: Vec<PixelMap> = match (&boxes, map_size) {
-            (Some(b), Some((w, h))) => b.iter().map(|b| b.pixel_map(w, h)).collect(),
-            _ => vec![PixelMap::IDENTITY],
-        };
-        let metric = estimator.adjust_perspective(&estimate, camera, &to_image, params)?;
-        npy::write(&args.out, &[f, p, 3], &metric.poses)?;
-        if let Some(path) = &args.out_2d {
-            npy::write(path, &[f, p, 2], &metric.keypoints)?;
+    // What is written: the weak-perspective estimate, or its perspective adjustment.
+    let (poses, keypoints, projected, variance) = match &perspective {
+        Some((camera, params)) => {
+            let to_image: Vec<PixelMap> = match (&boxes, map_size) {
+                (Some(b), Some((w, h))) => b.iter().map(|b| b.pixel_map(w, h)).collect(),
+                _ => vec![PixelMap::IDENTITY; f],
+            };
+            let metric = estimator.adjust_perspective(&estimate, camera, &to_image, params)?;
+            let variance = estimate.variance.map(|var| {
+                var.iter()
+                    .enumerate()
+                    .map(|(i, v)| to_image[i / p].variance(*v))
+                    .collect()
+            });
+            seconds += metric.seconds;
+            let n = metric.fits.len() as f64;
+            summary["perspective"] = serde_json::json!({
+                "mean_iterations": metric.fits.iter().map(|f| f.iterations as f64).sum::<f64>() / n,
+                "mean_ray_distance_m": metric.fits.iter().map(|f| f.ray_distance).sum::<f64>() / n,
+                "mean_reprojection_px": metrics::mean_error_2d(&metric.projected, &metric.keypoints),
+                "seconds": metric.seconds,
+            });
+            (metric.poses, metric.keypoints, metric.projected, variance)
         }
-        if let Some(path) = &args.out_proj {
-            npy::write(path, &[f, p, 2], &metric.projected)?;
-        }
-        if let (Some(path), Some(var)) = (&args.out_var, &estimate.variance) {
-            let var: Vec<f64> = var
-                .iter()
-                .enumerate()
-                .map(|(i, v)| to_image[(i / p).min(to_image.len() - 1)].variance(*v))
-                .collect();
-            npy::write(path, &[f, p], &var)?;
-        }
-        seconds += metric.seconds;
-        let n = metric.fits.len() as f64;
-        summary["perspective"] = serde_json::json!({
-            "mean_iterations": metric.fits.iter().map(|f| f.iterations as f64).sum::<f64>() / n,
-            "mean_ray_distance_m": metric.fits.iter().map(|f| f.ray_distance).sum::<f64>() / n,
-            "mean_reprojection_px": metrics::mean_error_2d(&metric.projected, &metric.keypoints),
-            "seconds": metric.seconds,
-        });
-    } else {
-        npy::write(&args.out, &[f, p, 3], &estimate.poses)?;
-        if let Some(path) = &args.out_2d {
-            npy::write(path, &[f, p, 2], &estimate.keypoints)?;
-        }
-        if let Some(path) = &args.out_proj {
-            npy::write(path, &[f, p, 2], &estimate.projected)?;
-        }
-        if let (Some(path), Some(var)) = (&args.out_var, &estimate.variance) {
-            npy::write(path, &[f, p], var)?;
-        }
+        None => (
+            estimate.poses,
+            estimate.keypoints,
+            estimate.projected,
+            estimate.variance,
+        ),
+    };
+    npy::write(&args.out, &[f, p, 3], &poses)?;
+    if let Some(path) = &args.out_2d {
+        npy::write(path, &[f, p, 2], &keypoints)?;
+    }
+    if let Some(path) = &args.out_proj {
+        npy::write(path, &[f, p, 2], &projected)?;
+    }
+    if let (Some(path), Some(var)) = (&args.out_var, &variance) {
+        npy::write(path, &[f, p], var)?;
     }
     tracing::info!(frames = f, seconds, "lifted");
     if args.json {

@@ -4,7 +4,9 @@
 //! (centre, best *proper* rotation, best scale), the standard protocol. The reference's
 //! own helper allows reflections; [`p_mpjpe_with_reflections`] reproduces it.
 
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::Vector3;
+
+use crate::geometry::fit_similarity;
 
 /// Mean per-joint position error, no alignment.
 pub fn mpjpe(pred: &[f64], truth: &[f64]) -> f64 {
@@ -20,36 +22,18 @@ pub fn mpjpe(pred: &[f64], truth: &[f64]) -> f64 {
 
 /// Similarity Procrustes of one frame: the aligned copy of `pred` (`p` joints).
 pub fn procrustes_align(pred: &[f64], truth: &[f64], allow_reflection: bool) -> Vec<f64> {
-    let p = pred.len() / 3;
     let pts = |v: &[f64]| -> Vec<Vector3<f64>> {
         v.chunks_exact(3)
             .map(|c| Vector3::new(c[0], c[1], c[2]))
             .collect()
     };
     let (x, y) = (pts(pred), pts(truth));
-    let mx = x.iter().sum::<Vector3<f64>>() / p as f64;
-    let my = y.iter().sum::<Vector3<f64>>() / p as f64;
-    let mut h = Matrix3::zeros();
-    let mut xx = 0.0;
-    for (a, b) in x.iter().zip(&y) {
-        let (a, b) = (a - mx, b - my);
-        h += b * a.transpose();
-        xx += a.norm_squared();
-    }
-    let svd = h.svd(true, true);
-    let (Some(u), Some(vt)) = (svd.u, svd.v_t) else {
+    let Some(sim) = fit_similarity(&x, &y, None, allow_reflection) else {
         return truth.to_vec();
     };
-    let mut d = Matrix3::identity();
-    if !allow_reflection && (u * vt).determinant() < 0.0 {
-        d[(2, 2)] = -1.0;
-    }
-    let r = u * d * vt;
-    let trace: f64 = (0..3).map(|i| svd.singular_values[i] * d[(i, i)]).sum();
-    let s = if xx > 0.0 { trace / xx } else { 0.0 };
     x.iter()
         .flat_map(|a| {
-            let q = s * r * (a - mx) + my;
+            let q = sim.apply(a);
             [q.x, q.y, q.z]
         })
         .collect()

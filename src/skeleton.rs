@@ -70,6 +70,11 @@ impl Skeleton {
         self.joints.is_empty()
     }
 
+    /// The root joint (the one without a parent).
+    pub fn root(&self) -> usize {
+        self.parents.iter().position(|q| q.is_none()).unwrap_or(0)
+    }
+
     /// Index of the joint called `name`.
     pub fn index_of(&self, name: &str) -> Option<usize> {
         self.joints.iter().position(|j| j == name)
@@ -134,5 +139,6 @@ mod tests {
         .expect("valid");
         assert_eq!(s.left_right_pairs(), vec![(1, 2), (3, 4)]);
         assert_eq!(s.bones().count(), 5);
+        assert_eq!(s.root(), 0);
     }
 }

@@ -2,11 +2,14 @@
 
 mod common;
 
-use common::{fixture, k128, read};
-use nalgebra::{Rotation3, Vector3};
+use common::{fixture, k128, read, small_dictionary, three_basis_sequence};
+use nalgebra::Vector3;
 use posestream::metrics::root_aligned_mpjpe;
 use posestream::solver::perspective::PerspectiveParams;
-use posestream::{Dictionary, Estimator, Intrinsics, Keypoints, Params, PixelMap, Skeleton};
+use posestream::{
+    Dictionary, Estimate, Estimator, Intrinsics, Keypoints, MetricEstimate, Params, PixelMap,
+    Skeleton,
+};
 
 const LIMB: f64 = 0.25;
 
@@ -63,41 +66,34 @@ fn weak_metric(skeleton: &Skeleton, poses: &[f64]) -> Vec<f64> {
         .collect()
 }
 
-fn root(skeleton: &Skeleton) -> usize {
-    skeleton
-        .parents
-        .iter()
-        .position(|q| q.is_none())
-        .expect("root")
+/// Lifts `uv` (image pixels) with `est`, then adjusts the estimate to perspective.
+fn lift_and_adjust(
+    est: &Estimator,
+    uv: Vec<f64>,
+    confidence: Option<Vec<f64>>,
+    params: &PerspectiveParams,
+) -> (Estimate, MetricEstimate) {
+    let weak = est
+        .lift_keypoints(&Keypoints {
+            joints: est.dictionary().num_joints(),
+            xy: uv,
+            confidence,
+        })
+        .expect("lift");
+    let adjusted = est
+        .adjust_perspective(&weak, &camera(), &[PixelMap::IDENTITY], params)
+        .expect("adjust");
+    (weak, adjusted)
 }
 
 #[test]
 fn recovers_a_three_basis_pose_seen_close_up_in_perspective() {
     // The first 8 bases of K128, a pose of 3 of them 1.8 m in front of the camera and off
     // its axis: the body's depth range changes its image scale by about +-10 %.
-    let full = Dictionary::load(k128()).expect("dictionary");
-    let n = 3 * full.num_joints();
-    let dict = Dictionary::new(
-        full.skeleton().clone(),
-        full.bases()[..8 * n].to_vec(),
-        full.mean().to_vec(),
-    )
-    .expect("sub-dictionary");
+    let dict = small_dictionary(8);
     let skel = dict.skeleton().clone();
     let p = dict.num_joints();
-    let mut c = vec![0.0; dict.num_bases()];
-    c[1] = 0.9;
-    c[4] = 0.5;
-    c[6] = 0.7;
-    let s = dict.compose(&c);
-    let mut poses = Vec::new();
-    for t in 0..3 {
-        let r = Rotation3::from_euler_angles(0.3, 0.8 + 0.02 * t as f64, -0.2);
-        for j in 0..p {
-            let q = r * Vector3::new(s[j], s[p + j], s[2 * p + j]);
-            poses.extend([q.x, q.y, q.z]);
-        }
-    }
+    let (_, poses) = three_basis_sequence(&dict, 3);
     let (truth, uv) = place(&skel, &poses, Vector3::new(0.4, -0.2, 1.8));
     let params = Params {
         alpha: 1e-6,
@@ -106,29 +102,20 @@ fn recovers_a_three_basis_pose_seen_close_up_in_perspective() {
         ..Params::default().without_smoothness()
     };
     let est = Estimator::new(dict, params).expect("estimator");
-    let weak = est
-        .lift_keypoints(&Keypoints {
-            joints: p,
-            xy: uv,
-            confidence: None,
-        })
-        .expect("lift");
-    let adjusted = est
-        .adjust_perspective(
-            &weak,
-            &camera(),
-            &[PixelMap::IDENTITY],
-            &PerspectiveParams {
-                alpha: 1e-6,
-                tolerance: 1e-14,
-                max_iterations: 5000,
-                apg_steps: 20,
-                ..PerspectiveParams::default()
-            },
-        )
-        .expect("adjust");
-    let weak_error = root_aligned_mpjpe(&weak_metric(&skel, &weak.poses), &truth, p, root(&skel));
-    let error = root_aligned_mpjpe(&adjusted.poses, &truth, p, root(&skel));
+    let (weak, adjusted) = lift_and_adjust(
+        &est,
+        uv,
+        None,
+        &PerspectiveParams {
+            alpha: 1e-6,
+            tolerance: 1e-14,
+            max_iterations: 5000,
+            apg_steps: 20,
+            ..PerspectiveParams::default()
+        },
+    );
+    let weak_error = root_aligned_mpjpe(&weak_metric(&skel, &weak.poses), &truth, p, skel.root());
+    let error = root_aligned_mpjpe(&adjusted.poses, &truth, p, skel.root());
     let absolute = posestream::metrics::mpjpe(&adjusted.poses, &truth);
     let reprojection = posestream::metrics::mean_error_2d(&adjusted.projected, &adjusted.keypoints);
     eprintln!(
@@ -160,23 +147,9 @@ fn perspective_beats_weak_perspective_on_a_close_sequence() {
     let offset = Vector3::new(-0.3, 0.1, 2.5);
     let (truth, uv) = place(&skel, &gt.data, offset);
     let est = Estimator::new(dict, Params::default()).expect("estimator");
-    let weak = est
-        .lift_keypoints(&Keypoints {
-            joints: p,
-            xy: uv,
-            confidence: None,
-        })
-        .expect("lift");
-    let adjusted = est
-        .adjust_perspective(
-            &weak,
-            &camera(),
-            &[PixelMap::IDENTITY],
-            &PerspectiveParams::default(),
-        )
-        .expect("adjust");
-    let weak_error = root_aligned_mpjpe(&weak_metric(&skel, &weak.poses), &truth, p, root(&skel));
-    let error = root_aligned_mpjpe(&adjusted.poses, &truth, p, root(&skel));
+    let (weak, adjusted) = lift_and_adjust(&est, uv, None, &PerspectiveParams::default());
+    let weak_error = root_aligned_mpjpe(&weak_metric(&skel, &weak.poses), &truth, p, skel.root());
+    let error = root_aligned_mpjpe(&adjusted.poses, &truth, p, skel.root());
     let depth_error = adjusted
         .fits
         .iter()
@@ -212,24 +185,11 @@ fn unobserved_joints_follow_the_model() {
         confidence[t * p + p - 1] = 0.0;
     }
     let est = Estimator::new(dict, Params::default()).expect("estimator");
-    let weak = est
-        .lift_keypoints(&Keypoints {
-            joints: p,
-            xy: uv,
-            confidence: Some(confidence),
-        })
-        .expect("lift");
-    let adjusted = est
-        .adjust_perspective(
-            &weak,
-            &camera(),
-            &[PixelMap::IDENTITY],
-            &PerspectiveParams::default(),
-        )
-        .expect("adjust");
+    let (weak, adjusted) =
+        lift_and_adjust(&est, uv, Some(confidence), &PerspectiveParams::default());
     assert!(adjusted.poses.iter().all(|v| v.is_finite()));
-    let weak_error = root_aligned_mpjpe(&weak_metric(&skel, &weak.poses), &truth, p, root(&skel));
-    let error = root_aligned_mpjpe(&adjusted.poses, &truth, p, root(&skel));
+    let weak_error = root_aligned_mpjpe(&weak_metric(&skel, &weak.poses), &truth, p, skel.root());
+    let error = root_aligned_mpjpe(&adjusted.poses, &truth, p, skel.root());
     eprintln!("two joints unobserved: weak {weak_error:.4} m, perspective {error:.4} m");
     assert!(
         error < weak_error,

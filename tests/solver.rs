@@ -2,46 +2,13 @@
 
 mod common;
 
-use common::{fixture, k128, read};
-use nalgebra::{Rotation3, Vector3};
+use common::{fixture, k128, read, small_dictionary, three_basis_sequence};
 use posestream::solver::Observations;
 use posestream::solver::coefficients::{
     CoefficientProblem, CoefficientSolver, CoefficientWorkspace, basis_gram_max, lipschitz_bound,
 };
 use posestream::solver::normalise::keypoint_scale;
 use posestream::{Dictionary, Estimator, InitMethod, Keypoints, Params};
-
-/// Frames of a pose built from 3 bases, seen under known rotations (noise-free).
-fn three_basis_sequence(dict: &Dictionary, frames: usize) -> (Vec<f64>, Vec<f64>) {
-    let p = dict.num_joints();
-    let mut c = vec![0.0; dict.num_bases()];
-    c[1] = 0.9;
-    c[4] = 0.5;
-    c[6] = 0.7;
-    let s = dict.compose(&c);
-    let (mut xy, mut truth) = (Vec::new(), Vec::new());
-    for t in 0..frames {
-        let r = Rotation3::from_euler_angles(0.3, 0.8 + 0.02 * t as f64, -0.2);
-        for j in 0..p {
-            let q = r * Vector3::new(s[j], s[p + j], s[2 * p + j]);
-            xy.extend([q.x + 10.0, q.y - 4.0]);
-            truth.extend([q.x, q.y, q.z]);
-        }
-    }
-    (xy, truth)
-}
-
-/// The first `k` bases of the authors' K128 dictionary.
-fn small_dictionary(k: usize) -> Dictionary {
-    let full = Dictionary::load(k128()).expect("dictionary");
-    let n = 3 * full.num_joints();
-    Dictionary::new(
-        full.skeleton().clone(),
-        full.bases()[..k * n].to_vec(),
-        full.mean().to_vec(),
-    )
-    .expect("sub-dictionary")
-}
 
 #[test]
 fn recovers_a_three_basis_pose_exactly_from_noise_free_2d() {

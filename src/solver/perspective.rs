@@ -40,6 +40,7 @@ use super::{FrameFit, dot, soft};
 use crate::camera::{Intrinsics, PixelMap};
 use crate::dictionary::Dictionary;
 use crate::error::EstimateError;
+use crate::geometry::fit_similarity;
 use crate::skeleton::Skeleton;
 
 /// Settings of the perspective adjustment.
@@ -153,7 +154,9 @@ pub fn mean_limb_length(skeleton: &Skeleton, s: &[f64]) -> f64 {
 pub struct PerspectiveWorkspace {
     shape: Vec<f64>,
     rays: Vec<Vector3<f64>>,
+    unit_rays: Vec<Vector3<f64>>,
     points: Vec<Vector3<f64>>,
+    model: Vec<Vector3<f64>>,
     body_rays: Vec<Vector3<f64>>,
     residual: Vec<f64>,
     grad: Vec<f64>,
@@ -225,11 +228,13 @@ pub fn adjust_frame(
     ws.rays.clear();
     ws.rays
         .extend((0..p).map(|j| camera.ray(uv[2 * j], uv[2 * j + 1])));
+    ws.unit_rays.clear();
+    ws.unit_rays.extend(ws.rays.iter().map(|q| q.normalize()));
     ws.points.resize(p, Vector3::zeros());
-    let limb0 = {
-        dict.compose_into(&fit.coefficients, &mut ws.shape);
-        mean_limb_length(dict.skeleton(), &ws.shape)
-    };
+    ws.model.resize(p, Vector3::zeros());
+    // The weak fit's mean bone length, kept by every C-step (m times it is the metric one).
+    let limb0 = params.mean_limb_length / fit.metres_per_unit;
+    dict.compose_into(&fit.coefficients, &mut ws.shape);
     let min_depth = 1e-3 * fit.translation.z.abs().max(1e-3);
     let m = fit.metres_per_unit;
     let lipschitz = (gram_max * max_weight).max(f64::MIN_POSITIVE);
@@ -237,13 +242,11 @@ pub fn adjust_frame(
     let mut distance = f64::NAN;
     fit.iterations = 0;
     for _ in 0..params.max_iterations {
-        dict.compose_into(&fit.coefficients, &mut ws.shape);
         // 1. Depths: the point of each ray nearest its model joint.
         let mut d2 = 0.0;
         for j in 0..p {
-            let model =
-                fit.rotation * Vector3::new(ws.shape[j], ws.shape[p + j], ws.shape[2 * p + j]) * m
-                    + fit.translation;
+            ws.model[j] = Vector3::new(ws.shape[j], ws.shape[p + j], ws.shape[2 * p + j]) * m;
+            let model = fit.rotation * ws.model[j] + fit.translation;
             if weights[j] > 0.0 {
                 let q = ws.rays[j];
                 let z = (q.dot(&model) / q.norm_squared()).max(min_depth);
@@ -259,12 +262,12 @@ pub fn adjust_frame(
         }
         previous = d2;
         fit.iterations += 1;
-        // 2. Rigid Procrustes of the model (m S) onto the points.
-        rigid_fit(&ws.shape, m, &ws.points, weights, fit);
+        // 2. Procrustes of the model (m S) onto the points.
+        rigid_fit(weights, ws, fit);
         // 3. C-step against the rays in the body frame, normalised units.
         let back = fit.rotation.transpose();
         for j in 0..p {
-            ws.body_rays[j] = back * ws.rays[j].normalize();
+            ws.body_rays[j] = back * ws.unit_rays[j];
         }
         let offset = back * fit.translation / m;
         lasso_apg(
@@ -276,58 +279,34 @@ pub fn adjust_frame(
             ws,
             &mut fit.coefficients,
         );
+        // The shape of the new coefficients, rescaled with them to the metric size.
         dict.compose_into(&fit.coefficients, &mut ws.shape);
         let limb = mean_limb_length(dict.skeleton(), &ws.shape);
         if limb > 0.0 {
             let r = limb0 / limb;
             fit.coefficients.iter_mut().for_each(|c| *c *= r);
+            ws.shape.iter_mut().for_each(|v| *v *= r);
         }
     }
     fit.ray_distance = distance;
 }
 
-/// Weighted rigid Procrustes: the proper rotation and translation taking the model
-/// points `m S_j` onto `points` (weights `w`), written into `fit`.
-fn rigid_fit(shape: &[f64], m: f64, points: &[Vector3<f64>], w: &[f64], fit: &mut PerspectiveFit) {
-    let p = points.len();
-    let model = |j: usize| Vector3::new(shape[j], shape[p + j], shape[2 * p + j]) * m;
-    let (mut mx, mut my, mut total) = (Vector3::zeros(), Vector3::zeros(), 0.0);
-    for j in 0..p {
-        mx += model(j) * w[j];
-        my += points[j] * w[j];
-        total += w[j];
-    }
-    mx /= total;
-    my /= total;
-    let mut h = Matrix3::zeros();
-    let mut spread = 0.0;
-    for j in 0..p {
-        if w[j] > 0.0 {
-            let x = model(j) - mx;
-            h += (points[j] - my) * x.transpose() * w[j];
-            spread += w[j] * x.norm_squared();
-        }
-    }
-    let svd = h.svd(true, true);
-    let (Some(u), Some(vt)) = (svd.u, svd.v_t) else {
+/// The Procrustes step: the weighted similarity taking the model points `m S_j` (in
+/// `ws.model`) onto `ws.points`. Its rotation is kept; its scale moves the body to
+/// `1/scale` times its depth (see the module docs).
+fn rigid_fit(w: &[f64], ws: &PerspectiveWorkspace, fit: &mut PerspectiveFit) {
+    let Some(sim) = fit_similarity(&ws.model, &ws.points, Some(w), false) else {
         return;
     };
-    let mut d = Matrix3::identity();
-    if (u * vt).determinant() < 0.0 {
-        d[(2, 2)] = -1.0;
-    }
-    fit.rotation = u * d * vt;
-    // The similarity's scale: the points are `scale` times the model's size. Scaling the
-    // scene about the camera centre leaves every image alone, so move the body to
-    // `1/scale` times its depth instead of resizing it (its size is fixed).
-    let trace: f64 = (0..3).map(|i| svd.singular_values[i] * d[(i, i)]).sum();
-    let scale = if spread > 0.0 { trace / spread } else { 1.0 };
-    let scale = if scale > 0.0 && scale.is_finite() {
-        scale
+    fit.rotation = sim.rotation;
+    // Scaling the scene about the camera centre leaves every image alone, so move the
+    // body instead of resizing it (its size is fixed).
+    let scale = if sim.scale > 0.0 && sim.scale.is_finite() {
+        sim.scale
     } else {
         1.0
     };
-    fit.translation = (my - fit.rotation * mx * scale) / scale;
+    fit.translation = (sim.target_centroid - fit.rotation * sim.source_centroid * scale) / scale;
 }
 
 /// A few APG steps from `c` on the squared distances of the model joints from their rays,

@@ -102,16 +102,18 @@ impl CoefficientProblem {
         beta: f64,
         ws: &mut CoefficientWorkspace,
     ) -> CoefficientInfo {
-        let mut objective_after = self.loss(c, &mut ws.u) + self.penalty(c, alpha, beta);
+        let mut penalty = self.penalty(c, alpha, beta);
+        let mut objective_after = self.loss(c, &mut ws.u) + penalty;
         if objective_after > objective_before {
             c.copy_from_slice(&ws.start);
+            penalty = self.penalty(c, alpha, beta);
             objective_after = objective_before;
         }
         CoefficientInfo {
             steps,
             objective_before,
             objective_after,
-            penalty: self.penalty(c, alpha, beta),
+            penalty,
         }
     }
 }
