@@ -170,6 +170,16 @@ impl Estimator {
 
     /// Algorithm 1 on given 2D joints.
     pub fn lift_keypoints(&self, kp: &Keypoints) -> Result<Estimate, EstimateError> {
+        self.keypoints_inner(kp, true)
+    }
+
+    /// The single-frame baseline on given 2D joints: each frame's initialisation alone,
+    /// without Algorithm 1's joint optimisation over the sequence.
+    pub fn initialise_keypoints(&self, kp: &Keypoints) -> Result<Estimate, EstimateError> {
+        self.keypoints_inner(kp, false)
+    }
+
+    fn keypoints_inner(&self, kp: &Keypoints, solve: bool) -> Result<Estimate, EstimateError> {
         let start = Instant::now();
         let p = self.dict.num_joints();
         if kp.joints != p {
@@ -249,6 +259,16 @@ impl Estimator {
             );
         }
         let seconds_init = start.elapsed().as_secs_f64();
+        if !solve {
+            return Ok(self.initial_estimate(
+                fits,
+                obs,
+                scale,
+                start,
+                seconds_init,
+                self.keypoint_init(),
+            ));
+        }
         let mut ws = BcdWorkspace::default();
         let info = bcd::solve(
             &self.dict,
@@ -275,6 +295,17 @@ impl Estimator {
 
     /// Algorithm 2 (EM) on heat maps. Output 2D values are in heat-map pixels.
     pub fn lift_heatmaps(&self, maps: &HeatMaps) -> Result<Estimate, EstimateError> {
+        self.heatmaps_inner(maps, true)
+    }
+
+    /// The single-frame baseline on heat maps: each frame initialised from its maps'
+    /// arg-max, without the EM. `keypoints` are the arg-max joints (heat-map pixels);
+    /// joints whose peak is not above the visibility threshold have weight 0.
+    pub fn initialise_heatmaps(&self, maps: &HeatMaps) -> Result<Estimate, EstimateError> {
+        self.heatmaps_inner(maps, false)
+    }
+
+    fn heatmaps_inner(&self, maps: &HeatMaps, solve: bool) -> Result<Estimate, EstimateError> {
         let start = Instant::now();
         let p = self.dict.num_joints();
         if maps.joints != p {
@@ -292,6 +323,7 @@ impl Estimator {
         // Initialise each frame from the arg-max of each map.
         let mut fits = Vec::with_capacity(f);
         let mut init_ws = InitWorkspace::default();
+        let mut argmax = Observations::new(p, vec![0.0; 2 * p * f]);
         for t in 0..f {
             let mut w = vec![0.0; 2 * p];
             let mut visible = vec![false; p];
@@ -303,6 +335,10 @@ impl Estimator {
             }
             if visible.iter().filter(|&&v| v).count() < 2 {
                 visible.iter_mut().for_each(|v| *v = true);
+            }
+            argmax.xy[2 * p * t..2 * p * (t + 1)].copy_from_slice(&w);
+            for (j, &v) in visible.iter().enumerate() {
+                argmax.weights[t * p + j] = if v { 1.0 } else { 0.0 };
             }
             fits.push(
                 initialise_frame(
@@ -318,6 +354,16 @@ impl Estimator {
             );
         }
         let seconds_init = start.elapsed().as_secs_f64();
+        if !solve {
+            return Ok(self.initial_estimate(
+                fits,
+                argmax,
+                scale,
+                start,
+                seconds_init,
+                self.heatmap_init(),
+            ));
+        }
         let mut ws = EmWorkspace::default();
         let mut scratch = Observations::new(p, vec![0.0; 2 * p * f]);
         let (obs, info) = em::run(
@@ -353,6 +399,28 @@ impl Estimator {
             seconds: start.elapsed().as_secs_f64(),
         };
         Ok(est)
+    }
+
+    /// The estimate of the initialisation alone.
+    fn initial_estimate(
+        &self,
+        fits: Vec<FrameFit>,
+        obs: Observations,
+        scale: f64,
+        start: Instant,
+        seconds_init: f64,
+        init: InitMethod,
+    ) -> Estimate {
+        let mut est = self.finish(fits, obs, scale, None);
+        est.report = Report {
+            frames: est.fits.len(),
+            init: init.to_string(),
+            em_iterations: 0,
+            seconds_init,
+            seconds: start.elapsed().as_secs_f64(),
+            ..Report::default()
+        };
+        est
     }
 
     /// Poses and 2D outputs from the fits and the observations they were fitted to.

@@ -3,7 +3,11 @@
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
+mod cli;
+
 use clap::{Args, Parser, Subcommand};
+use posestream::BvhError;
+use posestream::mocap::{MappingError, SplitError};
 use posestream::npy::{self, Array};
 use posestream::solver::coefficients::CoefficientSolver;
 use posestream::solver::perspective::PerspectiveParams;
@@ -28,6 +32,14 @@ enum Command {
     /// Run the estimator on the reference parity fixtures and compare with the
     /// reference implementation's results.
     Parity(ParityArgs),
+    /// Learn a pose dictionary from motion capture (BVH) by non-negative sparse coding.
+    LearnDict(cli::learn::LearnArgs),
+    /// Make a test sequence from motion capture: 3D truth in a camera frame, 2D joints,
+    /// crop boxes and heat maps with a seeded error model (NPY).
+    Synth(cli::synth::SynthArgs),
+    /// Evaluate the estimator on held-out motion capture: markdown tables mirroring the
+    /// paper's Tables 1-4.
+    Eval(cli::eval::EvalArgs),
 }
 
 #[derive(Debug, Args)]
@@ -215,7 +227,7 @@ struct ParityArgs {
 
 /// Everything that can stop the command, one line each.
 #[derive(Debug, thiserror::Error)]
-enum CliError {
+pub(crate) enum CliError {
     #[error(transparent)]
     Dictionary(#[from] DictionaryError),
     #[error(transparent)]
@@ -226,6 +238,12 @@ enum CliError {
     Estimate(#[from] EstimateError),
     #[error(transparent)]
     Camera(#[from] CameraError),
+    #[error(transparent)]
+    Bvh(#[from] BvhError),
+    #[error(transparent)]
+    Mapping(#[from] MappingError),
+    #[error(transparent)]
+    Split(#[from] SplitError),
     #[error("{path}: {source}")]
     Json {
         path: PathBuf,
@@ -250,6 +268,9 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Lift(args) => lift(&args),
         Command::Parity(args) => parity(&args),
+        Command::LearnDict(args) => cli::learn::run(&args),
+        Command::Synth(args) => cli::synth::run(&args),
+        Command::Eval(args) => cli::eval::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -145,9 +145,13 @@ pub fn expect_shape<T>(
     }
 }
 
-/// Writes an f64 array of `shape` (C order). Writes a sibling temporary file and renames
-/// it, so an existing file is never left half-written.
-pub fn write(path: &Path, shape: &[usize], data: &[f64]) -> Result<(), ArrayError> {
+/// Writes an array of `shape` (C order; f64 or f32). Writes a sibling temporary file and
+/// renames it, so an existing file is never left half-written.
+pub fn write<T: npyz::Serialize + npyz::AutoSerialize + Copy>(
+    path: &Path,
+    shape: &[usize],
+    data: &[T],
+) -> Result<(), ArrayError> {
     let io = |source: std::io::Error| ArrayError::Io {
         path: path.to_path_buf(),
         source,

@@ -10,6 +10,7 @@
 //! as the reference solver assumes.
 
 pub mod json;
+pub mod learn;
 pub mod mat;
 
 use std::path::Path;

@@ -1,0 +1,141 @@
+//! `posestream eval`: the paper's tables on held-out motion capture.
+
+use std::path::PathBuf;
+
+use clap::Args;
+use posestream::Dictionary;
+use posestream::evaluation::{self, Case, Settings};
+use posestream::mocap::mapping::same_layout;
+use posestream::mocap::split::list_bvh;
+use posestream::mocap::{Bvh, MotionName, SkeletonMapping, Split};
+
+use super::CliError;
+use super::learn::progress_bar;
+
+/// Options of `eval`.
+#[derive(Debug, Args)]
+pub struct EvalArgs {
+    /// Skeleton mapping of the BVH files.
+    #[arg(long, default_value = "config/skeletons/bandai-namco.toml")]
+    pub mapping: PathBuf,
+    /// Train/test split: its held-out files are evaluated.
+    #[arg(long, default_value = "config/splits/bandai-namco.toml")]
+    pub split: PathBuf,
+    /// BVH files or folders.
+    #[arg(
+        long,
+        num_args = 1..,
+        default_values = ["../shared/data/mocap/bandai-namco-1", "../shared/data/mocap/bandai-namco-2"]
+    )]
+    pub data: Vec<PathBuf>,
+    /// Dictionaries to compare (label=path or path), in the layout of the mapping.
+    #[arg(
+        long,
+        num_args = 1..,
+        default_values = [
+            "ours K128=config/dictionaries/default-k128.json",
+            "authors' K128=../shared/reference/monocap-dicts/poseDict-all-K128.mat"
+        ]
+    )]
+    pub dict: Vec<String>,
+    /// Frames per sequence at most.
+    #[arg(long, default_value_t = Settings::default().max_frames)]
+    pub max_frames: usize,
+    /// Held-out files per action at most (0 = all).
+    #[arg(long, default_value_t = 0)]
+    pub max_files_per_action: usize,
+    /// Seed of the synthetic detector's error model.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Write the markdown here as well as to stdout.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
+
+/// Runs `eval`.
+pub fn run(args: &EvalArgs) -> Result<(), CliError> {
+    if args.max_frames == 0 {
+        return Err(CliError::Input("--max-frames must be at least 1".into()));
+    }
+    let mapping = SkeletonMapping::load(&args.mapping)?;
+    let split = Split::load(&args.split)?;
+    let mut dicts = Vec::new();
+    for spec in &args.dict {
+        let (label, path) = match spec.split_once('=') {
+            Some((l, p)) => (l.to_string(), PathBuf::from(p)),
+            None => (spec.clone(), PathBuf::from(spec)),
+        };
+        let d = Dictionary::load(&path)?;
+        if !same_layout(&d.skeleton().joints, &mapping.layout.joints) {
+            return Err(CliError::Input(format!(
+                "{}: its joints ({}) are not the mapping's layout ({})",
+                path.display(),
+                d.skeleton().joints.join(", "),
+                mapping.layout.joints.join(", ")
+            )));
+        }
+        dicts.push((label, d));
+    }
+    let mut per_action = std::collections::BTreeMap::<String, usize>::new();
+    let files: Vec<PathBuf> = list_bvh(&args.data)?
+        .into_iter()
+        .filter(|f| split.is_test(f))
+        .filter(|f| {
+            let action = MotionName::parse(f).map_or_else(String::new, |m| m.content);
+            let n = per_action.entry(action).or_default();
+            *n += 1;
+            args.max_files_per_action == 0 || *n <= args.max_files_per_action
+        })
+        .collect();
+    if files.is_empty() {
+        return Err(CliError::Input("the split holds out no files".into()));
+    }
+    let settings = Settings {
+        max_frames: args.max_frames,
+        errors: posestream::synth::ErrorModel {
+            seed: args.seed,
+            ..Default::default()
+        },
+        ..Settings::default()
+    };
+    let bar = progress_bar(files.len(), "synthesising");
+    let mut cases = Vec::with_capacity(files.len());
+    for (i, file) in files.iter().enumerate() {
+        let bvh = Bvh::load(file)?;
+        let seq = mapping.apply(&bvh, &file.display().to_string())?;
+        let name = file
+            .file_stem()
+            .map_or_else(String::new, |s| s.to_string_lossy().into_owned());
+        let action = MotionName::parse(file).map_or_else(|| name.clone(), |m| m.content);
+        cases.push(
+            Case::new(name, action, &seq, &mapping.layout, &settings, i)
+                .map_err(|e| CliError::Input(format!("{}: {e}", file.display())))?,
+        );
+        bar.inc(1);
+    }
+    bar.finish();
+    let mut results = Vec::new();
+    for (label, d) in &dicts {
+        let bar = progress_bar(cases.len(), "evaluating");
+        results.push(evaluation::evaluate(
+            label,
+            d,
+            &posestream::Params::default(),
+            &cases,
+            &settings,
+            || bar.inc(1),
+        )?);
+        bar.finish();
+    }
+    let text = evaluation::markdown(&results, &cases, &settings);
+    print!("{text}");
+    if let Some(path) = &args.out {
+        let command = std::env::args().collect::<Vec<_>>().join(" ");
+        let doc = format!(
+            "# Results\n\nGenerated by `{command}` (`posestream eval --help` lists the options).\n\n{text}"
+        );
+        std::fs::write(path, doc)
+            .map_err(|e| CliError::Input(format!("cannot write {}: {e}", path.display())))?;
+    }
+    Ok(())
+}

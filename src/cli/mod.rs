@@ -1,0 +1,7 @@
+//! Subcommands beyond `lift` and `parity`.
+
+pub mod eval;
+pub mod learn;
+pub mod synth;
+
+pub(crate) use super::CliError;

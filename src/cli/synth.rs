@@ -1,0 +1,226 @@
+//! `posestream synth`: a test sequence (ground truth, 2D joints, crop boxes, heat maps)
+//! from a BVH file seen by a virtual camera.
+
+use std::path::PathBuf;
+
+use clap::Args;
+use posestream::mocap::{Bvh, MappedSequence, SkeletonMapping};
+use posestream::npy;
+use posestream::synth::{self, CameraSpec, ErrorModel, Projection, heatmaps};
+
+use super::CliError;
+
+/// The virtual camera.
+#[derive(Debug, Clone, Args)]
+pub struct CameraArgs {
+    /// Distance from the body's root, metres.
+    #[arg(long, default_value_t = CameraSpec::default().distance)]
+    pub distance: f64,
+    /// Azimuth, degrees (0 = in front of the body as it first faces, 90 = its left).
+    #[arg(long, default_value_t = CameraSpec::default().azimuth_deg)]
+    pub azimuth: f64,
+    /// Elevation above the root, degrees.
+    #[arg(long, default_value_t = CameraSpec::default().elevation_deg)]
+    pub elevation: f64,
+    /// Orbit speed, degrees per second.
+    #[arg(long, default_value_t = CameraSpec::default().orbit_deg_per_s)]
+    pub orbit: f64,
+    /// Projection model.
+    #[arg(long, value_enum, default_value_t = Projection::Pinhole)]
+    pub projection: Projection,
+    /// Focal length, pixels (orthographic: focal / distance pixels per metre).
+    #[arg(long, default_value_t = CameraSpec::default().focal)]
+    pub focal: f64,
+    /// Image width and height, pixels (square).
+    #[arg(long, default_value_t = CameraSpec::default().image_size[0])]
+    pub image_size: f64,
+    /// Keep the camera where the first frame puts it instead of following the body.
+    #[arg(long)]
+    pub static_camera: bool,
+}
+
+impl CameraArgs {
+    /// The camera these options describe.
+    pub fn spec(&self) -> CameraSpec {
+        CameraSpec {
+            distance: self.distance,
+            azimuth_deg: self.azimuth,
+            elevation_deg: self.elevation,
+            orbit_deg_per_s: self.orbit,
+            projection: self.projection,
+            focal: self.focal,
+            image_size: [self.image_size, self.image_size],
+            follow: !self.static_camera,
+        }
+    }
+}
+
+/// The heat maps' error model.
+#[derive(Debug, Clone, Args)]
+pub struct ErrorArgs {
+    /// Heat-map size, cells (square).
+    #[arg(long, default_value_t = ErrorModel::default().size[0])]
+    pub map_size: usize,
+    /// Localisation noise, cells (standard deviation).
+    #[arg(long, default_value_t = ErrorModel::default().noise)]
+    pub noise: f64,
+    /// Peak width, cells (standard deviation).
+    #[arg(long, default_value_t = ErrorModel::default().blob)]
+    pub blob: f64,
+    /// Probability per frame and left/right pair that a swap starts.
+    #[arg(long, default_value_t = ErrorModel::default().swap_rate)]
+    pub swap_rate: f64,
+    /// Probability per frame and joint that an occlusion starts.
+    #[arg(long, default_value_t = ErrorModel::default().occlusion_rate)]
+    pub occlusion_rate: f64,
+    /// Probability per frame and joint that the joint goes missing.
+    #[arg(long, default_value_t = ErrorModel::default().missing_rate)]
+    pub missing_rate: f64,
+    /// Frames a swap, occlusion or missing joint lasts.
+    #[arg(long, default_value_t = ErrorModel::default().episode_frames)]
+    pub episode_frames: usize,
+    /// Background noise amplitude.
+    #[arg(long, default_value_t = ErrorModel::default().background)]
+    pub background: f64,
+    /// Seed of the error model.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+}
+
+impl ErrorArgs {
+    /// The model these options describe.
+    pub fn model(&self) -> ErrorModel {
+        ErrorModel {
+            size: [self.map_size, self.map_size],
+            noise: self.noise,
+            blob: self.blob,
+            swap_rate: self.swap_rate,
+            occlusion_rate: self.occlusion_rate,
+            missing_rate: self.missing_rate,
+            episode_frames: self.episode_frames,
+            background: self.background,
+            seed: self.seed,
+        }
+    }
+}
+
+/// Options of `synth`.
+#[derive(Debug, Args)]
+#[command(allow_negative_numbers = true)]
+pub struct SynthArgs {
+    /// The motion (BVH).
+    #[arg(long)]
+    pub bvh: PathBuf,
+    /// Skeleton mapping of the BVH (config/skeletons/*.toml).
+    #[arg(long)]
+    pub mapping: PathBuf,
+    /// Output folder.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// First frame.
+    #[arg(long, default_value_t = 0)]
+    pub start: usize,
+    /// Frames (0 = to the end).
+    #[arg(long, default_value_t = 0)]
+    pub frames: usize,
+    /// Crop box side, times the joints' larger extent.
+    #[arg(long, default_value_t = 1.25)]
+    pub margin: f64,
+    #[command(flatten)]
+    pub camera: CameraArgs,
+    #[command(flatten)]
+    pub errors: ErrorArgs,
+}
+
+/// Frames `start .. start + frames` (0 = to the end) of a sequence.
+pub fn clip(seq: MappedSequence, start: usize, frames: usize) -> Result<MappedSequence, CliError> {
+    if start >= seq.frames {
+        return Err(CliError::Input(format!(
+            "--start {start} is past the last frame ({} frames)",
+            seq.frames
+        )));
+    }
+    let end = if frames == 0 {
+        seq.frames
+    } else {
+        (start + frames).min(seq.frames)
+    };
+    let n = 3 * seq.joints;
+    Ok(MappedSequence {
+        frames: end - start,
+        positions: seq.positions[start * n..end * n].to_vec(),
+        ..seq
+    })
+}
+
+/// Runs `synth`.
+pub fn run(args: &SynthArgs) -> Result<(), CliError> {
+    if !(args.margin.is_finite() && args.margin >= 1.0) {
+        return Err(CliError::Input(format!(
+            "--margin must be >= 1, got {}",
+            args.margin
+        )));
+    }
+    let cam = args.camera.spec();
+    cam.validate().map_err(CliError::Input)?;
+    let model = args.errors.model();
+    model.validate().map_err(CliError::Input)?;
+    let mapping = SkeletonMapping::load(&args.mapping)?;
+    let bvh = Bvh::load(&args.bvh)?;
+    let seq = mapping.apply(&bvh, &args.bvh.display().to_string())?;
+    let seq = clip(seq, args.start, args.frames)?;
+    let skel = &mapping.layout;
+    let view = synth::view(&seq, skel, &cam).map_err(CliError::Input)?;
+    let boxes = synth::crop_boxes(&view.image_2d, view.joints, args.margin);
+    let rendered = heatmaps::render(&view.image_2d, &boxes, skel, &model)?;
+    let (f, p) = (view.frames, view.joints);
+    std::fs::create_dir_all(&args.out)
+        .map_err(|e| CliError::Input(format!("cannot create {}: {e}", args.out.display())))?;
+    let out = |name: &str| args.out.join(name);
+    npy::write(&out("gt_3d.npy"), &[f, p, 3], &view.camera_3d)?;
+    npy::write(&out("keypoints.npy"), &[f, p, 2], &view.image_2d)?;
+    let flat: Vec<f64> = boxes
+        .iter()
+        .flat_map(|b| [b.x0, b.y0, b.width, b.height])
+        .collect();
+    npy::write(&out("boxes.npy"), &[f, 4], &flat)?;
+    let [h, w] = model.size;
+    npy::write(&out("heatmaps.npy"), &[f, p, h, w], &rendered.maps.values)?;
+    npy::write(&out("gt_2d_heatmap.npy"), &[f, p, 2], &rendered.truth)?;
+    let k = cam.intrinsics();
+    let meta = serde_json::json!({
+        "source": args.bvh.display().to_string(),
+        "mapping": mapping.name,
+        "joints": skel.joints,
+        "frames": f,
+        "start": args.start,
+        "frame_time": seq.frame_time,
+        "camera": cam,
+        "error_model": model,
+        "episodes": rendered.episodes,
+        "units": "gt_3d: metres, camera frame (x right, y down, z forward); keypoints, boxes: image pixels; gt_2d_heatmap: heat-map cells",
+    });
+    let write_json = |name: &str, v: &serde_json::Value| {
+        let text = serde_json::to_string_pretty(v).map_err(|source| CliError::Json {
+            path: out(name),
+            source,
+        })?;
+        std::fs::write(out(name), text)
+            .map_err(|e| CliError::Input(format!("cannot write {}: {e}", out(name).display())))
+    };
+    write_json("meta.json", &meta)?;
+    if cam.projection == Projection::Pinhole {
+        write_json(
+            "intrinsics.json",
+            &serde_json::json!({"fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy}),
+        )?;
+    }
+    println!(
+        "{f} frames of {p} joints -> {} (swapped {}, occluded {}, missing {} joint-frames)",
+        args.out.display(),
+        rendered.episodes.swapped,
+        rendered.episodes.occluded,
+        rendered.episodes.missing
+    );
+    Ok(())
+}
