@@ -179,6 +179,8 @@ pub struct DictionaryResults {
     pub heatmaps: Vec<(String, Score)>,
     /// Frames evaluated.
     pub frames: usize,
+    /// Sequences evaluated.
+    pub cases: usize,
 }
 
 fn timed(
@@ -189,24 +191,41 @@ fn timed(
     Ok((e, start.elapsed().as_secs_f64()))
 }
 
-/// Runs every method of the tables with one dictionary over the cases.
-pub fn evaluate(
-    label: &str,
-    dict: &Dictionary,
-    params: &Params,
-    cases: &[Case],
-    settings: &Settings,
-    mut progress: impl FnMut(),
-) -> Result<DictionaryResults, EstimateError> {
-    let estimator = Estimator::new(dict.clone(), params.clone())?;
-    let flat = Estimator::new(dict.clone(), params.clone().without_smoothness())?;
-    let mut out = DictionaryResults {
-        label: label.to_string(),
-        ..Default::default()
-    };
-    let methods = ["init (arg-max)", "EM", "EM, no smoothness"];
-    let mut hm: Vec<Score> = vec![Score::default(); methods.len()];
-    for case in cases {
+/// Scores one dictionary case by case (so that cases need not be held in memory).
+#[derive(Debug, Clone)]
+pub struct Evaluator {
+    estimator: Estimator,
+    flat: Estimator,
+    pck_threshold: f64,
+    hm: Vec<Score>,
+    results: DictionaryResults,
+}
+
+/// The heat-map methods of Table 3, in order.
+pub const HEATMAP_METHODS: [&str; 3] = ["init (arg-max)", "EM", "EM, no smoothness"];
+
+impl Evaluator {
+    /// An evaluator of `dict` under `params` (and the same without smoothness).
+    pub fn new(
+        label: &str,
+        dict: &Dictionary,
+        params: &Params,
+        settings: &Settings,
+    ) -> Result<Self, EstimateError> {
+        Ok(Self {
+            estimator: Estimator::new(dict.clone(), params.clone())?,
+            flat: Estimator::new(dict.clone(), params.clone().without_smoothness())?,
+            pck_threshold: settings.pck_threshold,
+            hm: vec![Score::default(); HEATMAP_METHODS.len()],
+            results: DictionaryResults {
+                label: label.to_string(),
+                ..Default::default()
+            },
+        })
+    }
+
+    /// Runs every method on one case and adds its scores.
+    pub fn add(&mut self, case: &Case) -> Result<(), EstimateError> {
         let p = case.pinhole.joints;
         let f = case.pinhole.frames as f64;
         for (camera, view) in [("static", &case.still), ("orbit", &case.orbit)] {
@@ -216,10 +235,11 @@ pub fn evaluate(
                 confidence: None,
             };
             for (method, run) in [
-                ("init", timed(|| estimator.initialise_keypoints(&kp))?),
-                ("algorithm 1", timed(|| estimator.lift_keypoints(&kp))?),
+                ("init", timed(|| self.estimator.initialise_keypoints(&kp))?),
+                ("algorithm 1", timed(|| self.estimator.lift_keypoints(&kp))?),
             ] {
-                let s = out
+                let s = self
+                    .results
                     .given_2d
                     .entry((camera.to_string(), method.to_string()))
                     .or_default();
@@ -230,13 +250,13 @@ pub fn evaluate(
         }
         let maps = &case.maps.maps;
         let runs = [
-            timed(|| estimator.initialise_heatmaps(maps))?,
-            timed(|| estimator.lift_heatmaps(maps))?,
-            timed(|| flat.lift_heatmaps(maps))?,
+            timed(|| self.estimator.initialise_heatmaps(maps))?,
+            timed(|| self.estimator.lift_heatmaps(maps))?,
+            timed(|| self.flat.lift_heatmaps(maps))?,
         ];
         let to_256 = 256.0 / maps.height as f64;
         for (i, (est, seconds)) in runs.iter().enumerate() {
-            let s = &mut hm[i];
+            let s = &mut self.hm[i];
             let e = 1000.0 * metrics::p_mpjpe(&est.poses, &case.pinhole.camera_3d, p);
             s.p_mpjpe_mm.add(e, f);
             // The baseline's 2D answer is the arg-max itself; the others' is the model's
@@ -248,7 +268,7 @@ pub fn evaluate(
             };
             s.error_2d
                 .add(to_256 * metrics::mean_error_2d(xy, &case.maps.truth), f);
-            let pck = metrics::pck(xy, &case.maps.truth, settings.pck_threshold / to_256);
+            let pck = metrics::pck(xy, &case.maps.truth, self.pck_threshold / to_256);
             s.pck.add(100.0 * pck, f);
             s.seconds_per_frame.add(seconds / f, f);
             s.per_action
@@ -256,22 +276,45 @@ pub fn evaluate(
                 .or_default()
                 .add(e, f);
         }
-        out.frames += case.pinhole.frames;
-        progress();
+        self.results.frames += case.pinhole.frames;
+        self.results.cases += 1;
+        Ok(())
     }
-    out.heatmaps = methods.iter().map(|m| m.to_string()).zip(hm).collect();
-    Ok(out)
+
+    /// The scores so far.
+    pub fn results(&self) -> DictionaryResults {
+        let mut r = self.results.clone();
+        r.heatmaps = HEATMAP_METHODS
+            .iter()
+            .map(|m| m.to_string())
+            .zip(self.hm.iter().cloned())
+            .collect();
+        r
+    }
+}
+
+/// Runs every method of the tables with one dictionary over the cases.
+pub fn evaluate(
+    label: &str,
+    dict: &Dictionary,
+    params: &Params,
+    cases: &[Case],
+    settings: &Settings,
+) -> Result<DictionaryResults, EstimateError> {
+    let mut ev = Evaluator::new(label, dict, params, settings)?;
+    for case in cases {
+        ev.add(case)?;
+    }
+    Ok(ev.results())
 }
 
 /// The markdown tables of the results.
-pub fn markdown(results: &[DictionaryResults], cases: &[Case], settings: &Settings) -> String {
+pub fn markdown(results: &[DictionaryResults], settings: &Settings) -> String {
     let mut s = String::new();
-    let frames = results.first().map_or(0, |r| r.frames);
+    let (cases, frames) = results.first().map_or((0, 0), |r| (r.cases, r.frames));
     let _ = writeln!(
         s,
-        "Held-out sequences: {}, {} frames (first {} frames of each file at most).\n",
-        cases.len(),
-        frames,
+        "Held-out sequences: {cases}, {frames} frames (first {} frames of each file at most).\n",
         settings.max_frames
     );
     let _ = writeln!(

@@ -204,7 +204,7 @@ mod tests {
         assert!(matches!(read::<f64>(&path), Err(ArrayError::Format { .. })));
         std::fs::write(&path, b"").expect("write");
         assert!(matches!(read::<f64>(&path), Err(ArrayError::Format { .. })));
-        write(&path, &[0, 2], &[]).expect("write");
+        write::<f64>(&path, &[0, 2], &[]).expect("write");
         assert!(matches!(read::<f64>(&path), Err(ArrayError::Empty { .. })));
         write(&path, &[2], &[1.0, f64::NAN]).expect("write");
         assert!(matches!(

@@ -42,7 +42,7 @@ fn em_beats_its_initialisation_and_the_no_smoothness_ablation_on_held_out_motion
             Case::new(f.to_string(), action, &seq, &mapping.layout, &settings, i).expect("case")
         })
         .collect();
-    let r = evaluation::evaluate("ours", &dict, &Params::default(), &cases, &settings, || {})
+    let r = evaluation::evaluate("ours", &dict, &Params::default(), &cases, &settings)
         .expect("evaluates");
     let given = |camera: &str, method: &str| {
         r.given_2d[&(camera.to_string(), method.to_string())]
