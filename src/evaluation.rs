@@ -83,12 +83,9 @@ impl Case {
         settings: &Settings,
         index: usize,
     ) -> Result<Self, String> {
-        let frames = seq.frames.min(settings.max_frames);
-        let seq = MappedSequence {
-            frames,
-            positions: seq.positions[..frames * 3 * seq.joints].to_vec(),
-            ..seq.clone()
-        };
+        let seq = seq
+            .frames_from(0, settings.max_frames)
+            .ok_or("the sequence has no frames")?;
         let azimuth = (47.0 * index as f64) % 360.0;
         let ortho = CameraSpec {
             azimuth_deg: azimuth,
@@ -197,7 +194,6 @@ pub struct Evaluator {
     estimator: Estimator,
     flat: Estimator,
     pck_threshold: f64,
-    hm: Vec<Score>,
     results: DictionaryResults,
 }
 
@@ -216,9 +212,12 @@ impl Evaluator {
             estimator: Estimator::new(dict.clone(), params.clone())?,
             flat: Estimator::new(dict.clone(), params.clone().without_smoothness())?,
             pck_threshold: settings.pck_threshold,
-            hm: vec![Score::default(); HEATMAP_METHODS.len()],
             results: DictionaryResults {
                 label: label.to_string(),
+                heatmaps: HEATMAP_METHODS
+                    .iter()
+                    .map(|m| (m.to_string(), Score::default()))
+                    .collect(),
                 ..Default::default()
             },
         })
@@ -256,7 +255,7 @@ impl Evaluator {
         ];
         let to_256 = 256.0 / maps.height as f64;
         for (i, (est, seconds)) in runs.iter().enumerate() {
-            let s = &mut self.hm[i];
+            let s = &mut self.results.heatmaps[i].1;
             let e = 1000.0 * metrics::p_mpjpe(&est.poses, &case.pinhole.camera_3d, p);
             s.p_mpjpe_mm.add(e, f);
             // The baseline's 2D answer is the arg-max itself; the others' is the model's
@@ -282,14 +281,8 @@ impl Evaluator {
     }
 
     /// The scores so far.
-    pub fn results(&self) -> DictionaryResults {
-        let mut r = self.results.clone();
-        r.heatmaps = HEATMAP_METHODS
-            .iter()
-            .map(|m| m.to_string())
-            .zip(self.hm.iter().cloned())
-            .collect();
-        r
+    pub fn results(&self) -> &DictionaryResults {
+        &self.results
     }
 }
 
@@ -305,7 +298,7 @@ pub fn evaluate(
     for case in cases {
         ev.add(case)?;
     }
-    Ok(ev.results())
+    Ok(ev.results)
 }
 
 /// The markdown tables of the results.

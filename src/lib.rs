@@ -25,6 +25,7 @@
 //! [`solver::Window`] is the frames solved together.
 
 pub mod camera;
+pub mod config;
 pub mod dictionary;
 pub mod error;
 pub mod estimator;

@@ -1,5 +1,6 @@
 //! The joint layout of a pose: names, the parent tree, torso joints and left/right pairs.
 
+use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
 /// Joint names, the kinematic tree and the joints used for torso alignment.
@@ -86,6 +87,25 @@ impl Skeleton {
             .iter()
             .enumerate()
             .filter_map(|(j, q)| q.map(|q| (q, j)))
+    }
+
+    /// The left/right pairs whose both joints are torso joints.
+    pub fn torso_pairs(&self) -> Vec<(usize, usize)> {
+        self.left_right_pairs()
+            .into_iter()
+            .filter(|(l, r)| self.torso.contains(l) && self.torso.contains(r))
+            .collect()
+    }
+
+    /// The horizontal unit direction a pose faces, for world axes with z up (`frame`:
+    /// `[x, y, z]` per joint), from its torso's left-to-right direction: facing `f` and up
+    /// `z` make the body's right `f x z`. `None` without left/right torso joints or when
+    /// they line up vertically.
+    pub fn facing(&self, frame: &[f64]) -> Option<Vector3<f64>> {
+        let at = |j: usize| Vector3::new(frame[3 * j], frame[3 * j + 1], frame[3 * j + 2]);
+        let right: Vector3<f64> = self.torso_pairs().iter().map(|&(l, r)| at(r) - at(l)).sum();
+        let right = Vector3::new(right.x, right.y, 0.0).try_normalize(1e-9)?;
+        Some(Vector3::z().cross(&right))
     }
 
     /// Left/right joint pairs, found by name: `l`/`r` prefixes (`lhumerus`/`rhumerus`,

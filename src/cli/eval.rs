@@ -9,8 +9,7 @@ use posestream::mocap::mapping::same_layout;
 use posestream::mocap::split::list_bvh;
 use posestream::mocap::{Bvh, MotionName, SkeletonMapping, Split};
 
-use super::CliError;
-use super::learn::progress_bar;
+use super::{CliError, progress_bar};
 
 /// Options of `eval`.
 #[derive(Debug, Args)]
@@ -119,7 +118,10 @@ pub fn run(args: &EvalArgs) -> Result<(), CliError> {
         bar.inc(1);
     }
     bar.finish();
-    let results: Vec<_> = evaluators.iter().map(Evaluator::results).collect();
+    let results: Vec<_> = evaluators
+        .into_iter()
+        .map(|e| e.results().clone())
+        .collect();
     let text = evaluation::markdown(&results, &settings);
     print!("{text}");
     if let Some(path) = &args.out {

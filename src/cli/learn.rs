@@ -3,13 +3,12 @@
 use std::path::PathBuf;
 
 use clap::Args;
-use indicatif::{ProgressBar, ProgressStyle};
 use posestream::dictionary::json;
 use posestream::dictionary::learn::{LearnParams, learn, normalise_poses};
 use posestream::mocap::split::list_bvh;
 use posestream::mocap::{Bvh, SkeletonMapping, Split};
 
-use super::CliError;
+use super::{CliError, progress_bar};
 
 /// Options of `learn-dict`.
 #[derive(Debug, Args)]
@@ -47,18 +46,6 @@ pub struct LearnArgs {
     /// Output dictionary (posestream JSON).
     #[arg(long)]
     pub out: PathBuf,
-}
-
-/// Progress bar for `n` steps of `what`, on stderr.
-pub fn progress_bar(n: usize, what: &str) -> ProgressBar {
-    let bar = ProgressBar::new(n as u64);
-    bar.set_style(
-        ProgressStyle::with_template("{msg:>12} [{bar:40}] {pos}/{len} {elapsed_precise}")
-            .unwrap_or_else(|_| ProgressStyle::default_bar())
-            .progress_chars("=> "),
-    );
-    bar.set_message(what.to_string());
-    bar
 }
 
 /// Runs `learn-dict`.

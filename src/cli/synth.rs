@@ -4,7 +4,7 @@
 use std::path::PathBuf;
 
 use clap::Args;
-use posestream::mocap::{Bvh, MappedSequence, SkeletonMapping};
+use posestream::mocap::{Bvh, SkeletonMapping};
 use posestream::npy;
 use posestream::synth::{self, CameraSpec, ErrorModel, Projection, heatmaps};
 
@@ -132,27 +132,6 @@ pub struct SynthArgs {
     pub errors: ErrorArgs,
 }
 
-/// Frames `start .. start + frames` (0 = to the end) of a sequence.
-pub fn clip(seq: MappedSequence, start: usize, frames: usize) -> Result<MappedSequence, CliError> {
-    if start >= seq.frames {
-        return Err(CliError::Input(format!(
-            "--start {start} is past the last frame ({} frames)",
-            seq.frames
-        )));
-    }
-    let end = if frames == 0 {
-        seq.frames
-    } else {
-        (start + frames).min(seq.frames)
-    };
-    let n = 3 * seq.joints;
-    Ok(MappedSequence {
-        frames: end - start,
-        positions: seq.positions[start * n..end * n].to_vec(),
-        ..seq
-    })
-}
-
 /// Runs `synth`.
 pub fn run(args: &SynthArgs) -> Result<(), CliError> {
     if !(args.margin.is_finite() && args.margin >= 1.0) {
@@ -168,7 +147,17 @@ pub fn run(args: &SynthArgs) -> Result<(), CliError> {
     let mapping = SkeletonMapping::load(&args.mapping)?;
     let bvh = Bvh::load(&args.bvh)?;
     let seq = mapping.apply(&bvh, &args.bvh.display().to_string())?;
-    let seq = clip(seq, args.start, args.frames)?;
+    let len = if args.frames == 0 {
+        usize::MAX
+    } else {
+        args.frames
+    };
+    let seq = seq.frames_from(args.start, len).ok_or_else(|| {
+        CliError::Input(format!(
+            "--start {} is past the last frame ({} frames)",
+            args.start, seq.frames
+        ))
+    })?;
     let skel = &mapping.layout;
     let view = synth::view(&seq, skel, &cam).map_err(CliError::Input)?;
     let boxes = synth::crop_boxes(&view.image_2d, view.joints, args.margin);

@@ -69,12 +69,7 @@ pub fn normalise_poses(skeleton: &Skeleton, world: &[f64]) -> Option<Vec<f64>> {
         return None;
     }
     let torso = &skeleton.torso;
-    let torso_pairs: Vec<(usize, usize)> = skeleton
-        .left_right_pairs()
-        .into_iter()
-        .filter(|(l, r)| torso.contains(l) && torso.contains(r))
-        .collect();
-    if torso_pairs.is_empty() || torso.len() < 3 {
+    if torso.len() < 3 {
         return None;
     }
     let normalised = |t: usize| -> Option<Vec<Vector3<f64>>> {
@@ -91,17 +86,10 @@ pub fn normalise_poses(skeleton: &Skeleton, world: &[f64]) -> Option<Vec<f64>> {
         (scale > 0.0 && scale.is_finite()).then(|| pts.iter().map(|q| (q - mean) / scale).collect())
     };
     // The reference: the first pose, turned so that y points down (world -z) and the
-    // torso's left-to-right direction is +x.
+    // body's right is +x (then it faces +z).
     let first = normalised(0)?;
-    let mean_of = |pts: &[Vector3<f64>], idx: &mut dyn Iterator<Item = usize>| {
-        let v: Vec<Vector3<f64>> = idx.map(|j| pts[j]).collect();
-        v.iter().sum::<Vector3<f64>>() / v.len() as f64
-    };
-    let left = mean_of(&first, &mut torso_pairs.iter().map(|pr| pr.0));
-    let right = mean_of(&first, &mut torso_pairs.iter().map(|pr| pr.1));
+    let x = skeleton.facing(&world[..3 * p])?.cross(&Vector3::z());
     let down = -Vector3::z();
-    let x = (right - left) - down * (right - left).dot(&down);
-    let x = x.try_normalize(1e-9)?;
     let z = x.cross(&down);
     let to_dict = nalgebra::Matrix3::from_rows(&[x.transpose(), down.transpose(), z.transpose()]);
     let reference: Vec<Vector3<f64>> = first.iter().map(|q| to_dict * q).collect();

@@ -21,6 +21,8 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
+use crate::config::{ConfigError, load_toml};
+
 use nalgebra::{Rotation3, Vector3};
 use serde::Deserialize;
 
@@ -115,22 +117,9 @@ pub fn same_layout(a: &[String], b: &[String]) -> bool {
 /// Loading or applying a skeleton mapping failed.
 #[derive(Debug, thiserror::Error)]
 pub enum MappingError {
-    /// The file could not be read.
-    #[error("cannot read skeleton mapping {path}: {source}")]
-    Io {
-        /// The file.
-        path: PathBuf,
-        /// The cause.
-        source: std::io::Error,
-    },
-    /// The file is not valid TOML or has unknown or missing keys.
-    #[error("skeleton mapping {path}: {source}")]
-    Toml {
-        /// The file.
-        path: PathBuf,
-        /// The parser's message.
-        source: toml::de::Error,
-    },
+    /// The file could not be read or is not a valid mapping document.
+    #[error("skeleton mapping: {0}")]
+    Config(#[from] ConfigError),
     /// The mapping is inconsistent with its layout.
     #[error("skeleton mapping {path}: {detail}")]
     Invalid {
@@ -258,23 +247,32 @@ pub struct MappedSequence {
     pub positions: Vec<f64>,
 }
 
+impl MappedSequence {
+    /// Frames `start .. start + len` (clipped to the sequence); `None` when `start` is
+    /// past the last frame.
+    pub fn frames_from(&self, start: usize, len: usize) -> Option<Self> {
+        if start >= self.frames {
+            return None;
+        }
+        let end = start.saturating_add(len).min(self.frames);
+        let n = 3 * self.joints;
+        Some(Self {
+            frames: end - start,
+            positions: self.positions[start * n..end * n].to_vec(),
+            ..self.clone()
+        })
+    }
+}
+
 impl SkeletonMapping {
     /// Loads a mapping file.
     pub fn load(path: impl AsRef<Path>) -> Result<Self, MappingError> {
         let path = path.as_ref();
-        let text = std::fs::read_to_string(path).map_err(|source| MappingError::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
-        Self::parse(&text, path)
+        Self::from_file(load_toml(path)?, path)
     }
 
-    /// Parses mapping text; `path` names it in errors.
-    pub fn parse(text: &str, path: &Path) -> Result<Self, MappingError> {
-        let file: MappingFile = toml::from_str(text).map_err(|source| MappingError::Toml {
-            path: path.to_path_buf(),
-            source,
-        })?;
+    /// Checks a parsed mapping document; `path` names it in errors.
+    fn from_file(file: MappingFile, path: &Path) -> Result<Self, MappingError> {
         let invalid = |detail: String| MappingError::Invalid {
             path: path.to_path_buf(),
             detail,

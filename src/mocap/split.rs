@@ -7,6 +7,8 @@ use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
+use crate::config::{ConfigError, load_toml};
+
 /// Loading a split or listing motion files failed.
 #[derive(Debug, thiserror::Error)]
 pub enum SplitError {
@@ -18,14 +20,9 @@ pub enum SplitError {
         /// The cause.
         source: std::io::Error,
     },
-    /// The split file is not valid TOML or has unknown keys.
-    #[error("split {path}: {source}")]
-    Toml {
-        /// The file.
-        path: PathBuf,
-        /// The parser's message.
-        source: toml::de::Error,
-    },
+    /// The split file could not be read or has unknown keys.
+    #[error("split: {0}")]
+    Config(#[from] ConfigError),
     /// No BVH file was found.
     #[error("no .bvh files in {0}")]
     Empty(String),
@@ -67,15 +64,7 @@ impl MotionName {
 impl Split {
     /// Loads a split file.
     pub fn load(path: impl AsRef<Path>) -> Result<Self, SplitError> {
-        let path = path.as_ref();
-        let text = std::fs::read_to_string(path).map_err(|source| SplitError::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
-        toml::from_str(&text).map_err(|source| SplitError::Toml {
-            path: path.to_path_buf(),
-            source,
-        })
+        Ok(load_toml(path.as_ref())?)
     }
 
     /// True when the file is held out. Files whose names do not parse are training files.

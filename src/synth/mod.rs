@@ -117,24 +117,6 @@ pub struct View {
     pub image_2d: Vec<f64>,
 }
 
-/// The direction the body faces in a frame (horizontal unit vector), from its torso's
-/// left/right joints; `None` when the layout has none or they coincide.
-pub fn facing(skeleton: &Skeleton, frame: &[f64]) -> Option<Vector3<f64>> {
-    let at = |j: usize| Vector3::new(frame[3 * j], frame[3 * j + 1], frame[3 * j + 2]);
-    let pairs: Vec<(usize, usize)> = skeleton
-        .left_right_pairs()
-        .into_iter()
-        .filter(|(l, r)| skeleton.torso.contains(l) && skeleton.torso.contains(r))
-        .collect();
-    if pairs.is_empty() {
-        return None;
-    }
-    let right: Vector3<f64> = pairs.iter().map(|&(l, r)| at(r) - at(l)).sum();
-    let right = Vector3::new(right.x, right.y, 0.0).try_normalize(1e-9)?;
-    // Facing f, up z: right = f x up, so f = up x right.
-    Some(Vector3::z().cross(&right))
-}
-
 /// Projects a mapped sequence through the camera.
 pub fn view(seq: &MappedSequence, skeleton: &Skeleton, cam: &CameraSpec) -> Result<View, String> {
     cam.validate()?;
@@ -144,7 +126,8 @@ pub fn view(seq: &MappedSequence, skeleton: &Skeleton, cam: &CameraSpec) -> Resu
     }
     let root = skeleton.root();
     let root_at = |t: usize| Vector3::from_column_slice(&seq.positions[3 * (t * p + root)..][..3]);
-    let front = facing(skeleton, &seq.positions[..3 * p])
+    let front = skeleton
+        .facing(&seq.positions[..3 * p])
         .ok_or("the layout has no left/right torso joints to tell where the body faces")?;
     let left = Vector3::z().cross(&front);
     let first_root = root_at(0);
@@ -258,7 +241,8 @@ mod tests {
     fn a_camera_in_front_sees_the_left_side_on_the_image_right() {
         let skel = default_layout();
         let seq = standing(3);
-        assert!((facing(&skel, &seq.positions).expect("faces") + Vector3::y()).norm() < 1e-12);
+        let front = skel.facing(&seq.positions).expect("faces");
+        assert!((front + Vector3::y()).norm() < 1e-12);
         let cam = CameraSpec {
             elevation_deg: 0.0,
             ..CameraSpec::default()
