@@ -10,7 +10,8 @@
 //! - Per action (Table 2 style) and PCK (Table 4 style) on the heat-map runs.
 //!
 //! Each sequence gets its own camera azimuth (`47 deg x` its index), so the set covers
-//! many views. Ground truth is the mocap subject at its recorded size (metres).
+//! many views. Each subject is scaled to a body of known size (mean bone length
+//! [`Settings::limb_length`], 0.25 m) before the cameras see it.
 
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -40,6 +41,11 @@ pub struct Settings {
     pub pck_threshold: f64,
     /// Crop box side, times the joints' extent.
     pub margin: f64,
+    /// Mean bone length (metres, over the layout's tree) every held-out subject is scaled
+    /// to, so that millimetres refer to a body of known size.
+    pub limb_length: f64,
+    /// Actions of the per-action table (the held-out contents); empty = every action.
+    pub actions: Vec<String>,
 }
 
 impl Default for Settings {
@@ -51,6 +57,8 @@ impl Default for Settings {
             errors: ErrorModel::default(),
             pck_threshold: 10.0,
             margin: 1.25,
+            limb_length: crate::solver::perspective::PerspectiveParams::default().mean_limb_length,
+            actions: Vec::new(),
         }
     }
 }
@@ -83,9 +91,14 @@ impl Case {
         settings: &Settings,
         index: usize,
     ) -> Result<Self, String> {
-        let seq = seq
+        let mut seq = seq
             .frames_from(0, settings.max_frames)
             .ok_or("the sequence has no frames")?;
+        let scale = settings.limb_length / mean_bone_length(&seq, skeleton);
+        if !scale.is_finite() {
+            return Err("the subject's bones have no length".into());
+        }
+        seq.positions.iter_mut().for_each(|v| *v *= scale);
         let azimuth = (47.0 * index as f64) % 360.0;
         let ortho = CameraSpec {
             azimuth_deg: azimuth,
@@ -123,6 +136,20 @@ impl Case {
             maps,
         })
     }
+}
+
+/// The mean bone length of a sequence over the skeleton's tree (its units).
+pub fn mean_bone_length(seq: &MappedSequence, skeleton: &Skeleton) -> f64 {
+    let mut total = Mean::default();
+    for frame in seq.positions.chunks_exact(3 * seq.joints) {
+        for (a, b) in skeleton.bones() {
+            let d: f64 = (0..3)
+                .map(|i| (frame[3 * a + i] - frame[3 * b + i]).powi(2))
+                .sum();
+            total.add(d.sqrt(), 1.0);
+        }
+    }
+    total.get()
 }
 
 /// A running, frame-weighted mean.
@@ -307,8 +334,9 @@ pub fn markdown(results: &[DictionaryResults], settings: &Settings) -> String {
     let (cases, frames) = results.first().map_or((0, 0), |r| (r.cases, r.frames));
     let _ = writeln!(
         s,
-        "Held-out sequences: {cases}, {frames} frames (first {} frames of each file at most).\n",
-        settings.max_frames
+        "Held-out sequences: {cases}, {frames} frames (first {} frames of each file at most), \
+each subject scaled to a mean bone length of {} m.\n",
+        settings.max_frames, settings.limb_length
     );
     let _ = writeln!(
         s,
@@ -384,7 +412,13 @@ the arg-max itself, the others the model's reprojection.\n",
     let actions: Vec<String> = results
         .first()
         .and_then(|r| r.heatmaps.first())
-        .map(|(_, sc)| sc.per_action.keys().cloned().collect())
+        .map(|(_, sc)| {
+            sc.per_action
+                .keys()
+                .filter(|a| settings.actions.is_empty() || settings.actions.contains(a))
+                .cloned()
+                .collect()
+        })
         .unwrap_or_default();
     let _ = writeln!(s, "| dictionary | method | {} |", actions.join(" | "));
     let _ = writeln!(s, "|---|---|{}", "---:|".repeat(actions.len()));
