@@ -37,6 +37,7 @@ pub mod mocap;
 pub mod npy;
 pub mod skeleton;
 pub mod solver;
+pub mod streaming;
 pub mod synth;
 
 pub use camera::{CropBox, Intrinsics, PixelMap};
@@ -46,3 +47,4 @@ pub use estimator::{Estimate, Estimator, Keypoints, MetricEstimate, Report};
 pub use heatmaps::HeatMaps;
 pub use skeleton::Skeleton;
 pub use solver::{InitMethod, Params};
+pub use streaming::{FrameEstimate, FrameMaps, StreamSettings, WindowEstimator};

@@ -4,6 +4,7 @@ mod common;
 
 use common::{fixture, k128, read, small_dictionary, three_basis_sequence};
 use posestream::solver::Observations;
+use posestream::solver::bcd::{self, BcdWorkspace};
 use posestream::solver::coefficients::{
     CoefficientProblem, CoefficientSolver, CoefficientWorkspace, basis_gram_max, lipschitz_bound,
 };
@@ -87,7 +88,7 @@ fn the_objective_never_increases_over_rounds() {
 }
 
 #[test]
-fn the_c_step_solvers_reach_the_same_minimum() {
+fn the_c_step_solvers_reach_the_same_minimum_with_and_without_an_anchor() {
     let dict = Dictionary::load(k128()).expect("dictionary");
     let kp = read(fixture("synthetic-s0").join("keypoints.npy"));
     let fits = Estimator::new(dict.clone(), Params::default())
@@ -116,28 +117,94 @@ fn the_c_step_solvers_reach_the_same_minimum() {
         &translations,
     );
     let (alpha, beta) = (0.5, 20.0);
-    let lipschitz = lipschitz_bound(basis_gram_max(&dict), 1.0, beta, f);
-    let mut ws = CoefficientWorkspace::default();
-    let mut reached = Vec::new();
-    for solver in [
-        CoefficientSolver::ActiveSet,
-        CoefficientSolver::CoordinateDescent,
-        CoefficientSolver::Apg,
-    ] {
-        let mut c = vec![0.0; f * dict.num_bases()];
-        let info = problem.solve_with(
-            solver, &mut c, alpha, beta, lipschitz, 1e-14, 0.0, 20_000, &mut ws,
+    // Unanchored, then anchored on the fit of the frame after the window (any fixed
+    // neighbour will do).
+    for anchor in [None, Some(fits[f].coefficients.as_slice())] {
+        problem.set_anchor(anchor);
+        let lipschitz = lipschitz_bound(basis_gram_max(&dict), 1.0, beta, f + 1);
+        let mut ws = CoefficientWorkspace::default();
+        let mut reached = Vec::new();
+        for solver in [
+            CoefficientSolver::ActiveSet,
+            CoefficientSolver::CoordinateDescent,
+            CoefficientSolver::Apg,
+        ] {
+            let mut c = vec![0.0; f * dict.num_bases()];
+            let info = problem.solve_with(
+                solver, &mut c, alpha, beta, lipschitz, 1e-14, 0.0, 20_000, &mut ws,
+            );
+            assert!(info.objective_after <= info.objective_before);
+            reached.push(info.objective_after);
+        }
+        println!(
+            "anchor {}: active set, cd, apg: {reached:?}",
+            anchor.is_some()
         );
-        assert!(info.objective_after <= info.objective_before);
-        reached.push(info.objective_after);
+        let (active, cd, apg) = (reached[0], reached[1], reached[2]);
+        // The active-set method ends at a KKT point: nothing below it, and the first-order
+        // methods approach it from above.
+        assert!(active <= cd.min(apg) + 1e-9 * active.abs(), "{reached:?}");
+        assert!(cd - active <= 1e-5 * active.abs(), "{reached:?}");
+        assert!(apg - active <= 1e-3 * active.abs(), "{reached:?}");
     }
-    println!("active set, cd, apg: {reached:?}");
-    let (active, cd, apg) = (reached[0], reached[1], reached[2]);
-    // The active-set method ends at a KKT point: nothing below it, and the first-order
-    // methods approach it from above.
-    assert!(active <= cd.min(apg) + 1e-9 * active.abs(), "{reached:?}");
-    assert!(cd - active <= 1e-5 * active.abs(), "{reached:?}");
-    assert!(apg - active <= 1e-3 * active.abs(), "{reached:?}");
+}
+
+#[test]
+fn an_anchored_window_never_raises_its_objective_and_follows_its_anchor() {
+    let dict = Dictionary::load(k128()).expect("dictionary");
+    let kp = read(fixture("synthetic-s0").join("keypoints.npy"));
+    let est = Estimator::new(dict.clone(), Params::default()).expect("estimator");
+    let fits = est
+        .lift_keypoints(&Keypoints {
+            joints: 17,
+            xy: kp.data.clone(),
+            confidence: None,
+        })
+        .expect("lift")
+        .fits;
+    // Frames 1..9, anchored on frame 0's fit or on a far-away one.
+    let f = 8;
+    let scale = keypoint_scale(&kp.data, &vec![1.0; kp.data.len() / 2], 17);
+    let obs = Observations {
+        joints: 17,
+        xy: kp.data[34..(f + 1) * 34]
+            .iter()
+            .map(|v| v / scale)
+            .collect(),
+        weights: vec![1.0; f * 17],
+    };
+    let params = Params {
+        beta: 200.0,
+        gamma: 200.0,
+        tolerance: 1e-9,
+        max_rounds: 20,
+        ..Params::default()
+    };
+    let gram = basis_gram_max(&dict);
+    let mut far = fits[0].clone();
+    far.coefficients.iter_mut().for_each(|c| *c = -*c + 1.0);
+    let mut distance = Vec::new();
+    for anchor in [None, Some(&fits[0]), Some(&far)] {
+        let mut window = fits[1..=f].to_vec();
+        let mut ws = BcdWorkspace::default();
+        let info = bcd::solve_anchored(&dict, gram, &obs, &mut window, anchor, &params, &mut ws);
+        for w in info.objective.windows(2) {
+            assert!(w[1] <= w[0] * (1.0 + 1e-12), "{:?}", info.objective);
+        }
+        let end = bcd::objective_anchored(&dict, &obs, &window, anchor, &params);
+        let last = info.objective.last().copied().unwrap_or(f64::NAN);
+        assert!((end - last).abs() <= 1e-9 * end.abs(), "{end} {last}");
+        let to_far: f64 = window[0]
+            .coefficients
+            .iter()
+            .zip(&far.coefficients)
+            .map(|(a, b)| (a - b).powi(2))
+            .sum();
+        distance.push(to_far.sqrt());
+    }
+    println!("distance of the first frame to the far anchor: {distance:?}");
+    assert!(distance[2] < 0.9 * distance[0], "{distance:?}");
+    assert!(distance[2] < 0.9 * distance[1], "{distance:?}");
 }
 
 #[test]

@@ -38,10 +38,23 @@ pub struct BcdWorkspace {
     terms: Vec<FrameTerms>,
     rotations: Vec<Matrix3<f64>>,
     translations: Vec<Vector2<f64>>,
+    scratch: Vec<f64>,
 }
 
 /// The full objective `J` of `fits` on `obs`.
 pub fn objective(dict: &Dictionary, obs: &Observations, fits: &[FrameFit], params: &Params) -> f64 {
+    objective_anchored(dict, obs, fits, None, params)
+}
+
+/// The full objective `J` of `fits` on `obs`, with the smoothness term to a frozen frame
+/// `anchor` before the first.
+pub fn objective_anchored(
+    dict: &Dictionary,
+    obs: &Observations,
+    fits: &[FrameFit],
+    anchor: Option<&FrameFit>,
+    params: &Params,
+) -> f64 {
     let p = dict.num_joints();
     let mut s = vec![0.0; 3 * p];
     let mut j_total = 0.0;
@@ -56,7 +69,12 @@ pub fn objective(dict: &Dictionary, obs: &Observations, fits: &[FrameFit], param
         );
         j_total += params.alpha * fit.coefficients.iter().map(|c| c.abs()).sum::<f64>();
     }
-    for w in fits.windows(2) {
+    let before = anchor.zip(fits.first());
+    for w in before
+        .iter()
+        .map(|(a, f)| [*a, f])
+        .chain(fits.windows(2).map(|w| [&w[0], &w[1]]))
+    {
         let dc: f64 = w[0]
             .coefficients
             .iter()
@@ -116,10 +134,33 @@ pub fn solve(
     params: &Params,
     ws: &mut BcdWorkspace,
 ) -> BcdInfo {
+    solve_anchored(dict, basis_gram_max, obs, fits, None, params, ws)
+}
+
+/// [`solve`] with a frozen frame `anchor` just before the first: it stays fixed and
+/// pulls the first frame through the smoothness terms (`beta/2 |c_0 - c_a|^2 +
+/// gamma/2 ||R_0 - R_a||_F^2`). This is how a sliding window keeps continuity with the
+/// frames that left it.
+pub fn solve_anchored(
+    dict: &Dictionary,
+    basis_gram_max: f64,
+    obs: &Observations,
+    fits: &mut [FrameFit],
+    anchor: Option<&FrameFit>,
+    params: &Params,
+    ws: &mut BcdWorkspace,
+) -> BcdInfo {
     let (k, p, f) = (dict.num_bases(), dict.num_joints(), fits.len());
     debug_assert_eq!(obs.frames(), f);
     let max_weight = obs.weights.iter().cloned().fold(0.0, f64::max);
-    let lipschitz = lipschitz_bound(basis_gram_max, max_weight, params.beta, f);
+    let lipschitz = lipschitz_bound(
+        basis_gram_max,
+        max_weight,
+        params.beta,
+        f + usize::from(anchor.is_some()),
+    );
+    ws.problem
+        .set_anchor(anchor.map(|a| a.coefficients.as_slice()));
     ws.c.resize(f * k, 0.0);
     ws.shapes.resize(f * 3 * p, 0.0);
     ws.rotations.clear();
@@ -131,16 +172,17 @@ pub fn solve(
     }
     // A T-step first (for uniform weights: the mean of the joints, as the reference).
     {
-        let mut s = vec![0.0; 3 * p];
+        let s = &mut ws.scratch;
+        s.resize(3 * p, 0.0);
         for (t, fit) in fits.iter_mut().enumerate() {
-            dict.compose_into(&fit.coefficients, &mut s);
+            dict.compose_into(&fit.coefficients, s);
             fit.translation =
                 best_translation(&s, obs.frame(t), obs.frame_weights(t), &fit.rotation);
             ws.translations[t] = fit.translation;
         }
     }
     let mut info = BcdInfo {
-        objective: vec![objective(dict, obs, fits, params)],
+        objective: vec![objective_anchored(dict, obs, fits, anchor, params)],
         ..BcdInfo::default()
     };
     let mut prev = info.objective[0];
@@ -176,9 +218,10 @@ pub fn solve(
                 obs.frame_weights(t),
             ));
         }
-        let rinfo = rotations::solve(
+        let rinfo = rotations::solve_anchored(
             &ws.terms,
             &mut ws.rotations,
+            anchor.map(|a| &a.rotation),
             params.gamma,
             params.tolerance,
             params.max_rotation_sweeps,
@@ -196,7 +239,10 @@ pub fn solve(
             .rotations
             .windows(2)
             .map(|w| 0.5 * params.gamma * (w[0] - w[1]).norm_squared())
-            .sum();
+            .sum::<f64>()
+            + anchor.map_or(0.0, |a| {
+                rotations::anchor_cost(&a.rotation, &ws.rotations[0], params.gamma)
+            });
         let obj = data + smooth_r + cinfo.penalty;
         info.objective.push(obj);
         let done = prev / obj - 1.0 < params.tolerance;

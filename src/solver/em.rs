@@ -65,12 +65,40 @@ impl<'a> PreparedMaps<'a> {
     }
 }
 
+/// Heat maps the E-step reads, one per (frame, joint), with their moments: a whole
+/// sequence ([`PreparedMaps`]) or a sliding window's ring of frames.
+pub trait MapSource {
+    /// Rows of each map.
+    fn height(&self) -> usize;
+    /// Columns of each map.
+    fn width(&self) -> usize;
+    /// The map of joint `j` in frame `t` (row-major, values >= 0).
+    fn map(&self, t: usize, j: usize) -> &[f32];
+    /// The moments of that map.
+    fn moments(&self, t: usize, j: usize) -> &MapMoments;
+}
+
+impl MapSource for PreparedMaps<'_> {
+    fn height(&self) -> usize {
+        self.maps.height
+    }
+    fn width(&self) -> usize {
+        self.maps.width
+    }
+    fn map(&self, t: usize, j: usize) -> &[f32] {
+        self.maps.map(t, j)
+    }
+    fn moments(&self, t: usize, j: usize) -> &MapMoments {
+        &self.moments[t * self.maps.joints + j]
+    }
+}
+
 /// The E-step for frames `fits` (frame `t` of `maps` is fit `t`): writes the expected
 /// joints (normalised units) into `obs` and, if given, the variance (pixels^2) into `var`.
 /// `scale` is pixels per unit; `sigma` in normalised units.
 pub fn e_step(
     dict: &Dictionary,
-    maps: &PreparedMaps<'_>,
+    maps: &impl MapSource,
     fits: &[FrameFit],
     scale: f64,
     sigma: f64,
@@ -79,7 +107,7 @@ pub fn e_step(
     ws: &mut EmWorkspace,
 ) {
     let p = dict.num_joints();
-    let (h, w) = (maps.maps.height, maps.maps.width);
+    let (h, w) = (maps.height(), maps.width());
     ws.shape.resize(3 * p, 0.0);
     for (t, fit) in fits.iter().enumerate() {
         dict.compose_into(&fit.coefficients, &mut ws.shape);
@@ -90,10 +118,10 @@ pub fn e_step(
             let u = r[(0, 0)] * x + r[(0, 1)] * y + r[(0, 2)] * z + fit.translation.x;
             let v = r[(1, 0)] * x + r[(1, 1)] * y + r[(1, 2)] * z + fit.translation.y;
             let e = estep::expectation(
-                maps.maps.map(t, j),
+                maps.map(t, j),
                 h,
                 w,
-                &maps.moments[t * p + j],
+                maps.moments(t, j),
                 u * scale,
                 v * scale,
                 sigma * scale,
@@ -113,14 +141,48 @@ pub fn e_step(
 pub fn run(
     dict: &Dictionary,
     basis_gram_max: f64,
-    maps: &PreparedMaps<'_>,
+    maps: &impl MapSource,
     fits: &mut [FrameFit],
     scale: f64,
     params: &Params,
     ws: &mut EmWorkspace,
 ) -> (Observations, EmInfo) {
-    let (p, k) = (dict.num_joints(), dict.num_bases());
+    let p = dict.num_joints();
     let mut obs = Observations::new(p, vec![0.0; 2 * p * fits.len()]);
+    let info = run_anchored(
+        dict,
+        basis_gram_max,
+        maps,
+        fits,
+        None,
+        scale,
+        params,
+        &mut obs,
+        ws,
+    );
+    (obs, info)
+}
+
+/// [`run`] with a frozen frame `anchor` before the first (see
+/// [`bcd::solve_anchored`]), writing the last E-step's expected joints into `obs`
+/// (resized to the frames): the sliding window's EM.
+#[allow(clippy::too_many_arguments)]
+pub fn run_anchored(
+    dict: &Dictionary,
+    basis_gram_max: f64,
+    maps: &impl MapSource,
+    fits: &mut [FrameFit],
+    anchor: Option<&FrameFit>,
+    scale: f64,
+    params: &Params,
+    obs: &mut Observations,
+    ws: &mut EmWorkspace,
+) -> EmInfo {
+    let (p, k) = (dict.num_joints(), dict.num_bases());
+    obs.joints = p;
+    obs.xy.resize(2 * p * fits.len(), 0.0);
+    obs.weights.clear();
+    obs.weights.resize(p * fits.len(), 1.0);
     let mut info = EmInfo {
         objective_start: f64::NAN,
         ..EmInfo::default()
@@ -131,12 +193,20 @@ pub fn run(
     };
     for _ in 0..params.max_em_iterations {
         info.iterations += 1;
-        e_step(dict, maps, fits, scale, params.sigma, &mut obs, None, ws);
+        e_step(dict, maps, fits, scale, params.sigma, obs, None, ws);
         ws.c_prev.clear();
         for fit in fits.iter() {
             ws.c_prev.extend_from_slice(&fit.coefficients);
         }
-        let m = bcd::solve(dict, basis_gram_max, &obs, fits, &m_step, &mut ws.bcd);
+        let m = bcd::solve_anchored(
+            dict,
+            basis_gram_max,
+            obs,
+            fits,
+            anchor,
+            &m_step,
+            &mut ws.bcd,
+        );
         if info.iterations == 1 {
             info.objective_start = m.objective[0];
         }
@@ -156,5 +226,5 @@ pub fn run(
             break;
         }
     }
-    (obs, info)
+    info
 }

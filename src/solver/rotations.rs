@@ -92,6 +92,11 @@ pub fn objective(terms: &[FrameTerms], rotations: &[Matrix3<f64>], gamma: f64) -
 }
 
 /// Restores orthonormality after many products (rows Gram–Schmidt, third = first x second).
+/// `gamma/2 ||R_0 - anchor||_F^2`, the smoothness term to a frozen frame.
+pub fn anchor_cost(anchor: &Matrix3<f64>, first: &Matrix3<f64>, gamma: f64) -> f64 {
+    0.5 * gamma * (anchor - first).norm_squared()
+}
+
 fn reorthonormalise(r: &Matrix3<f64>) -> Matrix3<f64> {
     let r1 = r.row(0).transpose().normalize();
     let r2 = r.row(1).transpose();
@@ -108,6 +113,19 @@ pub fn solve(
     grad_tol: f64,
     max_sweeps: usize,
 ) -> RotationInfo {
+    solve_anchored(terms, rotations, None, gamma, grad_tol, max_sweeps)
+}
+
+/// [`solve`] with the rotation of a frozen frame before the first: the smoothness term
+/// gains `gamma/2 ||R_0 - anchor||_F^2`.
+pub fn solve_anchored(
+    terms: &[FrameTerms],
+    rotations: &mut [Matrix3<f64>],
+    anchor: Option<&Matrix3<f64>>,
+    gamma: f64,
+    grad_tol: f64,
+    max_sweeps: usize,
+) -> RotationInfo {
     let f = rotations.len();
     let e = [hat(0), hat(1), hat(2)];
     let mut sweeps = 0;
@@ -120,6 +138,8 @@ pub fn solve(
             if gamma > 0.0 {
                 if t > 0 {
                     n += rotations[t - 1];
+                } else if let Some(a) = anchor {
+                    n += a;
                 }
                 if t + 1 < f {
                     n += rotations[t + 1];
@@ -135,7 +155,10 @@ pub fn solve(
     }
     RotationInfo {
         sweeps,
-        objective: objective(terms, rotations, gamma),
+        objective: objective(terms, rotations, gamma)
+            + anchor
+                .zip(rotations.first())
+                .map_or(0.0, |(a, r)| anchor_cost(a, r, gamma)),
         gradient_norm: gmax,
     }
 }

@@ -77,7 +77,11 @@ impl CoefficientProblem {
         ws: &mut CoefficientWorkspace,
     ) -> CoefficientInfo {
         let (k, f, rows) = (self.k, self.frames, self.rows);
-        let beta = if f > 1 { beta } else { 0.0 };
+        let beta = if self.smoothness_active(beta) {
+            beta
+        } else {
+            0.0
+        };
         let a = &mut ws.active_set;
         a.resid.resize(f * rows, 0.0);
         a.grad.resize(f * k, 0.0);
@@ -284,6 +288,11 @@ impl CoefficientProblem {
             let gm = MatMut::from_column_major_slice_mut(gt, k, 1);
             matmul(gm, Accum::Replace, x.transpose(), r, -1.0, Par::Seq);
             if beta > 0.0 {
+                if let (0, Some(anchor)) = (t, self.anchor()) {
+                    for ((g, c), a) in gt.iter_mut().zip(&c[..k]).zip(anchor) {
+                        *g += beta * (c - a);
+                    }
+                }
                 for i in 0..k {
                     let cur = c[t * k + i];
                     if t > 0 {
@@ -309,7 +318,7 @@ impl CoefficientProblem {
         a.xa.resize(rows * a.system.dim(), 0.0);
         a.dir.clear();
         for t in 0..f {
-            let degree = usize::from(t > 0) + usize::from(t + 1 < f);
+            let degree = usize::from(t > 0 || self.anchor().is_some()) + usize::from(t + 1 < f);
             let x = self.frame_x(t);
             let atoms = &a.active[t];
             let na = atoms.len();
@@ -374,6 +383,10 @@ impl CoefficientProblem {
                 Par::Seq,
             );
             curvature += dot(xd, xd);
+            if beta > 0.0 && t == 0 && self.anchor().is_some() {
+                // beta |d_0|^2 from the anchor term (the anchor itself is fixed).
+                curvature += beta * dot(&a.dir[off..off + na], &a.dir[off..off + na]);
+            }
             if beta > 0.0 && t > 0 {
                 // beta |d_t - d_{t-1}|^2 over the union of both frames' atoms.
                 let prev_off = a.system.offset(t - 1);

@@ -103,6 +103,10 @@ impl CoefficientProblem {
         let mut grad = -dot(col, r);
         let mut curv = self.h[t * k + i];
         if beta > 0.0 {
+            if let (0, Some(a)) = (t, self.anchor()) {
+                grad += beta * (cur - a[i]);
+                curv += beta;
+            }
             if t > 0 {
                 grad += beta * (cur - c[(t - 1) * k + i]);
                 curv += beta;

@@ -47,6 +47,9 @@ pub struct CoefficientProblem {
     xty: Vec<f64>,
     /// `|X_t[:, i]|^2`, frame t at `h[t*k..][..k]`.
     h: Vec<f64>,
+    /// Coefficients of the frozen frame before the window (empty: none). With an anchor
+    /// `a`, the smoothness term gains `beta/2 |c_0 - a|^2`.
+    anchor: Vec<f64>,
 }
 
 /// Which algorithm solves the C-step.
@@ -129,7 +132,9 @@ pub fn laplacian_max_eigenvalue(f: usize) -> f64 {
 
 /// A Lipschitz bound for the gradient of the smooth part, valid for every frame:
 /// `max_weight * lambda_max(Bvec' Bvec) + beta * lambda_max(Lap_F)`, where `Bvec` holds
-/// `vec(B_i)` as columns. It holds because every `R_t` has orthonormal rows.
+/// `vec(B_i)` as columns. It holds because every `R_t` has orthonormal rows. With an
+/// anchor, pass `frames + 1`: the anchored Laplacian is a principal submatrix of the
+/// path Laplacian over the window and the anchor.
 pub fn lipschitz_bound(basis_gram_max: f64, max_weight: f64, beta: f64, frames: usize) -> f64 {
     basis_gram_max * max_weight + beta * laplacian_max_eigenvalue(frames)
 }
@@ -198,6 +203,25 @@ impl CoefficientProblem {
         &self.x[t * self.k * self.rows..(t + 1) * self.k * self.rows]
     }
 
+    /// Sets (or clears) the anchor: the coefficients of the frozen frame just before the
+    /// window, which the first frame is pulled towards by the smoothness term.
+    pub fn set_anchor(&mut self, anchor: Option<&[f64]>) {
+        self.anchor.clear();
+        if let Some(a) = anchor {
+            self.anchor.extend_from_slice(a);
+        }
+    }
+
+    /// The anchor coefficients of frame 0, if any.
+    fn anchor(&self) -> Option<&[f64]> {
+        (!self.anchor.is_empty()).then_some(&self.anchor[..])
+    }
+
+    /// True when the smoothness term couples anything (two frames, or an anchor).
+    fn smoothness_active(&self, beta: f64) -> bool {
+        beta > 0.0 && (self.frames > 1 || self.anchor().is_some())
+    }
+
     /// The smooth data part `1/2 sum_t |y_t - X_t c_t|^2`.
     pub fn loss(&self, c: &[f64], scratch: &mut Vec<f64>) -> f64 {
         scratch.resize(self.rows, 0.0);
@@ -211,10 +235,18 @@ impl CoefficientProblem {
         0.5 * loss
     }
 
-    /// `alpha ||C||_1 + beta/2 sum_t |c_t - c_t+1|^2`.
+    /// `alpha ||C||_1 + beta/2 sum_t |c_t - c_t+1|^2`, plus `beta/2 |c_0 - a|^2` with an
+    /// anchor `a`.
     pub fn penalty(&self, c: &[f64], alpha: f64, beta: f64) -> f64 {
         let l1: f64 = c.iter().map(|v| v.abs()).sum();
         let mut smooth = 0.0;
+        if let Some(a) = self.anchor() {
+            smooth += a
+                .iter()
+                .zip(&c[..self.k])
+                .map(|(a, b)| (a - b) * (a - b))
+                .sum::<f64>();
+        }
         for t in 1..self.frames {
             let (a, b) = (
                 &c[(t - 1) * self.k..t * self.k],
@@ -261,6 +293,11 @@ impl CoefficientProblem {
             xt_times(x, u, gt);
             for (g, b) in gt.iter_mut().zip(&self.xty[t * k..(t + 1) * k]) {
                 *g -= b;
+            }
+        }
+        if let (Some(a), true) = (self.anchor(), beta > 0.0) {
+            for ((g, z), a) in g[..k].iter_mut().zip(&z[..k]).zip(a) {
+                *g += beta * (z - a);
             }
         }
         if beta > 0.0 && f > 1 {

@@ -1,0 +1,667 @@
+//! The streaming estimator: EM over a sliding [`Window`](crate::solver::Window) of the
+//! most recent frames, one frame in, estimates out with bounded lag.
+//!
+//! For each new frame of heat maps, [`WindowEstimator::push`]:
+//! 1. checks where it falls: the next frame, a short gap (frames dropped: carry on), a
+//!    long gap or a restart of the detector's numbering (end the track: flush the
+//!    estimates still owed, start again), or late / out of order (drop it and count it);
+//! 2. initialises it: warm start from the previous frame's fit, or, when a track
+//!    starts, the per-frame initialisation from the maps' arg-max (as the batch EM);
+//! 3. if the window is full, freezes its oldest frame: that frame leaves the window and
+//!    becomes the *anchor*, a fixed neighbour whose coefficients and rotation keep
+//!    pulling the first frame of the window through the smoothness terms
+//!    ([`em::run_anchored`]);
+//! 4. runs at most [`StreamSettings::em_iterations`] EM iterations over the window;
+//! 5. emits the estimate of the newest frame (lag 0) and/or of the frame `lag` frames
+//!    back, which has seen `lag` more frames of evidence ([`StreamSettings::outputs`]).
+//!
+//! The math is the batch EM's ([`crate::solver::em`]); nothing here knows about
+//! transports. The hot path allocates nothing once the window has filled.
+
+use std::time::Instant;
+
+use nalgebra::Vector3;
+use serde::{Deserialize, Serialize};
+
+use crate::dictionary::Dictionary;
+use crate::error::EstimateError;
+use crate::estimator::Estimator;
+use crate::heatmaps::HeatMaps;
+use crate::solver::em::{self, EmWorkspace, MapSource};
+use crate::solver::estep::MapMoments;
+use crate::solver::init::{InitWorkspace, initialise_frame};
+use crate::solver::normalise::heatmap_scale;
+use crate::solver::{FrameFit, Observations, Params};
+
+/// Which estimates the window emits for each new frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Outputs {
+    /// Only the newest frame, at once (lag 0).
+    Newest,
+    /// Only the frame `lag` frames back (refined by the frames after it).
+    Lagged,
+    /// Both.
+    Both,
+}
+
+/// Settings of the sliding window (`[estimator.window]` in the configuration).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct StreamSettings {
+    /// Frames solved together (N).
+    pub size: usize,
+    /// Frames back of the refined estimate (L < N).
+    pub lag: usize,
+    /// Which estimates to emit.
+    pub outputs: Outputs,
+    /// EM iterations over the window per new frame at most.
+    pub em_iterations: usize,
+    /// Start each new frame from the previous frame's fit instead of its own
+    /// initialisation. Off by default: on held-out motion it tracks a wrong start for the
+    /// whole track (README, "Streaming").
+    pub warm_start: bool,
+    /// Newest frames refined on their own first (anchored on the frame before them).
+    pub local_frames: usize,
+    /// EM iterations over those newest frames per new frame at most (0: none).
+    pub local_iterations: usize,
+    /// A jump in the sequence number larger than this ends the track (a restart);
+    /// smaller gaps are dropped frames and the track carries on.
+    pub max_gap_frames: u64,
+    /// A jump in capture time larger than this (seconds) ends the track.
+    pub max_gap_seconds: f64,
+}
+
+impl Default for StreamSettings {
+    fn default() -> Self {
+        Self {
+            size: 30,
+            lag: 10,
+            outputs: Outputs::Both,
+            em_iterations: 1,
+            warm_start: false,
+            local_frames: 4,
+            local_iterations: 5,
+            max_gap_frames: 10,
+            max_gap_seconds: 1.0,
+        }
+    }
+}
+
+impl StreamSettings {
+    /// Checks every value is in its domain.
+    pub fn validate(&self) -> Result<(), EstimateError> {
+        if self.size == 0 {
+            return Err(EstimateError::Parameter(
+                "window size must be at least 1".into(),
+            ));
+        }
+        if self.lag >= self.size {
+            return Err(EstimateError::Parameter(format!(
+                "lag {} must be smaller than the window size {}",
+                self.lag, self.size
+            )));
+        }
+        if self.em_iterations == 0 {
+            return Err(EstimateError::Parameter(
+                "em_iterations must be at least 1".into(),
+            ));
+        }
+        if !(self.max_gap_seconds.is_finite() && self.max_gap_seconds > 0.0) {
+            return Err(EstimateError::Parameter(format!(
+                "max_gap_seconds must be finite and > 0, got {}",
+                self.max_gap_seconds
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// One frame of heat maps as the window receives it.
+#[derive(Debug, Clone, Copy)]
+pub struct FrameMaps<'a> {
+    /// The detector's frame number (consecutive frames differ by one).
+    pub sequence: u64,
+    /// Capture time, nanoseconds.
+    pub stamp_ns: i64,
+    /// Map height (rows).
+    pub height: usize,
+    /// Map width (columns).
+    pub width: usize,
+    /// p maps of `height x width`, row-major, joint-major.
+    pub values: &'a [f32],
+}
+
+impl<'a> FrameMaps<'a> {
+    /// The frame of a sequence of heat maps.
+    pub fn of(maps: &'a HeatMaps, t: usize, sequence: u64, stamp_ns: i64) -> Self {
+        let n = maps.joints * maps.height * maps.width;
+        Self {
+            sequence,
+            stamp_ns,
+            height: maps.height,
+            width: maps.width,
+            values: &maps.values[t * n..(t + 1) * n],
+        }
+    }
+}
+
+/// Where a track stands.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum TrackState {
+    /// Fewer frames than the lag have arrived since the track started.
+    Initialising,
+    /// Running normally.
+    Tracking,
+    /// The last estimates of a track that ended (gap, restart or end of stream).
+    Lost,
+}
+
+/// One estimate emitted by the window.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrameEstimate {
+    /// The sequence number of the frame it describes.
+    pub sequence: u64,
+    /// That frame's capture time, nanoseconds.
+    pub stamp_ns: i64,
+    /// Frames that arrived after it before this estimate was made (0: newest).
+    pub lag: usize,
+    /// Where the track stood.
+    pub state: TrackState,
+    /// 3D joints `R S`, camera frame (x right, y down, z forward), dictionary units,
+    /// centred: `[x, y, z]` per joint.
+    pub pose: Vec<f64>,
+    /// Per-joint 3D standard deviation (dictionary units): the E-step's 2D spread moved
+    /// to model units, the same on every axis (depth is not observed separately).
+    pub pose_std: Vec<f64>,
+    /// The expected 2D joints (heat-map pixels): `[x, y]` per joint.
+    pub keypoints: Vec<f64>,
+    /// Per-joint 2D standard deviation (heat-map pixels) from the E-step.
+    pub keypoint_std: Vec<f64>,
+    /// The model's reprojection (heat-map pixels): `[x, y]` per joint.
+    pub projected: Vec<f64>,
+}
+
+/// Counters of what the window did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
+pub struct StreamCounters {
+    /// Frames accepted.
+    pub frames: u64,
+    /// Frames dropped because they came late or out of order.
+    pub late: u64,
+    /// Frames rejected as malformed (wrong size, non-finite values).
+    pub malformed: u64,
+    /// Frames missing from the numbering within a track (dropped upstream).
+    pub missing: u64,
+    /// Tracks ended by a gap or a restart.
+    pub resets: u64,
+    /// Tracks started.
+    pub tracks: u64,
+}
+
+/// One frame in the window.
+#[derive(Debug, Clone)]
+struct Slot {
+    sequence: u64,
+    stamp_ns: i64,
+    /// Frames since the track started (0 for its first).
+    age: u64,
+}
+
+/// The window's maps in a ring: slot `i` holds window frame `(i - start) mod size`.
+#[derive(Debug, Clone, Default)]
+struct MapRing {
+    joints: usize,
+    height: usize,
+    width: usize,
+    start: usize,
+    len: usize,
+    capacity: usize,
+    values: Vec<f32>,
+    moments: Vec<MapMoments>,
+}
+
+impl MapRing {
+    fn slot(&self, t: usize) -> usize {
+        (self.start + t) % self.capacity
+    }
+
+    fn configure(&mut self, capacity: usize, joints: usize, height: usize, width: usize) {
+        let n = joints * height * width;
+        self.capacity = capacity;
+        self.joints = joints;
+        self.height = height;
+        self.width = width;
+        self.values.resize(capacity * n, 0.0);
+        self.moments
+            .resize(capacity * joints, MapMoments::default());
+        self.start = 0;
+        self.len = 0;
+    }
+
+    fn pop_front(&mut self) {
+        self.start = (self.start + 1) % self.capacity;
+        self.len -= 1;
+    }
+
+    /// Appends a frame (negatives clipped) and its moments.
+    fn push_back(&mut self, values: &[f32]) {
+        let n = self.joints * self.height * self.width;
+        let m = self.height * self.width;
+        let slot = self.slot(self.len);
+        let dst = &mut self.values[slot * n..(slot + 1) * n];
+        for (d, v) in dst.iter_mut().zip(values) {
+            *d = v.max(0.0);
+        }
+        for j in 0..self.joints {
+            self.moments[slot * self.joints + j] =
+                MapMoments::new(&dst[j * m..(j + 1) * m], self.width);
+        }
+        self.len += 1;
+    }
+}
+
+impl MapSource for MapRing {
+    fn height(&self) -> usize {
+        self.height
+    }
+    fn width(&self) -> usize {
+        self.width
+    }
+    fn map(&self, t: usize, j: usize) -> &[f32] {
+        let m = self.height * self.width;
+        let i = self.slot(t) * self.joints + j;
+        &self.values[i * m..(i + 1) * m]
+    }
+    fn moments(&self, t: usize, j: usize) -> &MapMoments {
+        &self.moments[self.slot(t) * self.joints + j]
+    }
+}
+
+/// The frames `from..` of another source.
+struct Tail<'a, M> {
+    inner: &'a M,
+    from: usize,
+}
+
+impl<M: MapSource> MapSource for Tail<'_, M> {
+    fn height(&self) -> usize {
+        self.inner.height()
+    }
+    fn width(&self) -> usize {
+        self.inner.width()
+    }
+    fn map(&self, t: usize, j: usize) -> &[f32] {
+        self.inner.map(self.from + t, j)
+    }
+    fn moments(&self, t: usize, j: usize) -> &MapMoments {
+        self.inner.moments(self.from + t, j)
+    }
+}
+
+/// EM over a sliding window of heat-map frames: the core of the estimator node.
+#[derive(Debug, Clone)]
+pub struct WindowEstimator {
+    estimator: Estimator,
+    settings: StreamSettings,
+    /// The window's frames, oldest first, and their fits (same order).
+    slots: Vec<Slot>,
+    fits: Vec<FrameFit>,
+    /// The frozen frame just before the window, if the track has one.
+    anchor: Option<FrameFit>,
+    maps: MapRing,
+    last: Option<(u64, i64)>,
+    counters: StreamCounters,
+    // Buffers.
+    obs: Observations,
+    one: Observations,
+    variance: Vec<f64>,
+    shape: Vec<f64>,
+    em: EmWorkspace,
+    init: InitWorkspace,
+    argmax: Vec<f64>,
+    visible: Vec<bool>,
+    spare: Vec<FrameFit>,
+}
+
+impl WindowEstimator {
+    /// A window over `estimator`'s dictionary and parameters.
+    pub fn new(estimator: Estimator, settings: StreamSettings) -> Result<Self, EstimateError> {
+        settings.validate()?;
+        let p = estimator.dictionary().num_joints();
+        Ok(Self {
+            slots: Vec::with_capacity(settings.size),
+            fits: Vec::with_capacity(settings.size),
+            anchor: None,
+            maps: MapRing::default(),
+            last: None,
+            counters: StreamCounters::default(),
+            obs: Observations::default(),
+            one: Observations::new(p, vec![0.0; 2 * p]),
+            variance: vec![0.0; p],
+            shape: vec![0.0; 3 * p],
+            em: EmWorkspace::default(),
+            init: InitWorkspace::default(),
+            argmax: vec![0.0; 2 * p],
+            visible: vec![false; p],
+            spare: Vec::new(),
+            estimator,
+            settings,
+        })
+    }
+
+    /// The settings.
+    pub fn settings(&self) -> &StreamSettings {
+        &self.settings
+    }
+
+    /// The dictionary.
+    pub fn dictionary(&self) -> &Dictionary {
+        self.estimator.dictionary()
+    }
+
+    /// What the window has done so far.
+    pub fn counters(&self) -> StreamCounters {
+        self.counters
+    }
+
+    /// Frames in the window now.
+    pub fn len(&self) -> usize {
+        self.slots.len()
+    }
+
+    /// True when no track is running.
+    pub fn is_empty(&self) -> bool {
+        self.slots.is_empty()
+    }
+
+    /// Takes one frame; appends the estimates it releases to `out` (oldest first).
+    ///
+    /// A malformed frame (wrong size, non-finite values) is counted and returned as an
+    /// error; the window is unchanged and the stream can go on. Late and out-of-order
+    /// frames are counted and ignored.
+    pub fn push(
+        &mut self,
+        frame: &FrameMaps<'_>,
+        out: &mut Vec<FrameEstimate>,
+    ) -> Result<(), EstimateError> {
+        if let Err(e) = self.check(frame) {
+            self.counters.malformed += 1;
+            return Err(e);
+        }
+        if let Some((seq, stamp)) = self.last {
+            let late =
+                frame.sequence <= seq && seq - frame.sequence <= self.settings.max_gap_frames;
+            if late {
+                self.counters.late += 1;
+                return Ok(());
+            }
+            let gap_seconds = (frame.stamp_ns - stamp) as f64 * 1e-9;
+            let restart = frame.sequence < seq
+                || frame.sequence - seq > self.settings.max_gap_frames
+                || gap_seconds.abs() > self.settings.max_gap_seconds;
+            if restart {
+                self.counters.resets += 1;
+                self.finish(out);
+            } else {
+                self.counters.missing += frame.sequence - seq - 1;
+            }
+        }
+        let geometry = (frame.height, frame.width);
+        if self.slots.is_empty() && (self.maps.height, self.maps.width) != geometry {
+            let p = self.dictionary().num_joints();
+            self.maps
+                .configure(self.settings.size, p, frame.height, frame.width);
+        }
+        self.counters.frames += 1;
+        self.last = Some((frame.sequence, frame.stamp_ns));
+        self.admit(frame);
+        self.solve();
+        let newest = self.slots.len() - 1;
+        let state = if self.slots[newest].age < self.settings.lag as u64 {
+            TrackState::Initialising
+        } else {
+            TrackState::Tracking
+        };
+        if self.settings.outputs != Outputs::Newest && newest >= self.settings.lag {
+            let t = newest - self.settings.lag;
+            out.push(self.estimate(t, TrackState::Tracking));
+        }
+        if self.settings.outputs != Outputs::Lagged {
+            out.push(self.estimate(newest, state));
+        }
+        Ok(())
+    }
+
+    /// Ends the track: appends the lagged estimates still owed (state
+    /// [`TrackState::Lost`], lag smaller than configured) and empties the window.
+    pub fn finish(&mut self, out: &mut Vec<FrameEstimate>) {
+        if self.settings.outputs != Outputs::Newest {
+            let n = self.slots.len();
+            let first_owed = n.saturating_sub(self.settings.lag);
+            for t in first_owed..n {
+                out.push(self.estimate(t, TrackState::Lost));
+            }
+        }
+        self.reset();
+    }
+
+    /// Forgets the track without emitting anything.
+    pub fn reset(&mut self) {
+        self.slots.clear();
+        self.spare.append(&mut self.fits);
+        if let Some(a) = self.anchor.take() {
+            self.spare.push(a);
+        }
+        self.maps.start = 0;
+        self.maps.len = 0;
+        self.last = None;
+    }
+
+    fn check(&self, frame: &FrameMaps<'_>) -> Result<(), EstimateError> {
+        let p = self.dictionary().num_joints();
+        let n = frame.height * frame.width;
+        if n == 0 || frame.values.len() != p * n {
+            return Err(EstimateError::Parameter(format!(
+                "frame {} holds {} values, expected {p} joints x {} x {}",
+                frame.sequence,
+                frame.values.len(),
+                frame.height,
+                frame.width
+            )));
+        }
+        if !self.slots.is_empty()
+            && (frame.height, frame.width) != (self.maps.height, self.maps.width)
+        {
+            return Err(EstimateError::Parameter(format!(
+                "frame {} has {}x{} maps, the track has {}x{}",
+                frame.sequence, frame.height, frame.width, self.maps.height, self.maps.width
+            )));
+        }
+        if let Some(i) = frame.values.iter().position(|v| !v.is_finite()) {
+            return Err(EstimateError::NonFinite {
+                frame: 0,
+                joint: i / n,
+            });
+        }
+        Ok(())
+    }
+
+    /// Adds the frame to the window (freezing the oldest if full) and initialises it.
+    fn admit(&mut self, frame: &FrameMaps<'_>) {
+        let k = self.dictionary().num_bases();
+        if self.slots.len() == self.settings.size {
+            self.slots.remove(0);
+            let frozen = self.fits.remove(0);
+            if let Some(old) = self.anchor.replace(frozen) {
+                self.spare.push(old);
+            }
+            self.maps.pop_front();
+        }
+        self.maps.push_back(frame.values);
+        let age = self.slots.last().map_or(0, |s| s.age + 1);
+        if age == 0 {
+            self.counters.tracks += 1;
+        }
+        self.slots.push(Slot {
+            sequence: frame.sequence,
+            stamp_ns: frame.stamp_ns,
+            age,
+        });
+        let mut fit = self.spare.pop().unwrap_or_else(|| FrameFit::zero(k));
+        match self.fits.last().filter(|_| self.settings.warm_start) {
+            Some(prev) => {
+                fit.coefficients.copy_from_slice(&prev.coefficients);
+                fit.rotation = prev.rotation;
+                fit.translation = prev.translation;
+            }
+            None => self.initialise(&mut fit),
+        }
+        self.fits.push(fit);
+    }
+
+    /// The batch EM's per-frame initialisation of the newest frame, from its arg-max.
+    fn initialise(&mut self, fit: &mut FrameFit) {
+        let p = self.dictionary().num_joints();
+        let t = self.maps.len - 1;
+        let scale = heatmap_scale(self.maps.height);
+        let w = self.maps.width;
+        for j in 0..p {
+            let map = self.maps.map(t, j);
+            let (mut best, mut at) = (f32::NEG_INFINITY, 0);
+            for (i, &v) in map.iter().enumerate() {
+                if v > best {
+                    best = v;
+                    at = i;
+                }
+            }
+            self.argmax[2 * j] = (at % w) as f64 / scale;
+            self.argmax[2 * j + 1] = (at / w) as f64 / scale;
+            self.visible[j] =
+                f64::from(best) > self.estimator.params().visibility_threshold && best > 0.0;
+        }
+        if self.visible.iter().filter(|&&v| v).count() < 2 {
+            self.visible.iter_mut().for_each(|v| *v = true);
+        }
+        let (init, _) = initialise_frame(
+            self.estimator.dictionary(),
+            self.estimator.init_cache(),
+            &self.argmax,
+            &self.visible,
+            self.estimator.heatmap_init(),
+            self.estimator.params(),
+            &mut self.init,
+        );
+        *fit = init;
+    }
+
+    /// EM iterations: first over the newest frames (anchored on the frame before them),
+    /// then over the whole window (anchored on the frozen frame).
+    fn solve(&mut self) {
+        let scale = heatmap_scale(self.maps.height);
+        let n = self.fits.len();
+        let local = self.settings.local_frames.min(n);
+        if local < n && self.settings.local_iterations > 0 {
+            let params = Params {
+                max_em_iterations: self.settings.local_iterations,
+                ..self.estimator.params().clone()
+            };
+            let (before, tail) = self.fits.split_at_mut(n - local);
+            let view = Tail {
+                inner: &self.maps,
+                from: n - local,
+            };
+            em::run_anchored(
+                self.estimator.dictionary(),
+                self.estimator.basis_gram_max(),
+                &view,
+                tail,
+                before.last(),
+                scale,
+                &params,
+                &mut self.obs,
+                &mut self.em,
+            );
+        }
+        let params = Params {
+            max_em_iterations: self.settings.em_iterations,
+            ..self.estimator.params().clone()
+        };
+        em::run_anchored(
+            self.estimator.dictionary(),
+            self.estimator.basis_gram_max(),
+            &self.maps,
+            &mut self.fits,
+            self.anchor.as_ref(),
+            scale,
+            &params,
+            &mut self.obs,
+            &mut self.em,
+        );
+    }
+
+    /// The estimate of window frame `t`.
+    fn estimate(&mut self, t: usize, state: TrackState) -> FrameEstimate {
+        let dict = self.estimator.dictionary();
+        let p = dict.num_joints();
+        let scale = heatmap_scale(self.maps.height);
+        let fit = &self.fits[t];
+        let view = Tail {
+            inner: &self.maps,
+            from: t,
+        };
+        em::e_step(
+            dict,
+            &view,
+            std::slice::from_ref(fit),
+            scale,
+            self.estimator.params().sigma,
+            &mut self.one,
+            Some(&mut self.variance),
+            &mut self.em,
+        );
+        dict.compose_into(&fit.coefficients, &mut self.shape);
+        let s = &self.shape;
+        let mut pose = Vec::with_capacity(3 * p);
+        let mut projected = Vec::with_capacity(2 * p);
+        for j in 0..p {
+            let q = fit.rotation * Vector3::new(s[j], s[p + j], s[2 * p + j]);
+            pose.extend_from_slice(q.as_slice());
+            projected.push((q.x + fit.translation.x) * scale);
+            projected.push((q.y + fit.translation.y) * scale);
+        }
+        // The variance is the trace of the 2D covariance: per axis, half of it.
+        let keypoint_std: Vec<f64> = self.variance.iter().map(|v| (0.5 * v).sqrt()).collect();
+        let pose_std = keypoint_std.iter().map(|s| s / scale).collect();
+        let slot = &self.slots[t];
+        FrameEstimate {
+            sequence: slot.sequence,
+            stamp_ns: slot.stamp_ns,
+            lag: self.slots.len() - 1 - t,
+            state,
+            pose,
+            pose_std,
+            keypoints: self.one.xy.iter().map(|v| v * scale).collect(),
+            keypoint_std,
+            projected,
+        }
+    }
+}
+
+/// Runs a whole sequence through a window, as a stream would deliver it (frame `t` has
+/// sequence number `t` and capture time `t / fps`); returns every estimate, in order.
+pub fn stream_sequence(
+    window: &mut WindowEstimator,
+    maps: &HeatMaps,
+    fps: f64,
+) -> Result<(Vec<FrameEstimate>, f64), EstimateError> {
+    let start = Instant::now();
+    let mut out = Vec::new();
+    for t in 0..maps.frames {
+        let stamp = (t as f64 / fps * 1e9) as i64;
+        window.push(&FrameMaps::of(maps, t, t as u64, stamp), &mut out)?;
+    }
+    window.finish(&mut out);
+    Ok((out, start.elapsed().as_secs_f64()))
+}
