@@ -40,6 +40,9 @@ enum Command {
     /// Evaluate the estimator on held-out motion capture: markdown tables mirroring the
     /// paper's Tables 1-4.
     Eval(cli::eval::EvalArgs),
+    /// Replay a recording (MCAP) of heat maps through the streaming estimator; record
+    /// the skeletons to MCAP.
+    Replay(cli::replay::ReplayArgs),
 }
 
 #[derive(Debug, Args)]
@@ -244,6 +247,8 @@ pub(crate) enum CliError {
     Mapping(#[from] MappingError),
     #[error(transparent)]
     Split(#[from] SplitError),
+    #[error(transparent)]
+    Recording(#[from] posestream::recording::RecordingError),
     #[error("{path}: {source}")]
     Json {
         path: PathBuf,
@@ -271,6 +276,7 @@ fn main() -> ExitCode {
         Command::LearnDict(args) => cli::learn::run(&args),
         Command::Synth(args) => cli::synth::run(&args),
         Command::Eval(args) => cli::eval::run(&args),
+        Command::Replay(args) => cli::replay::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -3,20 +3,25 @@
 //!
 //! For each new frame of heat maps, [`WindowEstimator::push`]:
 //! 1. checks where it falls: the next frame, a short gap (frames dropped: carry on), a
-//!    long gap or a restart of the detector's numbering (end the track: flush the
+//!    long gap or a restart of the detector's numbering (end the track: emit the
 //!    estimates still owed, start again), or late / out of order (drop it and count it);
-//! 2. initialises it: warm start from the previous frame's fit, or, when a track
-//!    starts, the per-frame initialisation from the maps' arg-max (as the batch EM);
+//! 2. initialises it from its maps' arg-max, as the batch EM initialises every frame
+//!    ([`StreamSettings::warm_start`] copies the previous frame's fit instead: measured
+//!    worse, because a track then keeps its first frame's depth ambiguity);
 //! 3. if the window is full, freezes its oldest frame: that frame leaves the window and
 //!    becomes the *anchor*, a fixed neighbour whose coefficients and rotation keep
 //!    pulling the first frame of the window through the smoothness terms
 //!    ([`em::run_anchored`]);
-//! 4. runs at most [`StreamSettings::em_iterations`] EM iterations over the window;
+//! 4. runs [`StreamSettings::local_iterations`] EM iterations over the newest
+//!    [`StreamSettings::local_frames`] frames (anchored on the frame before them), which
+//!    is what makes the lag-0 estimate good, then [`StreamSettings::em_iterations`] over
+//!    the whole window;
 //! 5. emits the estimate of the newest frame (lag 0) and/or of the frame `lag` frames
 //!    back, which has seen `lag` more frames of evidence ([`StreamSettings::outputs`]).
 //!
 //! The math is the batch EM's ([`crate::solver::em`]); nothing here knows about
-//! transports. The hot path allocates nothing once the window has filled.
+//! transports. Once the window has filled, the solver's buffers are reused; only the
+//! emitted estimates allocate.
 
 use std::time::Instant;
 
@@ -81,7 +86,7 @@ impl Default for StreamSettings {
             em_iterations: 1,
             warm_start: false,
             local_frames: 4,
-            local_iterations: 5,
+            local_iterations: 2,
             max_gap_frames: 10,
             max_gap_seconds: 1.0,
         }

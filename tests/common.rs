@@ -58,3 +58,39 @@ pub fn small_dictionary(k: usize) -> Dictionary {
     )
     .expect("sub-dictionary")
 }
+
+/// The repository root.
+pub fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// A shipped recording.
+pub fn recording(name: &str) -> PathBuf {
+    root().join("recordings").join(name)
+}
+
+/// The shipped recordings of synthetic heat maps.
+pub const RECORDINGS: [&str; 3] = ["byebye.mcap", "kick.mcap", "wave-left-hand.mcap"];
+
+/// The Python interpreter of the independent clients: `$POSESTREAM_PYTHON` (set by
+/// `.ci/run` to its virtual environment) or `python3`.
+pub fn python() -> String {
+    std::env::var("POSESTREAM_PYTHON").unwrap_or_else(|_| "python3".into())
+}
+
+/// Runs `tests/python/<script>` with `args`; returns its stdout parsed as JSON. Panics
+/// with the client's stderr when it fails (for instance when the PyPI packages are
+/// missing: `.ci/run` installs them).
+pub fn python_client(script: &str, args: &[&str]) -> serde_json::Value {
+    let out = std::process::Command::new(python())
+        .arg(root().join("tests/python").join(script))
+        .args(args)
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run {}: {e}", python()));
+    assert!(
+        out.status.success(),
+        "{script} failed (the Python clients need `pip install mcap mcap-ros2-support rosbags`, which .ci/run does):\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).unwrap_or_else(|e| panic!("{script} output: {e}"))
+}

@@ -2,6 +2,7 @@
 
 pub mod eval;
 pub mod learn;
+pub mod replay;
 pub mod synth;
 
 pub(crate) use super::CliError;

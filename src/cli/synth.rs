@@ -5,7 +5,10 @@ use std::path::PathBuf;
 
 use clap::Args;
 use posestream::mocap::{Bvh, SkeletonMapping};
+use posestream::msgs::{self, Header, HeatMapEncoding, Skeleton3D, SkeletonState, Time, Units};
+use posestream::nodes::config::Topics;
 use posestream::npy;
+use posestream::recording::Recorder;
 use posestream::synth::{self, CameraSpec, ErrorModel, Projection, heatmaps};
 
 use super::CliError;
@@ -123,6 +126,13 @@ pub struct SynthArgs {
     /// Frames (0 = to the end).
     #[arg(long, default_value_t = 0)]
     pub frames: usize,
+    /// Also write an MCAP recording (rosbag2-compatible) of the heat maps on
+    /// `/posestream/heatmaps` and the ground truth on `/posestream/ground_truth`.
+    #[arg(long)]
+    pub mcap: Option<PathBuf>,
+    /// Heat maps in the recording as u8 with a scale (4x smaller) instead of f32.
+    #[arg(long, requires = "mcap")]
+    pub quantize: bool,
     /// Crop box side, times the joints' larger extent.
     #[arg(long, default_value_t = 1.25)]
     pub margin: f64,
@@ -203,6 +213,50 @@ pub fn run(args: &SynthArgs) -> Result<(), CliError> {
             "intrinsics.json",
             &serde_json::json!({"fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy}),
         )?;
+    }
+    if let Some(path) = &args.mcap {
+        let topics = Topics::default();
+        let mut rec = Recorder::create(path)?;
+        let n = p * h * w;
+        let encoding = if args.quantize {
+            HeatMapEncoding::Uint8
+        } else {
+            HeatMapEncoding::Float32
+        };
+        for t in 0..f {
+            let stamp_ns = (t as f64 * seq.frame_time * 1e9).round() as i64;
+            let header = Header {
+                stamp: Time::from_nanos(stamp_ns),
+                frame_id: "camera".into(),
+            };
+            let maps = msgs::HeatMaps::from_values(
+                header.clone(),
+                t as u64,
+                skel.joints.clone(),
+                h as u32,
+                w as u32,
+                boxes[t],
+                &rendered.maps.values[t * n..(t + 1) * n],
+                encoding,
+            );
+            let truth = Skeleton3D {
+                header,
+                sequence: t as u64,
+                joint_names: skel.joints.clone(),
+                units: Units::Metres as u8,
+                positions: view.camera_3d[3 * p * t..3 * p * (t + 1)].to_vec(),
+                position_std: vec![0.0; p],
+                keypoints: view.image_2d[2 * p * t..2 * p * (t + 1)].to_vec(),
+                keypoint_std: vec![0.0; p],
+                projected: view.image_2d[2 * p * t..2 * p * (t + 1)].to_vec(),
+                state: SkeletonState::Tracking as u8,
+                ..Skeleton3D::default()
+            };
+            rec.write(&topics.heatmaps, stamp_ns as u64, &maps)?;
+            rec.write(&topics.ground_truth, stamp_ns as u64, &truth)?;
+        }
+        rec.finish()?;
+        println!("recording -> {}", path.display());
     }
     println!(
         "{f} frames of {p} joints -> {} (swapped {}, occluded {}, missing {} joint-frames)",

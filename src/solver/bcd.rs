@@ -177,7 +177,7 @@ pub fn solve_anchored(
         for (t, fit) in fits.iter_mut().enumerate() {
             dict.compose_into(&fit.coefficients, s);
             fit.translation =
-                best_translation(&s, obs.frame(t), obs.frame_weights(t), &fit.rotation);
+                best_translation(s, obs.frame(t), obs.frame_weights(t), &fit.rotation);
             ws.translations[t] = fit.translation;
         }
     }

@@ -1,0 +1,80 @@
+//! `posestream replay`: a recording's heat maps through the estimator, skeletons to a
+//! new recording.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use clap::Args;
+use posestream::nodes::ServiceConfig;
+use posestream::nodes::config::ReplayRate;
+use posestream::nodes::replay::{ReplayOptions, replay};
+
+use super::CliError;
+
+/// Options of `replay`.
+#[derive(Debug, Args)]
+pub struct ReplayArgs {
+    /// The recording (MCAP) holding heat-map messages.
+    pub input: PathBuf,
+    /// Service configuration.
+    #[arg(long, default_value = "config/default.toml")]
+    pub config: PathBuf,
+    /// Record the skeletons (and the input's ground truth) to this MCAP file.
+    #[arg(long)]
+    pub record: Option<PathBuf>,
+    /// Also write a rosbag2 `metadata.yaml` next to the recording.
+    #[arg(long, requires = "record")]
+    pub rosbag2: bool,
+    /// Pace (overrides the configuration's `replay.rate`).
+    #[arg(long, value_enum)]
+    pub rate: Option<ReplayRate>,
+    /// Print the report as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Runs `replay`. Ctrl-C stops it and still finalises the output.
+pub fn run(args: &ReplayArgs) -> Result<(), CliError> {
+    let config = ServiceConfig::load(&args.config).map_err(|e| CliError::Input(e.to_string()))?;
+    let stop = Arc::new(AtomicBool::new(false));
+    {
+        let stop = stop.clone();
+        // Without a handler (already installed), Ctrl-C simply ends the process.
+        let _ = ctrlc::set_handler(move || stop.store(true, Ordering::Relaxed));
+    }
+    let options = ReplayOptions {
+        record: args.record.clone(),
+        rosbag2: args.rosbag2,
+        rate: args.rate.unwrap_or(config.replay.rate),
+    };
+    let report = replay(&config, &args.input, &options, &stop)
+        .map_err(|e| CliError::Input(e.to_string()))?;
+    if args.json {
+        let text = serde_json::to_string_pretty(&report).map_err(|source| CliError::Json {
+            path: args.input.clone(),
+            source,
+        })?;
+        println!("{text}");
+    } else {
+        let c = report.counters;
+        println!(
+            "{} frames -> {} skeletons in {:.2} s ({:.0} frames/s); {} malformed, {} late, {} missing, {} resets",
+            report.frames,
+            report.skeletons,
+            report.seconds,
+            report.frames_per_second,
+            report.malformed,
+            c.late,
+            c.missing,
+            c.resets
+        );
+        if let Some(out) = &report.output {
+            println!("skeletons -> {}", out.display());
+        }
+    }
+    if let Some(t) = &report.truncated {
+        eprintln!("posestream: warning: {t}");
+    }
+    Ok(())
+}

@@ -1,0 +1,245 @@
+//! The nodes of the service: thin adapters between messages ([`crate::msgs`]) and the
+//! math ([`crate::streaming`]). Nothing here solves anything.
+//!
+//! - [`EstimatorNode`]: heat-map messages in, [`Skeleton3D`] messages out;
+//! - [`replay`]: a recording's heat maps through the estimator node, skeletons to a
+//!   recording.
+
+pub mod config;
+pub mod replay;
+
+use std::collections::VecDeque;
+
+use crate::camera::{CropBox, PixelMap};
+use crate::error::EstimateError;
+use crate::estimator::Estimator;
+use crate::mocap::mapping::same_layout;
+use crate::msgs::{self, DecodeError, Header, Skeleton3D, Time, Units};
+use crate::streaming::{FrameEstimate, FrameMaps, StreamCounters, TrackState, WindowEstimator};
+
+pub use config::ServiceConfig;
+
+/// Why a message was not used.
+#[derive(Debug, thiserror::Error)]
+pub enum NodeError {
+    /// The message could not be decoded or is inconsistent.
+    #[error(transparent)]
+    Decode(#[from] DecodeError),
+    /// The message names joints the dictionary does not have (or in another order).
+    #[error("frame {sequence}: joints {found:?} do not match the dictionary's {expected:?}")]
+    Joints {
+        /// The frame.
+        sequence: u64,
+        /// The message's joints.
+        found: Vec<String>,
+        /// The dictionary's joints.
+        expected: Vec<String>,
+    },
+    /// The estimator refused the frame.
+    #[error("frame {sequence}: {source}")]
+    Estimate {
+        /// The frame.
+        sequence: u64,
+        /// The cause.
+        source: EstimateError,
+    },
+}
+
+/// A node could not be set up from its configuration.
+#[derive(Debug, thiserror::Error)]
+pub enum SetupError {
+    /// The dictionary could not be loaded.
+    #[error(transparent)]
+    Dictionary(#[from] crate::DictionaryError),
+    /// A parameter is out of its domain.
+    #[error("configuration: {0}")]
+    Parameter(#[from] EstimateError),
+}
+
+/// What the estimator node needs to remember of a frame until its last estimate is out.
+#[derive(Debug, Clone)]
+struct FrameInfo {
+    sequence: u64,
+    to_image: PixelMap,
+    frame_id: String,
+}
+
+/// Heat-map messages in, skeleton messages out, through a [`WindowEstimator`].
+pub struct EstimatorNode {
+    window: WindowEstimator,
+    joint_names: Vec<String>,
+    track_id: u32,
+    frames: VecDeque<FrameInfo>,
+    estimates: Vec<FrameEstimate>,
+    values: Vec<f32>,
+    malformed: u64,
+}
+
+impl EstimatorNode {
+    /// A node over `window`.
+    pub fn new(window: WindowEstimator) -> Self {
+        let joint_names = window.dictionary().skeleton().joints.clone();
+        Self {
+            window,
+            joint_names,
+            track_id: 0,
+            frames: VecDeque::new(),
+            estimates: Vec::new(),
+            values: Vec::new(),
+            malformed: 0,
+        }
+    }
+
+    /// A node from the configuration's estimator section.
+    pub fn from_config(config: &config::EstimatorConfig) -> Result<Self, SetupError> {
+        let dict = crate::Dictionary::load(&config.dictionary)?;
+        let estimator = Estimator::new(dict, config.params.clone())?;
+        let window = WindowEstimator::new(estimator, config.window.clone())?;
+        Ok(Self::new(window))
+    }
+
+    /// The window's counters.
+    pub fn counters(&self) -> StreamCounters {
+        self.window.counters()
+    }
+
+    /// Messages refused (undecodable, inconsistent or with unknown joints).
+    pub fn malformed(&self) -> u64 {
+        self.malformed
+    }
+
+    /// Handles one encoded heat-map message; a bad one is counted and returned as an
+    /// error, and the node goes on.
+    pub fn handle_encoded(
+        &mut self,
+        data: &[u8],
+        out: &mut Vec<Skeleton3D>,
+    ) -> Result<(), NodeError> {
+        match msgs::decode::<msgs::HeatMaps>(data) {
+            Ok(msg) => self.handle(&msg, out),
+            Err(e) => {
+                self.malformed += 1;
+                Err(e.into())
+            }
+        }
+    }
+
+    /// Handles one heat-map message; appends the skeletons it releases to `out`.
+    pub fn handle(
+        &mut self,
+        msg: &msgs::HeatMaps,
+        out: &mut Vec<Skeleton3D>,
+    ) -> Result<(), NodeError> {
+        let result = self.handle_inner(msg, out);
+        if result.is_err() {
+            self.malformed += 1;
+        }
+        result
+    }
+
+    fn handle_inner(
+        &mut self,
+        msg: &msgs::HeatMaps,
+        out: &mut Vec<Skeleton3D>,
+    ) -> Result<(), NodeError> {
+        if !same_layout(&msg.joint_names, &self.joint_names) {
+            return Err(NodeError::Joints {
+                sequence: msg.sequence,
+                found: msg.joint_names.clone(),
+                expected: self.joint_names.clone(),
+            });
+        }
+        let crop: CropBox = msg.crop()?;
+        msg.values_into(&mut self.values)?;
+        let frame = FrameMaps {
+            sequence: msg.sequence,
+            stamp_ns: msg.header.stamp.nanos(),
+            height: msg.height as usize,
+            width: msg.width as usize,
+            values: &self.values,
+        };
+        self.track_id = msg.track_id;
+        self.estimates.clear();
+        let accepted_before = self.window.counters().frames;
+        self.window
+            .push(&frame, &mut self.estimates)
+            .map_err(|source| NodeError::Estimate {
+                sequence: msg.sequence,
+                source,
+            })?;
+        // Only frames the window accepted are remembered (not late ones).
+        if self.window.counters().frames > accepted_before {
+            self.frames.push_back(FrameInfo {
+                sequence: msg.sequence,
+                to_image: crop.pixel_map(msg.width as usize, msg.height as usize),
+                frame_id: msg.header.frame_id.clone(),
+            });
+        }
+        self.release(out);
+        Ok(())
+    }
+
+    /// Ends the stream: the estimates still owed.
+    pub fn finish(&mut self, out: &mut Vec<Skeleton3D>) {
+        self.estimates.clear();
+        self.window.finish(&mut self.estimates);
+        self.release(out);
+        self.frames.clear();
+    }
+
+    /// Turns the window's estimates into messages; forgets frames no estimate can
+    /// need any more.
+    fn release(&mut self, out: &mut Vec<Skeleton3D>) {
+        let settings = self.window.settings();
+        let keep = settings.size + settings.lag + 1;
+        for e in &self.estimates {
+            let Some(info) = self.frames.iter().rev().find(|f| f.sequence == e.sequence) else {
+                continue;
+            };
+            out.push(skeleton_message(e, info, &self.joint_names, self.track_id));
+        }
+        while self.frames.len() > keep {
+            self.frames.pop_front();
+        }
+    }
+}
+
+/// The message of one estimate.
+fn skeleton_message(
+    e: &FrameEstimate,
+    info: &FrameInfo,
+    joint_names: &[String],
+    track_id: u32,
+) -> Skeleton3D {
+    let map = info.to_image;
+    let to_image = |xy: &[f64]| -> Vec<f64> {
+        xy.chunks_exact(2)
+            .flat_map(|p| map.apply(p[0], p[1]))
+            .collect()
+    };
+    Skeleton3D {
+        header: Header {
+            stamp: Time::from_nanos(e.stamp_ns),
+            frame_id: info.frame_id.clone(),
+        },
+        sequence: e.sequence,
+        track_id,
+        joint_names: joint_names.to_vec(),
+        units: Units::Dictionary as u8,
+        positions: e.pose.clone(),
+        position_std: e.pose_std.clone(),
+        keypoints: to_image(&e.keypoints),
+        keypoint_std: e
+            .keypoint_std
+            .iter()
+            .map(|s| s * map.mean_scale())
+            .collect(),
+        projected: to_image(&e.projected),
+        lag: e.lag as u32,
+        state: match e.state {
+            TrackState::Initialising => msgs::SkeletonState::Initialising,
+            TrackState::Tracking => msgs::SkeletonState::Tracking,
+            TrackState::Lost => msgs::SkeletonState::Lost,
+        } as u8,
+    }
+}

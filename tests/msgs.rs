@@ -1,0 +1,136 @@
+//! The messages: `.msg` text and Rust types agree, CDR round trips, bad bytes are errors.
+
+use posestream::CropBox;
+use posestream::msgs::{
+    self, CDR_LE_HEADER, Header, HeatMapEncoding, HeatMaps, RosMessage, Skeleton3D, Time,
+    parse_definition,
+};
+
+fn fields_of<M: RosMessage>() -> Vec<(String, String)> {
+    M::fields()
+        .into_iter()
+        .map(|f| (f.ros_type, f.name.to_string()))
+        .collect()
+}
+
+#[test]
+fn every_msg_file_declares_exactly_the_fields_of_its_rust_type() {
+    assert_eq!(
+        parse_definition(HeatMaps::DEFINITION),
+        fields_of::<HeatMaps>()
+    );
+    assert_eq!(
+        parse_definition(Skeleton3D::DEFINITION),
+        fields_of::<Skeleton3D>()
+    );
+    assert_eq!(parse_definition(Header::DEFINITION), fields_of::<Header>());
+    assert_eq!(parse_definition(Time::DEFINITION), fields_of::<Time>());
+    // The files on disk are the ones compiled in (msgs/ is a ROS 2 package).
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    for (file, text) in [
+        ("msgs/msg/HeatMaps.msg", HeatMaps::DEFINITION),
+        ("msgs/msg/Skeleton3D.msg", Skeleton3D::DEFINITION),
+    ] {
+        let cmake = std::fs::read_to_string(root.join("msgs/CMakeLists.txt")).expect("cmake");
+        assert!(cmake.contains(file.trim_start_matches("msgs/")), "{file}");
+        assert_eq!(std::fs::read_to_string(root.join(file)).expect(file), text);
+    }
+}
+
+#[test]
+fn full_definitions_append_nested_messages_after_80_equals_signs() {
+    let def = Skeleton3D::full_definition();
+    let sep = format!("{}\n", "=".repeat(80));
+    assert_eq!(def.matches(&sep).count(), 2, "{def}");
+    assert!(def.contains(&format!("{sep}MSG: std_msgs/Header\n")));
+    assert!(def.contains(&format!("{sep}MSG: builtin_interfaces/Time\n")));
+    assert!(!def.contains("MSG: posestream_msgs/Skeleton3D"));
+    assert_eq!(
+        Skeleton3D::dds_type_name(),
+        "posestream_msgs::msg::dds_::Skeleton3D_"
+    );
+    assert_eq!(HeatMaps::NAME, "posestream_msgs/msg/HeatMaps");
+}
+
+fn sample_maps(encoding: HeatMapEncoding) -> HeatMaps {
+    let values: Vec<f32> = (0..2 * 3 * 4).map(|i| (i % 7) as f32 * 0.25).collect();
+    HeatMaps::from_values(
+        Header {
+            stamp: Time::from_nanos(1_500_000_123),
+            frame_id: "camera".into(),
+        },
+        42,
+        vec!["a".into(), "b".into()],
+        3,
+        4,
+        CropBox::new(10.0, 20.0, 128.0, 96.0).expect("box"),
+        &values,
+        encoding,
+    )
+}
+
+#[test]
+fn messages_round_trip_through_cdr_with_the_encapsulation_header() {
+    for encoding in [HeatMapEncoding::Float32, HeatMapEncoding::Uint8] {
+        let msg = sample_maps(encoding);
+        let bytes = msgs::encode(&msg).expect("encodes");
+        assert_eq!(bytes[..4], CDR_LE_HEADER);
+        let back: HeatMaps = msgs::decode(&bytes).expect("decodes");
+        assert_eq!(back, msg);
+        let mut values = Vec::new();
+        back.values_into(&mut values).expect("values");
+        assert_eq!(values.len(), 24);
+        // u8 quantisation keeps each score within half a step.
+        let step = if encoding == HeatMapEncoding::Uint8 {
+            1.5 / 255.0
+        } else {
+            0.0
+        };
+        for (i, v) in values.iter().enumerate() {
+            let truth = (i % 7) as f32 * 0.25;
+            assert!(
+                (v - truth).abs() <= 0.5 * step + 1e-6,
+                "{i}: {v} vs {truth}"
+            );
+        }
+    }
+    let skel = Skeleton3D {
+        sequence: 7,
+        joint_names: vec!["x".into()],
+        positions: vec![1.0, -2.0, 3.5],
+        lag: 10,
+        state: 1,
+        ..Skeleton3D::default()
+    };
+    let back: Skeleton3D = msgs::decode(&msgs::encode(&skel).expect("encodes")).expect("decodes");
+    assert_eq!(back, skel);
+    assert_eq!(Time::from_nanos(-1).nanos(), -1);
+}
+
+#[test]
+fn malformed_bytes_are_errors_not_panics() {
+    let good = msgs::encode(&sample_maps(HeatMapEncoding::Float32)).expect("encodes");
+    // Big-endian encapsulation, too short, every truncation, garbage.
+    let mut big = good.clone();
+    big[1] = 0x00;
+    assert!(msgs::decode::<HeatMaps>(&big).is_err());
+    assert!(msgs::decode::<HeatMaps>(&[0, 1]).is_err());
+    for cut in 4..good.len() {
+        assert!(
+            msgs::decode::<HeatMaps>(&good[..cut]).is_err(),
+            "cut at {cut}"
+        );
+    }
+    let garbage: Vec<u8> = (0..200).map(|i| (i * 37 % 251) as u8).collect();
+    let mut with_header = CDR_LE_HEADER.to_vec();
+    with_header.extend(&garbage);
+    let _ = msgs::decode::<HeatMaps>(&with_header);
+    // Consistent CDR, inconsistent contents.
+    let mut wrong = sample_maps(HeatMapEncoding::Float32);
+    wrong.values.pop();
+    assert!(wrong.values_into(&mut Vec::new()).is_err());
+    wrong.encoding = 9;
+    assert!(wrong.values_into(&mut Vec::new()).is_err());
+    wrong.crop_width = -1.0;
+    assert!(wrong.crop().is_err());
+}

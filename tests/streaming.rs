@@ -1,0 +1,250 @@
+//! The streaming estimator on the shipped recordings: close to the batch EM, robust to
+//! gaps, late frames, restarts and malformed input, flat in memory.
+
+mod common;
+
+use common::{RECORDINGS, recording, root};
+use posestream::metrics;
+use posestream::msgs::{self, Skeleton3D};
+use posestream::nodes::replay::read_topic;
+use posestream::nodes::{EstimatorNode, ServiceConfig};
+use posestream::streaming::{FrameMaps, StreamSettings, TrackState, WindowEstimator};
+use posestream::{Dictionary, Estimator, HeatMaps, Params};
+
+/// The heat maps of a recording as one sequence, and its ground truth (metres).
+fn load(name: &str) -> (HeatMaps, Vec<f64>, Vec<msgs::HeatMaps>) {
+    let path = recording(name);
+    let messages: Vec<msgs::HeatMaps> = read_topic(&path, "/posestream/heatmaps")
+        .expect("reads")
+        .into_iter()
+        .map(|(_, m)| m)
+        .collect();
+    let truth: Vec<f64> = read_topic::<Skeleton3D>(&path, "/posestream/ground_truth")
+        .expect("reads")
+        .into_iter()
+        .flat_map(|(_, m)| m.positions)
+        .collect();
+    let (h, w) = (messages[0].height as usize, messages[0].width as usize);
+    let mut values = Vec::new();
+    let mut frame = Vec::new();
+    for m in &messages {
+        m.values_into(&mut frame).expect("values");
+        values.extend_from_slice(&frame);
+    }
+    // Not `HeatMaps::new`: the recordings have missing joints (all-zero maps), which the
+    // E-step reads as "no observation" and `new` refuses.
+    let maps = HeatMaps {
+        frames: messages.len(),
+        joints: 17,
+        height: h,
+        width: w,
+        values,
+    };
+    (maps, truth, messages)
+}
+
+fn estimator() -> Estimator {
+    let dict =
+        Dictionary::load(root().join("config/dictionaries/default-k128.json")).expect("dictionary");
+    Estimator::new(dict, Params::default()).expect("estimator")
+}
+
+#[test]
+fn streaming_stays_within_5_percent_of_the_batch_em_at_lag_10_and_15_percent_at_lag_0() {
+    let config = ServiceConfig::load(root().join("config/default.toml")).expect("config");
+    assert_eq!(config.estimator.window.lag, 10);
+    let p = 17;
+    let (mut batch, mut lag10, mut lag0, mut frames) = (0.0, 0.0, 0.0, 0.0);
+    for name in RECORDINGS {
+        let (maps, truth, messages) = load(name);
+        let f = maps.frames;
+        let est = estimator().lift_heatmaps(&maps).expect("batch");
+        let mut node = EstimatorNode::from_config(&config.estimator).expect("node");
+        let mut out = Vec::new();
+        for m in &messages {
+            node.handle(m, &mut out).expect("frame");
+        }
+        node.finish(&mut out);
+        let (mut refined, mut newest) = (vec![f64::NAN; 3 * p * f], vec![f64::NAN; 3 * p * f]);
+        let mut seen = vec![(0, 0); f];
+        for s in &out {
+            let t = s.sequence as usize;
+            // The newest frame's estimate at once (lag 0), the refined one 10 frames
+            // later; frames near the end get theirs when the stream ends, with a
+            // shorter lag and the state `lost`.
+            let lost = s.state == 2;
+            if s.lag == 0 && !lost {
+                newest[3 * p * t..3 * p * (t + 1)].copy_from_slice(&s.positions);
+                seen[t].0 += 1;
+            } else {
+                refined[3 * p * t..3 * p * (t + 1)].copy_from_slice(&s.positions);
+                seen[t].1 += 1;
+                assert!(s.lag == 10 || (lost && t + 10 >= f), "{name} {t}");
+            }
+        }
+        // Every frame once at lag 0 and once refined.
+        assert!(seen.iter().all(|&s| s == (1, 1)), "{name}: {seen:?}");
+        let e = |poses: &[f64]| 1000.0 * metrics::p_mpjpe(poses, &truth, p);
+        let (b, r, n) = (e(&est.poses), e(&refined), e(&newest));
+        println!("{name}: batch {b:.1} mm, lag 10 {r:.1} mm, lag 0 {n:.1} mm");
+        batch += b * f as f64;
+        lag10 += r * f as f64;
+        lag0 += n * f as f64;
+        frames += f as f64;
+    }
+    let (b, r, n) = (batch / frames, lag10 / frames, lag0 / frames);
+    println!(
+        "all: batch {b:.1} mm, lag 10 {r:.1} mm ({:+.1} %), lag 0 {n:.1} mm ({:+.1} %)",
+        100.0 * (r / b - 1.0),
+        100.0 * (n / b - 1.0)
+    );
+    assert!(r <= 1.05 * b, "lag 10: {r} against batch {b}");
+    assert!(n <= 1.15 * b, "lag 0: {n} against batch {b}");
+}
+
+fn small_window() -> WindowEstimator {
+    WindowEstimator::new(
+        estimator(),
+        StreamSettings {
+            size: 6,
+            lag: 2,
+            max_gap_frames: 5,
+            ..StreamSettings::default()
+        },
+    )
+    .expect("window")
+}
+
+#[test]
+fn gaps_late_frames_and_restarts_are_counted_and_every_frame_is_estimated_once() {
+    let (maps, _, _) = load("byebye.mcap");
+    let mut w = small_window();
+    let mut out = Vec::new();
+    let ns = |s: u64| s as i64 * 33_333_333;
+    let mut push = |w: &mut WindowEstimator, t: usize, seq: u64, stamp: i64| {
+        w.push(&FrameMaps::of(&maps, t, seq, stamp), &mut out)
+            .expect("frame");
+    };
+    for s in 0..12 {
+        push(&mut w, s as usize, s, ns(s));
+    }
+    push(&mut w, 12, 9, ns(9)); // late
+    push(&mut w, 12, 11, ns(11)); // repeated
+    push(&mut w, 15, 15, ns(15)); // 3 frames dropped upstream: the track goes on
+    push(&mut w, 16, 40, ns(40)); // a long gap: new track
+    push(&mut w, 17, 41, ns(41));
+    push(&mut w, 18, 0, ns(100)); // the detector restarted its numbering: new track
+    let c = w.counters();
+    assert_eq!(
+        (c.late, c.missing, c.resets, c.tracks),
+        (2, 3, 2, 3),
+        "{c:?}"
+    );
+    assert_eq!(c.frames, 16);
+    w.finish(&mut out);
+    // Newest: lag 0 while the track runs; refined: lag 2, or owed when a track ends.
+    let sequences = |refined: bool| -> Vec<u64> {
+        out.iter()
+            .filter(|e| {
+                let lost = e.state == TrackState::Lost;
+                if refined {
+                    e.lag == 2 || lost
+                } else {
+                    e.lag == 0 && !lost
+                }
+            })
+            .map(|e| e.sequence)
+            .collect()
+    };
+    let accepted: Vec<u64> = (0..12).chain([15, 40, 41, 0]).collect();
+    assert_eq!(sequences(false), accepted);
+    let mut refined = sequences(true);
+    refined.sort_unstable();
+    let mut expected = accepted.clone();
+    expected.sort_unstable();
+    assert_eq!(refined, expected);
+    // Tracks end with their owed estimates in state `lost`.
+    let lost: Vec<u64> = out
+        .iter()
+        .filter(|e| e.state == TrackState::Lost)
+        .map(|e| e.sequence)
+        .collect();
+    assert_eq!(lost, vec![11, 15, 40, 41, 0]);
+    assert!(out.iter().all(|e| e.pose.iter().all(|v| v.is_finite())));
+}
+
+#[test]
+fn malformed_frames_are_errors_that_leave_the_window_as_it_was() {
+    let (maps, _, _) = load("byebye.mcap");
+    let mut w = small_window();
+    let mut out = Vec::new();
+    for t in 0..4 {
+        w.push(&FrameMaps::of(&maps, t, t as u64, 0), &mut out)
+            .expect("frame");
+    }
+    let n = maps.joints * maps.height * maps.width;
+    let mut nan = maps.values[..n].to_vec();
+    nan[100] = f32::NAN;
+    let short = &maps.values[..n - 1];
+    for (values, h) in [
+        (&nan[..], maps.height),
+        (short, maps.height),
+        (&maps.values[..n], 32),
+    ] {
+        let frame = FrameMaps {
+            sequence: 4,
+            stamp_ns: 0,
+            height: h,
+            width: maps.width,
+            values,
+        };
+        assert!(w.push(&frame, &mut out).is_err());
+    }
+    assert_eq!(w.counters().malformed, 3);
+    assert_eq!(w.len(), 4);
+    w.push(&FrameMaps::of(&maps, 4, 4, 0), &mut out)
+        .expect("the stream goes on");
+    assert_eq!(w.len(), 5);
+}
+
+/// Resident memory, bytes (Linux).
+fn resident() -> usize {
+    let statm = std::fs::read_to_string("/proc/self/statm").unwrap_or_default();
+    let pages: usize = statm
+        .split_whitespace()
+        .nth(1)
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(0);
+    pages * 4096
+}
+
+#[test]
+fn ten_thousand_frames_keep_memory_flat() {
+    let (maps, _, _) = load("byebye.mcap");
+    let mut w = small_window();
+    let mut out = Vec::new();
+    let mut after_warmup = 0;
+    for s in 0..10_000_u64 {
+        // Back and forth through the recording, as one long track.
+        let period = 2 * maps.frames as u64 - 2;
+        let phase = s % period;
+        let t = if phase < maps.frames as u64 {
+            phase
+        } else {
+            period - phase
+        } as usize;
+        w.push(&FrameMaps::of(&maps, t, s, s as i64 * 33_333_333), &mut out)
+            .expect("frame");
+        out.clear();
+        if s == 1_000 {
+            after_warmup = resident();
+        }
+    }
+    let end = resident();
+    println!("resident after 1,000 frames {after_warmup} B, after 10,000 {end} B");
+    assert_eq!(w.counters().tracks, 1);
+    assert!(
+        end <= after_warmup + (1 << 20),
+        "grew from {after_warmup} to {end} bytes"
+    );
+}
