@@ -1,0 +1,60 @@
+//! The streaming update: one new frame through a full window (size 30, lag 10, k = 128,
+//! the shipped dictionary and `config/default.toml`), on a shipped recording.
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use posestream::msgs;
+use posestream::nodes::ServiceConfig;
+use posestream::nodes::replay::read_topic;
+use posestream::streaming::{FrameMaps, WindowEstimator};
+use posestream::{Dictionary, Estimator};
+
+fn bench(c: &mut Criterion) {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let config = ServiceConfig::load(root.join("config/default.toml")).expect("config");
+    let messages: Vec<(u64, msgs::HeatMaps)> =
+        read_topic(&root.join("recordings/byebye.mcap"), "/posestream/heatmaps").expect("reads");
+    let frames: Vec<Vec<f32>> = messages
+        .iter()
+        .map(|(_, m)| {
+            let mut v = Vec::new();
+            m.values_into(&mut v).expect("values");
+            v
+        })
+        .collect();
+    let dict = Dictionary::load(root.join(&config.estimator.dictionary)).expect("dictionary");
+    let estimator = Estimator::new(dict, config.estimator.params.clone()).expect("estimator");
+    let mut window =
+        WindowEstimator::new(estimator, config.estimator.window.clone()).expect("window");
+    let mut out = Vec::new();
+    let mut seq = 0_u64;
+    let mut push = |window: &mut WindowEstimator, out: &mut Vec<_>| {
+        let t = (seq as usize) % frames.len();
+        let frame = FrameMaps {
+            sequence: seq,
+            stamp_ns: seq as i64 * 33_333_333,
+            height: 64,
+            width: 64,
+            values: &frames[t],
+        };
+        // Wrap-around jumps the pose: restart the track there, as a real stream would.
+        if t == 0 {
+            window.reset();
+        }
+        window.push(&frame, out).expect("frame");
+        out.clear();
+        seq += 1;
+    };
+    for _ in 0..40 {
+        push(&mut window, &mut out);
+    }
+    c.bench_function("streaming update (window 30, lag 10, k 128)", |b| {
+        b.iter(|| push(&mut window, &mut out))
+    });
+}
+
+criterion_group! {
+    name = benches;
+    config = Criterion::default().sample_size(200);
+    targets = bench
+}
+criterion_main!(benches);
