@@ -4,7 +4,7 @@
 use criterion::{Criterion, criterion_group, criterion_main};
 use posestream::msgs;
 use posestream::nodes::ServiceConfig;
-use posestream::nodes::replay::read_topic;
+use posestream::recording::read_topic;
 use posestream::streaming::{FrameMaps, WindowEstimator};
 use posestream::{Dictionary, Estimator};
 

@@ -324,34 +324,21 @@ impl Estimator {
         let mut fits = Vec::with_capacity(f);
         let mut init_ws = InitWorkspace::default();
         let mut argmax = Observations::new(p, vec![0.0; 2 * p * f]);
+        let (mut w, mut visible) = (vec![0.0; 2 * p], vec![false; p]);
         for t in 0..f {
-            let mut w = vec![0.0; 2 * p];
-            let mut visible = vec![false; p];
-            for j in 0..p {
-                let (x, y, peak) = maps.argmax(t, j);
-                w[2 * j] = x / scale;
-                w[2 * j + 1] = y / scale;
-                visible[j] = f64::from(peak) > self.params.visibility_threshold;
-            }
-            if visible.iter().filter(|&&v| v).count() < 2 {
-                visible.iter_mut().for_each(|v| *v = true);
-            }
+            let fit = self.initialise_from_argmax(
+                |j| maps.map(t, j),
+                maps.width,
+                scale,
+                &mut w,
+                &mut visible,
+                &mut init_ws,
+            );
             argmax.xy[2 * p * t..2 * p * (t + 1)].copy_from_slice(&w);
             for (j, &v) in visible.iter().enumerate() {
                 argmax.weights[t * p + j] = if v { 1.0 } else { 0.0 };
             }
-            fits.push(
-                initialise_frame(
-                    &self.dict,
-                    &self.cache,
-                    &w,
-                    &visible,
-                    self.heatmap_init(),
-                    &self.params,
-                    &mut init_ws,
-                )
-                .0,
-            );
+            fits.push(fit);
         }
         let seconds_init = start.elapsed().as_secs_f64();
         if !solve {
@@ -399,6 +386,41 @@ impl Estimator {
             seconds: start.elapsed().as_secs_f64(),
         };
         Ok(est)
+    }
+
+    /// The per-frame initialisation from heat maps (`map(j)`: joint j's map, `width`
+    /// columns; `scale` pixels per unit): each joint at its map's arg-max, visible if its
+    /// peak is above the visibility threshold (all, if fewer than two are). Leaves the
+    /// arg-max (normalised units) in `xy` and the visibility in `visible`. Shared by the
+    /// batch EM and the sliding window.
+    pub(crate) fn initialise_from_argmax<'m>(
+        &self,
+        map: impl Fn(usize) -> &'m [f32],
+        width: usize,
+        scale: f64,
+        xy: &mut [f64],
+        visible: &mut [bool],
+        ws: &mut InitWorkspace,
+    ) -> FrameFit {
+        for (j, v) in visible.iter_mut().enumerate() {
+            let (x, y, peak) = crate::heatmaps::argmax(map(j), width);
+            xy[2 * j] = x / scale;
+            xy[2 * j + 1] = y / scale;
+            *v = f64::from(peak) > self.params.visibility_threshold;
+        }
+        if visible.iter().filter(|&&v| v).count() < 2 {
+            visible.iter_mut().for_each(|v| *v = true);
+        }
+        initialise_frame(
+            &self.dict,
+            &self.cache,
+            xy,
+            visible,
+            self.heatmap_init(),
+            &self.params,
+            ws,
+        )
+        .0
     }
 
     /// The estimate of the initialisation alone.

@@ -73,14 +73,19 @@ impl HeatMaps {
 
     /// The arg-max pixel `(x, y)` of a map and its value (first maximum in row-major order).
     pub fn argmax(&self, t: usize, j: usize) -> (f64, f64, f32) {
-        let map = self.map(t, j);
-        let (mut best, mut at) = (f32::NEG_INFINITY, 0);
-        for (i, &v) in map.iter().enumerate() {
-            if v > best {
-                best = v;
-                at = i;
-            }
-        }
-        ((at % self.width) as f64, (at / self.width) as f64, best)
+        argmax(self.map(t, j), self.width)
     }
+}
+
+/// The arg-max pixel `(x, y)` of one row-major map of `width` columns and its value
+/// (first maximum in row-major order).
+pub fn argmax(map: &[f32], width: usize) -> (f64, f64, f32) {
+    let (mut best, mut at) = (f32::NEG_INFINITY, 0);
+    for (i, &v) in map.iter().enumerate() {
+        if v > best {
+            best = v;
+            at = i;
+        }
+    }
+    ((at % width) as f64, (at / width) as f64, best)
 }

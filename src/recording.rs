@@ -380,3 +380,21 @@ impl Iterator for RecordingReader {
         self.next_message()
     }
 }
+
+/// Decodes every message of `topic` in a recording as `M` (for tests and tools).
+pub fn read_topic<M: RosMessage>(
+    path: &Path,
+    topic: &str,
+) -> Result<Vec<(u64, M)>, RecordingError> {
+    let mut out = Vec::new();
+    for msg in RecordingReader::open(path)? {
+        let msg = msg?;
+        if msg.topic == topic {
+            match msgs::decode::<M>(&msg.data) {
+                Ok(m) => out.push((msg.log_time_ns, m)),
+                Err(e) => tracing::warn!("{}: {e}", path.display()),
+            }
+        }
+    }
+    Ok(out)
+}

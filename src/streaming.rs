@@ -23,8 +23,6 @@
 //! transports. Once the window has filled, the solver's buffers are reused; only the
 //! emitted estimates allocate.
 
-use std::time::Instant;
-
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
@@ -34,7 +32,7 @@ use crate::estimator::Estimator;
 use crate::heatmaps::HeatMaps;
 use crate::solver::em::{self, EmWorkspace, MapSource};
 use crate::solver::estep::MapMoments;
-use crate::solver::init::{InitWorkspace, initialise_frame};
+use crate::solver::init::InitWorkspace;
 use crate::solver::normalise::heatmap_scale;
 use crate::solver::{FrameFit, Observations, Params};
 
@@ -245,6 +243,11 @@ impl MapRing {
         self.len = 0;
     }
 
+    fn clear(&mut self) {
+        self.start = 0;
+        self.len = 0;
+    }
+
     fn pop_front(&mut self) {
         self.start = (self.start + 1) % self.capacity;
         self.len -= 1;
@@ -310,6 +313,10 @@ impl<M: MapSource> MapSource for Tail<'_, M> {
 pub struct WindowEstimator {
     estimator: Estimator,
     settings: StreamSettings,
+    /// The estimator's parameters with the EM capped for the newest frames, and for the
+    /// whole window.
+    local_params: Params,
+    window_params: Params,
     /// The window's frames, oldest first, and their fits (same order).
     slots: Vec<Slot>,
     fits: Vec<FrameFit>,
@@ -335,7 +342,13 @@ impl WindowEstimator {
     pub fn new(estimator: Estimator, settings: StreamSettings) -> Result<Self, EstimateError> {
         settings.validate()?;
         let p = estimator.dictionary().num_joints();
+        let capped = |iterations| Params {
+            max_em_iterations: iterations,
+            ..estimator.params().clone()
+        };
         Ok(Self {
+            local_params: capped(settings.local_iterations.max(1)),
+            window_params: capped(settings.em_iterations),
             slots: Vec::with_capacity(settings.size),
             fits: Vec::with_capacity(settings.size),
             anchor: None,
@@ -459,8 +472,7 @@ impl WindowEstimator {
         if let Some(a) = self.anchor.take() {
             self.spare.push(a);
         }
-        self.maps.start = 0;
-        self.maps.len = 0;
+        self.maps.clear();
         self.last = None;
     }
 
@@ -528,37 +540,16 @@ impl WindowEstimator {
 
     /// The batch EM's per-frame initialisation of the newest frame, from its arg-max.
     fn initialise(&mut self, fit: &mut FrameFit) {
-        let p = self.dictionary().num_joints();
         let t = self.maps.len - 1;
-        let scale = heatmap_scale(self.maps.height);
-        let w = self.maps.width;
-        for j in 0..p {
-            let map = self.maps.map(t, j);
-            let (mut best, mut at) = (f32::NEG_INFINITY, 0);
-            for (i, &v) in map.iter().enumerate() {
-                if v > best {
-                    best = v;
-                    at = i;
-                }
-            }
-            self.argmax[2 * j] = (at % w) as f64 / scale;
-            self.argmax[2 * j + 1] = (at / w) as f64 / scale;
-            self.visible[j] =
-                f64::from(best) > self.estimator.params().visibility_threshold && best > 0.0;
-        }
-        if self.visible.iter().filter(|&&v| v).count() < 2 {
-            self.visible.iter_mut().for_each(|v| *v = true);
-        }
-        let (init, _) = initialise_frame(
-            self.estimator.dictionary(),
-            self.estimator.init_cache(),
-            &self.argmax,
-            &self.visible,
-            self.estimator.heatmap_init(),
-            self.estimator.params(),
+        let maps = &self.maps;
+        *fit = self.estimator.initialise_from_argmax(
+            |j| maps.map(t, j),
+            maps.width,
+            heatmap_scale(maps.height),
+            &mut self.argmax,
+            &mut self.visible,
             &mut self.init,
         );
-        *fit = init;
     }
 
     /// EM iterations: first over the newest frames (anchored on the frame before them),
@@ -568,10 +559,6 @@ impl WindowEstimator {
         let n = self.fits.len();
         let local = self.settings.local_frames.min(n);
         if local < n && self.settings.local_iterations > 0 {
-            let params = Params {
-                max_em_iterations: self.settings.local_iterations,
-                ..self.estimator.params().clone()
-            };
             let (before, tail) = self.fits.split_at_mut(n - local);
             let view = Tail {
                 inner: &self.maps,
@@ -584,15 +571,11 @@ impl WindowEstimator {
                 tail,
                 before.last(),
                 scale,
-                &params,
+                &self.local_params,
                 &mut self.obs,
                 &mut self.em,
             );
         }
-        let params = Params {
-            max_em_iterations: self.settings.em_iterations,
-            ..self.estimator.params().clone()
-        };
         em::run_anchored(
             self.estimator.dictionary(),
             self.estimator.basis_gram_max(),
@@ -600,7 +583,7 @@ impl WindowEstimator {
             &mut self.fits,
             self.anchor.as_ref(),
             scale,
-            &params,
+            &self.window_params,
             &mut self.obs,
             &mut self.em,
         );
@@ -652,21 +635,4 @@ impl WindowEstimator {
             projected,
         }
     }
-}
-
-/// Runs a whole sequence through a window, as a stream would deliver it (frame `t` has
-/// sequence number `t` and capture time `t / fps`); returns every estimate, in order.
-pub fn stream_sequence(
-    window: &mut WindowEstimator,
-    maps: &HeatMaps,
-    fps: f64,
-) -> Result<(Vec<FrameEstimate>, f64), EstimateError> {
-    let start = Instant::now();
-    let mut out = Vec::new();
-    for t in 0..maps.frames {
-        let stamp = (t as f64 / fps * 1e9) as i64;
-        window.push(&FrameMaps::of(maps, t, t as u64, stamp), &mut out)?;
-    }
-    window.finish(&mut out);
-    Ok((out, start.elapsed().as_secs_f64()))
 }

@@ -8,7 +8,7 @@ use std::time::Duration;
 
 use common::{python_client, recording};
 use posestream::msgs::{self, Header, Skeleton3D, Time};
-use posestream::nodes::replay::read_topic;
+use posestream::recording::read_topic;
 use posestream::recording::{Recorder, RecordingError, RecordingReader};
 
 fn skeleton(sequence: u64) -> Skeleton3D {

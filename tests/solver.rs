@@ -3,12 +3,12 @@
 mod common;
 
 use common::{fixture, k128, read, small_dictionary, three_basis_sequence};
-use posestream::solver::Observations;
 use posestream::solver::bcd::{self, BcdWorkspace};
 use posestream::solver::coefficients::{
     CoefficientProblem, CoefficientSolver, CoefficientWorkspace, basis_gram_max, lipschitz_bound,
 };
 use posestream::solver::normalise::keypoint_scale;
+use posestream::solver::{FrameFit, Observations};
 use posestream::{Dictionary, Estimator, InitMethod, Keypoints, Params};
 
 #[test]
@@ -87,9 +87,9 @@ fn the_objective_never_increases_over_rounds() {
     }
 }
 
-#[test]
-fn the_c_step_solvers_reach_the_same_minimum_with_and_without_an_anchor() {
-    let dict = Dictionary::load(k128()).expect("dictionary");
+/// The fits of Algorithm 1 on fixture `synthetic-s0`, and the observations (normalised
+/// units) of its frames `from..from + frames`.
+fn lifted_window(dict: &Dictionary, from: usize, frames: usize) -> (Vec<FrameFit>, Observations) {
     let kp = read(fixture("synthetic-s0").join("keypoints.npy"));
     let fits = Estimator::new(dict.clone(), Params::default())
         .expect("estimator")
@@ -100,14 +100,24 @@ fn the_c_step_solvers_reach_the_same_minimum_with_and_without_an_anchor() {
         })
         .expect("lift")
         .fits;
-    // A window of 12 frames under the estimate's rotations and translations.
-    let f = 12;
     let scale = keypoint_scale(&kp.data, &vec![1.0; kp.data.len() / 2], 17);
     let obs = Observations {
         joints: 17,
-        xy: kp.data[..f * 34].iter().map(|v| v / scale).collect(),
-        weights: vec![1.0; f * 17],
+        xy: kp.data[from * 34..(from + frames) * 34]
+            .iter()
+            .map(|v| v / scale)
+            .collect(),
+        weights: vec![1.0; frames * 17],
     };
+    (fits, obs)
+}
+
+#[test]
+fn the_c_step_solvers_reach_the_same_minimum_with_and_without_an_anchor() {
+    let dict = Dictionary::load(k128()).expect("dictionary");
+    let (fits, obs) = lifted_window(&dict, 0, 12);
+    // A window of 12 frames under the estimate's rotations and translations.
+    let f = 12;
     let translations: Vec<_> = fits[..f].iter().map(|x| x.translation).collect();
     let mut problem = CoefficientProblem::default();
     problem.build(
@@ -152,27 +162,9 @@ fn the_c_step_solvers_reach_the_same_minimum_with_and_without_an_anchor() {
 #[test]
 fn an_anchored_window_never_raises_its_objective_and_follows_its_anchor() {
     let dict = Dictionary::load(k128()).expect("dictionary");
-    let kp = read(fixture("synthetic-s0").join("keypoints.npy"));
-    let est = Estimator::new(dict.clone(), Params::default()).expect("estimator");
-    let fits = est
-        .lift_keypoints(&Keypoints {
-            joints: 17,
-            xy: kp.data.clone(),
-            confidence: None,
-        })
-        .expect("lift")
-        .fits;
     // Frames 1..9, anchored on frame 0's fit or on a far-away one.
     let f = 8;
-    let scale = keypoint_scale(&kp.data, &vec![1.0; kp.data.len() / 2], 17);
-    let obs = Observations {
-        joints: 17,
-        xy: kp.data[34..(f + 1) * 34]
-            .iter()
-            .map(|v| v / scale)
-            .collect(),
-        weights: vec![1.0; f * 17],
-    };
+    let (fits, obs) = lifted_window(&dict, 1, f);
     let params = Params {
         beta: 200.0,
         gamma: 200.0,

@@ -6,8 +6,8 @@ mod common;
 use common::{RECORDINGS, recording, root};
 use posestream::metrics;
 use posestream::msgs::{self, Skeleton3D};
-use posestream::nodes::replay::read_topic;
 use posestream::nodes::{EstimatorNode, ServiceConfig};
+use posestream::recording::read_topic;
 use posestream::streaming::{FrameMaps, StreamSettings, TrackState, WindowEstimator};
 use posestream::{Dictionary, Estimator, HeatMaps, Params};
 

@@ -111,39 +111,28 @@ impl HeatMaps {
         if n == 0 {
             return Err(self.invalid("no joints or empty maps".into()));
         }
-        out.clear();
-        match self.encoding {
-            0 => {
-                if self.values.len() != n {
-                    return Err(self.invalid(format!(
-                        "{} values for {} joints x {} x {}",
-                        self.values.len(),
-                        self.joint_names.len(),
-                        self.height,
-                        self.width
-                    )));
-                }
-                out.extend_from_slice(&self.values);
-            }
-            1 => {
-                if self.quantized_values.len() != n {
-                    return Err(self.invalid(format!(
-                        "{} quantized values for {} joints x {} x {}",
-                        self.quantized_values.len(),
-                        self.joint_names.len(),
-                        self.height,
-                        self.width
-                    )));
-                }
-                if !(self.quantization_scale.is_finite() && self.quantization_scale > 0.0) {
-                    return Err(
-                        self.invalid(format!("quantization scale {}", self.quantization_scale))
-                    );
-                }
-                let s = self.quantization_scale;
-                out.extend(self.quantized_values.iter().map(|&q| f32::from(q) * s));
-            }
+        let found = match self.encoding {
+            0 => self.values.len(),
+            1 => self.quantized_values.len(),
             e => return Err(self.invalid(format!("unknown encoding {e}"))),
+        };
+        if found != n {
+            return Err(self.invalid(format!(
+                "{found} values for {} joints x {} x {}",
+                self.joint_names.len(),
+                self.height,
+                self.width
+            )));
+        }
+        out.clear();
+        if self.encoding == 0 {
+            out.extend_from_slice(&self.values);
+        } else {
+            let s = self.quantization_scale;
+            if !(s.is_finite() && s > 0.0) {
+                return Err(self.invalid(format!("quantization scale {s}")));
+            }
+            out.extend(self.quantized_values.iter().map(|&q| f32::from(q) * s));
         }
         Ok(())
     }

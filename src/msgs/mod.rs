@@ -129,7 +129,6 @@ macro_rules! ros_message {
             fn dependencies(out: &mut Vec<(&'static str, &'static str)>) {
                 let mut mine = Vec::new();
                 $( <$ty as $crate::msgs::RosType>::dependencies(&mut mine); )*
-                let _ = &mut mine;
                 for d in mine {
                     if !out.contains(&d) {
                         out.push(d);

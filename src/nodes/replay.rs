@@ -9,7 +9,7 @@ use serde::Serialize;
 
 use super::config::{ReplayRate, ServiceConfig};
 use super::{EstimatorNode, SetupError};
-use crate::msgs::{self, RosMessage, Skeleton3D};
+use crate::msgs::{RosMessage, Skeleton3D};
 use crate::recording::{Recorder, RecordingError, RecordingReader, write_rosbag2_metadata};
 use crate::streaming::StreamCounters;
 
@@ -145,22 +145,4 @@ pub fn replay(
         frames_per_second: frames as f64 / seconds.max(1e-9),
         output,
     })
-}
-
-/// Decodes every message of `topic` in a recording as `M` (for tests and tools).
-pub fn read_topic<M: RosMessage>(
-    path: &Path,
-    topic: &str,
-) -> Result<Vec<(u64, M)>, RecordingError> {
-    let mut out = Vec::new();
-    for msg in RecordingReader::open(path)? {
-        let msg = msg?;
-        if msg.topic == topic {
-            match msgs::decode::<M>(&msg.data) {
-                Ok(m) => out.push((msg.log_time_ns, m)),
-                Err(e) => tracing::warn!("{}: {e}", path.display()),
-            }
-        }
-    }
-    Ok(out)
 }
