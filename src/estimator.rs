@@ -332,6 +332,7 @@ impl Estimator {
                 scale,
                 &mut w,
                 &mut visible,
+                &self.params,
                 &mut init_ws,
             );
             argmax.xy[2 * p * t..2 * p * (t + 1)].copy_from_slice(&w);
@@ -392,7 +393,8 @@ impl Estimator {
     /// columns; `scale` pixels per unit): each joint at its map's arg-max, visible if its
     /// peak is above the visibility threshold (all, if fewer than two are). Leaves the
     /// arg-max (normalised units) in `xy` and the visibility in `visible`. Shared by the
-    /// batch EM and the sliding window.
+    /// batch EM and the sliding window (which caps the iterations in `params`).
+    #[allow(clippy::too_many_arguments)]
     pub(crate) fn initialise_from_argmax<'m>(
         &self,
         map: impl Fn(usize) -> &'m [f32],
@@ -400,6 +402,7 @@ impl Estimator {
         scale: f64,
         xy: &mut [f64],
         visible: &mut [bool],
+        params: &Params,
         ws: &mut InitWorkspace,
     ) -> FrameFit {
         for (j, v) in visible.iter_mut().enumerate() {
@@ -417,7 +420,7 @@ impl Estimator {
             xy,
             visible,
             self.heatmap_init(),
-            &self.params,
+            params,
             ws,
         )
         .0

@@ -68,6 +68,15 @@ pub struct StreamSettings {
     pub local_frames: usize,
     /// EM iterations over those newest frames per new frame at most (0: none).
     pub local_iterations: usize,
+    /// Run the EM over the whole window on every n-th frame only (1: every frame); the
+    /// frames between get only the EM over the newest frames. Spreads the window's cost.
+    pub window_every: usize,
+    /// Iterations of a new frame's initialisation at most (the estimator's
+    /// `max_init_iterations` caps it too).
+    pub init_iterations: usize,
+    /// Coefficients the window's C-steps admit per frame and Newton step at most (the
+    /// window is warm-started: few are needed; see `Params::admit_per_frame`).
+    pub admit_per_frame: usize,
     /// A jump in the sequence number larger than this ends the track (a restart);
     /// smaller gaps are dropped frames and the track carries on.
     pub max_gap_frames: u64,
@@ -85,6 +94,9 @@ impl Default for StreamSettings {
             warm_start: false,
             local_frames: 4,
             local_iterations: 2,
+            window_every: 10,
+            init_iterations: 5,
+            admit_per_frame: 2,
             max_gap_frames: 10,
             max_gap_seconds: 1.0,
         }
@@ -104,6 +116,11 @@ impl StreamSettings {
                 "lag {} must be smaller than the window size {}",
                 self.lag, self.size
             )));
+        }
+        if self.window_every == 0 || self.init_iterations == 0 || self.admit_per_frame == 0 {
+            return Err(EstimateError::Parameter(
+                "window_every, init_iterations and admit_per_frame must be at least 1".into(),
+            ));
         }
         if self.em_iterations == 0 {
             return Err(EstimateError::Parameter(
@@ -317,6 +334,10 @@ pub struct WindowEstimator {
     /// whole window.
     local_params: Params,
     window_params: Params,
+    /// The estimator's parameters with the initialisation capped.
+    init_params: Params,
+    /// Frames since the last EM over the whole window.
+    since_window: usize,
     /// The window's frames, oldest first, and their fits (same order).
     slots: Vec<Slot>,
     fits: Vec<FrameFit>,
@@ -344,11 +365,19 @@ impl WindowEstimator {
         let p = estimator.dictionary().num_joints();
         let capped = |iterations| Params {
             max_em_iterations: iterations,
+            admit_per_frame: settings.admit_per_frame,
             ..estimator.params().clone()
         };
         Ok(Self {
             local_params: capped(settings.local_iterations.max(1)),
             window_params: capped(settings.em_iterations),
+            init_params: Params {
+                max_init_iterations: settings
+                    .init_iterations
+                    .min(estimator.params().max_init_iterations),
+                ..estimator.params().clone()
+            },
+            since_window: 0,
             slots: Vec::with_capacity(settings.size),
             fits: Vec::with_capacity(settings.size),
             anchor: None,
@@ -473,6 +502,7 @@ impl WindowEstimator {
             self.spare.push(a);
         }
         self.maps.clear();
+        self.since_window = 0;
         self.last = None;
     }
 
@@ -548,17 +578,21 @@ impl WindowEstimator {
             heatmap_scale(maps.height),
             &mut self.argmax,
             &mut self.visible,
+            &self.init_params,
             &mut self.init,
         );
     }
 
     /// EM iterations: first over the newest frames (anchored on the frame before them),
-    /// then over the whole window (anchored on the frozen frame).
+    /// then, every [`StreamSettings::window_every`] frames, over the whole window
+    /// (anchored on the frozen frame).
     fn solve(&mut self) {
         let scale = heatmap_scale(self.maps.height);
         let n = self.fits.len();
         let local = self.settings.local_frames.min(n);
-        if local < n && self.settings.local_iterations > 0 {
+        let has_local = local < n && self.settings.local_iterations > 0;
+        self.since_window += 1;
+        if has_local {
             let (before, tail) = self.fits.split_at_mut(n - local);
             let view = Tail {
                 inner: &self.maps,
@@ -576,6 +610,10 @@ impl WindowEstimator {
                 &mut self.em,
             );
         }
+        if has_local && self.since_window < self.settings.window_every {
+            return;
+        }
+        self.since_window = 0;
         em::run_anchored(
             self.estimator.dictionary(),
             self.estimator.basis_gram_max(),

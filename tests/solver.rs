@@ -141,7 +141,7 @@ fn the_c_step_solvers_reach_the_same_minimum_with_and_without_an_anchor() {
         ] {
             let mut c = vec![0.0; f * dict.num_bases()];
             let info = problem.solve_with(
-                solver, &mut c, alpha, beta, lipschitz, 1e-14, 0.0, 20_000, &mut ws,
+                solver, &mut c, alpha, beta, lipschitz, 1e-14, 0.0, 20_000, 8, &mut ws,
             );
             assert!(info.objective_after <= info.objective_before);
             reached.push(info.objective_after);

@@ -69,6 +69,11 @@ pub fn run(args: &ReplayArgs) -> Result<(), CliError> {
             c.missing,
             c.resets
         );
+        let u = report.update;
+        println!(
+            "estimator update per frame: median {:.2} ms, p99 {:.2} ms, max {:.2} ms",
+            u.median_ms, u.p99_ms, u.max_ms
+        );
         if let Some(out) = &report.output {
             println!("skeletons -> {}", out.display());
         }

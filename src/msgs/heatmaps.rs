@@ -51,7 +51,9 @@ ros_message! {
     encoding: u8,
     /// Scores (float32 encoding).
     values: Vec<f32>,
-    /// Quantised scores (uint8 encoding).
+    /// Quantised scores (uint8 encoding). Read and written as one block of bytes
+    /// (`serde_bytes`), not byte by byte; on the wire it is the same `uint8[]`.
+    #[serde(with = "serde_bytes")]
     quantized_values: Vec<u8>,
     /// Score per quantisation step (uint8 encoding).
     quantization_scale: f32,

@@ -6,6 +6,7 @@
 //!   recording.
 
 pub mod config;
+pub mod latency;
 pub mod replay;
 
 use std::collections::VecDeque;

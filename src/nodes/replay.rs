@@ -8,6 +8,7 @@ use std::time::{Duration, Instant};
 use serde::Serialize;
 
 use super::config::{ReplayRate, ServiceConfig};
+use super::latency::{LatencyHistogram, LatencySummary};
 use super::{EstimatorNode, SetupError};
 use crate::msgs::{RosMessage, Skeleton3D};
 use crate::recording::{Recorder, RecordingError, RecordingReader, write_rosbag2_metadata};
@@ -32,6 +33,9 @@ pub struct ReplayReport {
     pub seconds: f64,
     /// Heat-map frames per second of wall time.
     pub frames_per_second: f64,
+    /// Time the estimator node took per heat-map message (decode, window update,
+    /// skeleton messages).
+    pub update: LatencySummary,
     /// The output recording, if any.
     pub output: Option<PathBuf>,
 }
@@ -88,6 +92,7 @@ pub fn replay(
         Ok(n)
     };
     let mut last_log = 0;
+    let mut latency = LatencyHistogram::default();
     while let Some(next) = reader.next_message() {
         if stop.load(Ordering::Relaxed) {
             break;
@@ -111,7 +116,10 @@ pub fn replay(
         }
         if msg.topic == topics.heatmaps {
             frames += 1;
-            if let Err(e) = node.handle_encoded(&msg.data, &mut skeletons) {
+            let began = Instant::now();
+            let handled = node.handle_encoded(&msg.data, &mut skeletons);
+            latency.record(began.elapsed());
+            if let Err(e) = handled {
                 tracing::warn!("skipped a heat-map message: {e}");
             }
             produced += write(&mut recorder, &mut skeletons, msg.log_time_ns)?;
@@ -143,6 +151,7 @@ pub fn replay(
         truncated,
         seconds,
         frames_per_second: frames as f64 / seconds.max(1e-9),
+        update: latency.summary(),
         output,
     })
 }

@@ -203,6 +203,7 @@ pub fn solve_anchored(
                 CoefficientSolver::ActiveSet => params.max_newton_steps,
                 _ => params.max_apg_steps,
             },
+            params.admit_per_frame,
             &mut ws.apg,
         );
         info.apg_steps += cinfo.steps;

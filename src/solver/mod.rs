@@ -110,6 +110,10 @@ pub struct Params {
     /// block coordinate descent); more steps solve each C-step more exactly for little
     /// gain in accuracy (README, "How it works").
     pub max_newton_steps: usize,
+    /// Coefficients the active-set C-step admits per frame and Newton step at most. Many
+    /// make a cold start fast (a frame's active set grows by this much per step); few
+    /// spare a warm start the refactorisations that drop admitted coefficients again.
+    pub admit_per_frame: usize,
     /// Newton sweeps over the frames per R-step at most.
     pub max_rotation_sweeps: usize,
     /// Iterations of the per-frame initialisation at most.
@@ -140,6 +144,7 @@ impl Default for Params {
             max_em_rounds: 2,
             max_apg_steps: 500,
             max_newton_steps: 1,
+            admit_per_frame: 8,
             max_rotation_sweeps: 50,
             max_init_iterations: 1000,
             tolerance: 1e-4,
@@ -199,6 +204,7 @@ impl Params {
         if self.max_rounds == 0
             || self.max_em_rounds == 0
             || self.max_apg_steps == 0
+            || self.admit_per_frame == 0
             || self.max_em_iterations == 0
         {
             return Err(EstimateError::Parameter(

@@ -38,8 +38,6 @@ const KKT_TOLERANCE: f64 = 1e-9;
 /// Relative pivot floor of the block Cholesky (guards against collinear atoms).
 const PIVOT_FLOOR: f64 = 1e-12;
 const NONE: u32 = u32::MAX;
-/// Most coefficients admitted per frame and iteration.
-const ADMIT_PER_FRAME: usize = 8;
 
 /// Buffers of [`CoefficientProblem::solve_active_set`].
 #[derive(Debug, Clone, Default)]
@@ -65,7 +63,8 @@ pub struct ActiveSetWorkspace {
 
 impl CoefficientProblem {
     /// Minimises by the active-set method from `c`, in place; at most `max_iterations`
-    /// Newton steps. Stops at a KKT point, or when an iteration lowers the objective by
+    /// Newton steps, each admitting at most `admit_per_frame` coefficients per frame
+    /// (at least 1). Stops at a KKT point, or when an iteration lowers the objective by
     /// less than `objective_tol` (relative).
     pub fn solve_active_set(
         &self,
@@ -74,9 +73,11 @@ impl CoefficientProblem {
         beta: f64,
         objective_tol: f64,
         max_iterations: usize,
+        admit_per_frame: usize,
         ws: &mut CoefficientWorkspace,
     ) -> CoefficientInfo {
         let (k, f, rows) = (self.k, self.frames, self.rows);
+        let admit = admit_per_frame.max(1);
         let beta = if self.smoothness_active(beta) {
             beta
         } else {
@@ -116,10 +117,10 @@ impl CoefficientProblem {
                         a.candidates.push((g[i].abs(), i as u32));
                     }
                 }
-                if a.candidates.len() > ADMIT_PER_FRAME {
+                if a.candidates.len() > admit {
                     a.candidates
-                        .select_nth_unstable_by(ADMIT_PER_FRAME, |x, y| y.0.total_cmp(&x.0));
-                    a.candidates.truncate(ADMIT_PER_FRAME);
+                        .select_nth_unstable_by(admit, |x, y| y.0.total_cmp(&x.0));
+                    a.candidates.truncate(admit);
                 }
                 for &(_, i) in &a.candidates {
                     s[i as usize] = -sign_of(g[i as usize]);

@@ -180,20 +180,25 @@ impl CoefficientProblem {
             }
             let xy = obs.frame(t);
             let tr = translations[t];
+            // Rows in planar order (every joint's x, then every joint's y): the loops
+            // below then run over contiguous joints and vectorise.
             let y = &mut self.y[t * rows..(t + 1) * rows];
             for j in 0..p {
-                y[2 * j] = sw[j] * (xy[2 * j] - tr.x);
-                y[2 * j + 1] = sw[j] * (xy[2 * j + 1] - tr.y);
+                y[j] = sw[j] * (xy[2 * j] - tr.x);
+                y[p + j] = sw[j] * (xy[2 * j + 1] - tr.y);
             }
+            let y = &self.y[t * rows..(t + 1) * rows];
             for i in 0..k {
                 let b = dict.basis(i);
+                let (bx, rest) = b.split_at(p);
+                let (by, bz) = rest.split_at(p);
                 let col = &mut self.x[(t * k + i) * rows..(t * k + i + 1) * rows];
+                let (u, v) = col.split_at_mut(p);
                 for j in 0..p {
-                    let (bx, by, bz) = (b[j], b[p + j], b[2 * p + j]);
-                    col[2 * j] = sw[j] * (r[(0, 0)] * bx + r[(0, 1)] * by + r[(0, 2)] * bz);
-                    col[2 * j + 1] = sw[j] * (r[(1, 0)] * bx + r[(1, 1)] * by + r[(1, 2)] * bz);
+                    u[j] = sw[j] * (r[(0, 0)] * bx[j] + r[(0, 1)] * by[j] + r[(0, 2)] * bz[j]);
+                    v[j] = sw[j] * (r[(1, 0)] * bx[j] + r[(1, 1)] * by[j] + r[(1, 2)] * bz[j]);
                 }
-                self.xty[t * k + i] = dot(col, &self.y[t * rows..(t + 1) * rows]);
+                self.xty[t * k + i] = dot(col, y);
                 self.h[t * k + i] = dot(col, col);
             }
         }
@@ -269,12 +274,19 @@ impl CoefficientProblem {
         tol: f64,
         objective_tol: f64,
         max_steps: usize,
+        admit_per_frame: usize,
         ws: &mut CoefficientWorkspace,
     ) -> CoefficientInfo {
         match solver {
-            CoefficientSolver::ActiveSet => {
-                self.solve_active_set(c, alpha, beta, objective_tol, max_steps, ws)
-            }
+            CoefficientSolver::ActiveSet => self.solve_active_set(
+                c,
+                alpha,
+                beta,
+                objective_tol,
+                max_steps,
+                admit_per_frame,
+                ws,
+            ),
             CoefficientSolver::Apg => self.solve_apg(c, alpha, beta, lipschitz, tol, max_steps, ws),
             CoefficientSolver::CoordinateDescent => {
                 self.solve_cd(c, alpha, beta, tol, objective_tol, max_steps, ws)

@@ -130,6 +130,7 @@ pub(crate) fn single_frame_coefficients(
         params.tolerance,
         params.cd_objective_tolerance,
         params.max_apg_steps.max(1000),
+        params.admit_per_frame,
         coefficients,
     );
 }
