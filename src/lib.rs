@@ -42,6 +42,7 @@ pub mod skeleton;
 pub mod solver;
 pub mod streaming;
 pub mod synth;
+pub mod transport;
 
 pub use camera::{CropBox, Intrinsics, PixelMap};
 pub use dictionary::Dictionary;

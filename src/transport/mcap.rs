@@ -1,0 +1,156 @@
+//! Recordings as a transport: a [`McapSink`] writes one topic of a shared
+//! [`Recorder`] (several sinks, one file); a [`McapSource`] reads one topic of a
+//! recording front to back.
+
+use std::marker::PhantomData;
+use std::path::Path;
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::Duration;
+
+use super::{Message, Received, Sink, Source, TransportError};
+use crate::msgs;
+use crate::recording::{Recorder, RecordingError, RecordingReader, RecordingSummary};
+
+const TRANSPORT: &str = "mcap";
+
+/// A [`Recorder`] shared by several sinks (one per topic).
+#[derive(Clone)]
+pub struct SharedRecorder {
+    inner: Arc<Mutex<Option<Recorder>>>,
+    path: String,
+}
+
+impl SharedRecorder {
+    /// Creates the recording at `path`.
+    pub fn create(path: impl AsRef<Path>) -> Result<Self, RecordingError> {
+        let recorder = Recorder::create(path.as_ref())?;
+        Ok(Self {
+            inner: Arc::new(Mutex::new(Some(recorder))),
+            path: path.as_ref().display().to_string(),
+        })
+    }
+
+    /// A sink writing messages of type `M` on `topic`.
+    pub fn sink<M: Message>(&self, topic: &str) -> McapSink<M> {
+        McapSink {
+            recorder: self.clone(),
+            topic: topic.to_string(),
+            _message: PhantomData,
+        }
+    }
+
+    fn lock(&self) -> MutexGuard<'_, Option<Recorder>> {
+        // A sink that panicked mid-write leaves the recorder as it was: go on with it.
+        self.inner.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    fn error(&self, topic: &str, reason: impl ToString) -> TransportError {
+        TransportError::Send {
+            transport: TRANSPORT,
+            topic: format!("{} ({topic})", self.path),
+            reason: reason.to_string(),
+        }
+    }
+
+    /// Finalises the file (summary, footer); sinks still around can no longer write.
+    pub fn finish(&self) -> Result<RecordingSummary, RecordingError> {
+        match self.lock().take() {
+            Some(r) => r.finish(),
+            None => Err(RecordingError::Io {
+                path: self.path.clone().into(),
+                source: std::io::Error::other("the recording was already finished"),
+            }),
+        }
+    }
+}
+
+/// Writes messages of type `M` on one topic of a recording.
+pub struct McapSink<M> {
+    recorder: SharedRecorder,
+    topic: String,
+    _message: PhantomData<fn(M)>,
+}
+
+impl<M: Message> Sink<M> for McapSink<M> {
+    fn send(&mut self, message: &M, stamp_ns: u64) -> Result<(), TransportError> {
+        let mut guard = self.recorder.lock();
+        let recorder = guard.as_mut().ok_or_else(|| {
+            self.recorder
+                .error(&self.topic, "the recording is finished")
+        })?;
+        recorder
+            .write(&self.topic, stamp_ns, message)
+            .map_err(|e| self.recorder.error(&self.topic, e))
+    }
+
+    fn flush(&mut self) -> Result<(), TransportError> {
+        match self.recorder.lock().as_mut() {
+            Some(r) => r.flush().map_err(|e| self.recorder.error(&self.topic, e)),
+            None => Ok(()),
+        }
+    }
+}
+
+/// Reads the messages of one topic of a recording, in order, as fast as asked.
+pub struct McapSource<M> {
+    reader: RecordingReader,
+    topic: String,
+    closed: bool,
+    _message: PhantomData<fn() -> M>,
+}
+
+impl<M: Message> McapSource<M> {
+    /// Opens `path` and reads `topic` (messages of other types on it are skipped).
+    pub fn open(path: impl AsRef<Path>, topic: &str) -> Result<Self, TransportError> {
+        let reader = RecordingReader::open(path.as_ref()).map_err(|e| TransportError::Setup {
+            transport: TRANSPORT,
+            what: path.as_ref().display().to_string(),
+            reason: e.to_string(),
+        })?;
+        Ok(Self {
+            reader,
+            topic: topic.to_string(),
+            closed: false,
+            _message: PhantomData,
+        })
+    }
+
+    /// Messages read from the file so far (all topics).
+    pub fn messages_read(&self) -> u64 {
+        self.reader.messages_read()
+    }
+}
+
+impl<M: Message> Source<M> for McapSource<M> {
+    /// Never waits: the next message of the topic, or [`Received::Closed`] at the end
+    /// of the file. A file cut short yields every complete message, then one
+    /// [`TransportError::Broken`], then `Closed`.
+    fn recv(&mut self, _timeout: Duration) -> Result<Received<M>, TransportError> {
+        while !self.closed {
+            let Some(next) = self.reader.next_message() else {
+                self.closed = true;
+                break;
+            };
+            let msg = next.map_err(|e| {
+                self.closed = true;
+                TransportError::Broken {
+                    transport: TRANSPORT,
+                    topic: self.topic.clone(),
+                    reason: e.to_string(),
+                }
+            })?;
+            if msg.topic != self.topic || msg.schema != M::NAME {
+                continue;
+            }
+            return match msgs::decode::<M>(&msg.data) {
+                Ok(m) => Ok(Received::Message(m, msg.log_time_ns)),
+                Err(e) => Err(TransportError::Malformed {
+                    transport: TRANSPORT,
+                    topic: self.topic.clone(),
+                    reason: e.to_string(),
+                }),
+            };
+        }
+        Ok(Received::Closed)
+    }
+}

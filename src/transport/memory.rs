@@ -1,0 +1,55 @@
+//! An in-process transport: a bounded channel. A full channel makes the sender wait
+//! (backpressure), as a reliable ROS 2 topic with a full history does.
+
+use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender, sync_channel};
+use std::time::Duration;
+
+use super::{Received, Sink, Source, TransportError};
+
+/// The sending end.
+#[derive(Debug)]
+pub struct MemorySink<M> {
+    sender: SyncSender<(M, u64)>,
+}
+
+/// The receiving end.
+#[derive(Debug)]
+pub struct MemorySource<M> {
+    receiver: Receiver<(M, u64)>,
+}
+
+impl<M> Clone for MemorySink<M> {
+    fn clone(&self) -> Self {
+        Self {
+            sender: self.sender.clone(),
+        }
+    }
+}
+
+/// A channel holding at most `capacity` messages in flight (at least 1).
+pub fn channel<M>(capacity: usize) -> (MemorySink<M>, MemorySource<M>) {
+    let (sender, receiver) = sync_channel(capacity.max(1));
+    (MemorySink { sender }, MemorySource { receiver })
+}
+
+impl<M: Clone + Send> Sink<M> for MemorySink<M> {
+    fn send(&mut self, message: &M, stamp_ns: u64) -> Result<(), TransportError> {
+        self.sender
+            .send((message.clone(), stamp_ns))
+            .map_err(|_| TransportError::Send {
+                transport: "memory",
+                topic: "channel".into(),
+                reason: "the receiver is gone".into(),
+            })
+    }
+}
+
+impl<M: Send> Source<M> for MemorySource<M> {
+    fn recv(&mut self, timeout: Duration) -> Result<Received<M>, TransportError> {
+        match self.receiver.recv_timeout(timeout) {
+            Ok((m, stamp)) => Ok(Received::Message(m, stamp)),
+            Err(RecvTimeoutError::Timeout) => Ok(Received::Idle),
+            Err(RecvTimeoutError::Disconnected) => Ok(Received::Closed),
+        }
+    }
+}

@@ -1,0 +1,382 @@
+//! One conformance suite for every transport backend (in-memory, MCAP, ROS 2, iceoryx2
+//! shared memory), and independent clients on the wire: Python `cyclonedds` subscribes
+//! to our ROS 2 skeletons.
+
+mod common;
+
+use std::io::{BufRead, BufReader};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use posestream::msgs::HeatMaps;
+use posestream::msgs::{Header, Skeleton3D, Time};
+use posestream::transport::mcap::{McapSource, SharedRecorder};
+use posestream::transport::memory;
+use posestream::transport::ros2::{Ros2, RosSettings};
+use posestream::transport::shm::Shm;
+use posestream::transport::{Received, Sink, Source};
+
+/// A skeleton whose every field depends on `seq`.
+fn skeleton(seq: u64) -> Skeleton3D {
+    let p = 17;
+    let f = seq as f64;
+    Skeleton3D {
+        header: Header {
+            stamp: Time::from_nanos(1_700_000_000_000_000_000 + seq as i64 * 33_333_333),
+            frame_id: format!("camera_{seq}"),
+        },
+        sequence: seq,
+        track_id: 7,
+        joint_names: (0..p).map(|j| format!("joint{j}")).collect(),
+        units: 1,
+        positions: (0..3 * p).map(|i| f + i as f64 * 0.25).collect(),
+        position_std: (0..p).map(|i| 0.01 * (i as f64 + f)).collect(),
+        keypoints: (0..2 * p).map(|i| 100.0 + f + i as f64).collect(),
+        keypoint_std: (0..p).map(|i| 1.5 + i as f64).collect(),
+        projected: (0..2 * p).map(|i| 101.0 + f - i as f64).collect(),
+        lag: (seq % 11) as u32,
+        state: (seq % 3) as u8,
+    }
+}
+
+/// A DDS domain of our own per test process and test (0..=232), so concurrent runs on
+/// one machine do not hear each other.
+fn domain(offset: u16) -> u16 {
+    (std::process::id() % 100) as u16 + 100 + offset
+}
+
+fn loopback(domain: u16, node: &str) -> Ros2 {
+    Ros2::new(&RosSettings {
+        domain_id: domain,
+        localhost_only: true,
+        node_name: node.into(),
+        ..RosSettings::default()
+    })
+    .expect("ROS 2 participant")
+}
+
+/// Receives until `n` messages arrived, the source closed, or `limit` passed.
+fn receive(source: &mut dyn Source<Skeleton3D>, n: usize, limit: Duration) -> Vec<Skeleton3D> {
+    let start = Instant::now();
+    let mut got = Vec::new();
+    while got.len() < n && start.elapsed() < limit {
+        match source.recv(Duration::from_millis(50)).expect("recv") {
+            Received::Message(m, _) => got.push(m),
+            Received::Idle => {}
+            Received::Closed => break,
+        }
+    }
+    got
+}
+
+/// Waits until the live `source` hears `sink` (discovery): probes until one arrives,
+/// then drains what is still in flight.
+fn connect(sink: &mut dyn Sink<Skeleton3D>, source: &mut dyn Source<Skeleton3D>, domain: u16) {
+    let probe = skeleton(u64::MAX);
+    let start = Instant::now();
+    loop {
+        assert!(
+            start.elapsed() < Duration::from_secs(30),
+            "discovery failed on domain {domain}"
+        );
+        sink.send(&probe, 0).expect("send");
+        if let Received::Message(..) = source.recv(Duration::from_millis(50)).expect("recv") {
+            break;
+        }
+    }
+    while let Received::Message(..) = source.recv(Duration::from_millis(300)).expect("recv") {}
+}
+
+/// The conformance suite: what goes into a sink comes out of the source, every
+/// message, in order, equal; then the source has nothing more.
+fn conformance(
+    name: &str,
+    sink: &mut dyn Sink<Skeleton3D>,
+    end: impl FnOnce() -> Box<dyn Source<Skeleton3D>>,
+    source: Option<&mut dyn Source<Skeleton3D>>,
+) {
+    let sent: Vec<Skeleton3D> = (0..8).map(skeleton).collect();
+    for (i, s) in sent.iter().enumerate() {
+        sink.send(s, 1_000 + i as u64).expect("send");
+    }
+    sink.flush().expect("flush");
+    let mut late;
+    let source: &mut dyn Source<Skeleton3D> = match source {
+        Some(s) => s,
+        None => {
+            late = end();
+            &mut *late
+        }
+    };
+    let got = receive(source, sent.len(), Duration::from_secs(10));
+    assert_eq!(
+        got.len(),
+        sent.len(),
+        "{name}: {} of {} arrived",
+        got.len(),
+        sent.len()
+    );
+    assert_eq!(got, sent, "{name}: not equal or out of order");
+    match source.recv(Duration::from_millis(200)).expect("recv") {
+        Received::Message(m, _) => panic!("{name}: an extra message {}", m.sequence),
+        Received::Idle | Received::Closed => {}
+    }
+}
+
+#[test]
+fn memory_channel_passes_the_conformance_suite() {
+    let (mut sink, mut source) = memory::channel(16);
+    conformance(
+        "memory",
+        &mut sink,
+        || unreachable!("live"),
+        Some(&mut source),
+    );
+}
+
+#[test]
+fn memory_channel_closes_when_every_sender_is_gone() {
+    let (sink, mut source) = memory::channel::<Skeleton3D>(4);
+    drop(sink);
+    assert_eq!(
+        source.recv(Duration::from_millis(10)).expect("recv"),
+        Received::Closed
+    );
+}
+
+#[test]
+fn mcap_recording_passes_the_conformance_suite() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("skeletons.mcap");
+    let recorder = SharedRecorder::create(&path).expect("recorder");
+    let mut sink = recorder.sink::<Skeleton3D>("/posestream/skeletons");
+    // Another topic in the same file must not leak into the source.
+    let mut other = recorder.sink::<Skeleton3D>("/posestream/ground_truth");
+    other.send(&skeleton(99), 1).expect("send");
+    conformance(
+        "mcap",
+        &mut sink,
+        || {
+            recorder.finish().expect("finish");
+            Box::new(McapSource::<Skeleton3D>::open(&path, "/posestream/skeletons").expect("open"))
+        },
+        None,
+    );
+}
+
+#[test]
+fn ros2_topic_passes_the_conformance_suite_on_loopback() {
+    let d = domain(0);
+    let mut publisher = loopback(d, "conformance_pub");
+    let mut subscriber = loopback(d, "conformance_sub");
+    let mut source = subscriber
+        .source::<Skeleton3D>("/posestream/skeletons")
+        .expect("subscription");
+    let mut sink = publisher
+        .sink::<Skeleton3D>("/posestream/skeletons")
+        .expect("publisher");
+    connect(&mut sink, &mut source, d);
+    conformance(
+        "ros2",
+        &mut sink,
+        || unreachable!("live"),
+        Some(&mut source),
+    );
+}
+
+/// An iceoryx2 service name of our own per test process and test.
+fn service(name: &str) -> String {
+    format!("posestream-test/{}/{name}", std::process::id())
+}
+
+#[test]
+fn iceoryx2_skeletons_pass_the_conformance_suite() {
+    let shm = Shm::new().expect("node");
+    let name = service("skeletons");
+    let mut source = shm.skeleton_source(&name).expect("subscriber");
+    let mut sink = shm.skeleton_sink(&name).expect("publisher");
+    conformance(
+        "iceoryx2",
+        &mut sink,
+        || unreachable!("live"),
+        Some(&mut source),
+    );
+}
+
+#[test]
+fn iceoryx2_heat_maps_arrive_equal() {
+    let shm = Shm::new().expect("node");
+    let name = service("heatmaps");
+    let mut source = shm.heatmaps_source(&name).expect("subscriber");
+    let mut sink = shm.heatmaps_sink(&name).expect("publisher");
+    let (p, h, w) = (3, 8, 5);
+    let values: Vec<f32> = (0..p * h * w).map(|i| i as f32 * 0.5).collect();
+    let sent = HeatMaps::from_values(
+        Header {
+            stamp: Time::from_nanos(123_456_789),
+            frame_id: "camera".into(),
+        },
+        42,
+        vec!["a".into(), "b".into(), "c".into()],
+        h as u32,
+        w as u32,
+        posestream::CropBox::new(10.0, 20.0, 64.0, 64.0).expect("crop"),
+        &values,
+        posestream::msgs::HeatMapEncoding::Float32,
+    );
+    sink.send(&sent, 0).expect("send");
+    match source.recv(Duration::from_secs(5)).expect("recv") {
+        Received::Message(got, stamp) => {
+            assert_eq!(got, sent);
+            assert_eq!(stamp, 123_456_789);
+        }
+        other => panic!("{other:?}"),
+    }
+    // A message that does not fit the layout is refused at the sender.
+    let mut too_many = sent.clone();
+    too_many.joint_names = vec!["j".into(); 33];
+    assert!(sink.send(&too_many, 0).is_err());
+}
+
+/// The Python `iceoryx2` binding reads our shared-memory skeletons with the documented
+/// C layout.
+#[test]
+fn iceoryx2_python_client_reads_our_skeletons() {
+    let name = service("python-skeletons");
+    let mut child = Command::new(common::python())
+        .arg(common::root().join("tests/python/shm_skeleton_subscriber.py"))
+        .args([name.as_str(), "5", "30"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .expect("python");
+    let mut lines = BufReader::new(child.stdout.take().expect("stdout")).lines();
+    let ready = lines.next().and_then(Result::ok).unwrap_or_default();
+    assert_eq!(
+        ready, "ready",
+        "the iceoryx2 client did not start (`pip install iceoryx2`, which .ci/run does)"
+    );
+    let shm = Shm::new().expect("node");
+    let mut sink = shm.skeleton_sink(&name).expect("publisher");
+    let publishing = std::thread::spawn(move || {
+        for seq in 0..600 {
+            if sink.send(&skeleton(seq), 0).is_err() {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    });
+    let decoded: Vec<serde_json::Value> = lines
+        .map(|l| serde_json::from_str(&l.expect("line")).expect("json"))
+        .collect();
+    let status = child.wait().expect("wait");
+    let _ = publishing.join();
+    assert!(status.success(), "the client got {} samples", decoded.len());
+    for v in &decoded {
+        let want = skeleton(v["sequence"].as_u64().expect("sequence"));
+        assert_eq!(v["stamp_ns"], want.header.stamp.nanos());
+        assert_eq!(v["frame_id"], want.header.frame_id.as_str());
+        assert_eq!(v["track_id"], want.track_id);
+        assert_eq!(
+            (v["lag"].clone(), v["state"].clone()),
+            (want.lag.into(), want.state.into())
+        );
+        assert_eq!(v["units"], want.units);
+        let strings: Vec<String> = v["joint_names"]
+            .as_array()
+            .expect("names")
+            .iter()
+            .map(|s| s.as_str().expect("str").to_string())
+            .collect();
+        assert_eq!(strings, want.joint_names);
+        let f64s = |k: &str| -> Vec<f64> {
+            v[k].as_array()
+                .expect(k)
+                .iter()
+                .map(|x| x.as_f64().expect("f64"))
+                .collect()
+        };
+        assert_eq!(f64s("positions"), want.positions);
+        assert_eq!(f64s("position_std"), want.position_std);
+        assert_eq!(f64s("keypoints"), want.keypoints);
+        assert_eq!(f64s("keypoint_std"), want.keypoint_std);
+        assert_eq!(f64s("projected"), want.projected);
+    }
+}
+
+/// Python `cyclonedds` (an independent DDS implementation, written against the `.msg`
+/// files) receives and decodes the skeletons we publish on ROS 2.
+#[test]
+fn cyclonedds_python_client_decodes_our_ros2_skeletons() {
+    let d = domain(1);
+    let mut child = Command::new(common::python())
+        .arg(common::root().join("tests/python/ros2_skeleton_subscriber.py"))
+        .args([&d.to_string(), "/posestream/skeletons", "5", "40"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .expect("python");
+    let mut lines = BufReader::new(child.stdout.take().expect("stdout")).lines();
+    let ready = lines.next().and_then(Result::ok).unwrap_or_default();
+    assert_eq!(
+        ready, "ready",
+        "the cyclonedds client did not start (`pip install cyclonedds`, which .ci/run does)"
+    );
+    let mut ros = loopback(d, "skeleton_pub");
+    let mut sink = ros
+        .sink::<Skeleton3D>("/posestream/skeletons")
+        .expect("publisher");
+    // Publish until the client has what it needs (discovery takes a moment).
+    let publishing = std::thread::spawn(move || {
+        for seq in 0..400 {
+            if sink.send(&skeleton(seq), 0).is_err() {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    });
+    let mut decoded = Vec::new();
+    for line in lines.by_ref() {
+        let line = line.expect("line");
+        decoded.push(serde_json::from_str::<serde_json::Value>(&line).expect("json"));
+    }
+    let status = child.wait().expect("wait");
+    drop(ros);
+    let _ = publishing.join();
+    assert!(
+        status.success(),
+        "the client got {} messages",
+        decoded.len()
+    );
+    assert!(decoded.len() >= 5);
+    for v in &decoded {
+        let seq = v["sequence"].as_u64().expect("sequence");
+        let want = skeleton(seq);
+        let f64s = |k: &str| -> Vec<f64> {
+            v[k].as_array()
+                .expect(k)
+                .iter()
+                .map(|x| x.as_f64().expect("f64"))
+                .collect()
+        };
+        assert_eq!(v["frame_id"], want.header.frame_id.as_str());
+        assert_eq!(v["stamp"][0], want.header.stamp.sec);
+        assert_eq!(v["stamp"][1], want.header.stamp.nanosec);
+        assert_eq!(v["track_id"], want.track_id);
+        assert_eq!(v["units"], want.units);
+        assert_eq!(v["lag"], want.lag);
+        assert_eq!(v["state"], want.state);
+        let names: Vec<String> = v["joint_names"]
+            .as_array()
+            .expect("names")
+            .iter()
+            .map(|s| s.as_str().expect("str").to_string())
+            .collect();
+        assert_eq!(names, want.joint_names);
+        assert_eq!(f64s("positions"), want.positions);
+        assert_eq!(f64s("position_std"), want.position_std);
+        assert_eq!(f64s("keypoints"), want.keypoints);
+        assert_eq!(f64s("keypoint_std"), want.keypoint_std);
+        assert_eq!(f64s("projected"), want.projected);
+    }
+}
