@@ -43,6 +43,17 @@ enum Command {
     /// Replay a recording (MCAP) of heat maps through the streaming estimator; record
     /// the skeletons to MCAP.
     Replay(cli::replay::ReplayArgs),
+    /// The detector node: publish heat maps (replay source: a recording) on the
+    /// configured outputs (ROS 2, iceoryx2, a recording).
+    Detector(cli::service::DetectorArgs),
+    /// The estimator node: heat maps from ROS 2 or iceoryx2 in, skeletons and markers
+    /// out on the configured outputs.
+    Estimator(cli::service::EstimatorArgs),
+    /// Detector and estimator in one process (in-memory channel), results on the
+    /// configured outputs.
+    Run(cli::service::RunArgs),
+    /// Record ROS 2 topics to an MCAP file (rosbag2-compatible).
+    Record(cli::service::RecordArgs),
 }
 
 #[derive(Debug, Args)]
@@ -277,6 +288,10 @@ fn main() -> ExitCode {
         Command::Synth(args) => cli::synth::run(&args),
         Command::Eval(args) => cli::eval::run(&args),
         Command::Replay(args) => cli::replay::run(&args),
+        Command::Detector(args) => cli::service::detector(&args),
+        Command::Estimator(args) => cli::service::estimator(&args),
+        Command::Run(args) => cli::service::run(&args),
+        Command::Record(args) => cli::service::record(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

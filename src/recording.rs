@@ -198,7 +198,7 @@ impl Recorder {
 }
 
 /// What a finished recording holds.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct RecordingSummary {
     /// The file.
     pub path: PathBuf,

@@ -25,6 +25,27 @@ fn every_msg_file_declares_exactly_the_fields_of_its_rust_type() {
     );
     assert_eq!(parse_definition(Header::DEFINITION), fields_of::<Header>());
     assert_eq!(parse_definition(Time::DEFINITION), fields_of::<Time>());
+    use posestream::msgs::visualization as v;
+    assert_eq!(
+        parse_definition(v::Marker::DEFINITION),
+        fields_of::<v::Marker>()
+    );
+    assert_eq!(
+        parse_definition(v::MarkerArray::DEFINITION),
+        fields_of::<v::MarkerArray>()
+    );
+    assert_eq!(
+        parse_definition(v::Pose::DEFINITION),
+        fields_of::<v::Pose>()
+    );
+    assert_eq!(
+        parse_definition(v::CompressedImage::DEFINITION),
+        fields_of::<v::CompressedImage>()
+    );
+    assert_eq!(
+        parse_definition(v::MeshFile::DEFINITION),
+        fields_of::<v::MeshFile>()
+    );
     // The files on disk are the ones compiled in (msgs/ is a ROS 2 package).
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
     for (file, text) in [

@@ -3,6 +3,7 @@
 pub mod eval;
 pub mod learn;
 pub mod replay;
+pub mod service;
 pub mod synth;
 
 pub(crate) use super::CliError;

@@ -1,6 +1,7 @@
 //! The wire messages of posestream (ROS 2 package `posestream_msgs`, in `msgs/`) and the
 //! ROS 2 standard messages they use (`std_msgs/Header`, `builtin_interfaces/Time`,
-//! mirrored from ROS 2 Humble's `std_msgs` and `builtin_interfaces` packages).
+//! mirrored from ROS 2 Humble's `std_msgs` and `builtin_interfaces` packages), plus
+//! `visualization_msgs/MarkerArray` ([`visualization`]) for RViz2 and Foxglove.
 //!
 //! Each message is declared once, with [`ros_message!`]: the macro writes the Rust struct
 //! (serde, so CDR comes from `cdr-encoding`) and its ROS field list, derived from the
@@ -14,9 +15,11 @@
 
 mod heatmaps;
 mod skeleton;
+pub mod visualization;
 
 pub use heatmaps::{HeatMapEncoding, HeatMaps};
 pub use skeleton::{Skeleton3D, SkeletonState, Units};
+pub use visualization::{Marker, MarkerArray};
 
 use byteorder::LittleEndian;
 use serde::Serialize;
@@ -147,7 +150,7 @@ macro_rules! ros_message {
             fn fields() -> Vec<$crate::msgs::Field> {
                 vec![$($crate::msgs::Field {
                     ros_type: <$ty as $crate::msgs::RosType>::ros_type(),
-                    name: stringify!($field),
+                    name: stringify!($field).trim_start_matches("r#"),
                 }),*]
             }
         }

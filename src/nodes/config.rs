@@ -1,5 +1,6 @@
 //! The service configuration (`config/default.toml`): every parameter of the estimator,
-//! the window, the topics and replay. Unknown keys are errors.
+//! the window, the detector's replay source, topics, ROS 2 (domain, QoS), iceoryx2
+//! services, outputs and replay. Unknown keys are errors.
 
 use std::path::{Path, PathBuf};
 
@@ -8,17 +9,84 @@ use serde::{Deserialize, Serialize};
 use crate::config::{ConfigError, load_toml};
 use crate::solver::Params;
 use crate::streaming::StreamSettings;
+use crate::transport::ros2::RosSettings;
+use crate::transport::shm::ShmSettings;
 
 /// The whole configuration.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
 #[serde(deny_unknown_fields, default)]
 pub struct ServiceConfig {
+    /// The detector node.
+    pub detector: DetectorConfig,
     /// The estimator node.
     pub estimator: EstimatorConfig,
     /// Topic names.
     pub topics: Topics,
+    /// Where the nodes publish.
+    pub outputs: OutputsConfig,
+    /// ROS 2: domain, node, QoS.
+    pub ros: RosSettings,
+    /// iceoryx2 shared memory: service names.
+    pub iceoryx2: ShmSettings,
     /// Replaying recordings.
     pub replay: ReplayConfig,
+}
+
+/// The detector node (`[detector]`): where heat maps come from. This version has the
+/// replay source (a recording of heat maps, e.g. from `posestream synth --mcap`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DetectorConfig {
+    /// A recording (MCAP) with heat maps on `topics.heatmaps`.
+    pub recording: PathBuf,
+    /// `recorded`: at the recorded pace, as a camera would; `fast`: as fast as the
+    /// readers take them.
+    pub rate: ReplayRate,
+}
+
+impl Default for DetectorConfig {
+    fn default() -> Self {
+        Self {
+            recording: PathBuf::from("recordings/byebye.mcap"),
+            rate: ReplayRate::Recorded,
+        }
+    }
+}
+
+/// Where the estimator node (`posestream estimator`) reads heat maps.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum Transport {
+    /// The ROS 2 topic `topics.heatmaps`.
+    Ros2,
+    /// The iceoryx2 service `iceoryx2.heatmaps`.
+    Iceoryx2,
+}
+
+/// `[outputs]`: where the nodes publish what they produce.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct OutputsConfig {
+    /// Publish on ROS 2 topics.
+    pub ros2: bool,
+    /// Publish on iceoryx2 services.
+    pub iceoryx2: bool,
+    /// Also publish skeletons as `visualization_msgs/MarkerArray` on `topics.markers`
+    /// (ROS 2 and recordings).
+    pub markers: bool,
+    /// Also record everything published to this MCAP file (empty: no recording).
+    pub record: PathBuf,
+}
+
+impl Default for OutputsConfig {
+    fn default() -> Self {
+        Self {
+            ros2: true,
+            iceoryx2: false,
+            markers: true,
+            record: PathBuf::new(),
+        }
+    }
 }
 
 impl ServiceConfig {
@@ -38,6 +106,8 @@ pub struct EstimatorConfig {
     pub params: Params,
     /// The sliding window (`[estimator.window]`).
     pub window: StreamSettings,
+    /// Where `posestream estimator` reads heat maps.
+    pub input: Transport,
 }
 
 impl Default for EstimatorConfig {
@@ -46,6 +116,7 @@ impl Default for EstimatorConfig {
             dictionary: PathBuf::from("config/dictionaries/default-k128.json"),
             params: Params::default(),
             window: StreamSettings::default(),
+            input: Transport::Ros2,
         }
     }
 }
@@ -58,6 +129,8 @@ pub struct Topics {
     pub heatmaps: String,
     /// Skeletons from the estimator.
     pub skeletons: String,
+    /// The skeletons as markers for RViz2 and Foxglove.
+    pub markers: String,
     /// Ground-truth skeletons in synthetic recordings.
     pub ground_truth: String,
 }
@@ -67,6 +140,7 @@ impl Default for Topics {
         Self {
             heatmaps: "/posestream/heatmaps".into(),
             skeletons: "/posestream/skeletons".into(),
+            markers: "/posestream/markers".into(),
             ground_truth: "/posestream/ground_truth".into(),
         }
     }

@@ -3,11 +3,16 @@
 //!
 //! - [`EstimatorNode`]: heat-map messages in, [`Skeleton3D`] messages out;
 //! - [`replay`]: a recording's heat maps through the estimator node, skeletons to a
-//!   recording.
+//!   recording;
+//! - [`service`]: the detector, estimator, pipeline and recorder loops over any
+//!   transport ([`crate::transport`]);
+//! - [`markers`]: skeletons as `visualization_msgs/MarkerArray`.
 
 pub mod config;
 pub mod latency;
+pub mod markers;
 pub mod replay;
+pub mod service;
 
 use std::collections::VecDeque;
 
@@ -107,6 +112,21 @@ impl EstimatorNode {
     /// Messages refused (undecodable, inconsistent or with unknown joints).
     pub fn malformed(&self) -> u64 {
         self.malformed
+    }
+
+    /// Counts a message the transport could not decode (it never reached the node).
+    pub fn count_malformed(&mut self) {
+        self.malformed += 1;
+    }
+
+    /// The window's settings.
+    pub fn settings(&self) -> &crate::streaming::StreamSettings {
+        self.window.settings()
+    }
+
+    /// The bones of the skeletons (joint index pairs), for drawing.
+    pub fn bones(&self) -> Vec<(usize, usize)> {
+        self.window.dictionary().skeleton().bones().collect()
     }
 
     /// Handles one encoded heat-map message; a bad one is counted and returned as an

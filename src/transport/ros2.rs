@@ -206,6 +206,17 @@ impl Ros2 {
         self.domain
     }
 
+    /// Subscriptions to `topic` that DDS discovery has seen so far (any node, this
+    /// process included).
+    pub fn subscriptions(&self, topic: &str) -> usize {
+        self.node.subscription_count(topic)
+    }
+
+    /// Publishers on `topic` that DDS discovery has seen so far.
+    pub fn publishers(&self, topic: &str) -> usize {
+        self.node.publisher_count(topic)
+    }
+
     fn topic<M: Message>(
         &mut self,
         topic: &str,
@@ -291,13 +302,6 @@ impl<M: Message> Sink<M> for Ros2Sink<M> {
                 topic: self.topic.clone(),
                 reason: e.to_string(),
             })
-    }
-}
-
-impl<M: Message> Ros2Sink<M> {
-    /// Subscriptions matched so far (as DDS discovery has seen them).
-    pub fn subscriptions(&self, ros: &Ros2) -> usize {
-        self.publisher.get_subscription_count(&ros.node)
     }
 }
 

@@ -15,7 +15,7 @@ def read_mcap(path, allow_truncated):
 
     factory = DecoderFactory()
     schemas, channels, decoders = {}, {}, {}
-    out = {"topics": {}, "schemas": {}, "skeletons": [], "heatmaps": [], "error": None}
+    out = {"topics": {}, "schemas": {}, "skeletons": [], "heatmaps": [], "markers": [], "error": None}
 
     def handle(msg):
         channel = channels[msg.channel_id]
@@ -41,6 +41,23 @@ def read_mcap(path, allow_truncated):
                     "state": decoded.state,
                     "units": decoded.units,
                 }
+            )
+        if schema.name == "visualization_msgs/msg/MarkerArray" and len(out["markers"]) < 5:
+            out["markers"].append(
+                [
+                    {
+                        "ns": m.ns,
+                        "id": m.id,
+                        "type": m.type,
+                        "frame_id": m.header.frame_id,
+                        "points": [[p.x, p.y, p.z] for p in m.points],
+                        "scale": [m.scale.x, m.scale.y, m.scale.z],
+                        "color": [m.color.r, m.color.g, m.color.b, m.color.a],
+                        "orientation_w": m.pose.orientation.w,
+                        "lifetime": [m.lifetime.sec, m.lifetime.nanosec],
+                    }
+                    for m in decoded.markers
+                ]
             )
         if schema.name == "posestream_msgs/msg/HeatMaps" and len(out["heatmaps"]) < 3:
             out["heatmaps"].append(

@@ -1,0 +1,281 @@
+//! `posestream detector`, `estimator`, `run` and `record`: the nodes as services.
+//! Each reads the service configuration (`--config`), stops cleanly on Ctrl-C (outputs
+//! finalised) and prints a report (`--json` for machines).
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use clap::Args;
+use posestream::msgs::{HeatMaps, MarkerArray, Skeleton3D};
+use posestream::nodes::config::{ReplayRate, Transport};
+use posestream::nodes::service::{
+    self, EstimatorOutputs, Middleware, record_step, run_detector, run_estimator,
+};
+use posestream::nodes::{EstimatorNode, ServiceConfig};
+use posestream::recording::write_rosbag2_metadata;
+use posestream::transport::mcap::SharedRecorder;
+use posestream::transport::ros2::Ros2;
+use serde::Serialize;
+
+use super::CliError;
+
+fn load(path: &PathBuf) -> Result<ServiceConfig, CliError> {
+    ServiceConfig::load(path).map_err(|e| CliError::Input(e.to_string()))
+}
+
+/// A flag set by Ctrl-C.
+fn stop_flag() -> Arc<AtomicBool> {
+    let stop = Arc::new(AtomicBool::new(false));
+    let flag = stop.clone();
+    // Without a handler (one is installed already), Ctrl-C simply ends the process.
+    let _ = ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed));
+    stop
+}
+
+fn err(e: impl ToString) -> CliError {
+    CliError::Input(e.to_string())
+}
+
+fn print<T: Serialize + std::fmt::Debug>(json: bool, report: &T) -> Result<(), CliError> {
+    if json {
+        let text = serde_json::to_string_pretty(report).map_err(err)?;
+        println!("{text}");
+    } else {
+        println!("{report:#?}");
+    }
+    Ok(())
+}
+
+/// Options of `detector`.
+#[derive(Debug, Args)]
+pub struct DetectorArgs {
+    /// Service configuration.
+    #[arg(long, default_value = "config/default.toml")]
+    pub config: PathBuf,
+    /// Recording of heat maps to publish (overrides `detector.recording`).
+    #[arg(long)]
+    pub recording: Option<PathBuf>,
+    /// Pace (overrides `detector.rate`).
+    #[arg(long, value_enum)]
+    pub rate: Option<ReplayRate>,
+    /// Print the report as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Runs `detector`: the replay source publishing heat maps to `[outputs]`.
+pub fn detector(args: &DetectorArgs) -> Result<(), CliError> {
+    let config = load(&args.config)?;
+    let stop = stop_flag();
+    let mut middleware = Middleware::open(&config, None).map_err(err)?;
+    let recorder = service::output_recording(&config).map_err(err)?;
+    let mut sinks =
+        service::detector_outputs(&config, &mut middleware, recorder.as_ref()).map_err(err)?;
+    if sinks.is_empty() {
+        return Err(err(
+            "no outputs: enable ros2, iceoryx2 or record in [outputs]",
+        ));
+    }
+    let path = args
+        .recording
+        .clone()
+        .unwrap_or(config.detector.recording.clone());
+    let mut source = service::recording_source(&config, &path).map_err(err)?;
+    let report = run_detector(
+        &mut source,
+        &mut sinks,
+        args.rate.unwrap_or(config.detector.rate),
+        &stop,
+    );
+    drop(sinks);
+    if let Some(r) = recorder {
+        r.finish()?;
+    }
+    print(args.json, &report)
+}
+
+/// Options of `estimator`.
+#[derive(Debug, Args)]
+pub struct EstimatorArgs {
+    /// Service configuration.
+    #[arg(long, default_value = "config/default.toml")]
+    pub config: PathBuf,
+    /// Where to read heat maps (overrides `estimator.input`).
+    #[arg(long, value_enum)]
+    pub input: Option<Transport>,
+    /// Stop after this many seconds (default: until Ctrl-C).
+    #[arg(long)]
+    pub duration: Option<f64>,
+    /// Print the report as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Runs `estimator`: heat maps from ROS 2 or iceoryx2, skeletons to `[outputs]`.
+pub fn estimator(args: &EstimatorArgs) -> Result<(), CliError> {
+    let config = load(&args.config)?;
+    let stop = stop_flag();
+    let input = args.input.unwrap_or(config.estimator.input);
+    let mut node = EstimatorNode::from_config(&config.estimator).map_err(err)?;
+    let mut middleware = Middleware::open(&config, Some(input)).map_err(err)?;
+    let recorder = service::output_recording(&config).map_err(err)?;
+    let mut outputs =
+        EstimatorOutputs::open(&config, &mut middleware, recorder.as_ref(), node.bones())
+            .map_err(err)?;
+    let mut source = middleware.heatmaps_source(&config, input).map_err(err)?;
+    stop_after(args.duration, &stop);
+    let report = run_estimator(&mut node, &mut source, &mut outputs, &stop);
+    drop(outputs);
+    if let Some(r) = recorder {
+        r.finish()?;
+    }
+    print(args.json, &report)
+}
+
+/// Sets `stop` after `seconds`, if given.
+fn stop_after(seconds: Option<f64>, stop: &Arc<AtomicBool>) {
+    if let Some(s) = seconds.filter(|s| s.is_finite() && *s >= 0.0) {
+        let stop = stop.clone();
+        let _ = std::thread::Builder::new()
+            .name("timer".into())
+            .spawn(move || {
+                std::thread::sleep(Duration::from_secs_f64(s));
+                stop.store(true, Ordering::Relaxed);
+            });
+    }
+}
+
+/// Options of `run`.
+#[derive(Debug, Args)]
+pub struct RunArgs {
+    /// Service configuration.
+    #[arg(long, default_value = "config/default.toml")]
+    pub config: PathBuf,
+    /// Recording of heat maps to replay (overrides `detector.recording`).
+    #[arg(long)]
+    pub input: Option<PathBuf>,
+    /// Record the outputs to this MCAP file (overrides `outputs.record`).
+    #[arg(long)]
+    pub record: Option<PathBuf>,
+    /// Pace (overrides `detector.rate`).
+    #[arg(long, value_enum)]
+    pub rate: Option<ReplayRate>,
+    /// Print the report as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Runs `run`: detector and estimator in one process.
+pub fn run(args: &RunArgs) -> Result<(), CliError> {
+    let mut config = load(&args.config)?;
+    if let Some(r) = &args.record {
+        config.outputs.record = r.clone();
+    }
+    if let Some(rate) = args.rate {
+        config.detector.rate = rate;
+    }
+    let input = args
+        .input
+        .clone()
+        .unwrap_or(config.detector.recording.clone());
+    let stop = stop_flag();
+    let report = service::run_pipeline(&config, &input, &stop).map_err(err)?;
+    print(args.json, &report)
+}
+
+/// Options of `record`.
+#[derive(Debug, Args)]
+pub struct RecordArgs {
+    /// Output recording (MCAP).
+    pub out: PathBuf,
+    /// Service configuration (topics, ROS 2 domain and QoS).
+    #[arg(long, default_value = "config/default.toml")]
+    pub config: PathBuf,
+    /// Topics to record.
+    #[arg(long, value_enum, value_delimiter = ',', default_values = ["skeletons", "markers"])]
+    pub topics: Vec<RecordTopic>,
+    /// Stop after this many seconds (default: until Ctrl-C).
+    #[arg(long)]
+    pub duration: Option<f64>,
+    /// Stop after this many messages.
+    #[arg(long)]
+    pub count: Option<u64>,
+    /// Also write a rosbag2 `metadata.yaml` next to the recording.
+    #[arg(long)]
+    pub rosbag2: bool,
+    /// Print the report as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// A topic `record` can take.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum RecordTopic {
+    /// `topics.heatmaps` (posestream_msgs/HeatMaps).
+    Heatmaps,
+    /// `topics.skeletons` (posestream_msgs/Skeleton3D).
+    Skeletons,
+    /// `topics.markers` (visualization_msgs/MarkerArray).
+    Markers,
+}
+
+#[derive(Debug, Serialize)]
+struct RecordReport {
+    messages: Vec<(String, u64)>,
+    output: PathBuf,
+}
+
+/// Runs `record`: ROS 2 topics into an MCAP recording.
+pub fn record(args: &RecordArgs) -> Result<(), CliError> {
+    let config = load(&args.config)?;
+    let stop = stop_flag();
+    let mut ros = Ros2::new(&config.ros).map_err(err)?;
+    let recorder = SharedRecorder::create(&args.out)?;
+    let mut steps = Vec::new();
+    for topic in &args.topics {
+        let t = &config.topics;
+        let step = match topic {
+            RecordTopic::Heatmaps => (
+                t.heatmaps.clone(),
+                record_step(
+                    ros.source::<HeatMaps>(&t.heatmaps).map_err(err)?,
+                    recorder.sink::<HeatMaps>(&t.heatmaps),
+                ),
+            ),
+            RecordTopic::Skeletons => (
+                t.skeletons.clone(),
+                record_step(
+                    ros.source::<Skeleton3D>(&t.skeletons).map_err(err)?,
+                    recorder.sink::<Skeleton3D>(&t.skeletons),
+                ),
+            ),
+            RecordTopic::Markers => (
+                t.markers.clone(),
+                record_step(
+                    ros.source::<MarkerArray>(&t.markers).map_err(err)?,
+                    recorder.sink::<MarkerArray>(&t.markers),
+                ),
+            ),
+        };
+        steps.push(step);
+    }
+    let duration = args
+        .duration
+        .filter(|d| d.is_finite() && *d >= 0.0)
+        .map(Duration::from_secs_f64);
+    let messages = service::run_recorder(&mut steps, &stop, duration, args.count);
+    drop(steps);
+    let summary = recorder.finish()?;
+    if args.rosbag2 {
+        write_rosbag2_metadata(&summary)?;
+    }
+    print(
+        args.json,
+        &RecordReport {
+            messages,
+            output: summary.path,
+        },
+    )
+}

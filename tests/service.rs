@@ -1,0 +1,212 @@
+//! The nodes as services: the in-process pipeline, and detector -> estimator over ROS 2
+//! and over iceoryx2 shared memory, each recording what it publishes.
+
+mod common;
+
+use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use common::{python_client, recording, root};
+use posestream::msgs::{MarkerArray, Skeleton3D};
+use posestream::nodes::config::{ReplayRate, Transport};
+use posestream::nodes::replay::{ReplayOptions, replay};
+use posestream::nodes::service::{
+    self, EstimatorOutputs, Middleware, run_detector, run_estimator, run_pipeline,
+};
+use posestream::nodes::{EstimatorNode, ServiceConfig};
+use posestream::recording::read_topic;
+use posestream::transport::{Received, Source};
+
+fn config() -> ServiceConfig {
+    let mut c = ServiceConfig::load(root().join("config/default.toml")).expect("config");
+    c.estimator.dictionary = root().join(&c.estimator.dictionary);
+    c.outputs.ros2 = false;
+    c
+}
+
+fn skeletons(path: &Path) -> Vec<Skeleton3D> {
+    read_topic::<Skeleton3D>(path, "/posestream/skeletons")
+        .expect("reads")
+        .into_iter()
+        .map(|(_, s)| s)
+        .collect()
+}
+
+#[test]
+fn the_pipeline_publishes_what_replay_computes_and_markers_that_python_decodes() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut c = config();
+    c.outputs.record = dir.path().join("run.mcap");
+    c.detector.rate = ReplayRate::Fast;
+    let input = recording("byebye.mcap");
+    let report = run_pipeline(&c, &input, &AtomicBool::new(false)).expect("pipeline");
+    assert_eq!(report.detector.published, 121);
+    assert_eq!(report.estimator.frames, 121);
+    assert_eq!(report.estimator.skeletons, 242);
+    let replayed = dir.path().join("replay.mcap");
+    replay(
+        &c,
+        &input,
+        &ReplayOptions {
+            record: Some(replayed.clone()),
+            rosbag2: false,
+            rate: ReplayRate::Fast,
+        },
+        &AtomicBool::new(false),
+    )
+    .expect("replay");
+    // The same node behind another transport: the same skeletons.
+    assert_eq!(skeletons(&c.outputs.record), skeletons(&replayed));
+    let markers =
+        read_topic::<MarkerArray>(&c.outputs.record, "/posestream/markers").expect("reads");
+    assert_eq!(markers.len(), 242);
+    let out = python_client(
+        "read_recording.py",
+        &[c.outputs.record.to_str().expect("utf-8")],
+    );
+    assert_eq!(out["topics"]["/posestream/markers"], 242);
+    let first = &out["markers"][0];
+    let bones = first[0]["points"].as_array().expect("points").len();
+    let joints = first[1]["points"].as_array().expect("points").len();
+    assert_eq!(
+        (first[0]["type"].clone(), first[1]["type"].clone()),
+        (5.into(), 7.into())
+    );
+    assert_eq!(joints, 17);
+    assert_eq!(
+        bones,
+        2 * 16,
+        "one segment per bone of the 17-joint skeleton"
+    );
+    assert_eq!(first[0]["frame_id"], "camera");
+}
+
+/// Runs an estimator service on `input` in a thread until `stop`; returns its report.
+fn spawn_estimator(
+    c: &ServiceConfig,
+    input: Transport,
+    stop: &'static AtomicBool,
+) -> std::thread::JoinHandle<service::EstimatorReport> {
+    let c = c.clone();
+    let mut node = EstimatorNode::from_config(&c.estimator).expect("node");
+    let mut middleware = Middleware::open(&c, Some(input)).expect("middleware");
+    let recorder = service::output_recording(&c).expect("recording");
+    let mut outputs = EstimatorOutputs::open(&c, &mut middleware, recorder.as_ref(), node.bones())
+        .expect("outputs");
+    let mut source = middleware.heatmaps_source(&c, input).expect("source");
+    std::thread::spawn(move || {
+        let report = run_estimator(&mut node, &mut source, &mut outputs, stop);
+        drop(outputs);
+        drop(middleware);
+        if let Some(r) = recorder {
+            r.finish().expect("finish");
+        }
+        report
+    })
+}
+
+fn detector(c: &ServiceConfig) -> (Middleware, service::Publishers<posestream::msgs::HeatMaps>) {
+    let mut middleware = Middleware::open(c, None).expect("middleware");
+    let sinks = service::detector_outputs(c, &mut middleware, None).expect("outputs");
+    (middleware, sinks)
+}
+
+#[test]
+fn detector_and_estimator_nodes_talk_over_ros2() {
+    static STOP: AtomicBool = AtomicBool::new(false);
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut c = config();
+    c.ros.localhost_only = true;
+    c.ros.domain_id = (std::process::id() % 90) as u16 + 10;
+    // The estimator publishes its skeletons on ROS 2 and records them; the detector
+    // publishes heat maps on ROS 2 only.
+    let mut est = c.clone();
+    est.outputs.ros2 = true;
+    est.outputs.record = dir.path().join("estimator.mcap");
+    est.ros.node_name = "estimator".into();
+    let estimator = spawn_estimator(&est, Transport::Ros2, &STOP);
+    // A third node listens to the skeletons, as they come.
+    let mut listener = posestream::transport::ros2::Ros2::new(&c.ros).expect("ros");
+    let mut heard = listener
+        .source::<Skeleton3D>(&c.topics.skeletons)
+        .expect("subscription");
+    let listening = std::thread::spawn(move || {
+        let mut received = 0;
+        let until = Instant::now() + Duration::from_secs(25);
+        while received < 242 && Instant::now() < until && !STOP.load(Ordering::Relaxed) {
+            if let Received::Message(..) = heard.recv(Duration::from_millis(50)).expect("recv") {
+                received += 1;
+            }
+        }
+        drop(listener);
+        received
+    });
+    let mut det = c.clone();
+    det.outputs.ros2 = true;
+    det.ros.node_name = "detector".into();
+    let (ros, mut sinks) = detector(&det);
+    let start = Instant::now();
+    let ros2 = ros.ros.as_ref().expect("ros");
+    while ros2.subscriptions(&c.topics.heatmaps) == 0 {
+        assert!(
+            start.elapsed() < Duration::from_secs(30),
+            "no estimator discovered"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    // Matching completes on both sides shortly after discovery.
+    std::thread::sleep(Duration::from_millis(500));
+    let mut source = service::recording_source(&c, &recording("byebye.mcap")).expect("source");
+    let report = run_detector(
+        &mut source,
+        &mut sinks,
+        ReplayRate::Recorded,
+        &AtomicBool::new(false),
+    );
+    assert_eq!(report.published, 121);
+    // More than max_gap_seconds without frames: the estimator ends the track itself.
+    std::thread::sleep(Duration::from_millis(2000));
+    STOP.store(true, Ordering::Relaxed);
+    let received = listening.join().expect("listener");
+    let report = estimator.join().expect("estimator");
+    assert_eq!(report.frames, 121, "reliable QoS: every frame arrives");
+    assert_eq!(report.skeletons, 242);
+    assert_eq!(skeletons(&est.outputs.record).len(), 242);
+    assert_eq!(
+        received, 242,
+        "the listener heard {received} of 242 skeletons"
+    );
+    drop(ros);
+}
+
+#[test]
+fn detector_and_estimator_nodes_talk_over_iceoryx2() {
+    static STOP: AtomicBool = AtomicBool::new(false);
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut c = config();
+    c.iceoryx2.heatmaps = format!("posestream-test/{}/service-heatmaps", std::process::id());
+    c.iceoryx2.skeletons = format!("posestream-test/{}/service-skeletons", std::process::id());
+    let mut est = c.clone();
+    est.outputs.iceoryx2 = true;
+    est.outputs.record = dir.path().join("estimator.mcap");
+    // The subscriber exists before the detector publishes.
+    let estimator = spawn_estimator(&est, Transport::Iceoryx2, &STOP);
+    let mut det = c.clone();
+    det.outputs.iceoryx2 = true;
+    let (shm, mut sinks) = detector(&det);
+    let mut source = service::recording_source(&c, &recording("kick.mcap")).expect("source");
+    let report = run_detector(
+        &mut source,
+        &mut sinks,
+        ReplayRate::Recorded,
+        &AtomicBool::new(false),
+    );
+    assert_eq!(report.published, 150);
+    std::thread::sleep(Duration::from_millis(1500));
+    STOP.store(true, Ordering::Relaxed);
+    let report = estimator.join().expect("estimator");
+    assert_eq!(report.frames, 150);
+    assert_eq!(skeletons(&est.outputs.record).len(), 300);
+    drop(shm);
+}
