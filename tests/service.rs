@@ -210,3 +210,76 @@ fn detector_and_estimator_nodes_talk_over_iceoryx2() {
     assert_eq!(skeletons(&est.outputs.record).len(), 300);
     drop(shm);
 }
+
+/// `posestream record` subscribes on ROS 2 and writes what it hears to a recording.
+#[test]
+fn the_record_command_records_ros2_topics() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut c = config();
+    c.ros.localhost_only = true;
+    c.ros.domain_id = (std::process::id() % 90) as u16 + 130;
+    let cfg = dir.path().join("config.toml");
+    std::fs::write(&cfg, toml::to_string(&c).expect("toml")).expect("write");
+    let out = dir.path().join("recorded.mcap");
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_posestream"))
+        .args([
+            "record",
+            out.to_str().expect("utf-8"),
+            "--topics",
+            "skeletons",
+        ])
+        .args(["--count", "20", "--duration", "60", "--json", "--config"])
+        .arg(&cfg)
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .expect("posestream record");
+    let mut ros = posestream::transport::ros2::Ros2::new(&c.ros).expect("ros");
+    let mut sink = ros
+        .sink::<Skeleton3D>(&c.topics.skeletons)
+        .expect("publisher");
+    let start = Instant::now();
+    let mut seq = 0_u64;
+    let status = loop {
+        if let Some(status) = child.try_wait().expect("wait") {
+            break status;
+        }
+        assert!(
+            start.elapsed() < Duration::from_secs(60),
+            "record did not finish"
+        );
+        let s = Skeleton3D {
+            sequence: seq,
+            joint_names: vec!["a".into()],
+            positions: vec![seq as f64, 1.0, 2.0],
+            ..Skeleton3D::default()
+        };
+        posestream::transport::Sink::send(&mut sink, &s, 0).expect("send");
+        seq += 1;
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    assert!(status.success());
+    let got = skeletons(&out);
+    assert_eq!(got.len(), 20);
+    for s in &got {
+        assert_eq!(s.positions, vec![s.sequence as f64, 1.0, 2.0]);
+    }
+    assert!(got.windows(2).all(|w| w[0].sequence < w[1].sequence));
+}
+
+#[test]
+fn a_malformed_ros_domain_id_is_one_clear_error() {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_posestream"))
+        .args(["estimator", "--duration", "1"])
+        .env("ROS_DOMAIN_ID", "seven")
+        .current_dir(root())
+        .output()
+        .expect("posestream estimator");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        stderr.contains("ROS_DOMAIN_ID=\"seven\" is not a number"),
+        "{stderr}"
+    );
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert_eq!(stderr.lines().count(), 1, "{stderr}");
+}

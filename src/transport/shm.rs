@@ -6,7 +6,8 @@
 //!   [`HeatMapsHeader`] user header.
 //!
 //! Both are `#[repr(C)]` plain data (no pointers), so C, C++ and Python clients read
-//! them with a struct of the same layout; `msgs/SHARED_MEMORY.md` documents it and
+//! them with a struct of the same layout; `msgs/SHARED_MEMORY.md` documents it (a test
+//! checks the offsets there) and
 //! `tests/transport.rs` reads our skeletons with the Python `iceoryx2` binding.
 //! Unused joint slots and name bytes are zero; names are NUL-padded UTF-8.
 
@@ -581,12 +582,62 @@ impl Source<HeatMaps> for ShmHeatMapsSource {
 mod tests {
     use super::*;
 
+    /// The tables of `msgs/SHARED_MEMORY.md`.
     #[test]
     fn payload_layouts_are_the_documented_ones() {
-        assert_eq!(std::mem::size_of::<SkeletonSample>(), 3168);
-        assert_eq!(std::mem::align_of::<SkeletonSample>(), 8);
-        assert_eq!(std::mem::size_of::<HeatMapsHeader>(), 896);
-        assert_eq!(std::mem::align_of::<HeatMapsHeader>(), 8);
+        use std::mem::{align_of, offset_of, size_of};
+        assert_eq!(
+            (size_of::<SkeletonSample>(), align_of::<SkeletonSample>()),
+            (3168, 8)
+        );
+        let s = [
+            offset_of!(SkeletonSample, stamp_ns),
+            offset_of!(SkeletonSample, sequence),
+            offset_of!(SkeletonSample, track_id),
+            offset_of!(SkeletonSample, joints),
+            offset_of!(SkeletonSample, lag),
+            offset_of!(SkeletonSample, state),
+            offset_of!(SkeletonSample, units),
+            offset_of!(SkeletonSample, reserved),
+            offset_of!(SkeletonSample, frame_id),
+            offset_of!(SkeletonSample, joint_names),
+            offset_of!(SkeletonSample, positions),
+            offset_of!(SkeletonSample, position_std),
+            offset_of!(SkeletonSample, keypoints),
+            offset_of!(SkeletonSample, keypoint_std),
+            offset_of!(SkeletonSample, projected),
+        ];
+        assert_eq!(
+            s,
+            [
+                0, 8, 16, 20, 24, 28, 29, 30, 32, 96, 864, 1632, 1888, 2400, 2656
+            ]
+        );
+        assert_eq!(
+            (size_of::<HeatMapsHeader>(), align_of::<HeatMapsHeader>()),
+            (896, 8)
+        );
+        let h = [
+            offset_of!(HeatMapsHeader, stamp_ns),
+            offset_of!(HeatMapsHeader, sequence),
+            offset_of!(HeatMapsHeader, track_id),
+            offset_of!(HeatMapsHeader, joints),
+            offset_of!(HeatMapsHeader, height),
+            offset_of!(HeatMapsHeader, width),
+            offset_of!(HeatMapsHeader, crop),
+            offset_of!(HeatMapsHeader, frame_id),
+            offset_of!(HeatMapsHeader, joint_names),
+        ];
+        assert_eq!(h, [0, 8, 16, 20, 24, 28, 32, 64, 128]);
+        let doc = include_str!("../../msgs/SHARED_MEMORY.md");
+        for line in [
+            "| 2656 | `projected`",
+            "| 128 | `joint_names`",
+            "3,168 bytes",
+            "896 bytes",
+        ] {
+            assert!(doc.contains(line), "{line}");
+        }
     }
 
     #[test]
