@@ -38,12 +38,79 @@ fn err(e: impl ToString) -> CliError {
     CliError::Input(e.to_string())
 }
 
-fn print<T: Serialize + std::fmt::Debug>(json: bool, report: &T) -> Result<(), CliError> {
+/// A report's one-paragraph summary for people (`--json` prints all of it).
+trait Summary {
+    fn summary(&self) -> String;
+}
+
+impl Summary for service::EstimatorReport {
+    fn summary(&self) -> String {
+        let (c, u) = (self.counters, self.update);
+        let mut text = format!(
+            "{} frames -> {} skeletons; update median {:.2} ms, p99 {:.2} ms; \
+             {} malformed, {} late, {} missing, {} resets, {} failed sends",
+            self.frames,
+            self.skeletons,
+            u.median_ms,
+            u.p99_ms,
+            self.malformed,
+            c.late,
+            c.missing,
+            c.resets,
+            self.failed_sends
+        );
+        if let Some(e) = &self.input_error {
+            text.push_str(&format!("\ninput ended early: {e}"));
+        }
+        text
+    }
+}
+
+impl Summary for service::DetectorReport {
+    fn summary(&self) -> String {
+        let mut text = format!(
+            "published {} heat-map messages; {} malformed skipped, {} failed sends",
+            self.published, self.malformed, self.failed_sends
+        );
+        if let Some(e) = &self.input_error {
+            text.push_str(&format!("\ninput ended early: {e}"));
+        }
+        text
+    }
+}
+
+impl Summary for service::PipelineReport {
+    fn summary(&self) -> String {
+        let mut text = format!(
+            "detector: {}\nestimator: {}\n{:.2} s",
+            self.detector.summary(),
+            self.estimator.summary(),
+            self.seconds
+        );
+        if let Some(r) = &self.recording {
+            text.push_str(&format!("\nrecorded -> {}", r.path.display()));
+        }
+        text
+    }
+}
+
+impl Summary for RecordReport {
+    fn summary(&self) -> String {
+        let counts: Vec<String> = self
+            .messages
+            .iter()
+            .map(|(t, n)| format!("{t}: {n}"))
+            .collect();
+        format!("{} -> {}", counts.join(", "), self.output.display())
+    }
+}
+
+fn print<T: Serialize + Summary>(json: bool, report: &T) -> Result<(), CliError> {
     if json {
         let text = serde_json::to_string_pretty(report).map_err(err)?;
         println!("{text}");
     } else {
-        println!("{report:#?}");
+        println!("{}", report.summary());
     }
     Ok(())
 }

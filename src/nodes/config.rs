@@ -171,3 +171,45 @@ pub enum ReplayRate {
     /// At the recorded pace (log times).
     Recorded,
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `config/default.toml` lists every key with its default value.
+    #[test]
+    fn the_shipped_configuration_is_the_default_one_and_lists_every_key() {
+        let text = include_str!("../../config/default.toml");
+        let parsed: ServiceConfig = toml::from_str(text).expect("parses");
+        assert_eq!(parsed, ServiceConfig::default());
+        // Every key of the default, serialised, appears in the file.
+        let full = toml::to_string(&ServiceConfig::default()).expect("serialises");
+        let mut section = String::new();
+        for line in full.lines() {
+            if line.starts_with('[') {
+                section = line.to_string();
+                assert!(text.contains(line), "section {line} missing");
+            } else if let Some((key, _)) = line.split_once(" = ") {
+                let listed = text
+                    .lines()
+                    .any(|l| l.trim_start().starts_with(&format!("{key} = ")));
+                // `init` is optional (None): listed commented out.
+                assert!(listed || key == "init", "{section} {key} missing");
+            }
+        }
+    }
+
+    #[test]
+    fn unknown_keys_and_bad_values_are_errors() {
+        for bad in [
+            "[ros.qos]\nreliabilty = \"reliable\"\n",
+            "[ros.qos]\nreliability = \"sometimes\"\n",
+            "[outputs]\nshm = true\n",
+            "[iceoryx2]\nskeleton = \"x\"\n",
+            "[detector]\nrate = \"slow\"\n",
+            "[estimator]\ninput = \"zenoh\"\n",
+        ] {
+            assert!(toml::from_str::<ServiceConfig>(bad).is_err(), "{bad}");
+        }
+    }
+}
