@@ -243,65 +243,15 @@ fn iceoryx2_heat_maps_arrive_equal() {
 #[test]
 fn iceoryx2_python_client_reads_our_skeletons() {
     let name = service("python-skeletons");
-    let mut child = Command::new(common::python())
-        .arg(common::root().join("tests/python/shm_skeleton_subscriber.py"))
-        .args([name.as_str(), "5", "30"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .expect("python");
-    let mut lines = BufReader::new(child.stdout.take().expect("stdout")).lines();
-    let ready = lines.next().and_then(Result::ok).unwrap_or_default();
-    assert_eq!(
-        ready, "ready",
-        "the iceoryx2 client did not start (`pip install iceoryx2`, which .ci/run does)"
+    let client = PythonSubscriber::start(
+        "shm_skeleton_subscriber.py",
+        &[&name, "5", "30"],
+        "iceoryx2",
     );
     let shm = Shm::new().expect("node");
-    let mut sink = shm.skeleton_sink(&name).expect("publisher");
-    let publishing = std::thread::spawn(move || {
-        for seq in 0..600 {
-            if sink.send(&skeleton(seq), 0).is_err() {
-                break;
-            }
-            std::thread::sleep(Duration::from_millis(20));
-        }
-    });
-    let decoded: Vec<serde_json::Value> = lines
-        .map(|l| serde_json::from_str(&l.expect("line")).expect("json"))
-        .collect();
-    let status = child.wait().expect("wait");
-    let _ = publishing.join();
-    assert!(status.success(), "the client got {} samples", decoded.len());
-    for v in &decoded {
-        let want = skeleton(v["sequence"].as_u64().expect("sequence"));
-        assert_eq!(v["stamp_ns"], want.header.stamp.nanos());
-        assert_eq!(v["frame_id"], want.header.frame_id.as_str());
-        assert_eq!(v["track_id"], want.track_id);
-        assert_eq!(
-            (v["lag"].clone(), v["state"].clone()),
-            (want.lag.into(), want.state.into())
-        );
-        assert_eq!(v["units"], want.units);
-        let strings: Vec<String> = v["joint_names"]
-            .as_array()
-            .expect("names")
-            .iter()
-            .map(|s| s.as_str().expect("str").to_string())
-            .collect();
-        assert_eq!(strings, want.joint_names);
-        let f64s = |k: &str| -> Vec<f64> {
-            v[k].as_array()
-                .expect(k)
-                .iter()
-                .map(|x| x.as_f64().expect("f64"))
-                .collect()
-        };
-        assert_eq!(f64s("positions"), want.positions);
-        assert_eq!(f64s("position_std"), want.position_std);
-        assert_eq!(f64s("keypoints"), want.keypoints);
-        assert_eq!(f64s("keypoint_std"), want.keypoint_std);
-        assert_eq!(f64s("projected"), want.projected);
-    }
+    let sink = shm.skeleton_sink(&name).expect("publisher");
+    let decoded = client.collect_while_publishing(sink, Duration::from_millis(20));
+    decoded.iter().for_each(assert_is_our_skeleton);
 }
 
 /// Python `cyclonedds` (an independent DDS implementation, written against the `.msg`
@@ -309,74 +259,103 @@ fn iceoryx2_python_client_reads_our_skeletons() {
 #[test]
 fn cyclonedds_python_client_decodes_our_ros2_skeletons() {
     let d = domain(1);
-    let mut child = Command::new(common::python())
-        .arg(common::root().join("tests/python/ros2_skeleton_subscriber.py"))
-        .args([&d.to_string(), "/posestream/skeletons", "5", "40"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .expect("python");
-    let mut lines = BufReader::new(child.stdout.take().expect("stdout")).lines();
-    let ready = lines.next().and_then(Result::ok).unwrap_or_default();
-    assert_eq!(
-        ready, "ready",
-        "the cyclonedds client did not start (`pip install cyclonedds`, which .ci/run does)"
+    let client = PythonSubscriber::start(
+        "ros2_skeleton_subscriber.py",
+        &[&d.to_string(), "/posestream/skeletons", "5", "40"],
+        "cyclonedds",
     );
     let mut ros = loopback(d, "skeleton_pub");
-    let mut sink = ros
+    let sink = ros
         .sink::<Skeleton3D>("/posestream/skeletons")
         .expect("publisher");
     // Publish until the client has what it needs (discovery takes a moment).
-    let publishing = std::thread::spawn(move || {
-        for seq in 0..400 {
-            if sink.send(&skeleton(seq), 0).is_err() {
-                break;
-            }
-            std::thread::sleep(Duration::from_millis(50));
-        }
-    });
-    let mut decoded = Vec::new();
-    for line in lines.by_ref() {
-        let line = line.expect("line");
-        decoded.push(serde_json::from_str::<serde_json::Value>(&line).expect("json"));
-    }
-    let status = child.wait().expect("wait");
+    let decoded = client.collect_while_publishing(sink, Duration::from_millis(50));
     drop(ros);
-    let _ = publishing.join();
-    assert!(
-        status.success(),
-        "the client got {} messages",
-        decoded.len()
-    );
-    assert!(decoded.len() >= 5);
-    for v in &decoded {
-        let seq = v["sequence"].as_u64().expect("sequence");
-        let want = skeleton(seq);
-        let f64s = |k: &str| -> Vec<f64> {
-            v[k].as_array()
-                .expect(k)
-                .iter()
-                .map(|x| x.as_f64().expect("f64"))
-                .collect()
-        };
-        assert_eq!(v["frame_id"], want.header.frame_id.as_str());
-        assert_eq!(v["stamp"][0], want.header.stamp.sec);
-        assert_eq!(v["stamp"][1], want.header.stamp.nanosec);
-        assert_eq!(v["track_id"], want.track_id);
-        assert_eq!(v["units"], want.units);
-        assert_eq!(v["lag"], want.lag);
-        assert_eq!(v["state"], want.state);
-        let names: Vec<String> = v["joint_names"]
-            .as_array()
-            .expect("names")
-            .iter()
-            .map(|s| s.as_str().expect("str").to_string())
-            .collect();
-        assert_eq!(names, want.joint_names);
-        assert_eq!(f64s("positions"), want.positions);
-        assert_eq!(f64s("position_std"), want.position_std);
-        assert_eq!(f64s("keypoints"), want.keypoints);
-        assert_eq!(f64s("keypoint_std"), want.keypoint_std);
-        assert_eq!(f64s("projected"), want.projected);
+    decoded.iter().for_each(assert_is_our_skeleton);
+}
+
+/// A Python client printing `ready`, then one JSON line per message it decoded.
+struct PythonSubscriber {
+    child: std::process::Child,
+    lines: std::io::Lines<BufReader<std::process::ChildStdout>>,
+}
+
+impl PythonSubscriber {
+    fn start(script: &str, args: &[&str], package: &str) -> Self {
+        let mut child = Command::new(common::python())
+            .arg(common::root().join("tests/python").join(script))
+            .args(args)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("python");
+        let mut lines = BufReader::new(child.stdout.take().expect("stdout")).lines();
+        let ready = lines.next().and_then(Result::ok).unwrap_or_default();
+        assert_eq!(
+            ready, "ready",
+            "the {package} client did not start (`pip install {package}`, which .ci/run does)"
+        );
+        Self { child, lines }
     }
+
+    /// Publishes `skeleton(0..)` every `period` until the client exits; its messages.
+    fn collect_while_publishing(
+        mut self,
+        mut sink: impl Sink<Skeleton3D> + 'static,
+        period: Duration,
+    ) -> Vec<serde_json::Value> {
+        let publishing = std::thread::spawn(move || {
+            for seq in 0..600 {
+                if sink.send(&skeleton(seq), 0).is_err() {
+                    break;
+                }
+                std::thread::sleep(period);
+            }
+        });
+        let decoded: Vec<serde_json::Value> = self
+            .lines
+            .by_ref()
+            .map(|l| serde_json::from_str(&l.expect("line")).expect("json"))
+            .collect();
+        let status = self.child.wait().expect("wait");
+        let _ = publishing.join();
+        assert!(
+            status.success(),
+            "the client got {} messages",
+            decoded.len()
+        );
+        assert!(decoded.len() >= 5);
+        decoded
+    }
+}
+
+/// Every field a client decoded equals what [`skeleton`] sent.
+fn assert_is_our_skeleton(v: &serde_json::Value) {
+    let want = skeleton(v["sequence"].as_u64().expect("sequence"));
+    assert_eq!(v["stamp"][0], want.header.stamp.sec);
+    assert_eq!(v["stamp"][1], want.header.stamp.nanosec);
+    assert_eq!(v["frame_id"], want.header.frame_id.as_str());
+    assert_eq!(v["track_id"], want.track_id);
+    assert_eq!(v["units"], want.units);
+    assert_eq!(v["lag"], want.lag);
+    assert_eq!(v["state"], want.state);
+    let names: Vec<String> = v["joint_names"]
+        .as_array()
+        .expect("names")
+        .iter()
+        .map(|s| s.as_str().expect("str").to_string())
+        .collect();
+    assert_eq!(names, want.joint_names);
+    let f64s = |k: &str| -> Vec<f64> {
+        v[k].as_array()
+            .expect(k)
+            .iter()
+            .map(|x| x.as_f64().expect("f64"))
+            .collect()
+    };
+    assert_eq!(f64s("positions"), want.positions);
+    assert_eq!(f64s("position_std"), want.position_std);
+    assert_eq!(f64s("keypoints"), want.keypoints);
+    assert_eq!(f64s("keypoint_std"), want.keypoint_std);
+    assert_eq!(f64s("projected"), want.projected);
 }

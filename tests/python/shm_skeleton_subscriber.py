@@ -70,7 +70,7 @@ while got < count and time.time() < deadline:
     print(
         json.dumps(
             {
-                "stamp_ns": s.stamp_ns,
+                "stamp": [s.stamp_ns // 1_000_000_000, s.stamp_ns % 1_000_000_000],
                 "sequence": s.sequence,
                 "track_id": s.track_id,
                 "lag": s.lag,
