@@ -320,8 +320,11 @@ type HeatMapsService = iceoryx2::service::port_factory::publish_subscribe::PortF
 >;
 
 impl Shm {
-    /// A node of this process.
+    /// A node of this process. iceoryx2's own log shows errors only, unless its
+    /// `IOX2_LOG_LEVEL` says otherwise (it otherwise warns that no iceoryx2 config file
+    /// exists, which is the normal case).
     pub fn new() -> Result<Self, TransportError> {
+        set_log_level_from_env_or(LogLevel::Error);
         let node = NodeBuilder::new()
             // The process's own Ctrl-C handling stays in charge.
             .signal_handling_mode(SignalHandlingMode::Disabled)
