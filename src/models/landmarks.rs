@@ -1,0 +1,99 @@
+//! A BlazePose landmark model run by `tract` (pure Rust, CPU): one 256 x 256 RGB crop
+//! in, the heat maps (and the rest of the model's outputs) out.
+
+use std::path::Path;
+
+use tract_tflite::prelude::*;
+
+/// Input side, pixels.
+pub const INPUT_SIZE: usize = 256;
+/// Heat-map side, cells (cell `c` covers input pixels `4c..4c+3`).
+pub const HEATMAP_SIZE: usize = 64;
+/// Heat-map channels: BlazePose's 33 landmarks, then 6 auxiliary ones.
+pub const HEATMAP_CHANNELS: usize = 39;
+
+/// Why the network could not be loaded or run.
+#[derive(Debug, thiserror::Error)]
+pub enum NetworkError {
+    /// tract refused the model or the input.
+    #[error("{context}: {reason}")]
+    Tract {
+        /// What was being done.
+        context: String,
+        /// tract's message.
+        reason: String,
+    },
+    /// The model's outputs are not the expected ones.
+    #[error("unexpected model outputs: {0}")]
+    Outputs(String),
+}
+
+fn tract_error(context: impl Into<String>) -> impl FnOnce(TractError) -> NetworkError {
+    let context = context.into();
+    move |e| NetworkError::Tract {
+        context,
+        reason: format!("{e:#}"),
+    }
+}
+
+/// What one run gives.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LandmarkOutput {
+    /// Heat-map logits, `64 x 64 x 39` (row, column, channel), as the model emits them:
+    /// apply a sigmoid for scores.
+    pub heatmap_logits: Vec<f32>,
+    /// Probability that a person is in the crop.
+    pub pose_flag: f32,
+    /// 39 x (x, y, z, visibility, presence), input pixels for x and y.
+    pub landmarks: Vec<f32>,
+}
+
+/// A loaded landmark model.
+pub struct LandmarkNetwork {
+    model: std::sync::Arc<TypedRunnableModel>,
+}
+
+impl LandmarkNetwork {
+    /// Loads a model rewritten for tract ([`super::rewrite`]) and optimises it.
+    pub fn load(path: &Path) -> Result<Self, NetworkError> {
+        let what = || format!("loading {}", path.display());
+        let model = tract_tflite::tflite()
+            .model_for_path(path)
+            .map_err(tract_error(what()))?
+            .into_optimized()
+            .map_err(tract_error(what()))?
+            .into_runnable()
+            .map_err(tract_error(what()))?;
+        Ok(Self { model })
+    }
+
+    /// Runs on one crop: `rgb` is `256 x 256 x 3`, row-major, values in [0, 1].
+    pub fn run(&self, rgb: &[f32]) -> Result<LandmarkOutput, NetworkError> {
+        let n = INPUT_SIZE * INPUT_SIZE * 3;
+        if rgb.len() != n {
+            return Err(NetworkError::Tract {
+                context: "the input".into(),
+                reason: format!("{} values, expected 256 x 256 x 3 = {n}", rgb.len()),
+            });
+        }
+        let input = Tensor::from_shape(&[1, INPUT_SIZE, INPUT_SIZE, 3], rgb)
+            .map_err(tract_error("the input"))?;
+        let outputs = self
+            .model
+            .run(tvec!(input.into()))
+            .map_err(tract_error("running the model"))?;
+        let by_shape = |shape: &[usize]| {
+            outputs
+                .iter()
+                .find(|o| o.shape() == shape)
+                .and_then(|o| o.to_plain_array_view::<f32>().ok())
+                .map(|v| v.iter().copied().collect::<Vec<f32>>())
+                .ok_or_else(|| NetworkError::Outputs(format!("no f32 output of shape {shape:?}")))
+        };
+        Ok(LandmarkOutput {
+            heatmap_logits: by_shape(&[1, HEATMAP_SIZE, HEATMAP_SIZE, HEATMAP_CHANNELS])?,
+            pose_flag: by_shape(&[1, 1])?[0],
+            landmarks: by_shape(&[1, 195])?,
+        })
+    }
+}
