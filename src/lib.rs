@@ -26,6 +26,7 @@
 
 pub mod camera;
 pub mod config;
+pub mod detector;
 pub mod dictionary;
 pub mod error;
 pub mod estimator;

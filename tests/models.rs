@@ -5,7 +5,57 @@
 
 mod common;
 
-use posestream::models::landmarks::LandmarkNetwork;
+use posestream::detector::mapping::ChannelMapping;
+use posestream::models::landmarks::{HEATMAP_SIZE, LandmarkNetwork};
+use posestream::streaming::{FrameMaps, StreamSettings, TrackState, WindowEstimator};
+use posestream::{Dictionary, Estimator, Params};
+
+/// The photo's heat maps through the shipped channel mapping into the streaming
+/// estimator: a 3D skeleton, with the mapped maps where they should be.
+fn estimate_from(logits: &[f32]) {
+    let root = common::root();
+    let dict = Dictionary::load(root.join("config/dictionaries/default-k128.json")).expect("dict");
+    let joints = dict.skeleton().joints.clone();
+    let mapping =
+        ChannelMapping::load(root.join("config/detectors/blazepose.toml"), &joints).expect("map");
+    let mut maps = Vec::new();
+    mapping
+        .apply(logits, HEATMAP_SIZE, HEATMAP_SIZE, &mut maps)
+        .expect("apply");
+    let cells = HEATMAP_SIZE * HEATMAP_SIZE;
+    assert_eq!(maps.len(), 17 * cells);
+    assert!(maps.iter().all(|v| (0.0..=1.0).contains(v)));
+    let argmax = |name: &str| {
+        let j = joints.iter().position(|n| n == name).expect("joint");
+        let map = &maps[j * cells..(j + 1) * cells];
+        let (i, _) = map
+            .iter()
+            .enumerate()
+            .fold((0, f32::MIN), |b, (i, &v)| if v > b.1 { (i, v) } else { b });
+        ((i % HEATMAP_SIZE) as f64, (i / HEATMAP_SIZE) as f64)
+    };
+    // The thorax (mean of the shoulders) peaks between the shoulders.
+    let (l, r, t) = (argmax("l-shoulder"), argmax("r-shoulder"), argmax("thorax"));
+    assert!((l.0 - r.0).abs() > 5.0, "shoulders apart: {l:?} {r:?}");
+    assert!(
+        t.0 >= l.0.min(r.0) && t.0 <= l.0.max(r.0),
+        "{l:?} {t:?} {r:?}"
+    );
+    let estimator = Estimator::new(dict, Params::default()).expect("estimator");
+    let mut window = WindowEstimator::new(estimator, StreamSettings::default()).expect("window");
+    let mut out = Vec::new();
+    let frame = FrameMaps {
+        sequence: 0,
+        stamp_ns: 0,
+        height: HEATMAP_SIZE,
+        width: HEATMAP_SIZE,
+        values: &maps,
+    };
+    window.push(&frame, &mut out).expect("estimates");
+    assert_eq!(out.len(), 1);
+    assert_eq!(out[0].state, TrackState::Initialising);
+    assert!(out[0].pose.iter().all(|v| v.is_finite()) && out[0].pose.len() == 51);
+}
 use posestream::models::{LandmarkModel, fetch};
 
 #[test]
@@ -50,6 +100,7 @@ fn fetched_models_run_in_tract_with_the_reference_runtimes_heat_maps() {
         println!("{:?}: largest heat-map logit difference {worst:e}", m.model);
         assert!(worst <= 1e-3, "{:?}: {worst}", m.model);
         assert!(got.pose_flag > 0.5);
+        estimate_from(&got.heatmap_logits);
     }
     // A tarball with other bytes is refused.
     let bad = dir.path().join("bad.tgz");
