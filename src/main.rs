@@ -43,8 +43,9 @@ enum Command {
     /// Replay a recording (MCAP) of heat maps through the streaming estimator; record
     /// the skeletons to MCAP.
     Replay(cli::replay::ReplayArgs),
-    /// The detector node: publish heat maps (replay source: a recording) on the
-    /// configured outputs (ROS 2, iceoryx2, a recording).
+    /// The detector node: publish heat maps (replayed from a recording, or from camera
+    /// images through the image detector) on the configured outputs (ROS 2, iceoryx2, a
+    /// recording).
     Detector(cli::service::DetectorArgs),
     /// The estimator node: heat maps from ROS 2 or iceoryx2 in, skeletons and markers
     /// out on the configured outputs.
@@ -56,6 +57,9 @@ enum Command {
     Record(cli::service::RecordArgs),
     /// The image detector's models (MediaPipe BlazePose): fetch, check, rewrite.
     Models(cli::models::ModelsArgs),
+    /// Pictures of a run on images: each image with its heat maps and 2D skeleton,
+    /// beside the 3D skeleton from a novel view (PNG of one frame, or GIF).
+    Render(cli::render::RenderArgs),
 }
 
 #[derive(Debug, Args)]
@@ -295,6 +299,7 @@ fn main() -> ExitCode {
         Command::Run(args) => cli::service::run(&args),
         Command::Record(args) => cli::service::record(&args),
         Command::Models(args) => cli::models::run(&args),
+        Command::Render(args) => cli::render::render(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

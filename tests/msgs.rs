@@ -42,6 +42,11 @@ fn every_msg_file_declares_exactly_the_fields_of_its_rust_type() {
         parse_definition(v::CompressedImage::DEFINITION),
         fields_of::<v::CompressedImage>()
     );
+    use posestream::msgs::sensor;
+    assert_eq!(
+        parse_definition(sensor::Image::DEFINITION),
+        fields_of::<sensor::Image>()
+    );
     assert_eq!(
         parse_definition(v::MeshFile::DEFINITION),
         fields_of::<v::MeshFile>()

@@ -40,7 +40,9 @@ fn the_pipeline_publishes_what_replay_computes_and_markers_that_python_decodes()
     c.outputs.record = dir.path().join("run.mcap");
     c.detector.rate = ReplayRate::Fast;
     let input = recording("byebye.mcap");
-    let report = run_pipeline(&c, &input, &AtomicBool::new(false)).expect("pipeline");
+    c.detector.recording = input.clone();
+    let report = run_pipeline(&c, &AtomicBool::new(false)).expect("pipeline");
+    assert!(report.detector.images.is_none());
     assert_eq!(report.detector.published, 121);
     assert_eq!(report.estimator.frames, 121);
     assert_eq!(report.estimator.skeletons, 242);
@@ -282,4 +284,48 @@ fn a_malformed_ros_domain_id_is_one_clear_error() {
     );
     assert!(!stderr.contains("panicked"), "{stderr}");
     assert_eq!(stderr.lines().count(), 1, "{stderr}");
+}
+
+#[test]
+fn a_new_track_id_ends_the_old_track_with_its_owed_estimates() {
+    let c = config();
+    let mut node = EstimatorNode::from_config(&c.estimator).expect("node");
+    let maps: Vec<posestream::msgs::HeatMaps> =
+        read_topic(&recording("kick.mcap"), "/posestream/heatmaps")
+            .expect("reads")
+            .into_iter()
+            .map(|(_, m)| m)
+            .take(30)
+            .collect();
+    let lag = c.estimator.window.lag as u32;
+    let mut out = Vec::new();
+    for m in &maps[..20] {
+        node.handle(m, &mut out).expect("frame");
+    }
+    // Frames 0..20 of track 0: each gives its newest estimate, and those 10 back their
+    // refined one.
+    assert_eq!(out.len(), 20 + 10);
+    out.clear();
+    // The detector found someone else: track 1 (the same sequence numbers go on).
+    let mut next = maps[20].clone();
+    next.track_id = 1;
+    node.handle(&next, &mut out).expect("frame");
+    let (old, new): (Vec<_>, Vec<_>) = out.iter().partition(|s| s.track_id == 0);
+    // The old track's owed refined estimates (frames 10..20, lag < L), then the new
+    // track's first newest estimate.
+    assert_eq!(
+        old.len(),
+        10,
+        "{:?}",
+        out.iter()
+            .map(|s| (s.track_id, s.sequence, s.lag))
+            .collect::<Vec<_>>()
+    );
+    assert!(old.iter().all(|s| s.lag < lag && s.sequence < 20));
+    assert_eq!(new.len(), 1);
+    assert_eq!((new[0].sequence, new[0].lag), (20, 0));
+    assert_eq!(
+        new[0].state,
+        posestream::msgs::SkeletonState::Initialising as u8
+    );
 }

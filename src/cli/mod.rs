@@ -3,6 +3,7 @@
 pub mod eval;
 pub mod learn;
 pub mod models;
+pub mod render;
 pub mod replay;
 pub mod service;
 pub mod synth;

@@ -9,7 +9,7 @@ use std::time::Duration;
 
 use clap::Args;
 use posestream::msgs::{HeatMaps, MarkerArray, Skeleton3D};
-use posestream::nodes::config::{ReplayRate, Transport};
+use posestream::nodes::config::{DetectorSource, ReplayRate, Transport};
 use posestream::nodes::service::{
     self, EstimatorOutputs, Middleware, record_step, run_detector, run_estimator,
 };
@@ -72,6 +72,18 @@ impl Summary for service::DetectorReport {
             "published {} heat-map messages; {} malformed skipped, {} failed sends",
             self.published, self.malformed, self.failed_sends
         );
+        if let Some(s) = &self.images {
+            text.push_str(&format!(
+                "\nimages: {} frames, {} with a person, {} without; {} tracks; \
+                 {} model runs, {:.1} ms each",
+                s.frames,
+                s.detected,
+                s.no_person,
+                s.acquisitions,
+                s.network_runs,
+                posestream::detector::image::mean_network_ms(s)
+            ));
+        }
         if let Some(e) = &self.input_error {
             text.push_str(&format!("\ninput ended early: {e}"));
         }
@@ -115,28 +127,81 @@ fn print<T: Serialize + Summary>(json: bool, report: &T) -> Result<(), CliError>
     Ok(())
 }
 
+/// Where the detector's frames come from (each overrides `[detector]`).
+#[derive(Debug, Args)]
+pub struct SourceArgs {
+    /// Replay the heat maps of this recording (source `recording`).
+    #[arg(long, group = "frames")]
+    pub recording: Option<PathBuf>,
+    /// Run the image detector on the image files of this folder (source `images`).
+    #[arg(long, group = "frames")]
+    pub images: Option<PathBuf>,
+    /// Run the image detector on this video file (source `video`; needs ffmpeg).
+    #[arg(long, group = "frames")]
+    pub video: Option<PathBuf>,
+    /// Where to look for the person first: `x,y,width,height` in image pixels
+    /// (overrides `detector.images.person_box`).
+    #[arg(long, value_delimiter = ',', allow_negative_numbers = true)]
+    pub person_box: Option<Vec<f64>>,
+    /// Landmark model (overrides `detector.images.model`).
+    #[arg(long, value_enum)]
+    pub model: Option<posestream::models::LandmarkModel>,
+    /// Pace of a replayed recording (overrides `detector.rate`).
+    #[arg(long, value_enum)]
+    pub rate: Option<ReplayRate>,
+}
+
+impl SourceArgs {
+    /// Applies the options to `config`.
+    fn apply(&self, config: &mut ServiceConfig) {
+        let d = &mut config.detector;
+        if let Some(p) = &self.recording {
+            d.source = DetectorSource::Recording;
+            d.recording = p.clone();
+        }
+        if let Some(p) = &self.images {
+            d.source = DetectorSource::Images;
+            d.images.path = p.clone();
+        }
+        if let Some(p) = &self.video {
+            d.source = DetectorSource::Video;
+            d.images.path = p.clone();
+        }
+        if let Some(b) = &self.person_box {
+            d.images.person_box = b.clone();
+        }
+        if let Some(m) = self.model {
+            d.images.model = m;
+        }
+        if let Some(rate) = self.rate {
+            d.rate = rate;
+        }
+    }
+}
+
 /// Options of `detector`.
 #[derive(Debug, Args)]
 pub struct DetectorArgs {
     /// Service configuration.
     #[arg(long, default_value = "config/default.toml")]
     pub config: PathBuf,
-    /// Recording of heat maps to publish (overrides `detector.recording`).
-    #[arg(long)]
-    pub recording: Option<PathBuf>,
-    /// Pace (overrides `detector.rate`).
-    #[arg(long, value_enum)]
-    pub rate: Option<ReplayRate>,
+    /// The source.
+    #[command(flatten)]
+    pub source: SourceArgs,
     /// Print the report as JSON.
     #[arg(long)]
     pub json: bool,
 }
 
-/// Runs `detector`: the replay source publishing heat maps to `[outputs]`.
+/// Runs `detector`: heat maps from the configured source (a recording replayed, or the
+/// image detector on images) published to `[outputs]`.
 pub fn detector(args: &DetectorArgs) -> Result<(), CliError> {
-    let config = load(&args.config)?;
+    let mut config = load(&args.config)?;
+    args.source.apply(&mut config);
     let stop = stop_flag();
-    let mut middleware = Middleware::open(&config, None).map_err(err)?;
+    let mut middleware =
+        Middleware::open(&config, service::detector_transport(&config)).map_err(err)?;
+    let input = service::detector_input(&config, &mut middleware).map_err(err)?;
     let recorder = service::output_recording(&config).map_err(err)?;
     let mut sinks =
         service::detector_outputs(&config, &mut middleware, recorder.as_ref()).map_err(err)?;
@@ -145,17 +210,13 @@ pub fn detector(args: &DetectorArgs) -> Result<(), CliError> {
             "no outputs: enable ros2, iceoryx2 or record in [outputs]",
         ));
     }
-    let path = args
-        .recording
-        .clone()
-        .unwrap_or(config.detector.recording.clone());
-    let mut source = service::recording_source(&config, &path).map_err(err)?;
-    let report = run_detector(
-        &mut source,
-        &mut sinks,
-        args.rate.unwrap_or(config.detector.rate),
-        &stop,
-    );
+    let service::DetectorInput {
+        mut source,
+        stats,
+        rate,
+    } = input;
+    let mut report = run_detector(&mut source, &mut sinks, rate, &stop);
+    report.images = service::DetectorInput::stats_now(&stats);
     drop(sinks);
     if let Some(r) = recorder {
         r.finish()?;
@@ -220,15 +281,16 @@ pub struct RunArgs {
     /// Service configuration.
     #[arg(long, default_value = "config/default.toml")]
     pub config: PathBuf,
-    /// Recording of heat maps to replay (overrides `detector.recording`).
-    #[arg(long)]
-    pub input: Option<PathBuf>,
-    /// Record the outputs to this MCAP file (overrides `outputs.record`).
+    /// The source.
+    #[command(flatten)]
+    pub source: SourceArgs,
+    /// Record the outputs (and the heat maps) to this MCAP file (overrides
+    /// `outputs.record`).
     #[arg(long)]
     pub record: Option<PathBuf>,
-    /// Pace (overrides `detector.rate`).
-    #[arg(long, value_enum)]
-    pub rate: Option<ReplayRate>,
+    /// Publish on ROS 2 (overrides `outputs.ros2`).
+    #[arg(long)]
+    pub ros2: Option<bool>,
     /// Print the report as JSON.
     #[arg(long)]
     pub json: bool,
@@ -237,18 +299,15 @@ pub struct RunArgs {
 /// Runs `run`: detector and estimator in one process.
 pub fn run(args: &RunArgs) -> Result<(), CliError> {
     let mut config = load(&args.config)?;
+    args.source.apply(&mut config);
     if let Some(r) = &args.record {
         config.outputs.record = r.clone();
     }
-    if let Some(rate) = args.rate {
-        config.detector.rate = rate;
+    if let Some(on) = args.ros2 {
+        config.outputs.ros2 = on;
     }
-    let input = args
-        .input
-        .clone()
-        .unwrap_or(config.detector.recording.clone());
     let stop = stop_flag();
-    let report = service::run_pipeline(&config, &input, &stop).map_err(err)?;
+    let report = service::run_pipeline(&config, &stop).map_err(err)?;
     print(args.json, &report)
 }
 

@@ -1,7 +1,8 @@
 //! The wire messages of posestream (ROS 2 package `posestream_msgs`, in `msgs/`) and the
 //! ROS 2 standard messages they use (`std_msgs/Header`, `builtin_interfaces/Time`,
 //! mirrored from ROS 2 Humble's `std_msgs` and `builtin_interfaces` packages), plus
-//! `visualization_msgs/MarkerArray` ([`visualization`]) for RViz2 and Foxglove.
+//! `visualization_msgs/MarkerArray` ([`visualization`]) for RViz2 and Foxglove, and the
+//! camera images the image detector reads ([`sensor`]).
 //!
 //! Each message is declared once, with [`ros_message!`]: the macro writes the Rust struct
 //! (serde, so CDR comes from `cdr-encoding`) and its ROS field list, derived from the
@@ -14,10 +15,12 @@
 //! [`decode`]).
 
 mod heatmaps;
+pub mod sensor;
 mod skeleton;
 pub mod visualization;
 
 pub use heatmaps::{HeatMapEncoding, HeatMaps};
+pub use sensor::{CompressedImage, Image};
 pub use skeleton::{Skeleton3D, SkeletonState, Units};
 pub use visualization::{Marker, MarkerArray};
 

@@ -4,6 +4,7 @@
 //! and Foxglove decode). Constants and comments of the upstream files are left out.
 
 use super::Header;
+pub use super::sensor::CompressedImage;
 use crate::ros_message;
 
 ros_message! {
@@ -76,19 +77,6 @@ ros_message! {
     b: f32,
     /// Alpha (opacity).
     a: f32,
-}
-
-ros_message! {
-    /// `sensor_msgs/CompressedImage`.
-    CompressedImage = "sensor_msgs/msg/CompressedImage", "sensor_msgs/CompressedImage",
-        "std_msgs/Header header\nstring format\nuint8[] data\n";
-    /// Stamp and frame.
-    header: Header,
-    /// `jpeg`, `png`.
-    format: String,
-    /// The compressed bytes.
-    #[serde(with = "serde_bytes")]
-    data: Vec<u8>,
 }
 
 ros_message! {

@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::config::{ConfigError, load_toml};
+use crate::detector::ImageSettings;
 use crate::solver::Params;
 use crate::streaming::StreamSettings;
 use crate::transport::ros2::RosSettings;
@@ -32,25 +33,48 @@ pub struct ServiceConfig {
     pub replay: ReplayConfig,
 }
 
-/// The detector node (`[detector]`): where heat maps come from. This version has the
-/// replay source (a recording of heat maps, e.g. from `posestream synth --mcap`).
+/// The detector node (`[detector]`): where heat maps come from: replayed from a
+/// recording of heat maps (e.g. from `posestream synth --mcap`), or computed from camera
+/// images by the image detector (`[detector.images]`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct DetectorConfig {
-    /// A recording (MCAP) with heat maps on `topics.heatmaps`.
+    /// Where the frames come from.
+    pub source: DetectorSource,
+    /// A recording (MCAP) with heat maps on `topics.heatmaps` (source `recording`).
     pub recording: PathBuf,
     /// `recorded`: at the recorded pace, as a camera would; `fast`: as fast as the
-    /// readers take them.
+    /// readers take them (source `recording`; image sources run as fast as the model).
     pub rate: ReplayRate,
+    /// The image detector (the other sources).
+    pub images: ImageSettings,
 }
 
 impl Default for DetectorConfig {
     fn default() -> Self {
         Self {
+            source: DetectorSource::Recording,
             recording: PathBuf::from("recordings/byebye.mcap"),
             rate: ReplayRate::Recorded,
+            images: ImageSettings::default(),
         }
     }
+}
+
+/// Where the detector node's frames come from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum DetectorSource {
+    /// Heat maps replayed from `detector.recording`.
+    Recording,
+    /// The image files of the folder `detector.images.path`.
+    Images,
+    /// The video file `detector.images.path` (decoded by ffmpeg).
+    Video,
+    /// Camera images on `detector.images.topic` of the recording `detector.images.path`.
+    ImageRecording,
+    /// Camera images on the ROS 2 topic `detector.images.topic`.
+    Ros2,
 }
 
 /// Where the estimator node (`posestream estimator`) reads heat maps.
@@ -207,6 +231,9 @@ mod tests {
             "[outputs]\nshm = true\n",
             "[iceoryx2]\nskeleton = \"x\"\n",
             "[detector]\nrate = \"slow\"\n",
+            "[detector]\nsource = \"webcam\"\n",
+            "[detector.images]\nmodel = \"huge\"\n",
+            "[detector.images]\nperson = [1, 2, 3, 4]\n",
             "[estimator]\ninput = \"zenoh\"\n",
         ] {
             assert!(toml::from_str::<ServiceConfig>(bad).is_err(), "{bad}");

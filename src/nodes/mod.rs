@@ -9,6 +9,7 @@
 //! - [`markers`]: skeletons as `visualization_msgs/MarkerArray`.
 
 pub mod config;
+pub mod images;
 pub mod latency;
 pub mod markers;
 pub mod replay;
@@ -60,6 +61,9 @@ pub enum SetupError {
     /// A parameter is out of its domain.
     #[error("configuration: {0}")]
     Parameter(#[from] EstimateError),
+    /// The image detector could not be set up.
+    #[error(transparent)]
+    Detector(#[from] crate::detector::DetectorError),
 }
 
 /// What the estimator node needs to remember of a frame until its last estimate is out.
@@ -172,6 +176,14 @@ impl EstimatorNode {
         }
         let crop: CropBox = msg.crop()?;
         msg.values_into(&mut self.values)?;
+        // Another person (the detector lost its track and found one again): the old
+        // track ends here, its owed estimates first.
+        if msg.track_id != self.track_id && !self.window.is_empty() {
+            self.estimates.clear();
+            self.window.finish(&mut self.estimates);
+            self.release(out);
+            self.frames.clear();
+        }
         let frame = FrameMaps {
             sequence: msg.sequence,
             stamp_ns: msg.header.stamp.nanos(),

@@ -2,8 +2,9 @@
 //! [`EstimatorNode`] and [`Sink`]s. What backend each end is comes from the
 //! configuration; the loops do not know.
 //!
-//! - [`run_detector`]: heat maps from a source (the replay source: a recording) to
-//!   publishers, at the recorded pace or as fast as they take them;
+//! - [`run_detector`]: heat maps from a source (a recording replayed, or camera images
+//!   through the image detector: [`detector_input`]) to publishers, at the recorded pace
+//!   or as fast as they take them;
 //! - [`run_estimator`]: heat maps in, skeletons (and markers) out;
 //! - [`run_pipeline`]: both in one process over a bounded in-memory channel;
 //! - [`run_recorder`]: ROS 2 topics into a recording.
@@ -14,10 +15,12 @@ use std::time::{Duration, Instant};
 
 use serde::Serialize;
 
-use super::config::{ReplayRate, ServiceConfig, Transport};
+use super::config::{DetectorSource, ReplayRate, ServiceConfig, Transport};
+use super::images::{ImageHeatMaps, SharedStats, image_frames};
 use super::latency::{LatencyHistogram, LatencySummary};
 use super::markers::skeleton_markers;
 use super::{EstimatorNode, SetupError};
+use crate::detector::{DetectorStats, ImageDetector};
 use crate::msgs::{HeatMaps, MarkerArray, Skeleton3D};
 use crate::recording::{RecordingError, RecordingSummary};
 use crate::streaming::StreamCounters;
@@ -334,6 +337,8 @@ pub struct DetectorReport {
     pub failed_sends: u64,
     /// Why the source ended early, if it did.
     pub input_error: Option<String>,
+    /// The image detector's counters (image sources only).
+    pub images: Option<DetectorStats>,
 }
 
 /// Heat maps from `source` to `sinks`, at the pace of their stamps
@@ -381,6 +386,7 @@ pub fn run_detector(
         malformed,
         failed_sends: sinks.failed,
         input_error,
+        images: None,
     }
 }
 
@@ -414,6 +420,56 @@ pub fn recording_source(
     McapSource::open(path, &config.topics.heatmaps)
 }
 
+/// The detector node's input: heat maps from the configured source.
+pub struct DetectorInput {
+    /// The heat maps.
+    pub source: Box<dyn Source<HeatMaps>>,
+    /// The image detector's counters (image sources).
+    pub stats: Option<SharedStats>,
+    /// The pace: `detector.rate` for a recording of heat maps; image sources go as fast
+    /// as the model (a camera paces itself).
+    pub rate: ReplayRate,
+}
+
+impl DetectorInput {
+    /// The image detector's counters now.
+    pub fn stats_now(stats: &Option<SharedStats>) -> Option<DetectorStats> {
+        stats.as_ref().and_then(|s| s.lock().ok().map(|s| *s))
+    }
+}
+
+/// The detector's configured source (`detector.source`): the heat maps of
+/// `detector.recording`, or the image detector on the configured images (its model
+/// and mapping loaded, for the joints of `estimator.dictionary`).
+pub fn detector_input(
+    config: &ServiceConfig,
+    middleware: &mut Middleware,
+) -> Result<DetectorInput, ServiceError> {
+    if config.detector.source == DetectorSource::Recording {
+        return Ok(DetectorInput {
+            source: Box::new(recording_source(config, &config.detector.recording)?),
+            stats: None,
+            rate: config.detector.rate,
+        });
+    }
+    let dictionary =
+        crate::Dictionary::load(&config.estimator.dictionary).map_err(SetupError::Dictionary)?;
+    let detector = ImageDetector::load(&config.detector.images, &dictionary.skeleton().joints)
+        .map_err(SetupError::Detector)?;
+    let frames = image_frames(config, middleware.ros.as_mut())?;
+    let source = ImageHeatMaps::new(frames, detector);
+    Ok(DetectorInput {
+        stats: Some(source.stats()),
+        source: Box::new(source),
+        rate: ReplayRate::Fast,
+    })
+}
+
+/// The transport the detector's source needs opened, beyond the outputs.
+pub fn detector_transport(config: &ServiceConfig) -> Option<Transport> {
+    (config.detector.source == DetectorSource::Ros2).then_some(Transport::Ros2)
+}
+
 /// What the pipeline did.
 #[derive(Debug, Clone, Serialize)]
 pub struct PipelineReport {
@@ -427,29 +483,40 @@ pub struct PipelineReport {
     pub recording: Option<RecordingSummary>,
 }
 
-/// Detector and estimator in one process: the detector on its own thread feeds the
-/// estimator through a bounded channel (a slow estimator slows the detector down);
-/// results go to the configured outputs.
+/// Detector and estimator in one process: the detector (the configured source,
+/// [`detector_input`]) on its own thread feeds the estimator through a bounded channel
+/// (a slow estimator slows the detector down); results go to the configured outputs.
+/// When recording, the heat maps are recorded too, so that the recording holds the
+/// whole run (`posestream render` draws them).
 pub fn run_pipeline(
     config: &ServiceConfig,
-    input: &Path,
     stop: &AtomicBool,
 ) -> Result<PipelineReport, ServiceError> {
     let start = Instant::now();
     let mut node = EstimatorNode::from_config(&config.estimator)?;
-    let mut middleware = Middleware::open(config, None)?;
+    let mut middleware = Middleware::open(config, detector_transport(config))?;
+    let input = detector_input(config, &mut middleware)?;
     let recorder = output_recording(config)?;
     let mut outputs =
         EstimatorOutputs::open(config, &mut middleware, recorder.as_ref(), node.bones())?;
-    let mut source = recording_source(config, input)?;
+    let DetectorInput {
+        mut source,
+        stats,
+        rate,
+    } = input;
     let (sink, mut channel) = memory::channel::<HeatMaps>(4);
-    let rate = config.detector.rate;
+    let heatmaps_record = recorder
+        .as_ref()
+        .map(|r| r.sink::<HeatMaps>(&config.topics.heatmaps));
     let (detector, estimator) = std::thread::scope(|scope| {
         let detector = std::thread::Builder::new()
             .name("detector".into())
             .spawn_scoped(scope, move || {
                 let mut sinks = Publishers::default();
                 sinks.add("memory", Box::new(sink));
+                if let Some(r) = heatmaps_record {
+                    sinks.add("mcap heat maps", Box::new(r));
+                }
                 // Dropping the sinks at the end closes the channel: the estimator ends.
                 run_detector(&mut source, &mut sinks, rate, stop)
             });
@@ -460,10 +527,11 @@ pub fn run_pipeline(
         let detector = detector.map(|h| h.join());
         (detector, estimator)
     });
-    let detector = match detector {
+    let mut detector = match detector {
         Ok(Ok(report)) => report,
         _ => return Err(ServiceError::Thread("detector")),
     };
+    detector.images = DetectorInput::stats_now(&stats);
     drop(outputs);
     let recording = recorder.map(|r| r.finish()).transpose()?;
     Ok(PipelineReport {

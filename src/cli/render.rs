@@ -1,0 +1,204 @@
+//! `posestream render`: pictures of a run (a recording written by `posestream run` on
+//! images) next to its camera images: a PNG of one frame, or a GIF of all of them.
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::time::Duration;
+
+use clap::Args;
+use image::codecs::gif::{GifEncoder, Repeat};
+use image::{Delay, Frame};
+use posestream::msgs::{HeatMaps, Skeleton3D};
+use posestream::nodes::ServiceConfig;
+use posestream::nodes::config::DetectorSource;
+use posestream::nodes::images::image_frames;
+use posestream::render::{RenderSettings, render_frame};
+use posestream::transport::mcap::McapSource;
+use posestream::transport::{Received, Source, TransportError};
+
+use super::CliError;
+
+/// Options of `render`.
+#[derive(Debug, Args)]
+pub struct RenderArgs {
+    /// The recording of the run (skeletons, and heat maps for the overlay).
+    pub recording: PathBuf,
+    /// The picture: `.png` (one frame) or `.gif` (every frame with a skeleton).
+    #[arg(long, short)]
+    pub output: PathBuf,
+    /// The run's images: a folder (overrides `[detector.images]`).
+    #[arg(long, group = "frames")]
+    pub images: Option<PathBuf>,
+    /// The run's images: a video file.
+    #[arg(long, group = "frames")]
+    pub video: Option<PathBuf>,
+    /// Service configuration (topics, dictionary, image source).
+    #[arg(long, default_value = "config/default.toml")]
+    pub config: PathBuf,
+    /// The frame of a PNG (sequence number; default: the middle frame with a skeleton).
+    #[arg(long)]
+    pub frame: Option<u64>,
+    /// Draw the newest estimate of each frame, not the refined (lagged) one.
+    #[arg(long)]
+    pub newest: bool,
+    /// Picture height, pixels.
+    #[arg(long, default_value_t = 360)]
+    pub height: u32,
+    /// The 3D view's azimuth, degrees.
+    #[arg(long, default_value_t = 60.0, allow_negative_numbers = true)]
+    pub azimuth: f64,
+}
+
+fn err(e: impl ToString) -> CliError {
+    CliError::Input(e.to_string())
+}
+
+/// Every message of `topic` in `path`.
+fn read_all<M: posestream::transport::Message>(
+    path: &std::path::Path,
+    topic: &str,
+) -> Result<Vec<M>, TransportError> {
+    let mut source = McapSource::<M>::open(path, topic)?;
+    let mut out = Vec::new();
+    loop {
+        match source.recv(Duration::ZERO)? {
+            Received::Message(m, _) => out.push(m),
+            Received::Closed => return Ok(out),
+            Received::Idle => {}
+        }
+    }
+}
+
+/// Runs `render`.
+pub fn render(args: &RenderArgs) -> Result<(), CliError> {
+    let mut config = ServiceConfig::load(&args.config).map_err(err)?;
+    if let Some(p) = &args.images {
+        config.detector.source = DetectorSource::Images;
+        config.detector.images.path = p.clone();
+    }
+    if let Some(p) = &args.video {
+        config.detector.source = DetectorSource::Video;
+        config.detector.images.path = p.clone();
+    }
+    if matches!(
+        config.detector.source,
+        DetectorSource::Recording | DetectorSource::Ros2
+    ) {
+        return Err(err(
+            "render needs the run's images: --images DIR, --video FILE, or an image source in [detector]",
+        ));
+    }
+    let gif = match args.output.extension().and_then(|e| e.to_str()) {
+        Some(e) if e.eq_ignore_ascii_case("gif") => true,
+        Some(e) if e.eq_ignore_ascii_case("png") => false,
+        _ => return Err(err("--output must end in .png or .gif")),
+    };
+    let dictionary = posestream::Dictionary::load(&config.estimator.dictionary).map_err(err)?;
+    let bones: Vec<(usize, usize)> = dictionary.skeleton().bones().collect();
+    // Per frame, the estimate to draw: the most refined one unless --newest.
+    let mut skeletons: BTreeMap<u64, Skeleton3D> = BTreeMap::new();
+    for s in read_all::<Skeleton3D>(&args.recording, &config.topics.skeletons).map_err(err)? {
+        let keep = match skeletons.get(&s.sequence) {
+            None => true,
+            Some(old) if args.newest => s.lag < old.lag,
+            Some(old) => s.lag > old.lag,
+        };
+        if keep {
+            skeletons.insert(s.sequence, s);
+        }
+    }
+    if skeletons.is_empty() {
+        return Err(err(format!(
+            "{}: no skeletons on {}",
+            args.recording.display(),
+            config.topics.skeletons
+        )));
+    }
+    let maps: BTreeMap<u64, HeatMaps> =
+        match read_all::<HeatMaps>(&args.recording, &config.topics.heatmaps) {
+            Ok(all) => all.into_iter().map(|m| (m.sequence, m)).collect(),
+            Err(e) => {
+                tracing::warn!("no heat-map overlay: {e}");
+                BTreeMap::new()
+            }
+        };
+    let wanted = args.frame.unwrap_or_else(|| {
+        let keys: Vec<u64> = skeletons.keys().copied().collect();
+        keys[keys.len() / 2]
+    });
+    if !gif && !skeletons.contains_key(&wanted) {
+        return Err(err(format!(
+            "frame {wanted} has no skeleton in the recording"
+        )));
+    }
+    let settings = RenderSettings {
+        height: args.height,
+        azimuth_deg: args.azimuth,
+        ..RenderSettings::default()
+    };
+    let mut frames = image_frames(&config, None).map_err(err)?;
+    let progress = indicatif::ProgressBar::new(skeletons.len() as u64);
+    let mut pictures = Vec::new();
+    let mut stamps = Vec::new();
+    loop {
+        let frame = match frames.recv(Duration::from_millis(100)) {
+            Ok(Received::Message(f, _)) => f,
+            Ok(Received::Idle) => continue,
+            Ok(Received::Closed) => break,
+            Err(e @ TransportError::Malformed { .. }) => {
+                tracing::warn!("{e}");
+                continue;
+            }
+            Err(e) => return Err(err(e)),
+        };
+        let Some(skeleton) = skeletons.get(&frame.sequence) else {
+            continue;
+        };
+        if !gif && frame.sequence != wanted {
+            continue;
+        }
+        let picture = render_frame(
+            &frame.rgb,
+            maps.get(&frame.sequence),
+            skeleton,
+            &bones,
+            &settings,
+        );
+        progress.inc(1);
+        stamps.push(frame.stamp_ns);
+        pictures.push(picture);
+        if !gif {
+            break;
+        }
+    }
+    progress.finish_and_clear();
+    if pictures.is_empty() {
+        return Err(err(
+            "none of the images has a skeleton in the recording (another run?)",
+        ));
+    }
+    if gif {
+        let file = std::fs::File::create(&args.output)
+            .map_err(|e| err(format!("{}: {e}", args.output.display())))?;
+        let mut encoder = GifEncoder::new_with_speed(std::io::BufWriter::new(file), 10);
+        encoder.set_repeat(Repeat::Infinite).map_err(err)?;
+        for (i, picture) in pictures.into_iter().enumerate() {
+            let ms = match (stamps.get(i), stamps.get(i + 1)) {
+                (Some(a), Some(b)) if b > a => ((b - a) / 1_000_000).clamp(20, 2000),
+                _ => 100,
+            };
+            let rgba = image::DynamicImage::ImageRgb8(picture).to_rgba8();
+            let delay = Delay::from_saturating_duration(Duration::from_millis(ms));
+            encoder
+                .encode_frame(Frame::from_parts(rgba, 0, 0, delay))
+                .map_err(err)?;
+        }
+        println!("{} frames -> {}", stamps.len(), args.output.display());
+    } else {
+        pictures[0]
+            .save(&args.output)
+            .map_err(|e| err(format!("{}: {e}", args.output.display())))?;
+        println!("frame {wanted} -> {}", args.output.display());
+    }
+    Ok(())
+}

@@ -1,0 +1,36 @@
+//! Camera frames for the image detector, from any of its sources, as one type
+//! ([`ImageFrame`]): every source is a [`Source<ImageFrame>`](crate::transport::Source),
+//! so the detector does not know where its frames come from.
+//!
+//! - [`folder`]: the image files of a folder, in name order;
+//! - [`video`]: a video file, decoded by the `ffmpeg` program;
+//! - [`messages`]: `sensor_msgs/Image` or `CompressedImage` messages from any transport
+//!   (a ROS 2 topic, a recording).
+
+pub mod folder;
+pub mod messages;
+pub mod video;
+
+pub use folder::FolderSource;
+pub use messages::{DecodedImages, decode_compressed, decode_image};
+pub use video::VideoSource;
+
+/// One camera frame, decoded to 8-bit RGB.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ImageFrame {
+    /// Frame number in the source, from 0.
+    pub sequence: u64,
+    /// Capture time, nanoseconds (a file source spaces frames by its frame rate).
+    pub stamp_ns: u64,
+    /// Camera frame id for the messages' headers.
+    pub frame_id: String,
+    /// Where it came from, for messages (a file name, `frame 12`).
+    pub name: String,
+    /// The pixels.
+    pub rgb: image::RgbImage,
+}
+
+/// The time of frame `index` of a source running at `fps` frames per second.
+pub fn frame_stamp(index: u64, fps: f64) -> u64 {
+    (index as f64 * 1e9 / fps).round() as u64
+}

@@ -1,0 +1,118 @@
+//! The detector node's image side: camera frames from the configured source (a folder,
+//! a video, a recording's or a ROS 2 topic's `sensor_msgs` images) through the
+//! [`ImageDetector`], as a [`Source`] of heat maps, so the detector loop and the
+//! pipeline run it exactly as they run a replayed recording.
+
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use super::config::{DetectorSource, ServiceConfig};
+use crate::detector::{DetectorStats, ImageDetector};
+use crate::images::{DecodedImages, FolderSource, ImageFrame, VideoSource};
+use crate::msgs::{CompressedImage, HeatMaps, Image};
+use crate::transport::mcap::McapSource;
+use crate::transport::ros2::Ros2;
+use crate::transport::{Received, Source, TransportError};
+
+/// The detector's counters, readable while it runs on another thread.
+pub type SharedStats = Arc<Mutex<DetectorStats>>;
+
+/// Heat maps computed from the frames of an image source.
+pub struct ImageHeatMaps {
+    frames: Box<dyn Source<ImageFrame>>,
+    detector: ImageDetector,
+    stats: SharedStats,
+}
+
+impl ImageHeatMaps {
+    /// `detector` on the frames of `frames`.
+    pub fn new(frames: Box<dyn Source<ImageFrame>>, detector: ImageDetector) -> Self {
+        Self {
+            frames,
+            detector,
+            stats: SharedStats::default(),
+        }
+    }
+
+    /// A handle on the detector's counters.
+    pub fn stats(&self) -> SharedStats {
+        self.stats.clone()
+    }
+}
+
+impl Source<HeatMaps> for ImageHeatMaps {
+    fn recv(&mut self, timeout: Duration) -> Result<Received<HeatMaps>, TransportError> {
+        let (frame, stamp) = match self.frames.recv(timeout)? {
+            Received::Message(frame, stamp) => (frame, stamp),
+            Received::Idle => return Ok(Received::Idle),
+            Received::Closed => return Ok(Received::Closed),
+        };
+        let result = self.detector.detect(&frame);
+        if let Ok(mut stats) = self.stats.lock() {
+            *stats = self.detector.stats();
+        }
+        match result {
+            Ok(Some(maps)) => Ok(Received::Message(maps, stamp)),
+            Ok(None) => {
+                tracing::debug!("{}: no person", frame.name);
+                Ok(Received::Idle)
+            }
+            Err(e) => Err(TransportError::Broken {
+                transport: "image detector",
+                topic: frame.name,
+                reason: e.to_string(),
+            }),
+        }
+    }
+}
+
+/// True for a camera topic carrying `sensor_msgs/CompressedImage`
+/// (`image_transport`'s naming).
+pub fn is_compressed_topic(topic: &str) -> bool {
+    topic.ends_with("/compressed")
+}
+
+/// The frames of the configured image source (`detector.source`, not `recording`);
+/// `ros` is needed for the `ros2` source.
+pub fn image_frames(
+    config: &ServiceConfig,
+    ros: Option<&mut Ros2>,
+) -> Result<Box<dyn Source<ImageFrame>>, TransportError> {
+    let images = &config.detector.images;
+    let (path, topic) = (&images.path, images.topic.as_str());
+    let setup = |reason: &str| TransportError::Setup {
+        transport: "images",
+        what: format!("the {:?} source", config.detector.source),
+        reason: reason.into(),
+    };
+    let needs_path = !matches!(
+        config.detector.source,
+        DetectorSource::Ros2 | DetectorSource::Recording
+    );
+    if needs_path && path.as_os_str().is_empty() {
+        return Err(setup("detector.images.path is empty"));
+    }
+    Ok(match config.detector.source {
+        DetectorSource::Images => Box::new(FolderSource::open(path, images.fps, &images.frame_id)?),
+        DetectorSource::Video => Box::new(VideoSource::open(path, &images.frame_id)?),
+        DetectorSource::ImageRecording if is_compressed_topic(topic) => Box::new(
+            DecodedImages::new(McapSource::<CompressedImage>::open(path, topic)?, topic),
+        ),
+        DetectorSource::ImageRecording => Box::new(DecodedImages::new(
+            McapSource::<Image>::open(path, topic)?,
+            topic,
+        )),
+        DetectorSource::Ros2 => {
+            let ros = ros.ok_or_else(|| setup("ROS 2 is not opened"))?;
+            if is_compressed_topic(topic) {
+                Box::new(DecodedImages::new(
+                    ros.source::<CompressedImage>(topic)?,
+                    topic,
+                ))
+            } else {
+                Box::new(DecodedImages::new(ros.source::<Image>(topic)?, topic))
+            }
+        }
+        DetectorSource::Recording => return Err(setup("not an image source")),
+    })
+}

@@ -1,0 +1,376 @@
+//! The image detector end to end on real pictures: a folder of photos and a real video
+//! (fetched from PyPI packages by `tests/python/sample_media.py`), the model fetched
+//! from the npm registry, `posestream run` writing skeletons to MCAP, and
+//! `posestream render` drawing them. Also the camera-message sources (a recording of
+//! `sensor_msgs` images) and the errors a user meets first.
+
+mod common;
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::OnceLock;
+use std::time::Duration;
+
+use posestream::models::{LandmarkModel, fetch};
+use posestream::msgs::{CompressedImage, Header, HeatMaps, Image, Skeleton3D, Time};
+use posestream::transport::mcap::{McapSource, SharedRecorder};
+use posestream::transport::{Message, Received, Sink, Source};
+
+/// Models and sample media, fetched once for the whole file.
+struct Fixtures {
+    _dir: tempfile::TempDir,
+    models: PathBuf,
+    images: PathBuf,
+    video: PathBuf,
+}
+
+fn fixtures() -> &'static Fixtures {
+    static FIXTURES: OnceLock<Fixtures> = OnceLock::new();
+    FIXTURES.get_or_init(|| {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let models = dir.path().join("models");
+        fetch::fetch(&models, &[LandmarkModel::Full], None, false)
+            .unwrap_or_else(|e| panic!("fetching the model from the npm registry failed: {e}"));
+        let media = common::python_client(
+            "sample_media.py",
+            &[dir.path().join("media").to_str().expect("utf-8")],
+        );
+        Fixtures {
+            images: PathBuf::from(media["images"].as_str().expect("images")),
+            video: PathBuf::from(media["video"].as_str().expect("video")),
+            models,
+            _dir: dir,
+        }
+    })
+}
+
+/// Runs the CLI with the fetched models; returns stdout, panics on failure.
+fn posestream(args: &[&str]) -> String {
+    let out = cli(args);
+    assert!(
+        out.status.success(),
+        "posestream {args:?} failed:\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+fn cli(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_posestream"))
+        .args(args)
+        .current_dir(common::root())
+        .env("POSESTREAM_MODELS", &fixtures().models)
+        .output()
+        .expect("runs")
+}
+
+fn read_all<M: Message>(path: &Path, topic: &str) -> Vec<M> {
+    let mut source = McapSource::<M>::open(path, topic).expect("topic");
+    let mut out = Vec::new();
+    while let Received::Message(m, _) = source.recv(Duration::ZERO).expect("reads") {
+        out.push(m);
+    }
+    out
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().expect("utf-8")
+}
+
+#[test]
+fn a_folder_of_real_photos_becomes_skeletons_in_mcap_and_a_picture() {
+    let f = fixtures();
+    let dir = tempfile::tempdir().expect("dir");
+    let out = dir.path().join("photos.mcap");
+    let report: serde_json::Value = serde_json::from_str(&posestream(&[
+        "run",
+        "--images",
+        s(&f.images),
+        "--record",
+        s(&out),
+        "--ros2",
+        "false",
+        "--json",
+    ]))
+    .expect("json");
+    let images = &report["detector"]["images"];
+    assert_eq!(images["frames"], 3, "{report}");
+    assert!(images["detected"].as_u64().expect("n") >= 2, "{report}");
+    // Python's mcap + mcap-ros2-support decode everything we wrote.
+    let decoded = common::python_client("read_recording.py", &[s(&out)]);
+    let topics = &decoded["topics"];
+    assert_eq!(
+        topics["/posestream/heatmaps"], images["detected"],
+        "{decoded}"
+    );
+    assert!(
+        topics["/posestream/skeletons"].as_u64().expect("n") >= 2,
+        "{decoded}"
+    );
+    // The astronaut (first in name order): heat maps over her, her head where it is.
+    let maps = read_all::<HeatMaps>(&out, "/posestream/heatmaps");
+    let first = maps
+        .iter()
+        .find(|m| m.sequence == 0)
+        .expect("the astronaut is found");
+    assert_eq!(
+        (first.height, first.width, first.joint_names.len()),
+        (64, 64, 17)
+    );
+    let crop = first.crop().expect("crop");
+    assert!(crop.width > 150.0 && crop.width < 900.0, "{crop:?}");
+    let skeletons = read_all::<Skeleton3D>(&out, "/posestream/skeletons");
+    let astronaut = skeletons
+        .iter()
+        .find(|k| k.sequence == 0)
+        .expect("skeleton");
+    // `neck` is the dictionary's head joint, mapped to between the ears.
+    let head = astronaut
+        .joint_names
+        .iter()
+        .position(|n| n == "neck")
+        .expect("head joint");
+    let (x, y) = (
+        astronaut.keypoints[2 * head],
+        astronaut.keypoints[2 * head + 1],
+    );
+    // The 512 x 512 portrait has her face around (250, 120).
+    assert!(
+        (170.0..330.0).contains(&x) && (40.0..220.0).contains(&y),
+        "head at ({x}, {y})"
+    );
+    assert!(astronaut.positions.iter().all(|v| v.is_finite()));
+    // Pictures: one frame as PNG (image scaled to 200 high, plus a 200 x 200 view) and
+    // all of them as a GIF.
+    let png = dir.path().join("astronaut.png");
+    posestream(&[
+        "render",
+        s(&out),
+        "--images",
+        s(&f.images),
+        "-o",
+        s(&png),
+        "--frame",
+        "0",
+        "--height",
+        "200",
+    ]);
+    let picture = image::open(&png).expect("png").to_rgb8();
+    assert_eq!(picture.dimensions(), (400, 200));
+    let gif = dir.path().join("all.gif");
+    let said = posestream(&["render", s(&out), "--images", s(&f.images), "-o", s(&gif)]);
+    assert!(
+        said.starts_with(&format!("{} frames", images["detected"])),
+        "{said}"
+    );
+    let bytes = std::fs::read(&gif).expect("gif");
+    assert_eq!(&bytes[..6], b"GIF89a");
+}
+
+#[test]
+fn a_real_video_is_tracked_and_its_skeletons_recorded() {
+    let f = fixtures();
+    let dir = tempfile::tempdir().expect("dir");
+    let out = dir.path().join("bikes.mcap");
+    let report: serde_json::Value = serde_json::from_str(&posestream(&[
+        "run",
+        "--video",
+        s(&f.video),
+        "--record",
+        s(&out),
+        "--ros2",
+        "false",
+        "--json",
+    ]))
+    .expect("json");
+    let images = &report["detector"]["images"];
+    // 10 s at 25 fps; the cyclist is in some shots, not in others.
+    assert_eq!(images["frames"], 250, "{report}");
+    let detected = images["detected"].as_u64().expect("n");
+    assert!((40..=240).contains(&detected), "{report}");
+    let maps = read_all::<HeatMaps>(&out, "/posestream/heatmaps");
+    assert_eq!(maps.len() as u64, detected);
+    // Tracking: the longest run of consecutive frames on one track.
+    let mut tracks: BTreeMap<u32, Vec<u64>> = BTreeMap::new();
+    for m in &maps {
+        tracks.entry(m.track_id).or_default().push(m.sequence);
+        assert_eq!(m.header.stamp.nanos(), m.sequence as i64 * 40_000_000);
+    }
+    let longest = tracks.values().map(Vec::len).max().unwrap_or(0);
+    assert!(longest >= 20, "{tracks:?}");
+    // Every frame with heat maps gets its skeletons (newest and refined).
+    let skeletons = read_all::<Skeleton3D>(&out, "/posestream/skeletons");
+    assert_eq!(skeletons.len() as u64, 2 * detected, "{report}");
+    let png = dir.path().join("bike.png");
+    let seq = maps[maps.len() / 2].sequence.to_string();
+    posestream(&[
+        "render",
+        s(&out),
+        "--video",
+        s(&f.video),
+        "-o",
+        s(&png),
+        "--frame",
+        &seq,
+        "--height",
+        "136",
+    ]);
+    assert_eq!(
+        image::open(&png).expect("png").to_rgb8().dimensions(),
+        (320 + 136, 136)
+    );
+}
+
+fn compressed(path: &Path, seq: i64) -> CompressedImage {
+    let format = if path.extension().is_some_and(|e| e == "png") {
+        "png"
+    } else {
+        "jpeg"
+    };
+    CompressedImage {
+        header: Header {
+            stamp: Time::from_nanos(seq * 100_000_000),
+            frame_id: "camera".into(),
+        },
+        format: format.into(),
+        data: std::fs::read(path).expect("image file"),
+    }
+}
+
+#[test]
+fn camera_messages_in_a_recording_give_the_heat_maps_of_the_same_files() {
+    let f = fixtures();
+    let dir = tempfile::tempdir().expect("dir");
+    // The photos as CompressedImage (their file bytes) and as raw rgb8 Image messages.
+    let mut files: Vec<PathBuf> = std::fs::read_dir(&f.images)
+        .expect("dir")
+        .map(|e| e.expect("entry").path())
+        .collect();
+    files.sort();
+    let cameras = dir.path().join("cameras.mcap");
+    let recorder = SharedRecorder::create(&cameras).expect("recorder");
+    let mut packed = recorder.sink::<CompressedImage>("/camera/image_raw/compressed");
+    let mut raw = recorder.sink::<Image>("/camera/image_raw");
+    for (i, file) in files.iter().enumerate() {
+        let msg = compressed(file, i as i64);
+        packed.send(&msg, i as u64).expect("send");
+        let rgb = image::open(file).expect("decodes").to_rgb8();
+        let (w, h) = rgb.dimensions();
+        let raw_msg = Image {
+            header: msg.header.clone(),
+            height: h,
+            width: w,
+            encoding: "rgb8".into(),
+            is_bigendian: 0,
+            step: 3 * w,
+            data: rgb.into_raw(),
+        };
+        raw.send(&raw_msg, i as u64).expect("send");
+    }
+    drop((packed, raw));
+    recorder.finish().expect("finish");
+    // The folder itself, as the reference.
+    let folder_out = dir.path().join("folder.mcap");
+    posestream(&[
+        "run",
+        "--images",
+        s(&f.images),
+        "--record",
+        s(&folder_out),
+        "--ros2",
+        "false",
+    ]);
+    let reference = read_all::<HeatMaps>(&folder_out, "/posestream/heatmaps");
+    for topic in ["/camera/image_raw/compressed", "/camera/image_raw"] {
+        let config = dir.path().join("camera.toml");
+        let record = dir.path().join("from-camera.mcap");
+        std::fs::write(
+            &config,
+            format!(
+                "[detector]\nsource = \"image-recording\"\n[detector.images]\npath = {:?}\n\
+                 topic = {topic:?}\n[outputs]\nros2 = false\nmarkers = false\nrecord = {:?}\n",
+                s(&cameras),
+                s(&record)
+            ),
+        )
+        .expect("config");
+        posestream(&["detector", "--config", s(&config)]);
+        let got = read_all::<HeatMaps>(&record, "/posestream/heatmaps");
+        assert_eq!(got.len(), reference.len(), "{topic}");
+        for (a, b) in got.iter().zip(&reference) {
+            assert_eq!(
+                (a.sequence, a.crop().ok()),
+                (b.sequence, b.crop().ok()),
+                "{topic}"
+            );
+            assert_eq!(a.values, b.values, "{topic}: frame {}", a.sequence);
+            assert_eq!(a.header.stamp.nanos(), a.sequence as i64 * 100_000_000);
+        }
+    }
+}
+
+#[test]
+fn what_a_new_user_gets_wrong_is_one_clear_error() {
+    let f = fixtures();
+    let dir = tempfile::tempdir().expect("dir");
+    let expect_error = |args: &[&str], envs: &[(&str, &Path)], says: &str| {
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_posestream"));
+        cmd.args(args).current_dir(common::root());
+        cmd.env("POSESTREAM_MODELS", &f.models);
+        for (k, v) in envs {
+            cmd.env(k, v);
+        }
+        let out = cmd.output().expect("runs");
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{args:?} succeeded");
+        assert!(stderr.contains(says), "{args:?}: {stderr}");
+        assert!(!stderr.contains("panicked"), "{stderr}");
+    };
+    let images = s(&f.images);
+    // No model fetched.
+    expect_error(
+        &["run", "--images", images, "--ros2", "false"],
+        &[("POSESTREAM_MODELS", dir.path())],
+        "posestream models fetch",
+    );
+    // An empty folder, a missing video, a bad box.
+    expect_error(
+        &["run", "--images", s(dir.path()), "--ros2", "false"],
+        &[],
+        "no image files",
+    );
+    let missing = dir.path().join("missing.mp4");
+    expect_error(
+        &["run", "--video", s(&missing), "--ros2", "false"],
+        &[],
+        "no such file",
+    );
+    expect_error(
+        &[
+            "run",
+            "--images",
+            images,
+            "--person-box",
+            "0,0,-5,10",
+            "--ros2",
+            "false",
+        ],
+        &[],
+        "person_box",
+    );
+    // A file that is not a video.
+    let text = dir.path().join("notes.mp4");
+    std::fs::write(&text, "not a video").expect("write");
+    expect_error(
+        &["run", "--video", s(&text), "--ros2", "false"],
+        &[],
+        "not a video",
+    );
+    // Rendering needs the images.
+    expect_error(
+        &["render", s(&text), "-o", s(&dir.path().join("x.png"))],
+        &[],
+        "needs the run's images",
+    );
+}

