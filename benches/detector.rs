@@ -1,25 +1,73 @@
-//! Image crop to heat maps: one 256 x 256 crop through each BlazePose landmark model in
-//! tract, one core. Fetches the models into the cache first (`posestream models fetch`).
+//! Image to heat maps, one core: each step of the image detector on its own.
+//! - the crop: a 640 x 480 frame resampled into the 256 x 256 input;
+//! - each BlazePose landmark model on one crop (tract);
+//! - the channel mapping: 39 logit channels to the dictionary's 17 joint maps;
+//! - the person detector on one 224 x 224 input, decoding and NMS included (runs on the
+//!   first frame and after a loss only).
+//!
+//! A tracked frame costs crop + landmark model + mapping. Fetches the models into the
+//! cache first (`posestream models fetch`).
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use posestream::models::landmarks::{INPUT_SIZE, LandmarkNetwork};
-use posestream::models::{self, LandmarkModel};
+use posestream::CropBox;
+use posestream::detector::crop::crop_input;
+use posestream::detector::mapping::ChannelMapping;
+use posestream::models::landmarks::{HEATMAP_CHANNELS, HEATMAP_SIZE, INPUT_SIZE, LandmarkNetwork};
+use posestream::models::person::{self, PersonNetwork};
+use posestream::models::{self, LandmarkModel, ModelFile};
 
 fn bench(c: &mut Criterion) {
     let dir = models::cache_dir();
     let fetched = models::fetch(&dir, &LandmarkModel::ALL, None, false).expect("models");
-    // A smooth synthetic image (the cost does not depend on the content).
+    // A synthetic image (the cost does not depend on the content).
     let rgb: Vec<f32> = (0..INPUT_SIZE * INPUT_SIZE * 3)
         .map(|i| ((i * 7919) % 255) as f32 / 255.0)
         .collect();
-    let mut group = c.benchmark_group("crop to heat maps (256 x 256, one core)");
+    let mut group = c.benchmark_group("image to heat maps (one core)");
     group.sample_size(20);
+    let frame = image::RgbImage::from_fn(640, 480, |x, y| {
+        image::Rgb([(x % 251) as u8, (y % 241) as u8, ((x + y) % 239) as u8])
+    });
+    let crop = CropBox::new(180.0, 40.0, 300.0, 300.0).expect("box");
+    let mut input = Vec::new();
+    group.bench_function("crop 640x480 -> 256x256", |b| {
+        b.iter(|| crop_input(&frame, &crop, INPUT_SIZE, &mut input))
+    });
     for m in &fetched {
+        let ModelFile::Landmark(model) = m.model else {
+            continue;
+        };
         let network = LandmarkNetwork::load(&m.for_tract).expect("loads");
-        group.bench_function(format!("{:?}", m.model), |b| {
+        group.bench_function(format!("landmarks {model:?}"), |b| {
             b.iter(|| network.run(&rgb).expect("runs"))
         });
     }
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let dict = posestream::Dictionary::load(root.join("config/dictionaries/default-k128.json"))
+        .expect("dictionary");
+    let mapping = ChannelMapping::load(
+        root.join("config/detectors/blazepose.toml"),
+        &dict.skeleton().joints,
+    )
+    .expect("mapping");
+    let logits: Vec<f32> = (0..HEATMAP_SIZE * HEATMAP_SIZE * HEATMAP_CHANNELS)
+        .map(|i| ((i % 97) as f32 - 60.0) * 0.1)
+        .collect();
+    let mut maps = Vec::new();
+    group.bench_function("mapping 39 channels -> 17 joints", |b| {
+        b.iter(|| {
+            mapping
+                .apply(&logits, HEATMAP_SIZE, HEATMAP_SIZE, &mut maps)
+                .expect("maps")
+        })
+    });
+    let detector = PersonNetwork::load(&ModelFile::PersonDetector.for_tract(&dir)).expect("loads");
+    let input: Vec<f32> = (0..person::INPUT_SIZE * person::INPUT_SIZE * 3)
+        .map(|i| ((i * 7919) % 255) as f32 / 127.5 - 1.0)
+        .collect();
+    group.bench_function("person detector 224x224", |b| {
+        b.iter(|| detector.detect(&input, 0.5).expect("runs"))
+    });
     group.finish();
 }
 

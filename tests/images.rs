@@ -97,6 +97,11 @@ fn a_folder_of_real_photos_becomes_skeletons_in_mcap_and_a_picture() {
     let images = &report["detector"]["images"];
     assert_eq!(images["frames"], 3, "{report}");
     assert!(images["detected"].as_u64().expect("n") >= 2, "{report}");
+    // BlazePose's person detector placed the boxes.
+    assert!(
+        images["detector_hits"].as_u64().expect("n") >= 2,
+        "{report}"
+    );
     // Python's mcap + mcap-ros2-support decode everything we wrote.
     let decoded = common::python_client("read_recording.py", &[s(&out)]);
     let topics = &decoded["topics"];
@@ -119,7 +124,14 @@ fn a_folder_of_real_photos_becomes_skeletons_in_mcap_and_a_picture() {
         (64, 64, 17)
     );
     let crop = first.crop().expect("crop");
-    assert!(crop.width > 150.0 && crop.width < 900.0, "{crop:?}");
+    // Square, around her face (the box holds the whole body's circle, mostly below the
+    // portrait: it is large).
+    assert!(
+        crop.width > 150.0 && crop.width < 3000.0 && crop.width == crop.height,
+        "{crop:?}"
+    );
+    assert!(crop.x0 < 250.0 && crop.x0 + crop.width > 250.0, "{crop:?}");
+    assert!(crop.y0 < 120.0 && crop.y0 + crop.height > 120.0, "{crop:?}");
     let skeletons = read_all::<Skeleton3D>(&out, "/posestream/skeletons");
     let astronaut = skeletons
         .iter()

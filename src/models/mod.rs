@@ -5,13 +5,15 @@
 //! Cache: `$POSESTREAM_MODELS` if set, else `$XDG_CACHE_HOME/posestream/models`, else
 //! `~/.cache/posestream/models`.
 
+pub mod append;
 pub mod fetch;
 pub mod landmarks;
+pub mod person;
 pub mod rewrite;
 
 use std::path::PathBuf;
 
-pub use fetch::{FetchError, LandmarkModel, fetch};
+pub use fetch::{FetchError, LandmarkModel, ModelFile, fetch};
 
 /// The model cache folder.
 pub fn cache_dir() -> PathBuf {

@@ -1,23 +1,36 @@
-//! Rewrites a TFLite flatbuffer so that `tract-tflite` loads it: MediaPipe's BlazePose
-//! landmark models keep their weights as float16 constants behind `DEQUANTIZE`
-//! operators, which tract does not implement.
+//! Rewrites a TFLite flatbuffer so that `tract-tflite` loads it. MediaPipe's BlazePose
+//! models keep their weights as float16 constants behind `DEQUANTIZE` operators, the
+//! person detector also keeps some sparse (`DENSIFY`) and upsamples with
+//! `DEPTH_TO_SPACE`; tract implements none of the three.
 //!
-//! The rewrite edits the file's bytes in place and appends what does not fit, which a
-//! flatbuffer allows because every reference is a forward offset relative to where it
-//! is stored:
+//! The rewrite edits the file's bytes in place and appends what does not fit
+//! ([`super::append`]), which a flatbuffer allows because every reference is a forward
+//! offset relative to where it is stored:
+//! - each `DENSIFY` of a sparse float16 constant: the constant is expanded to its dense
+//!   values (the sparse format of the TFLite schema: dense and CSR dimensions in
+//!   storage order), which the `DEQUANTIZE` reading it then folds;
 //! - each `DEQUANTIZE` of a float16 constant: the float32 values are appended as a new
 //!   byte vector, the constant's buffer points to them and its type becomes float32;
-//! - every operator input (and subgraph output) that read the `DEQUANTIZE`'s output
-//!   reads that constant instead (tensor indices patched in place);
-//! - the `DEQUANTIZE` operators leave the subgraph's operator list (compacted in place).
+//! - every operator input (and subgraph output) that read a folded output reads that
+//!   constant instead (tensor indices patched in place);
+//! - each `DEPTH_TO_SPACE` (block b, `[1,H,W,b*b*C]`) becomes `RESHAPE` to
+//!   `[1,H,W,b,b,C]`, `TRANSPOSE` by `[0,1,3,2,4,5]`, `RESHAPE` to `[1,H*b,W*b,C]`:
+//!   new operator tables, appended; the tensors they need take the vector slots of
+//!   tensors the folding left unused, the permutation's data the slot of an unused
+//!   buffer, and the `TRANSPOSE` operator code the slot of an unused one;
+//! - the operator list is rebuilt in place (it only shrinks).
 //!
 //! Nothing else changes: tensor indices, the other operators and their options stay
 //! where they are. The result passes the flatbuffers verifier (`root_as_model`).
-//!
-//! Not handled yet (the person detector needs them): `DENSIFY` (sparse constants) and
-//! `DEPTH_TO_SPACE`; a model with them is refused by tract, not by this rewrite.
 
-use tract_tflite::tflite::{self, BuiltinOperator, TensorType};
+use std::collections::{BTreeSet, HashMap};
+
+use half::f16;
+use tract_tflite::tflite::{
+    self, BuiltinOperator, BuiltinOptions, DimensionType, SparseIndexVector, TensorType,
+};
+
+use super::append::{Value, append_table, append_vector, set_forward};
 
 /// Why a model could not be rewritten.
 #[derive(Debug, thiserror::Error)]
@@ -35,6 +48,10 @@ pub enum RewriteError {
 pub struct RewriteReport {
     /// `DEQUANTIZE` operators folded into float32 constants.
     pub dequantized: usize,
+    /// `DENSIFY` operators folded (sparse constants made dense).
+    pub densified: usize,
+    /// `DEPTH_TO_SPACE` operators replaced by reshape, transpose, reshape.
+    pub depth_to_space: usize,
     /// Operators left.
     pub operators: usize,
 }
@@ -65,27 +82,150 @@ fn field_position(b: &[u8], table: usize, vt_offset: u16) -> Option<usize> {
     }
 }
 
-/// Stores at `at` the forward offset to `target`.
-fn set_offset(b: &mut [u8], at: usize, target: usize) -> Result<(), RewriteError> {
-    let rel = target
-        .checked_sub(at)
-        .and_then(|r| u32::try_from(r).ok())
-        .ok_or_else(|| RewriteError::Unsupported("an offset does not fit".into()))?;
-    b[at..at + 4].copy_from_slice(&rel.to_le_bytes());
-    Ok(())
+fn too_far() -> RewriteError {
+    RewriteError::Unsupported("an offset does not fit".into())
 }
 
-/// Pads `b` to a multiple of `align`, then appends a vector: its length (u32) and
-/// `items`. Returns the vector's position (its length prefix).
-fn append_vector(b: &mut Vec<u8>, len: usize, items: &[u8], align: usize) -> usize {
-    // The elements start 4 bytes after the prefix: align them.
-    while (b.len() + 4) % align != 0 {
-        b.push(0);
+/// Stores at `at` the forward offset to `target`.
+fn set_offset(b: &mut [u8], at: usize, target: usize) -> Result<(), RewriteError> {
+    set_forward(b, at, target).ok_or_else(too_far)
+}
+
+/// The position of slot `i` of the vector that field `vt` of `table` refers to.
+fn vector_slot(b: &[u8], table: usize, vt: u16, i: usize) -> Option<usize> {
+    let field = field_position(b, table, vt)?;
+    let vector = field + u32_at(b, field) as usize;
+    (i < u32_at(b, vector) as usize).then_some(vector + 4 + 4 * i)
+}
+
+fn builtin_of(code: &tflite::OperatorCode) -> BuiltinOperator {
+    BuiltinOperator(i32::from(code.deprecated_builtin_code()).max(code.builtin_code().0))
+}
+
+/// The segments (`segments`) or indices of a CSR dimension, whatever their width.
+fn index_vector(d: &tflite::DimensionMetadata, segments: bool) -> Option<Vec<usize>> {
+    let kind = if segments {
+        d.array_segments_type()
+    } else {
+        d.array_indices_type()
+    };
+    Some(match kind {
+        SparseIndexVector::Int32Vector => {
+            let v = if segments {
+                d.array_segments_as_int_32_vector()
+            } else {
+                d.array_indices_as_int_32_vector()
+            };
+            v?.values()?.iter().map(|x| x.max(0) as usize).collect()
+        }
+        SparseIndexVector::Uint16Vector => {
+            let v = if segments {
+                d.array_segments_as_uint_16_vector()
+            } else {
+                d.array_indices_as_uint_16_vector()
+            };
+            v?.values()?.iter().map(usize::from).collect()
+        }
+        SparseIndexVector::Uint8Vector => {
+            let v = if segments {
+                d.array_segments_as_uint_8_vector()
+            } else {
+                d.array_indices_as_uint_8_vector()
+            };
+            v?.values()?.iter().map(usize::from).collect()
+        }
+        _ => return None,
+    })
+}
+
+/// The dense float16 values of a sparse constant tensor.
+fn densify(tensor: &tflite::Tensor, data: &[u8]) -> Result<Vec<u8>, RewriteError> {
+    let unsupported = |what: &str| RewriteError::Unsupported(format!("sparse tensor: {what}"));
+    let shape: Vec<usize> = tensor
+        .shape()
+        .ok_or_else(|| unsupported("no shape"))?
+        .iter()
+        .map(|d| d.max(0) as usize)
+        .collect();
+    let sparsity = tensor
+        .sparsity()
+        .ok_or_else(|| unsupported("no sparsity parameters"))?;
+    let order: Vec<i32> = sparsity
+        .traversal_order()
+        .map(|v| v.iter().collect())
+        .unwrap_or_default();
+    if order != (0..shape.len() as i32).collect::<Vec<_>>()
+        || sparsity.block_map().is_some_and(|m| !m.is_empty())
+    {
+        return Err(unsupported(
+            "only plain storage order without blocks is read",
+        ));
     }
-    let at = b.len();
-    b.extend_from_slice(&(len as u32).to_le_bytes());
-    b.extend_from_slice(items);
-    at
+    enum Dim {
+        Dense(usize),
+        Csr(Vec<usize>, Vec<usize>),
+    }
+    let dims: Vec<Dim> = sparsity
+        .dim_metadata()
+        .ok_or_else(|| unsupported("no dimension metadata"))?
+        .iter()
+        .map(|d| match d.format() {
+            DimensionType::DENSE => Ok(Dim::Dense(d.dense_size().max(0) as usize)),
+            DimensionType::SPARSE_CSR => Ok(Dim::Csr(
+                index_vector(&d, true).ok_or_else(|| unsupported("segments"))?,
+                index_vector(&d, false).ok_or_else(|| unsupported("indices"))?,
+            )),
+            _ => Err(unsupported("unknown dimension format")),
+        })
+        .collect::<Result<_, _>>()?;
+    if dims.len() != shape.len() {
+        return Err(unsupported("metadata and shape disagree"));
+    }
+    let strides: Vec<usize> = (0..shape.len())
+        .map(|k| shape[k + 1..].iter().product())
+        .collect();
+    let total: usize = shape.iter().product();
+    let mut dense = vec![0_u8; 2 * total];
+    // Depth-first over the storage: (level, index of the parent entry, dense offset).
+    let mut stack = vec![(0_usize, 0_usize, 0_usize)];
+    while let Some((level, parent, offset)) = stack.pop() {
+        if level == dims.len() {
+            let (from, to) = (2 * parent, 2 * offset);
+            let value = data
+                .get(from..from + 2)
+                .ok_or_else(|| unsupported("too few values"))?;
+            dense
+                .get_mut(to..to + 2)
+                .ok_or_else(|| unsupported("an index out of the shape"))?
+                .copy_from_slice(value);
+            continue;
+        }
+        match &dims[level] {
+            Dim::Dense(size) => {
+                for i in 0..*size {
+                    stack.push((level + 1, parent * size + i, offset + i * strides[level]));
+                }
+            }
+            Dim::Csr(segments, indices) => {
+                let (a, b) = (
+                    *segments
+                        .get(parent)
+                        .ok_or_else(|| unsupported("segments"))?,
+                    *segments
+                        .get(parent + 1)
+                        .ok_or_else(|| unsupported("segments"))?,
+                );
+                for k in a..b {
+                    let i = *indices.get(k).ok_or_else(|| unsupported("indices"))?;
+                    if i >= shape[level] {
+                        return Err(unsupported("an index out of the shape"));
+                    }
+                    stack.push((level + 1, k, offset + i * strides[level]));
+                }
+            }
+        }
+    }
+    Ok(dense)
 }
 
 /// Rewrites `model` (the bytes of a `.tflite` file) for tract.
@@ -106,47 +246,72 @@ pub fn rewrite_for_tract(model: &[u8]) -> Result<(Vec<u8>, RewriteReport), Rewri
     let tensors = graph.tensors().ok_or_else(|| invalid(&"no tensors"))?;
     let buffers = root.buffers().ok_or_else(|| invalid(&"no buffers"))?;
     let operators = graph.operators().ok_or_else(|| invalid(&"no operators"))?;
-    let mut out = model.to_vec();
-    let mut kept = Vec::new();
-    let mut report = RewriteReport::default();
-    // DEQUANTIZE output tensor -> the constant it is now.
-    let mut replaced = std::collections::HashMap::new();
-    for op in operators.iter() {
-        let code = codes.get(op.opcode_index() as usize);
-        let builtin =
-            BuiltinOperator(i32::from(code.deprecated_builtin_code()).max(code.builtin_code().0));
-        if builtin != BuiltinOperator::DEQUANTIZE {
-            kept.push(op._tab.loc());
-            continue;
+    let builtin = |op: &tflite::Operator| builtin_of(&codes.get(op.opcode_index() as usize));
+    let io = |op: &tflite::Operator| -> Result<(i32, i32), RewriteError> {
+        match (op.inputs(), op.outputs()) {
+            (Some(i), Some(o)) if !i.is_empty() && !o.is_empty() => Ok((i.get(0), o.get(0))),
+            _ => Err(invalid(&"an operator without inputs or outputs")),
         }
-        let (Some(inputs), Some(outputs)) = (op.inputs(), op.outputs()) else {
-            return Err(invalid(&"a DEQUANTIZE without inputs or outputs"));
+    };
+    let mut out = model.to_vec();
+    let mut report = RewriteReport::default();
+    // DENSIFY output -> (the sparse constant, its dense float16 bytes).
+    let mut densified = HashMap::new();
+    for op in operators
+        .iter()
+        .filter(|op| builtin(op) == BuiltinOperator::DENSIFY)
+    {
+        let (input, output) = io(&op)?;
+        let tensor = tensors.get(input as usize);
+        let data = buffers
+            .get(tensor.buffer() as usize)
+            .data()
+            .filter(|d| !d.is_empty())
+            .ok_or_else(|| RewriteError::Unsupported("DENSIFY of a non-constant".into()))?;
+        if tensor.type_() != TensorType::FLOAT16 {
+            return Err(RewriteError::Unsupported(format!(
+                "DENSIFY of {:?} (only float16)",
+                tensor.type_()
+            )));
+        }
+        densified.insert(output, (input, densify(&tensor, data.bytes())?));
+        report.densified += 1;
+    }
+    // DEQUANTIZE output tensor -> the constant it is now.
+    let mut replaced = HashMap::new();
+    for op in operators
+        .iter()
+        .filter(|op| builtin(op) == BuiltinOperator::DEQUANTIZE)
+    {
+        let (dq_input, output) = io(&op)?;
+        let (constant, values) = match densified.get(&dq_input) {
+            Some((sparse, dense)) => (*sparse, dense.clone()),
+            None => {
+                let tensor = tensors.get(dq_input as usize);
+                let data = buffers
+                    .get(tensor.buffer() as usize)
+                    .data()
+                    .filter(|d| !d.is_empty())
+                    .ok_or_else(|| {
+                        RewriteError::Unsupported("DEQUANTIZE of a non-constant".into())
+                    })?;
+                (dq_input, data.bytes().to_vec())
+            }
         };
-        let (input, output) = (
-            tensors.get(inputs.get(0) as usize),
-            tensors.get(outputs.get(0) as usize),
-        );
-        if input.type_() != TensorType::FLOAT16 || output.type_() != TensorType::FLOAT32 {
+        let input = tensors.get(constant as usize);
+        let output_type = tensors.get(output as usize).type_();
+        if input.type_() != TensorType::FLOAT16 || output_type != TensorType::FLOAT32 {
             return Err(RewriteError::Unsupported(format!(
                 "DEQUANTIZE from {:?} to {:?} (only float16 to float32)",
                 input.type_(),
-                output.type_()
+                output_type
             )));
         }
-        let buffer = buffers.get(input.buffer() as usize);
-        let data = buffer
-            .data()
-            .filter(|d| !d.is_empty())
-            .ok_or_else(|| RewriteError::Unsupported("DEQUANTIZE of a non-constant".into()))?;
-        let values: Vec<u8> = data
-            .bytes()
+        let values: Vec<u8> = values
             .chunks_exact(2)
-            .flat_map(|h| {
-                half::f16::from_le_bytes([h[0], h[1]])
-                    .to_f32()
-                    .to_le_bytes()
-            })
+            .flat_map(|h| f16::from_le_bytes([h[0], h[1]]).to_f32().to_le_bytes())
             .collect();
+        let buffer = buffers.get(input.buffer() as usize);
         let data_field = field_position(&out, buffer._tab.loc(), tflite::Buffer::VT_DATA)
             .ok_or_else(|| invalid(&"a constant buffer without data"))?;
         let vector = append_vector(&mut out, values.len(), &values, 16);
@@ -154,11 +319,241 @@ pub fn rewrite_for_tract(model: &[u8]) -> Result<(Vec<u8>, RewriteReport), Rewri
         let type_field = field_position(&out, input._tab.loc(), tflite::Tensor::VT_TYPE_)
             .ok_or_else(|| invalid(&"a float16 tensor without a type field"))?;
         out[type_field] = TensorType::FLOAT32.0 as u8;
-        replaced.insert(outputs.get(0), inputs.get(0));
-        let _ = output;
+        replaced.insert(output, constant);
         report.dequantized += 1;
     }
-    // Readers of a folded output read the constant instead.
+    // Tensors and buffers nothing reads any more: room for the new operators' tensors.
+    let mut spare_tensors: Vec<i32> = replaced
+        .keys()
+        .chain(densified.keys())
+        .copied()
+        .collect::<BTreeSet<_>>()
+        .into_iter()
+        .collect();
+    spare_tensors.reverse();
+    let mut buffer_users = vec![0_usize; buffers.len()];
+    for t in tensors.iter() {
+        if let Some(n) = buffer_users.get_mut(t.buffer() as usize) {
+            *n += 1;
+        }
+    }
+    let mut spare_buffers: Vec<u32> = spare_tensors
+        .iter()
+        .map(|&t| tensors.get(t as usize).buffer())
+        .filter(|&b| b != 0 && buffer_users[b as usize] == 1)
+        .collect();
+    // Operator codes nothing uses any more.
+    let mut spare_codes: Vec<usize> = (0..codes.len())
+        .filter(|&i| {
+            matches!(
+                builtin_of(&codes.get(i)),
+                BuiltinOperator::DEQUANTIZE
+                    | BuiltinOperator::DENSIFY
+                    | BuiltinOperator::DEPTH_TO_SPACE
+            )
+        })
+        .collect();
+    let model_table = root._tab.loc();
+    let graph_table = graph._tab.loc();
+    let mut code_of = |out: &mut Vec<u8>, op: BuiltinOperator| -> Result<u32, RewriteError> {
+        if let Some(i) =
+            (0..codes.len()).find(|&i| builtin_of(&codes.get(i)) == op && !spare_codes.contains(&i))
+        {
+            return Ok(i as u32);
+        }
+        let slot_index = spare_codes
+            .pop()
+            .ok_or_else(|| RewriteError::Unsupported("no operator code slot left".into()))?;
+        let table = append_table(
+            out,
+            &[
+                (
+                    tflite::OperatorCode::VT_DEPRECATED_BUILTIN_CODE,
+                    Value::U8(op.0 as u8),
+                ),
+                (tflite::OperatorCode::VT_VERSION, Value::U32(1)),
+                (
+                    tflite::OperatorCode::VT_BUILTIN_CODE,
+                    Value::U32(op.0 as u32),
+                ),
+            ],
+        )
+        .ok_or_else(too_far)?;
+        let slot = vector_slot(
+            out,
+            model_table,
+            tflite::Model::VT_OPERATOR_CODES,
+            slot_index,
+        )
+        .ok_or_else(|| invalid(&"operator codes"))?;
+        set_offset(out, slot, table)?;
+        Ok(slot_index as u32)
+    };
+    let mut new_tensor = |out: &mut Vec<u8>,
+                          shape: Vec<i32>,
+                          ty: TensorType,
+                          buffer: u32,
+                          name: String|
+     -> Result<i32, RewriteError> {
+        let index = spare_tensors
+            .pop()
+            .ok_or_else(|| RewriteError::Unsupported("no tensor slot left".into()))?;
+        let table = append_table(
+            out,
+            &[
+                (tflite::Tensor::VT_SHAPE, Value::I32s(shape)),
+                (tflite::Tensor::VT_TYPE_, Value::U8(ty.0 as u8)),
+                (tflite::Tensor::VT_BUFFER, Value::U32(buffer)),
+                (tflite::Tensor::VT_NAME, Value::Str(name)),
+            ],
+        )
+        .ok_or_else(too_far)?;
+        let slot = vector_slot(
+            out,
+            graph_table,
+            tflite::SubGraph::VT_TENSORS,
+            index as usize,
+        )
+        .ok_or_else(|| invalid(&"tensors"))?;
+        set_offset(out, slot, table)?;
+        Ok(index)
+    };
+    let operator = |out: &mut Vec<u8>,
+                    code: u32,
+                    inputs: Vec<i32>,
+                    outputs: Vec<i32>,
+                    options: (BuiltinOptions, Vec<(u16, Value)>)|
+     -> Result<usize, RewriteError> {
+        append_table(
+            out,
+            &[
+                (tflite::Operator::VT_OPCODE_INDEX, Value::U32(code)),
+                (tflite::Operator::VT_INPUTS, Value::I32s(inputs)),
+                (tflite::Operator::VT_OUTPUTS, Value::I32s(outputs)),
+                (
+                    tflite::Operator::VT_BUILTIN_OPTIONS_TYPE,
+                    Value::U8(options.0.0),
+                ),
+                (
+                    tflite::Operator::VT_BUILTIN_OPTIONS,
+                    Value::Table(options.1),
+                ),
+            ],
+        )
+        .ok_or_else(too_far)
+    };
+    // The operator list: kept operators, DEPTH_TO_SPACE expanded.
+    let (mut list, mut originals) = (Vec::new(), Vec::new());
+    let mut perm = None;
+    for op in operators.iter() {
+        let kind = builtin(&op);
+        if matches!(kind, BuiltinOperator::DEQUANTIZE | BuiltinOperator::DENSIFY) {
+            continue;
+        }
+        if kind != BuiltinOperator::DEPTH_TO_SPACE {
+            list.push(op._tab.loc());
+            originals.push(op._tab.loc());
+            continue;
+        }
+        let (input, output) = io(&op)?;
+        let block = op
+            .builtin_options_as_depth_to_space_options()
+            .map(|o| o.block_size())
+            .ok_or_else(|| invalid(&"DEPTH_TO_SPACE without options"))?;
+        let shape: Vec<i32> = tensors
+            .get(input as usize)
+            .shape()
+            .map(|s| s.iter().collect())
+            .unwrap_or_default();
+        let &[n, h, w, c] = shape.as_slice() else {
+            return Err(RewriteError::Unsupported(
+                "DEPTH_TO_SPACE of a non-4D tensor".into(),
+            ));
+        };
+        if block < 1 || c % (block * block) != 0 {
+            return Err(invalid(&"DEPTH_TO_SPACE block size"));
+        }
+        let c_out = c / (block * block);
+        let name = format!("depth_to_space_{}", report.depth_to_space);
+        let perm = match perm {
+            Some(p) => p,
+            None => {
+                let buffer = spare_buffers
+                    .pop()
+                    .ok_or_else(|| RewriteError::Unsupported("no buffer slot left".into()))?;
+                let data: Vec<u8> = [0_i32, 1, 3, 2, 4, 5]
+                    .iter()
+                    .flat_map(|v| v.to_le_bytes())
+                    .collect();
+                let table =
+                    append_table(&mut out, &[(tflite::Buffer::VT_DATA, Value::Bytes(data))])
+                        .ok_or_else(too_far)?;
+                let slot = vector_slot(
+                    &out,
+                    model_table,
+                    tflite::Model::VT_BUFFERS,
+                    buffer as usize,
+                )
+                .ok_or_else(|| invalid(&"buffers"))?;
+                set_offset(&mut out, slot, table)?;
+                let p = new_tensor(
+                    &mut out,
+                    vec![6],
+                    TensorType::INT32,
+                    buffer,
+                    "depth_to_space_perm".into(),
+                )?;
+                perm = Some(p);
+                p
+            }
+        };
+        let split = new_tensor(
+            &mut out,
+            vec![n, h, w, block, block, c_out],
+            TensorType::FLOAT32,
+            0,
+            format!("{name}_split"),
+        )?;
+        let moved = new_tensor(
+            &mut out,
+            vec![n, h, block, w, block, c_out],
+            TensorType::FLOAT32,
+            0,
+            format!("{name}_moved"),
+        )?;
+        let reshape = code_of(&mut out, BuiltinOperator::RESHAPE)?;
+        let transpose = code_of(&mut out, BuiltinOperator::TRANSPOSE)?;
+        let reshape_to = |shape: Vec<i32>| {
+            (
+                BuiltinOptions::ReshapeOptions,
+                vec![(tflite::ReshapeOptions::VT_NEW_SHAPE, Value::I32s(shape))],
+            )
+        };
+        list.push(operator(
+            &mut out,
+            reshape,
+            vec![input],
+            vec![split],
+            reshape_to(vec![n, h, w, block, block, c_out]),
+        )?);
+        list.push(operator(
+            &mut out,
+            transpose,
+            vec![split, perm],
+            vec![moved],
+            (BuiltinOptions::TransposeOptions, vec![]),
+        )?);
+        list.push(operator(
+            &mut out,
+            reshape,
+            vec![moved],
+            vec![output],
+            reshape_to(vec![n, h * block, w * block, c_out]),
+        )?);
+        report.depth_to_space += 1;
+    }
+    // Readers of a folded output read the constant instead (the new operators read
+    // none, and reuse some of those tensor indices).
     let redirect = |out: &mut Vec<u8>, table: usize, vt: u16| {
         if let Some(field) = field_position(out, table, vt) {
             let vector = field + u32_at(out, field) as usize;
@@ -170,22 +565,26 @@ pub fn rewrite_for_tract(model: &[u8]) -> Result<(Vec<u8>, RewriteReport), Rewri
             }
         }
     };
-    for &table in &kept {
+    for &table in &originals {
         redirect(&mut out, table, tflite::Operator::VT_INPUTS);
     }
-    redirect(&mut out, graph._tab.loc(), tflite::SubGraph::VT_OUTPUTS);
-    // The operator list, compacted in place: the kept entries move to the front and the
-    // length shrinks. Each entry is a forward offset to its table (the tables lie after
-    // the list, as a flatbuffer builder writes them); moving an entry forward only makes
-    // its offset larger.
-    let list_field = field_position(&out, graph._tab.loc(), tflite::SubGraph::VT_OPERATORS)
+    redirect(&mut out, graph_table, tflite::SubGraph::VT_OUTPUTS);
+    // The operator list, rewritten in place: it only shrinks or keeps its length, and
+    // every table it lists lies after it (the originals, as a flatbuffer builder writes
+    // them, and the appended ones).
+    let list_field = field_position(&out, graph_table, tflite::SubGraph::VT_OPERATORS)
         .ok_or_else(|| invalid(&"a subgraph without operators"))?;
-    let list = list_field + u32_at(&out, list_field) as usize;
-    for (i, &table) in kept.iter().enumerate() {
-        set_offset(&mut out, list + 4 + 4 * i, table)?;
+    let list_at = list_field + u32_at(&out, list_field) as usize;
+    if list.len() > u32_at(&out, list_at) as usize {
+        return Err(RewriteError::Unsupported(
+            "more operators than before".into(),
+        ));
     }
-    out[list..list + 4].copy_from_slice(&(kept.len() as u32).to_le_bytes());
-    report.operators = kept.len();
+    for (i, &table) in list.iter().enumerate() {
+        set_offset(&mut out, list_at + 4 + 4 * i, table)?;
+    }
+    out[list_at..list_at + 4].copy_from_slice(&(list.len() as u32).to_le_bytes());
+    report.operators = list.len();
     tflite::root_as_model(&out).map_err(|e| invalid(&format!("after the rewrite: {e}")))?;
     Ok((out, report))
 }
@@ -318,7 +717,8 @@ mod tests {
             report,
             RewriteReport {
                 dequantized: 1,
-                operators: 1
+                operators: 1,
+                ..Default::default()
             }
         );
         let model = tract_tflite::tflite()
