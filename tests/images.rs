@@ -386,3 +386,94 @@ fn what_a_new_user_gets_wrong_is_one_clear_error() {
         "needs the run's images",
     );
 }
+
+#[test]
+fn camera_images_on_a_ros2_topic_become_heat_maps() {
+    use posestream::nodes::ServiceConfig;
+    use posestream::nodes::config::DetectorSource;
+    use posestream::nodes::service::{
+        DetectorInput, Middleware, detector_input, detector_transport,
+    };
+    use posestream::transport::ros2::Ros2;
+
+    let f = fixtures();
+    let root = common::root();
+    let mut c = ServiceConfig::load(root.join("config/default.toml")).expect("config");
+    c.estimator.dictionary = root.join(&c.estimator.dictionary);
+    c.detector.images.mapping = root.join(&c.detector.images.mapping);
+    c.detector.images.models_dir = f.models.clone();
+    c.detector.source = DetectorSource::Ros2;
+    c.outputs.ros2 = false;
+    c.ros.localhost_only = true;
+    c.ros.domain_id = (std::process::id() % 90) as u16 + 120;
+    let mut middleware = Middleware::open(&c, detector_transport(&c)).expect("ros");
+    let DetectorInput {
+        mut source, stats, ..
+    } = detector_input(&c, &mut middleware).expect("input");
+    // A camera node publishes the photos, scaled down, as rgb8 and bgr8 images.
+    let mut camera_settings = c.ros.clone();
+    camera_settings.node_name = "camera".into();
+    let mut camera = Ros2::new(&camera_settings).expect("camera node");
+    let topic = c.detector.images.topic.clone();
+    let mut sink = camera.sink::<Image>(&topic).expect("publisher");
+    let start = std::time::Instant::now();
+    while camera.subscriptions(&topic) == 0 {
+        assert!(
+            start.elapsed() < Duration::from_secs(30),
+            "no detector discovered"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    std::thread::sleep(Duration::from_millis(500));
+    let mut files: Vec<PathBuf> = std::fs::read_dir(&f.images)
+        .expect("dir")
+        .map(|e| e.expect("entry").path())
+        .collect();
+    files.sort();
+    for (i, file) in files.iter().enumerate() {
+        let rgb = image::open(file)
+            .expect("decodes")
+            .thumbnail(480, 480)
+            .to_rgb8();
+        let (w, h) = rgb.dimensions();
+        let bgr = i % 2 == 1;
+        let mut data = rgb.into_raw();
+        if bgr {
+            data.chunks_exact_mut(3).for_each(|p| p.swap(0, 2));
+        }
+        let msg = Image {
+            header: Header {
+                stamp: Time::from_nanos(1_000_000_000 + i as i64 * 33_000_000),
+                frame_id: "camera_optical".into(),
+            },
+            height: h,
+            width: w,
+            encoding: if bgr { "bgr8" } else { "rgb8" }.into(),
+            is_bigendian: 0,
+            step: 3 * w,
+            data,
+        };
+        sink.send(&msg, 0).expect("publish");
+    }
+    let mut maps = Vec::new();
+    let until = std::time::Instant::now() + Duration::from_secs(30);
+    while DetectorInput::stats_now(&stats).expect("stats").frames < 3
+        && std::time::Instant::now() < until
+    {
+        if let Received::Message(m, _) = source.recv(Duration::from_millis(100)).expect("recv") {
+            maps.push(m);
+        }
+    }
+    let seen = DetectorInput::stats_now(&stats).expect("stats");
+    assert_eq!(seen.frames, 3, "{seen:?}");
+    assert!(maps.len() >= 2, "{seen:?}");
+    for m in &maps {
+        assert_eq!(m.header.frame_id, "camera_optical");
+        assert_eq!(
+            m.header.stamp.nanos(),
+            1_000_000_000 + m.sequence as i64 * 33_000_000
+        );
+        assert_eq!(m.joint_names.len(), 17);
+    }
+    drop((sink, camera, source, middleware));
+}
