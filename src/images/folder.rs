@@ -22,12 +22,8 @@ pub struct FolderSource {
     frame_id: String,
 }
 
-fn setup(folder: &Path, reason: impl Into<String>) -> TransportError {
-    TransportError::Setup {
-        transport: "images",
-        what: folder.display().to_string(),
-        reason: reason.into(),
-    }
+fn setup(path: &Path, reason: impl Into<String>) -> TransportError {
+    super::setup_error("images", path, reason)
 }
 
 impl FolderSource {

@@ -30,6 +30,19 @@ pub struct ImageFrame {
     pub rgb: image::RgbImage,
 }
 
+/// The error of a file source that cannot start.
+pub(crate) fn setup_error(
+    transport: &'static str,
+    path: &std::path::Path,
+    reason: impl Into<String>,
+) -> crate::transport::TransportError {
+    crate::transport::TransportError::Setup {
+        transport,
+        what: path.display().to_string(),
+        reason: reason.into(),
+    }
+}
+
 /// The time of frame `index` of a source running at `fps` frames per second.
 pub fn frame_stamp(index: u64, fps: f64) -> u64 {
     (index as f64 * 1e9 / fps).round() as u64

@@ -27,11 +27,7 @@ pub struct VideoSource {
 }
 
 fn setup(path: &Path, reason: impl Into<String>) -> TransportError {
-    TransportError::Setup {
-        transport: "video",
-        what: path.display().to_string(),
-        reason: reason.into(),
-    }
+    super::setup_error("video", path, reason)
 }
 
 fn program_error(program: &str, e: std::io::Error) -> String {

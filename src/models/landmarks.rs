@@ -53,47 +53,68 @@ pub struct LandmarkNetwork {
     model: std::sync::Arc<TypedRunnableModel>,
 }
 
+/// Loads a model rewritten for tract ([`super::rewrite`]) and optimises it.
+pub(crate) fn load_model(path: &Path) -> Result<std::sync::Arc<TypedRunnableModel>, NetworkError> {
+    let what = || format!("loading {}", path.display());
+    tract_tflite::tflite()
+        .model_for_path(path)
+        .map_err(tract_error(what()))?
+        .into_optimized()
+        .map_err(tract_error(what()))?
+        .into_runnable()
+        .map_err(tract_error(what()))
+}
+
+/// Runs `model` on one `f32` input of `shape`; returns its outputs.
+pub(crate) fn run_model(
+    model: &std::sync::Arc<TypedRunnableModel>,
+    shape: &[usize],
+    input: &[f32],
+) -> Result<TVec<TValue>, NetworkError> {
+    let n: usize = shape.iter().product();
+    if input.len() != n {
+        return Err(NetworkError::Tract {
+            context: "the input".into(),
+            reason: format!("{} values, expected {shape:?} = {n}", input.len()),
+        });
+    }
+    let tensor = Tensor::from_shape(shape, input).map_err(tract_error("the input"))?;
+    model
+        .run(tvec!(tensor.into()))
+        .map_err(tract_error("running the model"))
+}
+
+/// The values of the `f32` output of `shape`.
+pub(crate) fn output_of_shape(
+    outputs: &[TValue],
+    shape: &[usize],
+) -> Result<Vec<f32>, NetworkError> {
+    outputs
+        .iter()
+        .find(|o| o.shape() == shape)
+        .and_then(|o| o.to_plain_array_view::<f32>().ok())
+        .map(|v| v.iter().copied().collect::<Vec<f32>>())
+        .ok_or_else(|| NetworkError::Outputs(format!("no f32 output of shape {shape:?}")))
+}
+
 impl LandmarkNetwork {
     /// Loads a model rewritten for tract ([`super::rewrite`]) and optimises it.
     pub fn load(path: &Path) -> Result<Self, NetworkError> {
-        let what = || format!("loading {}", path.display());
-        let model = tract_tflite::tflite()
-            .model_for_path(path)
-            .map_err(tract_error(what()))?
-            .into_optimized()
-            .map_err(tract_error(what()))?
-            .into_runnable()
-            .map_err(tract_error(what()))?;
-        Ok(Self { model })
+        Ok(Self {
+            model: load_model(path)?,
+        })
     }
 
     /// Runs on one crop: `rgb` is `256 x 256 x 3`, row-major, values in [0, 1].
     pub fn run(&self, rgb: &[f32]) -> Result<LandmarkOutput, NetworkError> {
-        let n = INPUT_SIZE * INPUT_SIZE * 3;
-        if rgb.len() != n {
-            return Err(NetworkError::Tract {
-                context: "the input".into(),
-                reason: format!("{} values, expected 256 x 256 x 3 = {n}", rgb.len()),
-            });
-        }
-        let input = Tensor::from_shape(&[1, INPUT_SIZE, INPUT_SIZE, 3], rgb)
-            .map_err(tract_error("the input"))?;
-        let outputs = self
-            .model
-            .run(tvec!(input.into()))
-            .map_err(tract_error("running the model"))?;
-        let by_shape = |shape: &[usize]| {
-            outputs
-                .iter()
-                .find(|o| o.shape() == shape)
-                .and_then(|o| o.to_plain_array_view::<f32>().ok())
-                .map(|v| v.iter().copied().collect::<Vec<f32>>())
-                .ok_or_else(|| NetworkError::Outputs(format!("no f32 output of shape {shape:?}")))
-        };
+        let outputs = run_model(&self.model, &[1, INPUT_SIZE, INPUT_SIZE, 3], rgb)?;
         Ok(LandmarkOutput {
-            heatmap_logits: by_shape(&[1, HEATMAP_SIZE, HEATMAP_SIZE, HEATMAP_CHANNELS])?,
-            pose_flag: by_shape(&[1, 1])?[0],
-            landmarks: by_shape(&[1, 195])?,
+            heatmap_logits: output_of_shape(
+                &outputs,
+                &[1, HEATMAP_SIZE, HEATMAP_SIZE, HEATMAP_CHANNELS],
+            )?,
+            pose_flag: output_of_shape(&outputs, &[1, 1])?[0],
+            landmarks: output_of_shape(&outputs, &[1, 195])?,
         })
     }
 }

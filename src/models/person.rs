@@ -11,7 +11,7 @@ use std::path::Path;
 
 use tract_tflite::prelude::*;
 
-use super::landmarks::NetworkError;
+use super::landmarks::{NetworkError, load_model, output_of_shape, run_model};
 
 /// Input side, pixels.
 pub const INPUT_SIZE: usize = 224;
@@ -152,54 +152,18 @@ pub struct PersonNetwork {
 impl PersonNetwork {
     /// Loads the detector rewritten for tract ([`super::rewrite`]).
     pub fn load(path: &Path) -> Result<Self, NetworkError> {
-        let what = || format!("loading {}", path.display());
-        let tract = |e: TractError| NetworkError::Tract {
-            context: what(),
-            reason: format!("{e:#}"),
-        };
-        let model = tract_tflite::tflite()
-            .model_for_path(path)
-            .map_err(tract)?
-            .into_optimized()
-            .map_err(tract)?
-            .into_runnable()
-            .map_err(tract)?;
         Ok(Self {
-            model,
+            model: load_model(path)?,
             anchors: anchors(),
         })
     }
 
     /// Raw outputs for `input`: `224 x 224 x 3`, row-major, values in [-1, 1].
     pub fn run_raw(&self, input: &[f32]) -> Result<PersonOutput, NetworkError> {
-        let n = INPUT_SIZE * INPUT_SIZE * 3;
-        let error = |context: &str, reason: String| NetworkError::Tract {
-            context: context.into(),
-            reason,
-        };
-        if input.len() != n {
-            return Err(error(
-                "the input",
-                format!("{} values, expected {n}", input.len()),
-            ));
-        }
-        let tensor = Tensor::from_shape(&[1, INPUT_SIZE, INPUT_SIZE, 3], input)
-            .map_err(|e| error("the input", format!("{e:#}")))?;
-        let outputs = self
-            .model
-            .run(tvec!(tensor.into()))
-            .map_err(|e| error("running the detector", format!("{e:#}")))?;
-        let by_shape = |shape: &[usize]| {
-            outputs
-                .iter()
-                .find(|o| o.shape() == shape)
-                .and_then(|o| o.to_plain_array_view::<f32>().ok())
-                .map(|v| v.iter().copied().collect::<Vec<f32>>())
-                .ok_or_else(|| NetworkError::Outputs(format!("no f32 output of shape {shape:?}")))
-        };
+        let outputs = run_model(&self.model, &[1, INPUT_SIZE, INPUT_SIZE, 3], input)?;
         Ok(PersonOutput {
-            boxes: by_shape(&[1, ANCHORS, VALUES_PER_ANCHOR])?,
-            scores: by_shape(&[1, ANCHORS, 1])?,
+            boxes: output_of_shape(&outputs, &[1, ANCHORS, VALUES_PER_ANCHOR])?,
+            scores: output_of_shape(&outputs, &[1, ANCHORS, 1])?,
         })
     }
 

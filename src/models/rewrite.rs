@@ -599,6 +599,88 @@ mod tests {
         TensorArgs,
     };
 
+    type Builder = flatbuffers::FlatBufferBuilder<'static>;
+    type Union = flatbuffers::WIPOffset<flatbuffers::UnionWIPOffset>;
+
+    /// An operator table.
+    fn op(
+        b: &mut Builder,
+        code: u32,
+        ins: &[i32],
+        outs: &[i32],
+        options: Option<(BuiltinOptions, Union)>,
+    ) -> flatbuffers::WIPOffset<Operator<'static>> {
+        let inputs = b.create_vector(ins);
+        let outputs = b.create_vector(outs);
+        Operator::create(
+            b,
+            &OperatorArgs {
+                opcode_index: code,
+                inputs: Some(inputs),
+                outputs: Some(outputs),
+                builtin_options_type: options.map_or(BuiltinOptions::NONE, |o| o.0),
+                builtin_options: options.map(|o| o.1),
+                ..Default::default()
+            },
+        )
+    }
+
+    /// The subgraph (one input, one output), operator codes and model; the bytes.
+    fn finish_model(
+        mut b: Builder,
+        tensors: flatbuffers::WIPOffset<
+            flatbuffers::Vector<'static, flatbuffers::ForwardsUOffset<FlatTensor<'static>>>,
+        >,
+        ops: &[flatbuffers::WIPOffset<Operator<'static>>],
+        io: (i32, i32),
+        codes: &[BuiltinOperator],
+        buffers: flatbuffers::WIPOffset<
+            flatbuffers::Vector<'static, flatbuffers::ForwardsUOffset<Buffer<'static>>>,
+        >,
+    ) -> Vec<u8> {
+        let operators = b.create_vector(ops);
+        let inputs = b.create_vector(&[io.0]);
+        let outputs = b.create_vector(&[io.1]);
+        let graph = SubGraph::create(
+            &mut b,
+            &SubGraphArgs {
+                tensors: Some(tensors),
+                inputs: Some(inputs),
+                outputs: Some(outputs),
+                operators: Some(operators),
+                ..Default::default()
+            },
+        );
+        let codes: Vec<_> = codes
+            .iter()
+            .map(|&code| {
+                OperatorCode::create(
+                    &mut b,
+                    &OperatorCodeArgs {
+                        deprecated_builtin_code: code.0.min(127) as i8,
+                        builtin_code: code,
+                        version: 1,
+                        ..Default::default()
+                    },
+                )
+            })
+            .collect();
+        let codes = b.create_vector(&codes);
+        let graphs = b.create_vector(&[graph]);
+        let model = Model::create(
+            &mut b,
+            &ModelArgs {
+                version: 3,
+                operator_codes: Some(codes),
+                subgraphs: Some(graphs),
+                buffers: Some(buffers),
+                ..Default::default()
+            },
+        );
+        b.finish(model, Some("TFL3"));
+        b.finished_data().to_vec()
+    }
+
     /// `out = x + dequantize(c)` with `c` a float16 constant: the shape of every weight
     /// of the BlazePose landmark models.
     fn tiny_model(c: &[f32]) -> Vec<u8> {
@@ -631,74 +713,17 @@ mod tests {
         let t2 = tensor(&mut b, "x", TensorType::FLOAT32, 0);
         let t3 = tensor(&mut b, "out", TensorType::FLOAT32, 0);
         let tensors = b.create_vector(&[t0, t1, t2, t3]);
-        let op =
-            |b: &mut flatbuffers::FlatBufferBuilder<'static>,
-             code,
-             ins: &[i32],
-             outs: &[i32],
-             options: Option<flatbuffers::WIPOffset<flatbuffers::UnionWIPOffset>>| {
-                let inputs = b.create_vector(ins);
-                let outputs = b.create_vector(outs);
-                Operator::create(
-                    b,
-                    &OperatorArgs {
-                        opcode_index: code,
-                        inputs: Some(inputs),
-                        outputs: Some(outputs),
-                        builtin_options_type: if options.is_some() {
-                            BuiltinOptions::AddOptions
-                        } else {
-                            BuiltinOptions::NONE
-                        },
-                        builtin_options: options,
-                        ..Default::default()
-                    },
-                )
-            };
         let dequantize = op(&mut b, 0, &[0], &[1], None);
         let add_options = AddOptions::create(&mut b, &AddOptionsArgs::default());
-        let add = op(&mut b, 1, &[2, 1], &[3], Some(add_options.as_union_value()));
-        let operators = b.create_vector(&[dequantize, add]);
-        let inputs = b.create_vector(&[2]);
-        let outputs = b.create_vector(&[3]);
-        let graph = SubGraph::create(
+        let add = op(
             &mut b,
-            &SubGraphArgs {
-                tensors: Some(tensors),
-                inputs: Some(inputs),
-                outputs: Some(outputs),
-                operators: Some(operators),
-                ..Default::default()
-            },
+            1,
+            &[2, 1],
+            &[3],
+            Some((BuiltinOptions::AddOptions, add_options.as_union_value())),
         );
-        let codes: Vec<_> = [BuiltinOperator::DEQUANTIZE, BuiltinOperator::ADD]
-            .iter()
-            .map(|&code| {
-                OperatorCode::create(
-                    &mut b,
-                    &OperatorCodeArgs {
-                        deprecated_builtin_code: code.0 as i8,
-                        builtin_code: code,
-                        version: 1,
-                        ..Default::default()
-                    },
-                )
-            })
-            .collect();
-        let codes = b.create_vector(&codes);
-        let graphs = b.create_vector(&[graph]);
-        let model = Model::create(
-            &mut b,
-            &ModelArgs {
-                version: 3,
-                operator_codes: Some(codes),
-                subgraphs: Some(graphs),
-                buffers: Some(buffers),
-                ..Default::default()
-            },
-        );
-        b.finish(model, Some("TFL3"));
-        b.finished_data().to_vec()
+        let codes = [BuiltinOperator::DEQUANTIZE, BuiltinOperator::ADD];
+        finish_model(b, tensors, &[dequantize, add], (2, 3), &codes, buffers)
     }
 
     #[test]
@@ -815,12 +840,12 @@ mod tests {
                 ..Default::default()
             },
         );
-        let mut tensor = |b: &mut flatbuffers::FlatBufferBuilder<'static>,
-                          name: &str,
-                          shape: &[i32],
-                          ty,
-                          buffer,
-                          sparse: bool| {
+        let tensor = |b: &mut flatbuffers::FlatBufferBuilder<'static>,
+                      name: &str,
+                      shape: &[i32],
+                      ty,
+                      buffer,
+                      sparse: bool| {
             let shape = b.create_vector(shape);
             let name = b.create_string(name);
             FlatTensor::create(
@@ -849,106 +874,34 @@ mod tests {
             tensor(&mut b, "out", &square, TensorType::FLOAT32, 0, false),
         ];
         let tensors = b.create_vector(&t);
-        let op =
-            |b: &mut flatbuffers::FlatBufferBuilder<'static>,
-             code: u32,
-             ins: &[i32],
-             outs: &[i32],
-             kind: BuiltinOptions,
-             options: Option<flatbuffers::WIPOffset<flatbuffers::UnionWIPOffset>>| {
-                let inputs = b.create_vector(ins);
-                let outputs = b.create_vector(outs);
-                Operator::create(
-                    b,
-                    &OperatorArgs {
-                        opcode_index: code,
-                        inputs: Some(inputs),
-                        outputs: Some(outputs),
-                        builtin_options_type: kind,
-                        builtin_options: options,
-                        ..Default::default()
-                    },
-                )
-            };
-        let add1 = AddOptions::create(&mut b, &AddOptionsArgs::default()).as_union_value();
-        let add2 = AddOptions::create(&mut b, &AddOptionsArgs::default()).as_union_value();
+        let add = |b: &mut Builder| {
+            let o = AddOptions::create(b, &AddOptionsArgs::default());
+            Some((BuiltinOptions::AddOptions, o.as_union_value()))
+        };
         let d2s = DepthToSpaceOptions::create(&mut b, &DepthToSpaceOptionsArgs { block_size: 2 })
             .as_union_value();
+        let (add1, add2) = (add(&mut b), add(&mut b));
         let ops = [
-            op(&mut b, 0, &[0], &[1], BuiltinOptions::NONE, None),
-            op(&mut b, 1, &[1], &[2], BuiltinOptions::NONE, None),
-            op(
-                &mut b,
-                2,
-                &[3, 2],
-                &[4],
-                BuiltinOptions::AddOptions,
-                Some(add1),
-            ),
+            op(&mut b, 0, &[0], &[1], None),
+            op(&mut b, 1, &[1], &[2], None),
+            op(&mut b, 2, &[3, 2], &[4], add1),
             op(
                 &mut b,
                 3,
                 &[4],
                 &[5],
-                BuiltinOptions::DepthToSpaceOptions,
-                Some(d2s),
+                Some((BuiltinOptions::DepthToSpaceOptions, d2s)),
             ),
-            op(&mut b, 1, &[6], &[7], BuiltinOptions::NONE, None),
-            op(
-                &mut b,
-                2,
-                &[5, 7],
-                &[8],
-                BuiltinOptions::AddOptions,
-                Some(add2),
-            ),
+            op(&mut b, 1, &[6], &[7], None),
+            op(&mut b, 2, &[5, 7], &[8], add2),
         ];
-        let operators = b.create_vector(&ops);
-        let inputs = b.create_vector(&[3]);
-        let outputs = b.create_vector(&[8]);
-        let graph = SubGraph::create(
-            &mut b,
-            &SubGraphArgs {
-                tensors: Some(tensors),
-                inputs: Some(inputs),
-                outputs: Some(outputs),
-                operators: Some(operators),
-                ..Default::default()
-            },
-        );
-        let codes: Vec<_> = [
+        let codes = [
             BuiltinOperator::DENSIFY,
             BuiltinOperator::DEQUANTIZE,
             BuiltinOperator::ADD,
             BuiltinOperator::DEPTH_TO_SPACE,
-        ]
-        .iter()
-        .map(|&code| {
-            OperatorCode::create(
-                &mut b,
-                &OperatorCodeArgs {
-                    deprecated_builtin_code: code.0.min(127) as i8,
-                    builtin_code: code,
-                    version: 1,
-                    ..Default::default()
-                },
-            )
-        })
-        .collect();
-        let codes = b.create_vector(&codes);
-        let graphs = b.create_vector(&[graph]);
-        let model = Model::create(
-            &mut b,
-            &ModelArgs {
-                version: 3,
-                operator_codes: Some(codes),
-                subgraphs: Some(graphs),
-                buffers: Some(buffers),
-                ..Default::default()
-            },
-        );
-        b.finish(model, Some("TFL3"));
-        b.finished_data().to_vec()
+        ];
+        finish_model(b, tensors, &ops, (3, 8), &codes, buffers)
     }
 
     #[test]
