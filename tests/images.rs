@@ -232,6 +232,28 @@ fn a_real_video_is_tracked_and_its_skeletons_recorded() {
         image::open(&png).expect("png").to_rgb8().dimensions(),
         (320 + 136, 136)
     );
+    // A GIF of the longest track only.
+    let track = tracks.values().max_by_key(|t| t.len()).expect("a track");
+    let (from, to) = (track[0].to_string(), track[track.len() - 1].to_string());
+    let gif = dir.path().join("track.gif");
+    let said = posestream(&[
+        "render",
+        s(&out),
+        "--video",
+        s(&f.video),
+        "-o",
+        s(&gif),
+        "--from",
+        &from,
+        "--to",
+        &to,
+        "--height",
+        "68",
+    ]);
+    assert!(
+        said.starts_with(&format!("{} frames", track.len())),
+        "{said}"
+    );
 }
 
 fn compressed(path: &Path, seq: i64) -> CompressedImage {

@@ -38,6 +38,12 @@ pub struct RenderArgs {
     /// The frame of a PNG (sequence number; default: the middle frame with a skeleton).
     #[arg(long)]
     pub frame: Option<u64>,
+    /// The first frame of a GIF (sequence number).
+    #[arg(long)]
+    pub from: Option<u64>,
+    /// The last frame of a GIF (sequence number).
+    #[arg(long)]
+    pub to: Option<u64>,
     /// Draw the newest estimate of each frame, not the refined (lagged) one.
     #[arg(long)]
     pub newest: bool,
@@ -98,6 +104,11 @@ pub fn render(args: &RenderArgs) -> Result<(), CliError> {
     // Per frame, the estimate to draw: the most refined one unless --newest.
     let mut skeletons: BTreeMap<u64, Skeleton3D> = BTreeMap::new();
     for s in read_all::<Skeleton3D>(&args.recording, &config.topics.skeletons).map_err(err)? {
+        let in_range =
+            args.from.is_none_or(|f| s.sequence >= f) && args.to.is_none_or(|t| s.sequence <= t);
+        if gif && !in_range {
+            continue;
+        }
         let keep = match skeletons.get(&s.sequence) {
             None => true,
             Some(old) if args.newest => s.lag < old.lag,
@@ -109,7 +120,7 @@ pub fn render(args: &RenderArgs) -> Result<(), CliError> {
     }
     if skeletons.is_empty() {
         return Err(err(format!(
-            "{}: no skeletons on {}",
+            "{}: no skeletons on {} (in the frames asked for)",
             args.recording.display(),
             config.topics.skeletons
         )));
