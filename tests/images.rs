@@ -14,8 +14,8 @@ use std::time::Duration;
 
 use posestream::models::{LandmarkModel, fetch};
 use posestream::msgs::{CompressedImage, Header, HeatMaps, Image, Skeleton3D, Time};
-use posestream::transport::mcap::{McapSource, SharedRecorder};
-use posestream::transport::{Message, Received, Sink, Source};
+use posestream::transport::mcap::SharedRecorder;
+use posestream::transport::{Received, Sink, Source};
 
 /// Models and sample media, fetched once for the whole file.
 struct Fixtures {
@@ -65,13 +65,27 @@ fn cli(args: &[&str]) -> std::process::Output {
         .expect("runs")
 }
 
-fn read_all<M: Message>(path: &Path, topic: &str) -> Vec<M> {
-    let mut source = McapSource::<M>::open(path, topic).expect("topic");
-    let mut out = Vec::new();
-    while let Received::Message(m, _) = source.recv(Duration::ZERO).expect("reads") {
-        out.push(m);
-    }
-    out
+fn read_all<M: posestream::msgs::RosMessage>(path: &Path, topic: &str) -> Vec<M> {
+    posestream::recording::read_topic::<M>(path, topic)
+        .expect("reads")
+        .into_iter()
+        .map(|(_, m)| m)
+        .collect()
+}
+
+/// `posestream run --<source> PATH --record OUT --ros2 false --json`: the report.
+fn run_json(source: &str, path: &Path, out: &Path) -> serde_json::Value {
+    let args = [
+        "run",
+        source,
+        s(path),
+        "--record",
+        s(out),
+        "--ros2",
+        "false",
+        "--json",
+    ];
+    serde_json::from_str(&posestream(&args)).expect("json")
 }
 
 fn s(p: &Path) -> &str {
@@ -83,17 +97,7 @@ fn a_folder_of_real_photos_becomes_skeletons_in_mcap_and_a_picture() {
     let f = fixtures();
     let dir = tempfile::tempdir().expect("dir");
     let out = dir.path().join("photos.mcap");
-    let report: serde_json::Value = serde_json::from_str(&posestream(&[
-        "run",
-        "--images",
-        s(&f.images),
-        "--record",
-        s(&out),
-        "--ros2",
-        "false",
-        "--json",
-    ]))
-    .expect("json");
+    let report = run_json("--images", &f.images, &out);
     let images = &report["detector"]["images"];
     assert_eq!(images["frames"], 3, "{report}");
     assert!(images["detected"].as_u64().expect("n") >= 2, "{report}");
@@ -185,17 +189,7 @@ fn a_real_video_is_tracked_and_its_skeletons_recorded() {
     let f = fixtures();
     let dir = tempfile::tempdir().expect("dir");
     let out = dir.path().join("bikes.mcap");
-    let report: serde_json::Value = serde_json::from_str(&posestream(&[
-        "run",
-        "--video",
-        s(&f.video),
-        "--record",
-        s(&out),
-        "--ros2",
-        "false",
-        "--json",
-    ]))
-    .expect("json");
+    let report = run_json("--video", &f.video, &out);
     let images = &report["detector"]["images"];
     // 10 s at 25 fps; the cyclist is in some shots, not in others.
     assert_eq!(images["frames"], 250, "{report}");

@@ -12,8 +12,8 @@ use posestream::msgs::{HeatMaps, Skeleton3D};
 use posestream::nodes::ServiceConfig;
 use posestream::nodes::config::DetectorSource;
 use posestream::nodes::images::image_frames;
+use posestream::recording::read_topic;
 use posestream::render::{RenderSettings, render_frame};
-use posestream::transport::mcap::McapSource;
 use posestream::transport::{Received, Source, TransportError};
 
 use super::CliError;
@@ -59,22 +59,6 @@ fn err(e: impl ToString) -> CliError {
     CliError::Input(e.to_string())
 }
 
-/// Every message of `topic` in `path`.
-fn read_all<M: posestream::transport::Message>(
-    path: &std::path::Path,
-    topic: &str,
-) -> Result<Vec<M>, TransportError> {
-    let mut source = McapSource::<M>::open(path, topic)?;
-    let mut out = Vec::new();
-    loop {
-        match source.recv(Duration::ZERO)? {
-            Received::Message(m, _) => out.push(m),
-            Received::Closed => return Ok(out),
-            Received::Idle => {}
-        }
-    }
-}
-
 /// Runs `render`.
 pub fn render(args: &RenderArgs) -> Result<(), CliError> {
     let mut config = ServiceConfig::load(&args.config).map_err(err)?;
@@ -103,7 +87,8 @@ pub fn render(args: &RenderArgs) -> Result<(), CliError> {
     let bones: Vec<(usize, usize)> = dictionary.skeleton().bones().collect();
     // Per frame, the estimate to draw: the most refined one unless --newest.
     let mut skeletons: BTreeMap<u64, Skeleton3D> = BTreeMap::new();
-    for s in read_all::<Skeleton3D>(&args.recording, &config.topics.skeletons).map_err(err)? {
+    let recorded = read_topic::<Skeleton3D>(&args.recording, &config.topics.skeletons);
+    for (_, s) in recorded.map_err(err)? {
         let in_range =
             args.from.is_none_or(|f| s.sequence >= f) && args.to.is_none_or(|t| s.sequence <= t);
         if gif && !in_range {
@@ -126,8 +111,8 @@ pub fn render(args: &RenderArgs) -> Result<(), CliError> {
         )));
     }
     let maps: BTreeMap<u64, HeatMaps> =
-        match read_all::<HeatMaps>(&args.recording, &config.topics.heatmaps) {
-            Ok(all) => all.into_iter().map(|m| (m.sequence, m)).collect(),
+        match read_topic::<HeatMaps>(&args.recording, &config.topics.heatmaps) {
+            Ok(all) => all.into_iter().map(|(_, m)| (m.sequence, m)).collect(),
             Err(e) => {
                 tracing::warn!("no heat-map overlay: {e}");
                 BTreeMap::new()

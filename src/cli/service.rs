@@ -81,7 +81,7 @@ impl Summary for service::DetectorReport {
                 s.no_person,
                 s.acquisitions,
                 s.network_runs,
-                posestream::detector::image::mean_network_ms(s),
+                s.mean_network_ms(),
                 s.detector_hits,
                 s.detector_runs
             ));

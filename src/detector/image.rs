@@ -134,6 +134,9 @@ pub enum DetectorError {
     /// The network failed.
     #[error(transparent)]
     Network(#[from] NetworkError),
+    /// The network's maps do not fit the mapping.
+    #[error("heat maps: {0}")]
+    Maps(Box<MappingError>),
     /// The channel mapping is unusable.
     #[error("{path}: {source}")]
     Mapping {
@@ -165,6 +168,17 @@ pub struct DetectorStats {
     pub detector_hits: u64,
     /// Seconds in the person detector.
     pub detector_seconds: f64,
+}
+
+impl DetectorStats {
+    /// Mean milliseconds per landmark-model run.
+    pub fn mean_network_ms(&self) -> f64 {
+        if self.network_runs == 0 {
+            0.0
+        } else {
+            1e3 * self.network_seconds / self.network_runs as f64
+        }
+    }
 }
 
 /// One model run on one box.
@@ -362,10 +376,7 @@ impl ImageDetector {
         self.tracked = look.next_box;
         self.mapping
             .apply(&look.logits, HEATMAP_SIZE, HEATMAP_SIZE, &mut self.maps)
-            .map_err(|source| DetectorError::Mapping {
-                path: PathBuf::from("(mapping)"),
-                source: Box::new(source),
-            })?;
+            .map_err(|source| DetectorError::Maps(Box::new(source)))?;
         self.stats.detected += 1;
         let stamp = i64::try_from(frame.stamp_ns).unwrap_or(i64::MAX);
         let mut msg = HeatMaps::from_values(
@@ -383,14 +394,5 @@ impl ImageDetector {
         );
         msg.track_id = self.track_id;
         Ok(Some(msg))
-    }
-}
-
-/// Mean milliseconds per model run.
-pub fn mean_network_ms(stats: &DetectorStats) -> f64 {
-    if stats.network_runs == 0 {
-        0.0
-    } else {
-        1e3 * stats.network_seconds / stats.network_runs as f64
     }
 }

@@ -6,7 +6,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use super::{ImageFrame, frame_stamp};
+use super::ImageFrame;
 use crate::transport::{Received, Source, TransportError};
 
 /// File extensions read (lower case).
@@ -84,16 +84,12 @@ impl Source<ImageFrame> for FolderSource {
                 reason: format!("{name}: {e}"),
             })?
             .to_rgb8();
-        let stamp_ns = frame_stamp(index, self.fps);
-        Ok(Received::Message(
-            ImageFrame {
-                sequence: index,
-                stamp_ns,
-                frame_id: self.frame_id.clone(),
-                name,
-                rgb,
-            },
-            stamp_ns,
+        Ok(ImageFrame::from_file(
+            index,
+            self.fps,
+            &self.frame_id,
+            name,
+            rgb,
         ))
     }
 }

@@ -43,6 +43,28 @@ pub(crate) fn setup_error(
     }
 }
 
+impl ImageFrame {
+    /// Frame `index` of a file source running at `fps`, as a received message stamped
+    /// with its capture time.
+    pub(crate) fn from_file(
+        index: u64,
+        fps: f64,
+        frame_id: &str,
+        name: String,
+        rgb: image::RgbImage,
+    ) -> crate::transport::Received<Self> {
+        let stamp_ns = frame_stamp(index, fps);
+        let frame = Self {
+            sequence: index,
+            stamp_ns,
+            frame_id: frame_id.to_string(),
+            name,
+            rgb,
+        };
+        crate::transport::Received::Message(frame, stamp_ns)
+    }
+}
+
 /// The time of frame `index` of a source running at `fps` frames per second.
 pub fn frame_stamp(index: u64, fps: f64) -> u64 {
     (index as f64 * 1e9 / fps).round() as u64

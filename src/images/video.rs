@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, ChildStdout, Command, Stdio};
 use std::time::Duration;
 
-use super::{ImageFrame, frame_stamp};
+use super::ImageFrame;
 use crate::transport::{Received, Source, TransportError};
 
 /// One video being decoded.
@@ -180,16 +180,12 @@ impl Source<ImageFrame> for VideoSource {
             .ok_or_else(|| self.broken("frame size".into()))?;
         let index = self.next;
         self.next += 1;
-        let stamp_ns = frame_stamp(index, self.fps);
-        Ok(Received::Message(
-            ImageFrame {
-                sequence: index,
-                stamp_ns,
-                frame_id: self.frame_id.clone(),
-                name: format!("frame {index}"),
-                rgb,
-            },
-            stamp_ns,
+        Ok(ImageFrame::from_file(
+            index,
+            self.fps,
+            &self.frame_id,
+            format!("frame {index}"),
+            rgb,
         ))
     }
 }
