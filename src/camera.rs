@@ -134,10 +134,23 @@ pub struct CropBox {
 }
 
 impl CropBox {
-    /// Checks the values: finite, positive size.
+    /// Coordinates and sizes allowed at most, in pixels: far beyond any camera, small
+    /// enough that every pixel position computed from a box stays finite.
+    pub const MAX_PIXELS: f64 = 1e7;
+
+    /// Checks the values: finite, within [`Self::MAX_PIXELS`], positive size.
     pub fn new(x0: f64, y0: f64, width: f64, height: f64) -> Result<Self, String> {
         if ![x0, y0, width, height].iter().all(|v| v.is_finite()) {
             return Err("box values must be finite".into());
+        }
+        if ![x0, y0, width, height]
+            .iter()
+            .all(|v| v.abs() <= Self::MAX_PIXELS)
+        {
+            return Err(format!(
+                "box values must be within {:e} pixels (x {x0}, y {y0}, width {width}, height {height})",
+                Self::MAX_PIXELS
+            ));
         }
         if width <= 0.0 || height <= 0.0 {
             return Err(format!(

@@ -23,6 +23,14 @@ pub enum ConfigError {
         /// The parser's message (with the offending line).
         source: toml::de::Error,
     },
+    /// A value is outside its domain.
+    #[error("{path}: {source}")]
+    Domain {
+        /// The file.
+        path: PathBuf,
+        /// The key, its domain and the value found.
+        source: crate::error::OutOfDomain,
+    },
 }
 
 /// Reads and deserialises a TOML file.
@@ -31,7 +39,12 @@ pub fn load_toml<T: DeserializeOwned>(path: &Path) -> Result<T, ConfigError> {
         path: path.to_path_buf(),
         source,
     })?;
-    toml::from_str(&text).map_err(|source| ConfigError::Toml {
+    parse_toml(&text, path)
+}
+
+/// Deserialises TOML text (`path` names it in errors).
+pub fn parse_toml<T: DeserializeOwned>(text: &str, path: &Path) -> Result<T, ConfigError> {
+    toml::from_str(text).map_err(|source| ConfigError::Toml {
         path: path.to_path_buf(),
         source,
     })

@@ -281,11 +281,8 @@ fn main() -> ExitCode {
                 .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
         )
         .init();
-    // Input errors are reported as values; should a dependency panic on malformed input,
-    // say so in one line rather than with a backtrace.
-    std::panic::set_hook(Box::new(|info| {
-        tracing::debug!("{info}");
-    }));
+    install_panic_hook();
+    ignore_file_size_signal();
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Lift(args) => lift(&args),
@@ -307,6 +304,49 @@ fn main() -> ExitCode {
             eprintln!("posestream: error: {e}");
             ExitCode::FAILURE
         }
+    }
+}
+
+/// Panics print one line at error level saying where (the first of each place; later
+/// ones at debug level): input errors are values, so a panic is a bug, and the services
+/// catch it per message and go on (`nodes::EstimatorNode::handle`).
+fn install_panic_hook() {
+    static SEEN: std::sync::Mutex<std::collections::BTreeSet<String>> =
+        std::sync::Mutex::new(std::collections::BTreeSet::new());
+    std::panic::set_hook(Box::new(|info| {
+        let location = info
+            .location()
+            .map_or_else(|| "an unknown place".to_string(), |l| l.to_string());
+        let payload = info.payload();
+        let message = payload
+            .downcast_ref::<&str>()
+            .map(|s| s.to_string())
+            .or_else(|| payload.downcast_ref::<String>().cloned())
+            .unwrap_or_default();
+        let first = SEEN
+            .lock()
+            .map(|mut seen| seen.insert(location.clone()))
+            .unwrap_or(true);
+        let thread = std::thread::current()
+            .name()
+            .map(|n| format!(" (thread {n})"))
+            .unwrap_or_default();
+        if first {
+            tracing::error!("panic at {location}{thread}: {message}");
+        } else {
+            tracing::debug!("panic at {location}{thread}: {message}");
+        }
+    }));
+}
+
+/// A full file-size budget (`ulimit -f`) makes writes fail with `EFBIG`, which the
+/// recorder reports, instead of killing the process with `SIGXFSZ`.
+fn ignore_file_size_signal() {
+    // SAFETY: setting a signal's disposition to "ignore" at start-up, before any other
+    // thread exists, has no memory-safety preconditions.
+    #[allow(unsafe_code)]
+    unsafe {
+        libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
     }
 }
 
@@ -382,6 +422,15 @@ fn lift(args: &LiftArgs) -> Result<(), CliError> {
                     &[Some(kp.shape[0]), Some(p)],
                     &format!("({}, {p})", kp.shape[0]),
                 )?;
+                if let Some(i) = c.data.iter().position(|v| !(0.0..=1.0).contains(v)) {
+                    return Err(CliError::Input(format!(
+                        "{}: confidence of frame {}, joint {} is {}, expected a value in [0, 1]",
+                        cpath.display(),
+                        i / p,
+                        i % p,
+                        c.data[i]
+                    )));
+                }
                 Some(c.data)
             }
             None => None,

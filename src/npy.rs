@@ -53,21 +53,40 @@ impl Element for f32 {
 
 /// Reads an f32/f64 array, rejecting empty arrays and non-finite values.
 pub fn read<T: Element>(path: &Path) -> Result<Array<T>, ArrayError> {
-    let fmt = |reason: String| ArrayError::Format {
-        path: path.to_path_buf(),
-        reason,
-    };
     let bytes = std::fs::read(path).map_err(|source| ArrayError::Io {
         path: path.to_path_buf(),
         source,
     })?;
-    let file = npyz::NpyFile::new(&bytes[..]).map_err(|e| fmt(e.to_string()))?;
-    let shape: Vec<usize> = file.shape().iter().map(|&s| s as usize).collect();
+    from_bytes(&bytes, path)
+}
+
+/// Parses an NPY file held in memory (`path` names it in errors), as [`read`] does.
+pub fn from_bytes<T: Element>(bytes: &[u8], path: &Path) -> Result<Array<T>, ArrayError> {
+    let fmt = |reason: String| ArrayError::Format {
+        path: path.to_path_buf(),
+        reason,
+    };
+    let file = npyz::NpyFile::new(bytes).map_err(|e| fmt(e.to_string()))?;
     let order = file.order();
     let type_str = match file.dtype() {
         npyz::DType::Plain(ts) => ts.to_string(),
         other => return Err(fmt(format!("unsupported dtype {other:?}"))),
     };
+    // The header's shape is the file's claim: its size must be countable and fit in the
+    // bytes the file holds before anything of that size is allocated.
+    let item = if type_str.ends_with('8') { 8 } else { 4 };
+    let claimed = file.shape().to_vec();
+    let fits = claimed
+        .iter()
+        .try_fold(item, |n: u64, &s| n.checked_mul(s))
+        .is_some_and(|n| n <= bytes.len() as u64);
+    if !fits {
+        return Err(fmt(format!(
+            "the shape {claimed:?} is too large for the file's {} bytes",
+            bytes.len()
+        )));
+    }
+    let shape: Vec<usize> = claimed.iter().map(|&s| s as usize).collect();
     let flat: Vec<T> = match type_str.as_str() {
         "<f8" | ">f8" => file
             .into_vec::<f64>()

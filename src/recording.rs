@@ -10,13 +10,13 @@
 
 use std::collections::BTreeMap;
 use std::fs::File;
-use std::io::{BufWriter, Read};
+use std::io::{BufWriter, Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use mcap::records::{MessageHeader, Record};
-use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader};
-use mcap::{Compression, WriteOptions, Writer};
+use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
+use mcap::{Compression, McapError, WriteOptions, Writer};
 
 use crate::msgs::{self, RosMessage};
 
@@ -39,6 +39,14 @@ pub enum RecordingError {
         /// The cause.
         source: mcap::McapError,
     },
+    /// The file does not start with the MCAP magic (or is empty).
+    #[error("{path}: not an MCAP recording ({reason})")]
+    NotMcap {
+        /// The file.
+        path: PathBuf,
+        /// What it starts with instead.
+        reason: String,
+    },
     /// The file ends inside a record: every message before that point was read.
     #[error("{path}: the recording is cut short after {messages} messages ({reason})")]
     Truncated {
@@ -49,14 +57,49 @@ pub enum RecordingError {
         /// What the reader found.
         reason: String,
     },
+    /// A record is corrupt (a chunk whose CRC does not match, a length beyond
+    /// `limits.max_record_bytes` or beyond its container, a record that does not parse):
+    /// reading ends there; every message before it was read, nothing of it is used.
+    #[error("{path}: corrupt recording after {messages} messages: {reason}")]
+    Corrupt {
+        /// The file.
+        path: PathBuf,
+        /// Messages read before the corrupt record.
+        messages: u64,
+        /// What the reader found.
+        reason: String,
+    },
+    /// The output would overwrite one of the inputs.
+    #[error(transparent)]
+    OutputIsInput(#[from] crate::files::OutputIsInput),
+    /// The recording could not be finished (a write failed, e.g. the disk is full): the
+    /// messages written before are in `partial`, readable up to its last complete chunk.
+    #[error(
+        "{path}: the recording could not be finished ({reason}); what was written is in {partial} (readable up to its last complete chunk)"
+    )]
+    Unfinished {
+        /// The output asked for (left as it was).
+        path: PathBuf,
+        /// The file written until the failure.
+        partial: PathBuf,
+        /// The first failure.
+        reason: String,
+    },
     /// A message could not be encoded.
     #[error(transparent)]
     Encode(#[from] msgs::EncodeError),
 }
 
 /// Writes messages of any [`RosMessage`] type to an MCAP file.
+///
+/// The file is written under a temporary name beside the output
+/// ([`crate::files::create_partial`]) and renamed into place by [`Recorder::finish`], so
+/// an existing output is replaced only by a complete recording. A recorder that is
+/// killed, or whose writes fail (a full disk), leaves its messages in that `.partial`
+/// file, readable up to its last complete chunk, and the output as it was.
 pub struct Recorder {
     path: PathBuf,
+    partial: PathBuf,
     writer: Writer<BufWriter<File>>,
     channels: BTreeMap<String, u16>,
     counts: BTreeMap<String, (String, u64)>,
@@ -65,16 +108,23 @@ pub struct Recorder {
     last_ns: u64,
     flush_every: Option<Duration>,
     last_flush: Instant,
+    /// The first write that failed: nothing more is written.
+    failed: Option<String>,
 }
 
 impl Recorder {
-    /// Creates (or truncates) `path`.
+    /// Starts a recording that [`Recorder::finish`] puts at `path` (replacing a file
+    /// there).
     pub fn create(path: impl AsRef<Path>) -> Result<Self, RecordingError> {
         let path = path.as_ref().to_path_buf();
-        let file = File::create(&path).map_err(|source| RecordingError::Io {
+        let io = |source| RecordingError::Io {
             path: path.clone(),
             source,
-        })?;
+        };
+        if path.is_dir() {
+            return Err(io(std::io::Error::other("is a directory")));
+        }
+        let (partial, file) = crate::files::create_partial(&path).map_err(io)?;
         let writer = WriteOptions::new()
             .profile("ros2")
             .library(concat!("posestream ", env!("CARGO_PKG_VERSION")))
@@ -82,11 +132,12 @@ impl Recorder {
             .chunk_size(Some(1 << 20))
             .create(BufWriter::new(file))
             .map_err(|source| RecordingError::Mcap {
-                path: path.clone(),
+                path: partial.clone(),
                 source,
             })?;
         Ok(Self {
             path,
+            partial,
             writer,
             channels: BTreeMap::new(),
             counts: BTreeMap::new(),
@@ -95,7 +146,13 @@ impl Recorder {
             last_ns: 0,
             flush_every: Some(Duration::from_secs(1)),
             last_flush: Instant::now(),
+            failed: None,
         })
+    }
+
+    /// Where the recording is written until it is finished.
+    pub fn partial_path(&self) -> &Path {
+        &self.partial
     }
 
     /// Closes a chunk and flushes it to the file at least this often (default 1 s;
@@ -115,8 +172,25 @@ impl Recorder {
         self.write_encoded::<M>(topic, log_time_ns, &data)
     }
 
-    /// Appends an already encoded message (CDR with its encapsulation header).
+    /// Appends an already encoded message (CDR with its encapsulation header). After a
+    /// failed write (the disk full) every later one fails at once with the first error.
     pub fn write_encoded<M: RosMessage>(
+        &mut self,
+        topic: &str,
+        log_time_ns: u64,
+        data: &[u8],
+    ) -> Result<(), RecordingError> {
+        if let Some(reason) = &self.failed {
+            return Err(self.failure(reason.clone()));
+        }
+        let result = self.write_unchecked::<M>(topic, log_time_ns, data);
+        if let Err(e) = &result {
+            self.failed = Some(e.to_string());
+        }
+        result
+    }
+
+    fn write_unchecked<M: RosMessage>(
         &mut self,
         topic: &str,
         log_time_ns: u64,
@@ -170,28 +244,83 @@ impl Recorder {
     /// Closes the current chunk and flushes it to the file: whatever happens to the
     /// process afterwards, the messages so far can be read.
     pub fn flush(&mut self) -> Result<(), RecordingError> {
+        if let Some(reason) = &self.failed {
+            return Err(self.failure(reason.clone()));
+        }
         self.last_flush = Instant::now();
-        self.writer
+        let result = self
+            .writer
             .flush()
-            .map_err(|source| self.mcap_error(source))
+            .map_err(|source| self.mcap_error(source));
+        if let Err(e) = &result {
+            self.failed = Some(e.to_string());
+        }
+        result
     }
 
-    /// Writes the summary and footer; returns what was recorded.
+    /// Writes the summary and footer, makes the file durable and renames it into place;
+    /// returns what was recorded. If a write failed, or fails now, the output is left as
+    /// it was and the error names the `.partial` file holding what was written.
     pub fn finish(mut self) -> Result<RecordingSummary, RecordingError> {
-        self.writer
-            .finish()
-            .map_err(|source| self.mcap_error(source))?;
-        Ok(RecordingSummary {
+        if let Some(reason) = self.failed.take() {
+            return Err(self.failure(reason));
+        }
+        if let Err(e) = self.writer.finish() {
+            return Err(self.failure(e.to_string()));
+        }
+        let summary = RecordingSummary {
             path: self.path.clone(),
             topics: self.counts.clone(),
             start_ns: self.first_ns.unwrap_or(0),
             end_ns: self.last_ns,
-        })
+        };
+        let (path, partial) = (self.path.clone(), self.partial.clone());
+        let unfinished = |reason: String| RecordingError::Unfinished {
+            path: path.clone(),
+            partial: partial.clone(),
+            reason,
+        };
+        let file = self
+            .writer
+            .into_inner()
+            .into_inner()
+            .map_err(|e| unfinished(e.error().to_string()))?;
+        file.sync_all().map_err(|e| unfinished(e.to_string()))?;
+        std::fs::rename(&partial, &path).map_err(|e| unfinished(e.to_string()))?;
+        Ok(summary)
+    }
+
+    /// Writes the summary and footer but leaves the file under its temporary name (the
+    /// run failed: the output stays as it was); returns that name.
+    pub fn finish_partial(mut self) -> Result<PathBuf, RecordingError> {
+        if let Some(reason) = self.failed.take() {
+            return Err(self.failure(reason));
+        }
+        if let Err(e) = self.writer.finish() {
+            return Err(self.failure(e.to_string()));
+        }
+        Ok(self.partial.clone())
+    }
+
+    /// Drops the recording: nothing of value was written; the temporary file is removed
+    /// and the output stays as it was.
+    pub fn abandon(self) {
+        let partial = self.partial.clone();
+        drop(self);
+        let _ = std::fs::remove_file(partial);
+    }
+
+    fn failure(&self, reason: String) -> RecordingError {
+        RecordingError::Unfinished {
+            path: self.path.clone(),
+            partial: self.partial.clone(),
+            reason,
+        }
     }
 
     fn mcap_error(&self, source: mcap::McapError) -> RecordingError {
         RecordingError::Mcap {
-            path: self.path.clone(),
+            path: self.partial.clone(),
             source,
         }
     }
@@ -261,31 +390,106 @@ pub struct RecordedMessage {
 }
 
 /// Reads a recording front to back, one message at a time.
-pub struct RecordingReader {
+///
+/// Every record length and every chunk's compressed and decompressed size is checked
+/// against a limit before anything of that size is allocated
+/// ([`crate::limits::Limits::max_record_bytes`]), and every chunk's CRC is checked before
+/// any message of it is yielded: a corrupt chunk ends reading with
+/// [`RecordingError::Corrupt`], never yields its messages.
+pub struct RecordingReader<R = File> {
     path: PathBuf,
-    file: File,
+    file: R,
     reader: LinearReader,
     channels: BTreeMap<u16, (String, u16)>,
     schemas: BTreeMap<u16, String>,
     messages: u64,
+    records: u64,
+    /// Bytes handed to the MCAP reader so far (it asks for what it needs, no more).
+    fed: u64,
+    max_record_bytes: usize,
     done: bool,
 }
 
+/// The MCAP magic every recording starts with.
+const MAGIC: &[u8; 8] = b"\x89MCAP0\r\n";
+
 impl RecordingReader {
-    /// Opens `path`.
+    /// Opens `path` with the default record limit.
     pub fn open(path: impl AsRef<Path>) -> Result<Self, RecordingError> {
+        Self::open_with_limit(path, crate::limits::Limits::default().max_record_bytes)
+    }
+
+    /// Opens `path`; records (and chunks, compressed or decompressed) longer than
+    /// `max_record_bytes` end reading with [`RecordingError::Corrupt`].
+    pub fn open_with_limit(
+        path: impl AsRef<Path>,
+        max_record_bytes: usize,
+    ) -> Result<Self, RecordingError> {
         let path = path.as_ref().to_path_buf();
         let file = File::open(&path).map_err(|source| RecordingError::Io {
             path: path.clone(),
             source,
         })?;
+        Self::from_reader(file, path, max_record_bytes)
+    }
+}
+
+impl<R: Read + Seek> RecordingReader<R> {
+    /// Reads a recording from `file` (named `path` in errors), with the record limit
+    /// `max_record_bytes`.
+    pub fn from_reader(
+        mut file: R,
+        path: PathBuf,
+        max_record_bytes: usize,
+    ) -> Result<Self, RecordingError> {
+        let io = |source| RecordingError::Io {
+            path: path.clone(),
+            source,
+        };
+        let mut magic = [0_u8; 8];
+        let mut got = 0;
+        while got < magic.len() {
+            match file.read(&mut magic[got..]).map_err(io)? {
+                0 => break,
+                n => got += n,
+            }
+        }
+        if got == 0 {
+            return Err(RecordingError::NotMcap {
+                path,
+                reason: "the file is empty".into(),
+            });
+        }
+        if magic[..got] != MAGIC[..got] {
+            return Err(RecordingError::NotMcap {
+                path,
+                reason: "it does not start with the MCAP magic".into(),
+            });
+        }
+        if got < MAGIC.len() {
+            return Err(RecordingError::Truncated {
+                path,
+                messages: 0,
+                reason: "the file ends inside the MCAP magic".into(),
+            });
+        }
+        // The reader checks the magic again and counts it into the data section's CRC.
+        file.seek(SeekFrom::Start(0)).map_err(io)?;
+        let options = LinearReaderOptions::default()
+            .with_prevalidate_chunk_crcs(true)
+            .with_validate_data_section_crc(true)
+            .with_validate_summary_section_crc(true)
+            .with_record_length_limit(max_record_bytes);
         Ok(Self {
             path,
             file,
-            reader: LinearReader::new(),
+            reader: LinearReader::new_with_options(options),
             channels: BTreeMap::new(),
             schemas: BTreeMap::new(),
             messages: 0,
+            records: 0,
+            fed: 0,
+            max_record_bytes,
             done: false,
         })
     }
@@ -295,12 +499,32 @@ impl RecordingReader {
         self.messages
     }
 
+    /// The topics of the channels seen so far, with their schema names.
+    pub fn topics(&self) -> Vec<(String, String)> {
+        self.channels
+            .values()
+            .map(|(topic, schema)| {
+                (
+                    topic.clone(),
+                    self.schemas.get(schema).cloned().unwrap_or_default(),
+                )
+            })
+            .collect()
+    }
+
     /// The next message; `None` at the end. After an error the reader is done.
     pub fn next_message(&mut self) -> Option<Result<RecordedMessage, RecordingError>> {
         if self.done {
             return None;
         }
-        let result = self.advance();
+        // The mcap crate checks its input, but a parser of outside data may still panic
+        // on a case nobody thought of: that is a corrupt file, not the end of the process.
+        let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| self.advance()))
+            .unwrap_or_else(|_| {
+                Some(Err(
+                    self.corrupt("the MCAP reader failed on this record".into())
+                ))
+            });
         if !matches!(result, Some(Ok(_))) {
             self.done = true;
         }
@@ -311,13 +535,16 @@ impl RecordingReader {
         loop {
             let event = match self.reader.next_event()? {
                 Ok(e) => e,
-                Err(e) => return Some(Err(self.truncated(e.to_string()))),
+                Err(e) => return Some(Err(self.classify(e))),
             };
             match event {
                 LinearReadEvent::ReadRequest(need) => {
                     let buf = self.reader.insert(need);
                     match self.file.read(buf) {
-                        Ok(n) => self.reader.notify_read(n),
+                        Ok(n) => {
+                            self.reader.notify_read(n);
+                            self.fed += n as u64;
+                        }
                         Err(source) => {
                             return Some(Err(RecordingError::Io {
                                 path: self.path.clone(),
@@ -329,8 +556,15 @@ impl RecordingReader {
                 LinearReadEvent::Record { opcode, data } => {
                     let record = match mcap::parse_record(opcode, data) {
                         Ok(r) => r,
-                        Err(e) => return Some(Err(self.truncated(e.to_string()))),
+                        Err(e) => return Some(Err(self.corrupt(e.to_string()))),
                     };
+                    self.records += 1;
+                    if self.records == 1 && !matches!(record, Record::Header(_)) {
+                        return Some(Err(RecordingError::NotMcap {
+                            path: self.path.clone(),
+                            reason: "its first record is not an MCAP header".into(),
+                        }));
+                    }
                     match record {
                         Record::Schema { header, .. } => {
                             self.schemas.insert(header.id, header.name);
@@ -344,7 +578,7 @@ impl RecordingReader {
                                     (t.clone(), self.schemas.get(s).cloned().unwrap_or_default())
                                 }
                                 None => {
-                                    return Some(Err(self.truncated(format!(
+                                    return Some(Err(self.corrupt(format!(
                                         "message on unknown channel {}",
                                         header.channel_id
                                     ))));
@@ -365,6 +599,52 @@ impl RecordingReader {
         }
     }
 
+    /// What a failure of the MCAP reader means: the file cut short, or corrupt.
+    fn classify(&mut self, e: McapError) -> RecordingError {
+        match e {
+            McapError::UnexpectedEof => self.truncated("the file ends inside a record".into()),
+            _ if self.ends_in_unfinished_chunk() => {
+                self.truncated("the file ends in a chunk its recorder never finished".into())
+            }
+            McapError::RecordTooLarge { .. } | McapError::ChunkTooLarge(_) => {
+                self.corrupt(format!(
+                    "{e}: beyond limits.max_record_bytes = {}",
+                    self.max_record_bytes
+                ))
+            }
+            e => self.corrupt(e.to_string()),
+        }
+    }
+
+    /// True if the file's last top-level record is a chunk still holding the
+    /// placeholder header the MCAP writer puts down when it starts one (length, sizes and
+    /// CRC all ones), and the reader failed inside it: a recorder killed mid-chunk left
+    /// it, which is a file cut short, not a corrupt one. Reads only record headers.
+    fn ends_in_unfinished_chunk(&mut self) -> bool {
+        const CHUNK: u8 = 0x06;
+        const FOOTER: u8 = 0x02;
+        let mut at = MAGIC.len() as u64;
+        loop {
+            let mut head = [0_u8; 9 + 24];
+            if self.file.seek(SeekFrom::Start(at)).is_err()
+                || self.file.read_exact(&mut head[..9]).is_err()
+            {
+                return false;
+            }
+            let len = u64::from_le_bytes(head[1..9].try_into().unwrap_or_default());
+            if head[0] == CHUNK && len == u64::MAX {
+                // start time, end time, uncompressed size: the last one is all ones.
+                let placeholder =
+                    self.file.read_exact(&mut head[9..]).is_ok() && head[25..33] == [0xff; 8];
+                return placeholder && self.fed > at;
+            }
+            match at.checked_add(9).and_then(|a| a.checked_add(len)) {
+                Some(next) if head[0] != FOOTER => at = next,
+                _ => return false,
+            }
+        }
+    }
+
     fn truncated(&self, reason: String) -> RecordingError {
         RecordingError::Truncated {
             path: self.path.clone(),
@@ -372,9 +652,17 @@ impl RecordingReader {
             reason,
         }
     }
+
+    fn corrupt(&self, reason: String) -> RecordingError {
+        RecordingError::Corrupt {
+            path: self.path.clone(),
+            messages: self.messages,
+            reason,
+        }
+    }
 }
 
-impl Iterator for RecordingReader {
+impl<R: Read + Seek> Iterator for RecordingReader<R> {
     type Item = Result<RecordedMessage, RecordingError>;
     fn next(&mut self) -> Option<Self::Item> {
         self.next_message()

@@ -27,7 +27,7 @@ use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
 use crate::dictionary::Dictionary;
-use crate::error::EstimateError;
+use crate::error::{EstimateError, OutOfDomain, check_range, check_real};
 use crate::estimator::Estimator;
 use crate::heatmaps::HeatMaps;
 use crate::solver::em::{self, EmWorkspace, MapSource};
@@ -104,35 +104,28 @@ impl Default for StreamSettings {
 }
 
 impl StreamSettings {
+    /// Window sizes allowed at most: the window holds `size` frames of maps
+    /// (`size x joints x height x width` f32 values per track).
+    pub const MAX_SIZE: usize = 300;
+
     /// Checks every value is in its domain.
     pub fn validate(&self) -> Result<(), EstimateError> {
-        if self.size == 0 {
-            return Err(EstimateError::Parameter(
-                "window size must be at least 1".into(),
-            ));
-        }
-        if self.lag >= self.size {
-            return Err(EstimateError::Parameter(format!(
-                "lag {} must be smaller than the window size {}",
-                self.lag, self.size
-            )));
-        }
-        if self.window_every == 0 || self.init_iterations == 0 || self.admit_per_frame == 0 {
-            return Err(EstimateError::Parameter(
-                "window_every, init_iterations and admit_per_frame must be at least 1".into(),
-            ));
-        }
-        if self.em_iterations == 0 {
-            return Err(EstimateError::Parameter(
-                "em_iterations must be at least 1".into(),
-            ));
-        }
-        if !(self.max_gap_seconds.is_finite() && self.max_gap_seconds > 0.0) {
-            return Err(EstimateError::Parameter(format!(
-                "max_gap_seconds must be finite and > 0, got {}",
-                self.max_gap_seconds
-            )));
-        }
+        self.check().map_err(EstimateError::from)
+    }
+
+    /// Checks every value is in its domain; the error names the key
+    /// (`[estimator.window]` in the service configuration).
+    pub fn check(&self) -> Result<(), OutOfDomain> {
+        check_range("size", self.size, 1, Self::MAX_SIZE)?;
+        check_range("lag", self.lag, 0, self.size - 1)?;
+        check_range("em_iterations", self.em_iterations, 1, 100)?;
+        check_range("local_frames", self.local_frames, 1, self.size)?;
+        check_range("local_iterations", self.local_iterations, 0, 100)?;
+        check_range("window_every", self.window_every, 1, 10_000)?;
+        check_range("init_iterations", self.init_iterations, 1, 100_000)?;
+        check_range("admit_per_frame", self.admit_per_frame, 1, 10_000)?;
+        check_range("max_gap_frames", self.max_gap_frames, 1, 1_000_000)?;
+        check_real("max_gap_seconds", self.max_gap_seconds, 0.0, 3600.0, true)?;
         Ok(())
     }
 }
@@ -212,6 +205,9 @@ pub struct StreamCounters {
     pub late: u64,
     /// Frames rejected as malformed (wrong size, non-finite values).
     pub malformed: u64,
+    /// Frames without evidence (no positive score in any map): no estimate; they count
+    /// as dropped frames.
+    pub empty: u64,
     /// Frames missing from the numbering within a track (dropped upstream).
     pub missing: u64,
     /// Tracks ended by a gap or a restart.
@@ -427,15 +423,26 @@ impl WindowEstimator {
     ///
     /// A malformed frame (wrong size, non-finite values) is counted and returned as an
     /// error; the window is unchanged and the stream can go on. Late and out-of-order
-    /// frames are counted and ignored.
+    /// frames, and frames without evidence (every map zero), are counted and ignored. A
+    /// frame whose maps have another size than the track's ends the track and starts a
+    /// new one.
     pub fn push(
         &mut self,
         frame: &FrameMaps<'_>,
         out: &mut Vec<FrameEstimate>,
     ) -> Result<(), EstimateError> {
-        if let Err(e) = self.check(frame) {
-            self.counters.malformed += 1;
-            return Err(e);
+        let evidence = match self.check(frame) {
+            Ok(evidence) => evidence,
+            Err(e) => {
+                self.counters.malformed += 1;
+                return Err(e);
+            }
+        };
+        if !evidence {
+            // Nothing seen: no estimate, and the frame counts as dropped (a long run of
+            // them ends the track as a gap does).
+            self.counters.empty += 1;
+            return Ok(());
         }
         if let Some((seq, stamp)) = self.last {
             let late =
@@ -444,10 +451,10 @@ impl WindowEstimator {
                 self.counters.late += 1;
                 return Ok(());
             }
-            let gap_seconds = (frame.stamp_ns - stamp) as f64 * 1e-9;
+            let gap_seconds = frame.stamp_ns.abs_diff(stamp) as f64 * 1e-9;
             let restart = frame.sequence < seq
                 || frame.sequence - seq > self.settings.max_gap_frames
-                || gap_seconds.abs() > self.settings.max_gap_seconds;
+                || gap_seconds > self.settings.max_gap_seconds;
             if restart {
                 self.counters.resets += 1;
                 self.finish(out);
@@ -456,7 +463,12 @@ impl WindowEstimator {
             }
         }
         let geometry = (frame.height, frame.width);
-        if self.slots.is_empty() && (self.maps.height, self.maps.width) != geometry {
+        if (self.maps.height, self.maps.width) != geometry {
+            // Maps of another size: the detector changed; the track ends here.
+            if !self.slots.is_empty() {
+                self.counters.resets += 1;
+                self.finish(out);
+            }
             let p = self.dictionary().num_joints();
             self.maps
                 .configure(self.settings.size, p, frame.height, frame.width);
@@ -506,10 +518,12 @@ impl WindowEstimator {
         self.last = None;
     }
 
-    fn check(&self, frame: &FrameMaps<'_>) -> Result<(), EstimateError> {
+    /// Checks a frame's sizes and values; true if any score is positive (the frame has
+    /// evidence of someone).
+    fn check(&self, frame: &FrameMaps<'_>) -> Result<bool, EstimateError> {
         let p = self.dictionary().num_joints();
-        let n = frame.height * frame.width;
-        if n == 0 || frame.values.len() != p * n {
+        let n = frame.height.checked_mul(frame.width).unwrap_or(0);
+        if n == 0 || p.checked_mul(n) != Some(frame.values.len()) {
             return Err(EstimateError::Parameter(format!(
                 "frame {} holds {} values, expected {p} joints x {} x {}",
                 frame.sequence,
@@ -518,21 +532,17 @@ impl WindowEstimator {
                 frame.width
             )));
         }
-        if !self.slots.is_empty()
-            && (frame.height, frame.width) != (self.maps.height, self.maps.width)
-        {
-            return Err(EstimateError::Parameter(format!(
-                "frame {} has {}x{} maps, the track has {}x{}",
-                frame.sequence, frame.height, frame.width, self.maps.height, self.maps.width
-            )));
+        let mut evidence = false;
+        for (i, v) in frame.values.iter().enumerate() {
+            if !v.is_finite() {
+                return Err(EstimateError::NonFinite {
+                    frame: usize::try_from(frame.sequence).unwrap_or(usize::MAX),
+                    joint: i / n,
+                });
+            }
+            evidence |= *v > 0.0;
         }
-        if let Some(i) = frame.values.iter().position(|v| !v.is_finite()) {
-            return Err(EstimateError::NonFinite {
-                frame: 0,
-                joint: i / n,
-            });
-        }
-        Ok(())
+        Ok(evidence)
     }
 
     /// Adds the frame to the window (freezing the oldest if full) and initialises it.

@@ -94,3 +94,31 @@ pub fn python_client(script: &str, args: &[&str]) -> serde_json::Value {
     );
     serde_json::from_slice(&out.stdout).unwrap_or_else(|e| panic!("{script} output: {e}"))
 }
+
+/// Runs `program` with `args` (in the repository root) to its end, stdout and stderr
+/// captured, and measures the peak resident memory of the process (kB) with
+/// `tests/python/peak_memory.py`. Returns the exit code (`None`: killed by a signal), the
+/// output and the peak.
+pub fn peak_memory_run(
+    program: &std::path::Path,
+    args: &[&str],
+    envs: &[(&str, &str)],
+) -> (Option<i32>, std::process::Output, u64) {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let report = dir.path().join("peak.json");
+    let out = std::process::Command::new(python())
+        .current_dir(root())
+        .arg(root().join("tests/python/peak_memory.py"))
+        .arg(&report)
+        .arg(program)
+        .args(args)
+        .envs(envs.iter().copied())
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run {}: {e}", python()));
+    let text = std::fs::read_to_string(&report)
+        .unwrap_or_else(|e| panic!("peak_memory.py wrote no report ({e}): {out:?}"));
+    let v: serde_json::Value = serde_json::from_str(&text).expect("json");
+    let code = v["returncode"].as_i64().expect("returncode");
+    let peak = v["maxrss_kb"].as_u64().expect("maxrss_kb");
+    ((code >= 0).then_some(code as i32), out, peak)
+}

@@ -65,6 +65,14 @@ fn a_cut_short_recording_yields_its_complete_chunks_then_an_error() {
     let mut last = 0;
     for cut in (0..bytes.len()).step_by(97) {
         std::fs::write(&cut_path, &bytes[..cut]).expect("write");
+        if cut == 0 {
+            let empty = RecordingReader::open(&cut_path).err();
+            assert!(
+                matches!(empty, Some(RecordingError::NotMcap { .. })),
+                "{empty:?}"
+            );
+            continue;
+        }
         let mut reader = RecordingReader::open(&cut_path).expect("open");
         let mut n = 0;
         let mut ended = None;
@@ -165,6 +173,16 @@ fn a_killed_recorder_leaves_every_complete_chunk_readable() {
     let out = dir.path().join("killed.mcap");
     let status = replay_and_signal(&out, "-KILL", Duration::from_millis(2600));
     assert!(!status.success());
+    // The output is renamed into place only when finished: a killed recorder leaves
+    // its messages in `killed.mcap.PID.partial` beside it.
+    assert!(!out.exists());
+    let partial: Vec<_> = std::fs::read_dir(dir.path())
+        .expect("list")
+        .map(|e| e.expect("entry").path())
+        .filter(|p| p.to_string_lossy().ends_with(".partial"))
+        .collect();
+    assert_eq!(partial.len(), 1, "{partial:?}");
+    let out = partial[0].clone();
     let mut reader = RecordingReader::open(&out).expect("open");
     let mut n = 0;
     let mut ended = None;

@@ -207,7 +207,9 @@ fn iceoryx2_skeletons_pass_the_conformance_suite() {
 fn iceoryx2_heat_maps_arrive_equal() {
     let shm = Shm::new().expect("node");
     let name = service("heatmaps");
-    let mut source = shm.heatmaps_source(&name).expect("subscriber");
+    let mut source = shm
+        .heatmaps_source(&name, &posestream::limits::Limits::default())
+        .expect("subscriber");
     let mut sink = shm.heatmaps_sink(&name).expect("publisher");
     let (p, h, w) = (3, 8, 5);
     let values: Vec<f32> = (0..p * h * w).map(|i| i as f32 * 0.5).collect();

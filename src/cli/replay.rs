@@ -2,8 +2,6 @@
 //! new recording.
 
 use std::path::PathBuf;
-use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
 
 use clap::Args;
 use posestream::nodes::ServiceConfig;
@@ -11,6 +9,7 @@ use posestream::nodes::config::ReplayRate;
 use posestream::nodes::replay::{ReplayOptions, replay};
 
 use super::CliError;
+use super::service::stop_flag;
 
 /// Options of `replay`.
 #[derive(Debug, Args)]
@@ -37,12 +36,7 @@ pub struct ReplayArgs {
 /// Runs `replay`. Ctrl-C stops it and still finalises the output.
 pub fn run(args: &ReplayArgs) -> Result<(), CliError> {
     let config = ServiceConfig::load(&args.config).map_err(|e| CliError::Input(e.to_string()))?;
-    let stop = Arc::new(AtomicBool::new(false));
-    {
-        let stop = stop.clone();
-        // Without a handler (already installed), Ctrl-C simply ends the process.
-        let _ = ctrlc::set_handler(move || stop.store(true, Ordering::Relaxed));
-    }
+    let stop = stop_flag();
     let options = ReplayOptions {
         record: args.record.clone(),
         rosbag2: args.rosbag2,
@@ -59,7 +53,7 @@ pub fn run(args: &ReplayArgs) -> Result<(), CliError> {
     } else {
         let c = report.counters;
         println!(
-            "{} frames -> {} skeletons in {:.2} s ({:.0} frames/s); {} malformed, {} late, {} missing, {} resets",
+            "{} frames -> {} skeletons in {:.2} s ({:.0} frames/s); {} refused, {} late, {} missing, {} without evidence, {} resets",
             report.frames,
             report.skeletons,
             report.seconds,
@@ -67,6 +61,7 @@ pub fn run(args: &ReplayArgs) -> Result<(), CliError> {
             report.malformed,
             c.late,
             c.missing,
+            c.empty,
             c.resets
         );
         let u = report.update;

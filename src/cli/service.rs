@@ -25,11 +25,12 @@ fn load(path: &PathBuf) -> Result<ServiceConfig, CliError> {
     ServiceConfig::load(path).map_err(|e| CliError::Input(e.to_string()))
 }
 
-/// A flag set by Ctrl-C.
-fn stop_flag() -> Arc<AtomicBool> {
+/// A flag set by Ctrl-C (SIGINT), SIGTERM or SIGHUP: the command then stops and still
+/// finalises its outputs.
+pub(crate) fn stop_flag() -> Arc<AtomicBool> {
     let stop = Arc::new(AtomicBool::new(false));
     let flag = stop.clone();
-    // Without a handler (one is installed already), Ctrl-C simply ends the process.
+    // Without a handler (one is installed already), the signal simply ends the process.
     let _ = ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed));
     stop
 }
@@ -248,7 +249,7 @@ pub fn estimator(args: &EstimatorArgs) -> Result<(), CliError> {
     let config = load(&args.config)?;
     let stop = stop_flag();
     let input = args.input.unwrap_or(config.estimator.input);
-    let mut node = EstimatorNode::from_config(&config.estimator).map_err(err)?;
+    let mut node = EstimatorNode::from_service_config(&config).map_err(err)?;
     let mut middleware = Middleware::open(&config, Some(input)).map_err(err)?;
     let recorder = service::output_recording(&config).map_err(err)?;
     let mut outputs =

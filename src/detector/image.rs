@@ -22,11 +22,14 @@ use serde::{Deserialize, Serialize};
 use super::crop::{box_from_alignment, crop_input, squared, whole_image_box};
 use super::mapping::{ChannelMapping, MappingError};
 use crate::camera::CropBox;
+use crate::error::{OutOfDomain, check_range, check_real};
 use crate::images::ImageFrame;
 use crate::models::landmarks::{HEATMAP_SIZE, INPUT_SIZE, LandmarkNetwork, NetworkError};
 use crate::models::person::{INPUT_SIZE as PERSON_INPUT, PersonNetwork};
 use crate::models::{LandmarkModel, ModelFile};
 use crate::msgs::{Header, HeatMapEncoding, HeatMaps, Time};
+use crate::transport::ros2::check_topic_name;
+use crate::transport::shm::FRAME_ID_BYTES;
 
 /// BlazePose's alignment landmarks: the hips' midpoint and the body circle's scale point.
 const ALIGNMENT: [usize; 2] = [33, 34];
@@ -105,6 +108,36 @@ impl ImageSettings {
         } else {
             self.models_dir.clone()
         }
+    }
+
+    /// Checks every value is in its domain; the error names the key
+    /// (`[detector.images]` in the service configuration).
+    pub fn check(&self) -> Result<(), OutOfDomain> {
+        check_real("fps", self.fps, 0.0, 1000.0, true)?;
+        check_real(
+            "presence_threshold",
+            f64::from(self.presence_threshold),
+            0.0,
+            1.0,
+            false,
+        )?;
+        check_real(
+            "detection_threshold",
+            f64::from(self.detection_threshold),
+            0.0,
+            1.0,
+            false,
+        )?;
+        check_topic_name("topic", &self.topic)?;
+        check_range("frame_id bytes", self.frame_id.len(), 0, FRAME_ID_BYTES)?;
+        self.person_box().map_err(|_| {
+            OutOfDomain::new(
+                "person_box",
+                "[] or [x, y, width, height] (finite pixels, width and height > 0)",
+                format!("{:?}", self.person_box),
+            )
+        })?;
+        Ok(())
     }
 
     /// The configured person box, checked.

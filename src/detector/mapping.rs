@@ -95,6 +95,12 @@ impl ChannelMapping {
         Self::new(&file, joints)
     }
 
+    /// Parses mapping text (`path` names it in errors) and checks it against `joints`.
+    pub fn parse(text: &str, path: &Path, joints: &[String]) -> Result<Self, MappingError> {
+        let file: MappingFile = crate::config::parse_toml(text, path)?;
+        Self::new(&file, joints)
+    }
+
     /// Checks `file` against `joints`.
     pub fn new(file: &MappingFile, joints: &[String]) -> Result<Self, MappingError> {
         if let Some(unknown) = file.joints.keys().find(|k| !joints.contains(k)) {

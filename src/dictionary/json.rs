@@ -60,8 +60,13 @@ pub fn load(path: &Path) -> Result<Dictionary, DictionaryError> {
         path: path.to_path_buf(),
         source,
     })?;
+    from_bytes(&text, path)
+}
+
+/// Parses a JSON dictionary held in memory (`path` names it in errors).
+pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Dictionary, DictionaryError> {
     let file: DictionaryFile =
-        serde_json::from_slice(&text).map_err(|source| DictionaryError::Json {
+        serde_json::from_slice(bytes).map_err(|source| DictionaryError::Json {
             path: path.to_path_buf(),
             source,
         })?;

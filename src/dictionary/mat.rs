@@ -32,6 +32,8 @@ pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Dictionary, DictionaryErr
     // The MAT parser (matrw 0.1) panics on some malformed inputs (e.g. a truncated
     // deflate stream): contain the panic and report it as an error. (The panic hook still
     // runs; the CLI installs a quiet one.)
+    let normalised = normalise_header(bytes);
+    let bytes = normalised.as_deref().unwrap_or(bytes);
     let parsed = std::panic::catch_unwind(|| matrw::load_matfile_from_u8(bytes));
     let file = match parsed {
         Ok(Ok(f)) => f,
@@ -96,6 +98,24 @@ pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Dictionary, DictionaryErr
             shape(detail)
         }
     })
+}
+
+/// The MAT 5 header's first 116 bytes are free text: MATLAB writes
+/// `MATLAB 5.0 MAT-file, Platform: ...`, Octave `MATLAB 5.0 MAT-file, written by Octave`,
+/// scipy's `savemat` `MATLAB 5.0 MAT-file Platform: ...` (no comma). What identifies a
+/// MAT 5 file is the version 0x0100 and the endian indicator `IM`/`MI` at bytes 124-127;
+/// `matrw` insists on the comma, so a MAT 5 file with another text gets MATLAB's prefix
+/// (in a copy) before it is parsed.
+fn normalise_header(bytes: &[u8]) -> Option<Vec<u8>> {
+    const PREFIX: &[u8] = b"MATLAB 5.0 MAT-file, ";
+    let flags = bytes.get(124..128)?;
+    let mat5 = matches!(flags, [0x00, 0x01, b'I', b'M'] | [0x01, 0x00, b'M', b'I']);
+    if !mat5 || bytes.starts_with(PREFIX) {
+        return None;
+    }
+    let mut copy = bytes.to_vec();
+    copy[..PREFIX.len()].copy_from_slice(PREFIX);
+    Some(copy)
 }
 
 /// The reader's (multi-line, colourised) message as one plain line: the first line that

@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use super::ImageFrame;
+use crate::limits::Limits;
 use crate::transport::{Received, Source, TransportError};
 
 /// File extensions read (lower case).
@@ -20,6 +21,7 @@ pub struct FolderSource {
     next: usize,
     fps: f64,
     frame_id: String,
+    limits: Limits,
 }
 
 fn setup(path: &Path, reason: impl Into<String>) -> TransportError {
@@ -28,8 +30,15 @@ fn setup(path: &Path, reason: impl Into<String>) -> TransportError {
 
 impl FolderSource {
     /// The image files of `folder` (not its subfolders), frames `1 / fps` seconds
-    /// apart, with camera frame id `frame_id`. A folder without images is an error.
-    pub fn open(folder: &Path, fps: f64, frame_id: &str) -> Result<Self, TransportError> {
+    /// apart, with camera frame id `frame_id`. A folder without images is an error; a
+    /// file beyond `limits` (bytes: `max_record_bytes`; pixels: `max_image_pixels`) is
+    /// refused as malformed and skipped.
+    pub fn open(
+        folder: &Path,
+        fps: f64,
+        frame_id: &str,
+        limits: &Limits,
+    ) -> Result<Self, TransportError> {
         if !(fps.is_finite() && fps > 0.0) {
             return Err(setup(folder, format!("frame rate {fps} must be positive")));
         }
@@ -58,6 +67,7 @@ impl FolderSource {
             next: 0,
             fps,
             frame_id: frame_id.to_string(),
+            limits: limits.clone(),
         })
     }
 
@@ -77,13 +87,22 @@ impl Source<ImageFrame> for FolderSource {
         let name = path
             .file_name()
             .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
-        let rgb = image::open(path)
-            .map_err(|e| TransportError::Malformed {
-                transport: "images",
-                topic: self.folder.display().to_string(),
-                reason: format!("{name}: {e}"),
-            })?
-            .to_rgb8();
+        let malformed = |reason: String| TransportError::Malformed {
+            transport: "images",
+            topic: self.folder.display().to_string(),
+            reason: format!("{name}: {reason}"),
+        };
+        let size = std::fs::metadata(path)
+            .map_err(|e| malformed(e.to_string()))?
+            .len();
+        if size > self.limits.max_record_bytes as u64 {
+            return Err(malformed(format!(
+                "{size} bytes, beyond limits.max_record_bytes = {}",
+                self.limits.max_record_bytes
+            )));
+        }
+        let bytes = std::fs::read(path).map_err(|e| malformed(e.to_string()))?;
+        let rgb = super::decode_bytes(&bytes, &self.limits).map_err(malformed)?;
         Ok(ImageFrame::from_file(
             index,
             self.fps,
@@ -108,7 +127,8 @@ mod tests {
         }
         std::fs::write(dir.path().join("c.jpg"), b"not a jpeg").expect("write");
         std::fs::write(dir.path().join("notes.txt"), b"ignored").expect("write");
-        let mut source = FolderSource::open(dir.path(), 10.0, "camera").expect("open");
+        let mut source =
+            FolderSource::open(dir.path(), 10.0, "camera", &Limits::default()).expect("open");
         assert_eq!(source.files().len(), 3);
         let wait = Duration::ZERO;
         let Ok(Received::Message(a, stamp)) = source.recv(wait) else {
@@ -135,9 +155,12 @@ mod tests {
     #[test]
     fn a_folder_without_images_or_a_missing_one_is_an_error() {
         let dir = tempfile::tempdir().expect("dir");
-        let empty = FolderSource::open(dir.path(), 30.0, "c").expect_err("empty");
+        let empty =
+            FolderSource::open(dir.path(), 30.0, "c", &Limits::default()).expect_err("empty");
         assert!(empty.to_string().contains("no image files"), "{empty}");
-        assert!(FolderSource::open(&dir.path().join("nope"), 30.0, "c").is_err());
-        assert!(FolderSource::open(dir.path(), 0.0, "c").is_err());
+        assert!(
+            FolderSource::open(&dir.path().join("nope"), 30.0, "c", &Limits::default()).is_err()
+        );
+        assert!(FolderSource::open(dir.path(), 0.0, "c", &Limits::default()).is_err());
     }
 }

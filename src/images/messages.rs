@@ -5,12 +5,14 @@
 use std::time::Duration;
 
 use super::ImageFrame;
+use crate::limits::Limits;
 use crate::msgs::{CompressedImage, Header, Image};
 use crate::transport::{Received, Source, TransportError};
 
 /// An 8-bit RGB image from a `sensor_msgs/Image` (`rgb8`, `bgr8`, `rgba8`, `bgra8`,
-/// `mono8`).
-pub fn decode_image(msg: &Image) -> Result<image::RgbImage, String> {
+/// `mono8`). The message's width, height and row step are checked (checked arithmetic,
+/// [`Limits::image`]) against its data before anything is allocated.
+pub fn decode_image(msg: &Image, limits: &Limits) -> Result<image::RgbImage, String> {
     let channels = match msg.encoding.as_str() {
         "rgb8" | "bgr8" => 3,
         "rgba8" | "bgra8" => 4,
@@ -25,12 +27,20 @@ pub fn decode_image(msg: &Image) -> Result<image::RgbImage, String> {
     if w == 0 || h == 0 {
         return Err(format!("empty image ({w} x {h})"));
     }
-    if step < w * channels || msg.data.len() < step * (h - 1) + w * channels {
-        return Err(format!(
-            "{} bytes for {w} x {h} {} with rows of {step} bytes",
-            msg.data.len(),
-            msg.encoding
-        ));
+    limits
+        .image(u64::from(msg.width), u64::from(msg.height))
+        .map_err(|e| e.to_string())?;
+    let row = w.checked_mul(channels);
+    let needed = row.and_then(|row| step.checked_mul(h - 1)?.checked_add(row));
+    match (row, needed) {
+        (Some(row), Some(needed)) if step >= row && msg.data.len() >= needed => {}
+        _ => {
+            return Err(format!(
+                "{} bytes for {w} x {h} {} with rows of {step} bytes",
+                msg.data.len(),
+                msg.encoding
+            ));
+        }
     }
     let bgr = msg.encoding.starts_with("bgr");
     let mut rgb = Vec::with_capacity(w * h * 3);
@@ -47,10 +57,12 @@ pub fn decode_image(msg: &Image) -> Result<image::RgbImage, String> {
 }
 
 /// An 8-bit RGB image from a `sensor_msgs/CompressedImage` (JPEG or PNG; the format
-/// is read from the bytes).
-pub fn decode_compressed(msg: &CompressedImage) -> Result<image::RgbImage, String> {
-    image::load_from_memory(&msg.data)
-        .map(|i| i.to_rgb8())
+/// is read from the bytes), within `limits`.
+pub fn decode_compressed(
+    msg: &CompressedImage,
+    limits: &Limits,
+) -> Result<image::RgbImage, String> {
+    super::decode_bytes(&msg.data, limits)
         .map_err(|e| format!("compressed image (`{}`): {e}", msg.format))
 }
 
@@ -59,15 +71,15 @@ pub trait CameraMessage: Send + 'static {
     /// Its header.
     fn header(&self) -> &Header;
     /// Its pixels.
-    fn decode(&self) -> Result<image::RgbImage, String>;
+    fn decode(&self, limits: &Limits) -> Result<image::RgbImage, String>;
 }
 
 impl CameraMessage for Image {
     fn header(&self) -> &Header {
         &self.header
     }
-    fn decode(&self) -> Result<image::RgbImage, String> {
-        decode_image(self)
+    fn decode(&self, limits: &Limits) -> Result<image::RgbImage, String> {
+        decode_image(self, limits)
     }
 }
 
@@ -75,8 +87,8 @@ impl CameraMessage for CompressedImage {
     fn header(&self) -> &Header {
         &self.header
     }
-    fn decode(&self) -> Result<image::RgbImage, String> {
-        decode_compressed(self)
+    fn decode(&self, limits: &Limits) -> Result<image::RgbImage, String> {
+        decode_compressed(self, limits)
     }
 }
 
@@ -84,16 +96,19 @@ impl CameraMessage for CompressedImage {
 pub struct DecodedImages<M, S> {
     source: S,
     topic: String,
+    limits: Limits,
     next: u64,
     _message: std::marker::PhantomData<fn() -> M>,
 }
 
 impl<M, S> DecodedImages<M, S> {
-    /// Wraps `source` (reading `topic`, named in errors).
-    pub fn new(source: S, topic: &str) -> Self {
+    /// Wraps `source` (reading `topic`, named in errors); images beyond `limits` are
+    /// refused as malformed.
+    pub fn new(source: S, topic: &str, limits: &Limits) -> Self {
         Self {
             source,
             topic: topic.to_string(),
+            limits: limits.clone(),
             next: 0,
             _message: std::marker::PhantomData,
         }
@@ -109,11 +124,13 @@ impl<M: CameraMessage, S: Source<M>> Source<ImageFrame> for DecodedImages<M, S> 
         };
         let index = self.next;
         self.next += 1;
-        let rgb = msg.decode().map_err(|reason| TransportError::Malformed {
-            transport: "images",
-            topic: self.topic.clone(),
-            reason,
-        })?;
+        let rgb = msg
+            .decode(&self.limits)
+            .map_err(|reason| TransportError::Malformed {
+                transport: "images",
+                topic: self.topic.clone(),
+                reason,
+            })?;
         let header = msg.header();
         let stamp_ns = u64::try_from(header.stamp.nanos()).unwrap_or(stamp);
         Ok(Received::Message(
@@ -156,28 +173,32 @@ mod tests {
 
     #[test]
     fn raw_encodings_become_rgb_with_row_padding_skipped() {
-        let rgb = decode_image(&image("rgb8", 3, 2)).expect("rgb8");
+        let rgb = decode_image(&image("rgb8", 3, 2), &Limits::default()).expect("rgb8");
         assert_eq!(rgb.get_pixel(1, 1).0, [30, 31, 32]);
-        let bgr = decode_image(&image("bgr8", 3, 0)).expect("bgr8");
+        let bgr = decode_image(&image("bgr8", 3, 0), &Limits::default()).expect("bgr8");
         assert_eq!(bgr.get_pixel(1, 0).0, [12, 11, 10]);
-        let bgra = decode_image(&image("bgra8", 4, 0)).expect("bgra8");
+        let bgra = decode_image(&image("bgra8", 4, 0), &Limits::default()).expect("bgra8");
         assert_eq!(bgra.get_pixel(0, 1).0, [22, 21, 20]);
-        let mono = decode_image(&image("mono8", 1, 1)).expect("mono8");
+        let mono = decode_image(&image("mono8", 1, 1), &Limits::default()).expect("mono8");
         assert_eq!(mono.get_pixel(1, 1).0, [30, 30, 30]);
     }
 
     #[test]
     fn unknown_encodings_and_short_data_are_errors() {
-        assert!(decode_image(&image("16UC1", 2, 0)).is_err());
+        assert!(decode_image(&image("16UC1", 2, 0), &Limits::default()).is_err());
         let mut short = image("rgb8", 3, 0);
         short.data.pop();
-        assert!(decode_image(&short).expect_err("short").contains("bytes"));
+        assert!(
+            decode_image(&short, &Limits::default())
+                .expect_err("short")
+                .contains("bytes")
+        );
         let bad = CompressedImage {
             format: "jpeg".into(),
             data: b"no".to_vec(),
             ..Default::default()
         };
-        assert!(decode_compressed(&bad).is_err());
+        assert!(decode_compressed(&bad, &Limits::default()).is_err());
     }
 
     #[test]
@@ -191,7 +212,7 @@ mod tests {
             data: png,
             ..Default::default()
         };
-        let rgb = decode_compressed(&msg).expect("png");
+        let rgb = decode_compressed(&msg, &Limits::default()).expect("png");
         assert_eq!(
             (rgb.dimensions(), rgb.get_pixel(2, 1).0),
             ((3, 2), [1, 2, 3])

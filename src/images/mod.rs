@@ -7,6 +7,8 @@
 //! - [`messages`]: `sensor_msgs/Image` or `CompressedImage` messages from any transport
 //!   (a ROS 2 topic, a recording).
 
+use crate::limits::Limits;
+
 pub mod folder;
 pub mod messages;
 pub mod video;
@@ -63,6 +65,29 @@ impl ImageFrame {
         };
         crate::transport::Received::Message(frame, stamp_ns)
     }
+}
+
+/// Decodes an image file's bytes (PNG, JPEG or GIF, the format read from the bytes) to
+/// 8-bit RGB. Its size is read from its header first and checked against `limits`
+/// ([`Limits::image`]); the decoder itself is held to the same budget.
+pub fn decode_bytes(bytes: &[u8], limits: &Limits) -> Result<image::RgbImage, String> {
+    let reader = || {
+        image::ImageReader::new(std::io::Cursor::new(bytes))
+            .with_guessed_format()
+            .map_err(|e| e.to_string())
+    };
+    let (w, h) = reader()?.into_dimensions().map_err(|e| e.to_string())?;
+    limits
+        .image(u64::from(w), u64::from(h))
+        .map_err(|e| e.to_string())?;
+    let mut budget = image::Limits::default();
+    budget.max_image_width = Some(w);
+    budget.max_image_height = Some(h);
+    // 16-bit RGBA at most, plus the RGB copy.
+    budget.max_alloc = Some(limits.max_image_pixels.saturating_mul(11));
+    let mut r = reader()?;
+    r.limits(budget);
+    Ok(r.decode().map_err(|e| e.to_string())?.to_rgb8())
 }
 
 /// The time of frame `index` of a source running at `fps` frames per second.

@@ -9,6 +9,7 @@ use std::process::{Child, ChildStdout, Command, Stdio};
 use std::time::Duration;
 
 use super::ImageFrame;
+use crate::limits::Limits;
 use crate::transport::{Received, Source, TransportError};
 
 /// One video being decoded.
@@ -79,9 +80,13 @@ pub fn probe(path: &Path) -> Result<(u32, u32, f64), TransportError> {
 }
 
 impl VideoSource {
-    /// Starts decoding `path`; frames get camera frame id `frame_id`.
-    pub fn open(path: &Path, frame_id: &str) -> Result<Self, TransportError> {
+    /// Starts decoding `path`; frames get camera frame id `frame_id`. A video whose
+    /// frames are beyond `limits` (pixels) is refused.
+    pub fn open(path: &Path, frame_id: &str, limits: &Limits) -> Result<Self, TransportError> {
         let (width, height, fps) = probe(path)?;
+        limits
+            .image(u64::from(width), u64::from(height))
+            .map_err(|e| setup(path, e.to_string()))?;
         let mut child = Command::new("ffmpeg")
             .args(["-nostdin", "-v", "error", "-i"])
             .arg(path)
@@ -97,10 +102,13 @@ impl VideoSource {
             return Err(setup(path, "ffmpeg's pipes are missing"));
         };
         // Drained on its own thread so that a chatty decoder cannot block on it.
+        // Kept to its first 64 kB: a decoder that complains about every frame of a
+        // broken file must not grow it without bound.
         let stderr = std::thread::spawn(move || {
-            let mut text = String::new();
-            let _ = err.read_to_string(&mut text);
-            text
+            let mut text = Vec::new();
+            let _ = err.by_ref().take(64 << 10).read_to_end(&mut text);
+            let _ = std::io::copy(&mut err, &mut std::io::sink());
+            String::from_utf8_lossy(&text).into_owned()
         });
         Ok(Self {
             path: path.to_path_buf(),

@@ -271,6 +271,11 @@ impl SkeletonMapping {
         Self::from_file(load_toml(path)?, path)
     }
 
+    /// Parses mapping text (`path` names it in errors).
+    pub fn parse(text: &str, path: &Path) -> Result<Self, MappingError> {
+        Self::from_file(crate::config::parse_toml(text, path)?, path)
+    }
+
     /// Checks a parsed mapping document; `path` names it in errors.
     fn from_file(file: MappingFile, path: &Path) -> Result<Self, MappingError> {
         let invalid = |detail: String| MappingError::Invalid {

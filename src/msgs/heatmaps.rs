@@ -109,7 +109,18 @@ impl HeatMaps {
 
     /// Checks the sizes and writes the scores as f32 into `out` (resized).
     pub fn values_into(&self, out: &mut Vec<f32>) -> Result<(), DecodeError> {
-        let n = self.joint_names.len() * self.height as usize * self.width as usize;
+        let n = (self.joint_names.len() as u64)
+            .checked_mul(u64::from(self.height))
+            .and_then(|n| n.checked_mul(u64::from(self.width)))
+            .and_then(|n| usize::try_from(n).ok())
+            .ok_or_else(|| {
+                self.invalid(format!(
+                    "{} joints x {} x {} overflows",
+                    self.joint_names.len(),
+                    self.height,
+                    self.width
+                ))
+            })?;
         if n == 0 {
             return Err(self.invalid("no joints or empty maps".into()));
         }

@@ -63,4 +63,17 @@ impl Skeleton3D {
             _ => None,
         }
     }
+
+    /// True if every number in the message is finite (nothing else is published).
+    pub fn is_finite(&self) -> bool {
+        [
+            &self.positions,
+            &self.position_std,
+            &self.keypoints,
+            &self.keypoint_std,
+            &self.projected,
+        ]
+        .iter()
+        .all(|v| v.iter().all(|x| x.is_finite()))
+    }
 }

@@ -6,11 +6,14 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::config::{ConfigError, load_toml};
+use crate::config::{ConfigError, load_toml, parse_toml};
 use crate::detector::ImageSettings;
+use crate::error::OutOfDomain;
+use crate::limits::Limits;
 use crate::solver::Params;
 use crate::streaming::StreamSettings;
 use crate::transport::ros2::RosSettings;
+use crate::transport::ros2::check_topic_name;
 use crate::transport::shm::ShmSettings;
 
 /// The whole configuration.
@@ -31,6 +34,8 @@ pub struct ServiceConfig {
     pub iceoryx2: ShmSettings,
     /// Replaying recordings.
     pub replay: ReplayConfig,
+    /// The largest inputs accepted (maps, records, images).
+    pub limits: Limits,
 }
 
 /// The detector node (`[detector]`): where heat maps come from: replayed from a
@@ -114,9 +119,59 @@ impl Default for OutputsConfig {
 }
 
 impl ServiceConfig {
-    /// Reads a configuration file.
+    /// Reads a configuration file and checks every value is in its domain.
     pub fn load(path: impl AsRef<Path>) -> Result<Self, ConfigError> {
-        load_toml(path.as_ref())
+        Self::checked(load_toml(path.as_ref())?, path.as_ref())
+    }
+
+    /// Parses configuration text (`path` names it in errors) and checks every value.
+    pub fn parse(text: &str, path: &Path) -> Result<Self, ConfigError> {
+        Self::checked(parse_toml(text, path)?, path)
+    }
+
+    fn checked(config: Self, path: &Path) -> Result<Self, ConfigError> {
+        config.validate().map_err(|source| ConfigError::Domain {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        Ok(config)
+    }
+
+    /// Checks every value is in its domain; the error names the key as the file spells
+    /// it (`estimator.window.size must be in 1..=300, got 1000000000`).
+    pub fn validate(&self) -> Result<(), OutOfDomain> {
+        let e = &self.estimator;
+        e.params.check().map_err(|x| x.within("estimator.params"))?;
+        e.window.check().map_err(|x| x.within("estimator.window"))?;
+        self.detector
+            .images
+            .check()
+            .map_err(|x| x.within("detector.images"))?;
+        let t = &self.topics;
+        for (key, topic) in [
+            ("heatmaps", &t.heatmaps),
+            ("skeletons", &t.skeletons),
+            ("markers", &t.markers),
+            ("ground_truth", &t.ground_truth),
+        ] {
+            check_topic_name(key, topic).map_err(|x| x.within("topics"))?;
+        }
+        self.ros.check().map_err(|x| x.within("ros"))?;
+        for (key, name) in [
+            ("skeletons", &self.iceoryx2.skeletons),
+            ("heatmaps", &self.iceoryx2.heatmaps),
+        ] {
+            if name.is_empty() || name.len() > 255 || name.contains('\0') {
+                return Err(OutOfDomain::new(
+                    key,
+                    "a service name of 1 to 255 bytes",
+                    format!("{name:?}"),
+                )
+                .within("iceoryx2"));
+            }
+        }
+        self.limits.check().map_err(|x| x.within("limits"))?;
+        Ok(())
     }
 }
 

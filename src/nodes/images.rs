@@ -80,6 +80,7 @@ pub fn image_frames(
 ) -> Result<Box<dyn Source<ImageFrame>>, TransportError> {
     let images = &config.detector.images;
     let (path, topic) = (&images.path, images.topic.as_str());
+    let (limits, max_record) = (&config.limits, config.limits.max_record_bytes);
     let setup = |reason: &str| TransportError::Setup {
         transport: "images",
         what: format!("the {:?} source", config.detector.source),
@@ -93,14 +94,24 @@ pub fn image_frames(
         return Err(setup("detector.images.path is empty"));
     }
     Ok(match config.detector.source {
-        DetectorSource::Images => Box::new(FolderSource::open(path, images.fps, &images.frame_id)?),
-        DetectorSource::Video => Box::new(VideoSource::open(path, &images.frame_id)?),
-        DetectorSource::ImageRecording if is_compressed_topic(topic) => Box::new(
-            DecodedImages::new(McapSource::<CompressedImage>::open(path, topic)?, topic),
-        ),
+        DetectorSource::Images => Box::new(FolderSource::open(
+            path,
+            images.fps,
+            &images.frame_id,
+            limits,
+        )?),
+        DetectorSource::Video => Box::new(VideoSource::open(path, &images.frame_id, limits)?),
+        DetectorSource::ImageRecording if is_compressed_topic(topic) => {
+            Box::new(DecodedImages::new(
+                McapSource::<CompressedImage>::open_with_limit(path, topic, max_record)?,
+                topic,
+                limits,
+            ))
+        }
         DetectorSource::ImageRecording => Box::new(DecodedImages::new(
-            McapSource::<Image>::open(path, topic)?,
+            McapSource::<Image>::open_with_limit(path, topic, max_record)?,
             topic,
+            limits,
         )),
         DetectorSource::Ros2 => {
             let ros = ros.ok_or_else(|| setup("ROS 2 is not opened"))?;
@@ -108,9 +119,14 @@ pub fn image_frames(
                 Box::new(DecodedImages::new(
                     ros.source::<CompressedImage>(topic)?,
                     topic,
+                    limits,
                 ))
             } else {
-                Box::new(DecodedImages::new(ros.source::<Image>(topic)?, topic))
+                Box::new(DecodedImages::new(
+                    ros.source::<Image>(topic)?,
+                    topic,
+                    limits,
+                ))
             }
         }
         DetectorSource::Recording => return Err(setup("not an image source")),

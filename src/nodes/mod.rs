@@ -15,11 +15,13 @@ pub mod markers;
 pub mod replay;
 pub mod service;
 
-use std::collections::VecDeque;
+use std::collections::{BTreeMap, VecDeque};
+use std::panic::AssertUnwindSafe;
 
 use crate::camera::{CropBox, PixelMap};
 use crate::error::EstimateError;
 use crate::estimator::Estimator;
+use crate::limits::{LimitError, Limits};
 use crate::mocap::mapping::same_layout;
 use crate::msgs::{self, DecodeError, Header, Skeleton3D, Time, Units};
 use crate::streaming::{FrameEstimate, FrameMaps, StreamCounters, TrackState, WindowEstimator};
@@ -42,6 +44,14 @@ pub enum NodeError {
         /// The dictionary's joints.
         expected: Vec<String>,
     },
+    /// The message declares sizes beyond the configured limits.
+    #[error("frame {sequence}: {source}")]
+    Limit {
+        /// The frame.
+        sequence: u64,
+        /// What is beyond which limit.
+        source: LimitError,
+    },
     /// The estimator refused the frame.
     #[error("frame {sequence}: {source}")]
     Estimate {
@@ -50,6 +60,36 @@ pub enum NodeError {
         /// The cause.
         source: EstimateError,
     },
+    /// Handling the frame panicked (a bug): the frame is dropped and the track reset,
+    /// since its state may be inconsistent.
+    #[error("frame {sequence}: internal error ({message}); the track was reset")]
+    Panic {
+        /// The frame.
+        sequence: u64,
+        /// The panic's message.
+        message: String,
+    },
+    /// An estimate had non-finite values (it is not published).
+    #[error("frame {sequence}: the estimate has non-finite values; not published")]
+    NonFiniteOutput {
+        /// The frame the estimate describes.
+        sequence: u64,
+    },
+}
+
+impl NodeError {
+    /// The kind of refusal, as counted in reports (`refused`).
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Self::Decode(DecodeError::Invalid { .. }) => "invalid",
+            Self::Decode(_) => "undecodable",
+            Self::Joints { .. } => "joints",
+            Self::Limit { .. } => "beyond-limits",
+            Self::Estimate { .. } => "rejected",
+            Self::Panic { .. } => "panic",
+            Self::NonFiniteOutput { .. } => "non-finite-output",
+        }
+    }
 }
 
 /// A node could not be set up from its configuration.
@@ -74,29 +114,73 @@ struct FrameInfo {
     frame_id: String,
 }
 
+/// Refusals counted by kind; the first of each kind is logged (a warning), the rest only
+/// counted, so a hostile stream cannot flood the log.
+#[derive(Debug, Clone, Default, PartialEq, Eq, serde::Serialize)]
+pub struct Refusals(BTreeMap<&'static str, u64>);
+
+impl Refusals {
+    /// Counts `kind`; logs `what` if it is the first of its kind.
+    pub fn note(&mut self, kind: &'static str, what: &dyn std::fmt::Display) {
+        let n = self.0.entry(kind).or_insert(0);
+        *n += 1;
+        if *n == 1 {
+            tracing::warn!(
+                "refused a heat-map message ({kind}): {what} (further ones of this kind are counted, not logged)"
+            );
+        } else {
+            tracing::debug!("refused a heat-map message ({kind}): {what}");
+        }
+    }
+
+    /// Refusals in all.
+    pub fn total(&self) -> u64 {
+        self.0.values().sum()
+    }
+
+    /// Refusals of `kind`.
+    pub fn of(&self, kind: &str) -> u64 {
+        self.0.get(kind).copied().unwrap_or(0)
+    }
+}
+
 /// Heat-map messages in, skeleton messages out, through a [`WindowEstimator`].
+///
+/// Every message is handled behind a boundary: a bad one is refused and counted by kind
+/// ([`Refusals`]); should handling it panic (a bug), the panic is caught, the track reset
+/// and the node goes on.
 pub struct EstimatorNode {
     window: WindowEstimator,
     joint_names: Vec<String>,
+    limits: Limits,
     track_id: u32,
     frames: VecDeque<FrameInfo>,
     estimates: Vec<FrameEstimate>,
     values: Vec<f32>,
-    malformed: u64,
+    refused: Refusals,
+    /// Test builds (`--features fault-injection`): the sequence number whose handling
+    /// panics, from `POSESTREAM_INJECT_PANIC_AT`.
+    #[cfg(feature = "fault-injection")]
+    panic_at: Option<u64>,
 }
 
 impl EstimatorNode {
-    /// A node over `window`.
+    /// A node over `window`, with the default [`Limits`].
     pub fn new(window: WindowEstimator) -> Self {
         let joint_names = window.dictionary().skeleton().joints.clone();
         Self {
             window,
             joint_names,
+            limits: Limits::default(),
             track_id: 0,
             frames: VecDeque::new(),
             estimates: Vec::new(),
             values: Vec::new(),
-            malformed: 0,
+            refused: Refusals::default(),
+            #[cfg(feature = "fault-injection")]
+            panic_at: std::env::var("POSESTREAM_INJECT_PANIC_AT")
+                .ok()
+                .and_then(|v| v.parse().ok()),
         }
     }
 
@@ -108,19 +192,36 @@ impl EstimatorNode {
         Ok(Self::new(window))
     }
 
+    /// The node of a service configuration: `[estimator]` under `[limits]`.
+    pub fn from_service_config(config: &ServiceConfig) -> Result<Self, SetupError> {
+        Ok(Self::from_config(&config.estimator)?.with_limits(&config.limits))
+    }
+
+    /// The same node, refusing frames beyond `limits`.
+    pub fn with_limits(mut self, limits: &Limits) -> Self {
+        self.limits = limits.clone();
+        self
+    }
+
     /// The window's counters.
     pub fn counters(&self) -> StreamCounters {
         self.window.counters()
     }
 
-    /// Messages refused (undecodable, inconsistent or with unknown joints).
+    /// Messages refused (undecodable, inconsistent, beyond the limits, with unknown
+    /// joints, or whose handling failed).
     pub fn malformed(&self) -> u64 {
-        self.malformed
+        self.refused.total()
+    }
+
+    /// Refusals by kind.
+    pub fn refused(&self) -> &Refusals {
+        &self.refused
     }
 
     /// Counts a message the transport could not decode (it never reached the node).
-    pub fn count_malformed(&mut self) {
-        self.malformed += 1;
+    pub fn count_malformed(&mut self, error: &dyn std::fmt::Display) {
+        self.refused.note("undecodable", error);
     }
 
     /// The window's settings.
@@ -143,21 +244,32 @@ impl EstimatorNode {
         match msgs::decode::<msgs::HeatMaps>(data) {
             Ok(msg) => self.handle(&msg, out),
             Err(e) => {
-                self.malformed += 1;
-                Err(e.into())
+                let e = NodeError::from(e);
+                self.refused.note(e.kind(), &e);
+                Err(e)
             }
         }
     }
 
-    /// Handles one heat-map message; appends the skeletons it releases to `out`.
+    /// Handles one heat-map message; appends the skeletons it releases to `out`. A bad
+    /// message is refused, counted and logged once per kind; the node goes on.
     pub fn handle(
         &mut self,
         msg: &msgs::HeatMaps,
         out: &mut Vec<Skeleton3D>,
     ) -> Result<(), NodeError> {
-        let result = self.handle_inner(msg, out);
-        if result.is_err() {
-            self.malformed += 1;
+        let handled = std::panic::catch_unwind(AssertUnwindSafe(|| self.handle_inner(msg, out)));
+        let result = handled.unwrap_or_else(|payload| {
+            // The window may be half-updated: start again from the next frame.
+            self.window.reset();
+            self.frames.clear();
+            Err(NodeError::Panic {
+                sequence: msg.sequence,
+                message: panic_message(payload.as_ref()),
+            })
+        });
+        if let Err(e) = &result {
+            self.refused.note(e.kind(), e);
         }
         result
     }
@@ -167,6 +279,23 @@ impl EstimatorNode {
         msg: &msgs::HeatMaps,
         out: &mut Vec<Skeleton3D>,
     ) -> Result<(), NodeError> {
+        #[cfg(feature = "fault-injection")]
+        if self.panic_at == Some(msg.sequence) {
+            panic!(
+                "injected panic (POSESTREAM_INJECT_PANIC_AT={})",
+                msg.sequence
+            );
+        }
+        self.limits
+            .heatmap_values(
+                msg.joint_names.len() as u64,
+                u64::from(msg.height),
+                u64::from(msg.width),
+            )
+            .map_err(|source| NodeError::Limit {
+                sequence: msg.sequence,
+                source,
+            })?;
         if !same_layout(&msg.joint_names, &self.joint_names) {
             return Err(NodeError::Joints {
                 sequence: msg.sequence,
@@ -212,6 +341,11 @@ impl EstimatorNode {
         Ok(())
     }
 
+    /// Frames the window has taken so far (not refused, late or without evidence).
+    pub fn frames_accepted(&self) -> u64 {
+        self.window.counters().frames
+    }
+
     /// Ends the stream: the estimates still owed.
     pub fn finish(&mut self, out: &mut Vec<Skeleton3D>) {
         self.estimates.clear();
@@ -221,7 +355,7 @@ impl EstimatorNode {
     }
 
     /// Turns the window's estimates into messages; forgets frames no estimate can
-    /// need any more.
+    /// need any more. An estimate with non-finite values is counted, not published.
     fn release(&mut self, out: &mut Vec<Skeleton3D>) {
         let settings = self.window.settings();
         let keep = settings.size + settings.lag + 1;
@@ -229,12 +363,29 @@ impl EstimatorNode {
             let Some(info) = self.frames.iter().rev().find(|f| f.sequence == e.sequence) else {
                 continue;
             };
-            out.push(skeleton_message(e, info, &self.joint_names, self.track_id));
+            let message = skeleton_message(e, info, &self.joint_names, self.track_id);
+            if message.is_finite() {
+                out.push(message);
+            } else {
+                let e = NodeError::NonFiniteOutput {
+                    sequence: e.sequence,
+                };
+                self.refused.note(e.kind(), &e);
+            }
         }
         while self.frames.len() > keep {
             self.frames.pop_front();
         }
     }
+}
+
+/// The text of a panic's payload.
+fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
+    payload
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| payload.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "a panic".into())
 }
 
 /// The message of one estimate.

@@ -1,5 +1,12 @@
 //! Replay: a recording's heat maps through the estimator node, as fast as possible or at
 //! the recorded pace; skeletons (and any ground truth in the input) to a new recording.
+//!
+//! What a replay does with a bad input: a recording cut short (a recorder killed) is
+//! replayed up to its last complete message and reported in
+//! [`ReplayReport::truncated`]; a corrupt record ends the replay with
+//! [`ReplayError::Input`], the skeletons of everything before it kept in the output's
+//! `.partial` file and the output left as it was; a file that is not a recording, or
+//! holds no heat maps, is one error and nothing is written.
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -9,7 +16,9 @@ use serde::Serialize;
 
 use super::config::{ReplayRate, ServiceConfig};
 use super::latency::{LatencyHistogram, LatencySummary};
-use super::{EstimatorNode, SetupError};
+use super::service::pace;
+use super::{EstimatorNode, Refusals, SetupError};
+use crate::files::{OutputIsInput, check_output};
 use crate::msgs::{RosMessage, Skeleton3D};
 use crate::recording::{Recorder, RecordingError, RecordingReader, write_rosbag2_metadata};
 use crate::streaming::StreamCounters;
@@ -23,8 +32,11 @@ pub struct ReplayReport {
     pub frames: u64,
     /// Skeleton messages produced.
     pub skeletons: u64,
-    /// Heat-map messages refused (undecodable, inconsistent, unknown joints).
+    /// Heat-map messages refused (undecodable, inconsistent, beyond the limits, unknown
+    /// joints).
     pub malformed: u64,
+    /// The refusals by kind.
+    pub refused: Refusals,
     /// The window's counters (late, missing, resets, tracks).
     pub counters: StreamCounters,
     /// Where the input was cut short, if it was (every message before was replayed).
@@ -46,9 +58,31 @@ pub enum ReplayError {
     /// The estimator could not be set up.
     #[error(transparent)]
     Setup(#[from] SetupError),
-    /// The input could not be read, or the output written.
+    /// The input could not be opened, or the output written.
     #[error(transparent)]
     Recording(#[from] RecordingError),
+    /// The output is the input.
+    #[error(transparent)]
+    OutputIsInput(#[from] OutputIsInput),
+    /// The input holds no heat maps.
+    #[error("{path}: no messages on {topic} (the recording has {found})")]
+    NoHeatMaps {
+        /// The input.
+        path: PathBuf,
+        /// The heat-map topic looked for (`topics.heatmaps`).
+        topic: String,
+        /// The topics it has, with their types.
+        found: String,
+    },
+    /// The input turned out corrupt part way: everything before was replayed.
+    #[error("{source}{}", kept.as_ref().map(|k| format!("; the skeletons of the messages before are in {}", k.display())).unwrap_or_default())]
+    Input {
+        /// What was wrong with the input.
+        source: RecordingError,
+        /// The output's temporary file holding the skeletons of what came before (the
+        /// output itself is left as it was).
+        kept: Option<PathBuf>,
+    },
 }
 
 /// Options of [`replay`].
@@ -70,14 +104,17 @@ pub fn replay(
     options: &ReplayOptions,
     stop: &AtomicBool,
 ) -> Result<ReplayReport, ReplayError> {
-    let mut node = EstimatorNode::from_config(&config.estimator)?;
-    let mut reader = RecordingReader::open(input)?;
+    if let Some(out) = &options.record {
+        check_output(out, &[input])?;
+    }
+    let mut node = EstimatorNode::from_service_config(config)?;
+    let mut reader = RecordingReader::open_with_limit(input, config.limits.max_record_bytes)?;
     let mut recorder = options.record.as_ref().map(Recorder::create).transpose()?;
     let topics = &config.topics;
     let start = Instant::now();
     let mut first_log: Option<u64> = None;
     let mut skeletons = Vec::new();
-    let (mut frames, mut produced, mut truncated) = (0_u64, 0_u64, None);
+    let (mut frames, mut produced, mut truncated, mut input_error) = (0_u64, 0_u64, None, None);
     let write = |recorder: &mut Option<Recorder>,
                  skeletons: &mut Vec<Skeleton3D>,
                  log_time: u64|
@@ -100,28 +137,31 @@ pub fn replay(
         let msg = match next {
             Ok(m) => m,
             Err(e @ RecordingError::Truncated { .. }) => {
-                tracing::warn!("{e}");
                 truncated = Some(e.to_string());
                 break;
             }
-            Err(e) => return Err(e.into()),
+            Err(e) => {
+                input_error = Some(e);
+                break;
+            }
         };
         last_log = msg.log_time_ns;
         if options.rate == ReplayRate::Recorded {
             let first = *first_log.get_or_insert(msg.log_time_ns);
-            let due = Duration::from_nanos(msg.log_time_ns.saturating_sub(first));
-            if let Some(wait) = due.checked_sub(start.elapsed()) {
-                std::thread::sleep(wait);
+            if !pace(
+                start,
+                Duration::from_nanos(msg.log_time_ns.saturating_sub(first)),
+                stop,
+            ) {
+                break;
             }
         }
         if msg.topic == topics.heatmaps {
             frames += 1;
             let began = Instant::now();
-            let handled = node.handle_encoded(&msg.data, &mut skeletons);
+            // A refused message is counted and logged by the node.
+            let _ = node.handle_encoded(&msg.data, &mut skeletons);
             latency.record(began.elapsed());
-            if let Err(e) = handled {
-                tracing::warn!("skipped a heat-map message: {e}");
-            }
             produced += write(&mut recorder, &mut skeletons, msg.log_time_ns)?;
         } else if msg.topic == topics.ground_truth && msg.schema == Skeleton3D::NAME {
             if let Some(r) = recorder.as_mut() {
@@ -131,6 +171,36 @@ pub fn replay(
     }
     node.finish(&mut skeletons);
     produced += write(&mut recorder, &mut skeletons, last_log)?;
+    if let Some(source) = input_error {
+        if reader.messages_read() == 0 {
+            // Nothing came before: there is nothing to keep.
+            if let Some(r) = recorder {
+                r.abandon();
+            }
+            return Err(source.into());
+        }
+        let kept = recorder.map(Recorder::finish_partial).transpose()?;
+        return Err(ReplayError::Input { source, kept });
+    }
+    if frames == 0 && !stop.load(Ordering::Relaxed) {
+        if let Some(r) = recorder {
+            r.abandon();
+        }
+        let found: Vec<String> = reader
+            .topics()
+            .into_iter()
+            .map(|(t, ty)| format!("{t} ({ty})"))
+            .collect();
+        return Err(ReplayError::NoHeatMaps {
+            path: input.to_path_buf(),
+            topic: topics.heatmaps.clone(),
+            found: if found.is_empty() {
+                "no topics".into()
+            } else {
+                found.join(", ")
+            },
+        });
+    }
     let output = match recorder {
         Some(r) => {
             let summary = r.finish()?;
@@ -147,6 +217,7 @@ pub fn replay(
         frames,
         skeletons: produced,
         malformed: node.malformed(),
+        refused: node.refused().clone(),
         counters: node.counters(),
         truncated,
         seconds,

@@ -19,7 +19,7 @@ use super::config::{DetectorSource, ReplayRate, ServiceConfig, Transport};
 use super::images::{ImageHeatMaps, SharedStats, image_frames};
 use super::latency::{LatencyHistogram, LatencySummary};
 use super::markers::skeleton_markers;
-use super::{EstimatorNode, SetupError};
+use super::{EstimatorNode, Refusals, SetupError};
 use crate::detector::{DetectorStats, ImageDetector};
 use crate::msgs::{HeatMaps, MarkerArray, Skeleton3D};
 use crate::recording::{RecordingError, RecordingSummary};
@@ -32,6 +32,18 @@ use crate::transport::{Message, Received, Sink, Source, TransportError};
 
 /// How long a source is asked to wait before the loop checks for a stop.
 const POLL: Duration = Duration::from_millis(100);
+
+/// Waits until `due` after `start` (the pace of recorded stamps), waking at least every
+/// [`POLL`] to look at `stop`; false if stopped while waiting.
+pub fn pace(start: Instant, due: Duration, stop: &AtomicBool) -> bool {
+    while let Some(wait) = due.checked_sub(start.elapsed()) {
+        if stop.load(Ordering::Relaxed) {
+            return false;
+        }
+        std::thread::sleep(wait.min(POLL));
+    }
+    !stop.load(Ordering::Relaxed)
+}
 
 /// Why a service could not start or had to stop.
 #[derive(Debug, thiserror::Error)]
@@ -48,6 +60,18 @@ pub enum ServiceError {
     /// A thread of the pipeline panicked.
     #[error("the {0} thread stopped unexpectedly")]
     Thread(&'static str),
+    /// An output is one of the inputs.
+    #[error(transparent)]
+    OutputIsInput(#[from] crate::files::OutputIsInput),
+    /// The input broke part way (a corrupt recording): the outputs are left as they
+    /// were; what was recorded before is kept in the recording's `.partial` file.
+    #[error("{reason}{}", kept.as_ref().map(|k| format!("; what was recorded before is in {}", k.display())).unwrap_or_default())]
+    Input {
+        /// What was wrong with the input.
+        reason: String,
+        /// The output recording's temporary file, if recording.
+        kept: Option<std::path::PathBuf>,
+    },
 }
 
 /// The middleware of a process: a ROS 2 node and an iceoryx2 node, each only if used.
@@ -86,9 +110,10 @@ impl Middleware {
     ) -> Result<Box<dyn Source<HeatMaps>>, TransportError> {
         Ok(match transport {
             Transport::Ros2 => Box::new(self.ros()?.source::<HeatMaps>(&config.topics.heatmaps)?),
-            Transport::Iceoryx2 => {
-                Box::new(self.shm()?.heatmaps_source(&config.iceoryx2.heatmaps)?)
-            }
+            Transport::Iceoryx2 => Box::new(
+                self.shm()?
+                    .heatmaps_source(&config.iceoryx2.heatmaps, &config.limits)?,
+            ),
         })
     }
 }
@@ -101,10 +126,11 @@ fn missing(transport: &'static str) -> TransportError {
     }
 }
 
-/// Publishers of one message type on every configured output; a failed send is logged
-/// and counted, and the others go on.
+/// Publishers of one message type on every configured output. A failed send is counted;
+/// the first failure of each sink is logged (a full disk under a recording fails every
+/// later write too), and the other sinks go on.
 pub struct Publishers<M> {
-    sinks: Vec<(String, Box<dyn Sink<M>>)>,
+    sinks: Vec<(String, Box<dyn Sink<M>>, u64)>,
     /// Messages handed to every sink.
     pub sent: u64,
     /// Sends that failed (per sink).
@@ -124,7 +150,7 @@ impl<M> Default for Publishers<M> {
 impl<M> Publishers<M> {
     /// Adds a sink, named for the logs.
     pub fn add(&mut self, name: impl Into<String>, sink: Box<dyn Sink<M>>) {
-        self.sinks.push((name.into(), sink));
+        self.sinks.push((name.into(), sink, 0));
     }
 
     /// Sinks configured.
@@ -140,31 +166,45 @@ impl<M> Publishers<M> {
     /// Sends to every sink.
     pub fn publish(&mut self, message: &M, stamp_ns: u64) {
         self.sent += 1;
-        for (name, sink) in &mut self.sinks {
+        for (name, sink, failures) in &mut self.sinks {
             if let Err(e) = sink.send(message, stamp_ns) {
                 self.failed += 1;
-                tracing::warn!("{name}: {e}");
+                Self::failure(name, failures, &e);
             }
         }
     }
 
     /// Flushes every sink.
     pub fn flush(&mut self) {
-        for (name, sink) in &mut self.sinks {
+        for (name, sink, failures) in &mut self.sinks {
             if let Err(e) = sink.flush() {
                 self.failed += 1;
-                tracing::warn!("{name}: {e}");
+                Self::failure(name, failures, &e);
             }
+        }
+    }
+
+    fn failure(name: &str, failures: &mut u64, e: &TransportError) {
+        *failures += 1;
+        if *failures == 1 {
+            tracing::warn!("{name}: {e} (further failures of this output are counted, not logged)");
+        } else {
+            tracing::debug!("{name}: {e}");
         }
     }
 }
 
-/// The recording of `[outputs] record`, if configured.
+/// The recording of `[outputs] record`, if configured (refused if it is one of the
+/// detector's inputs).
 pub fn output_recording(config: &ServiceConfig) -> Result<Option<SharedRecorder>, ServiceError> {
     let path = &config.outputs.record;
     if path.as_os_str().is_empty() {
         return Ok(None);
     }
+    crate::files::check_output(
+        path,
+        &[&config.detector.recording, &config.detector.images.path],
+    )?;
     Ok(Some(SharedRecorder::create(path)?))
 }
 
@@ -251,8 +291,10 @@ impl EstimatorOutputs {
 pub struct EstimatorReport {
     /// Heat-map messages received.
     pub frames: u64,
-    /// Messages refused (undecodable, inconsistent, unknown joints).
+    /// Messages refused (undecodable, inconsistent, beyond the limits, unknown joints).
     pub malformed: u64,
+    /// The refusals by kind.
+    pub refused: Refusals,
     /// Skeleton messages published.
     pub skeletons: u64,
     /// Sends that failed.
@@ -284,13 +326,22 @@ pub fn run_estimator(
             Ok(Received::Message(maps, _)) => {
                 frames += 1;
                 let began = Instant::now();
-                if let Err(e) = node.handle(&maps, &mut out) {
-                    tracing::warn!("skipped a heat-map message: {e}");
-                }
+                let accepted = node.frames_accepted();
+                // A refused message is counted and logged by the node.
+                let _ = node.handle(&maps, &mut out);
                 latency.record(began.elapsed());
                 outputs.publish(&mut out);
-                last_frame = Instant::now();
-                open_track = true;
+                // Only frames the window took keep a track alive: a stream of refused
+                // frames does not hold an idle track open.
+                if node.frames_accepted() > accepted {
+                    last_frame = Instant::now();
+                    open_track = true;
+                }
+                if open_track && last_frame.elapsed() > idle_limit {
+                    node.finish(&mut out);
+                    outputs.publish(&mut out);
+                    open_track = false;
+                }
             }
             Ok(Received::Idle) => {
                 if open_track && last_frame.elapsed() > idle_limit {
@@ -300,10 +351,7 @@ pub fn run_estimator(
                 }
             }
             Ok(Received::Closed) => break,
-            Err(e @ TransportError::Malformed { .. }) => {
-                node.count_malformed();
-                tracing::warn!("{e}");
-            }
+            Err(e @ TransportError::Malformed { .. }) => node.count_malformed(&e),
             Err(e) => {
                 tracing::warn!("{e}");
                 input_error = Some(e.to_string());
@@ -318,6 +366,7 @@ pub fn run_estimator(
     EstimatorReport {
         frames,
         malformed: node.malformed(),
+        refused: node.refused().clone(),
         skeletons: outputs.skeletons.sent,
         failed_sends: outputs.skeletons.failed + outputs.markers.failed,
         counters: node.counters(),
@@ -357,12 +406,12 @@ pub fn run_detector(
             Ok(Received::Message(maps, stamp)) => {
                 if rate == ReplayRate::Recorded {
                     let first = *first.get_or_insert(stamp);
-                    let due = Duration::from_nanos(stamp.saturating_sub(first));
-                    while let Some(wait) = due.checked_sub(start.elapsed()) {
-                        if stop.load(Ordering::Relaxed) {
-                            break;
-                        }
-                        std::thread::sleep(wait.min(POLL));
+                    if !pace(
+                        start,
+                        Duration::from_nanos(stamp.saturating_sub(first)),
+                        stop,
+                    ) {
+                        break;
                     }
                 }
                 sinks.publish(&maps, stamp);
@@ -417,7 +466,11 @@ pub fn recording_source(
     config: &ServiceConfig,
     path: &Path,
 ) -> Result<McapSource<HeatMaps>, TransportError> {
-    McapSource::open(path, &config.topics.heatmaps)
+    McapSource::open_with_limit(
+        path,
+        &config.topics.heatmaps,
+        config.limits.max_record_bytes,
+    )
 }
 
 /// The detector node's input: heat maps from the configured source.
@@ -493,7 +546,7 @@ pub fn run_pipeline(
     stop: &AtomicBool,
 ) -> Result<PipelineReport, ServiceError> {
     let start = Instant::now();
-    let mut node = EstimatorNode::from_config(&config.estimator)?;
+    let mut node = EstimatorNode::from_service_config(config)?;
     let mut middleware = Middleware::open(config, detector_transport(config))?;
     let input = detector_input(config, &mut middleware)?;
     let recorder = output_recording(config)?;
@@ -533,6 +586,10 @@ pub fn run_pipeline(
     };
     detector.images = DetectorInput::stats_now(&stats);
     drop(outputs);
+    if let Some(reason) = detector.input_error.clone() {
+        let kept = recorder.map(|r| r.finish_partial()).transpose()?;
+        return Err(ServiceError::Input { reason, kept });
+    }
     let recording = recorder.map(|r| r.finish()).transpose()?;
     Ok(PipelineReport {
         detector,

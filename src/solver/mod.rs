@@ -33,7 +33,7 @@ pub mod rotations;
 use nalgebra::{Matrix3, Vector2};
 use serde::{Deserialize, Serialize};
 
-use crate::error::EstimateError;
+use crate::error::{EstimateError, OutOfDomain, check_range, check_real};
 
 /// How each frame is initialised before the joint optimisation.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
@@ -165,52 +165,44 @@ impl Params {
 
     /// Checks every value is in its domain.
     pub fn validate(&self) -> Result<(), EstimateError> {
-        let nonneg = [
+        self.check().map_err(EstimateError::from)
+    }
+
+    /// Checks every value is in its domain; the error names the key
+    /// (`[estimator.params]` in the service configuration).
+    pub fn check(&self) -> Result<(), OutOfDomain> {
+        for (key, v) in [
             ("alpha", self.alpha),
             ("beta", self.beta),
             ("gamma", self.gamma),
             ("robust_threshold", self.robust_threshold),
-        ];
-        for (name, v) in nonneg {
-            if !(v.is_finite() && v >= 0.0) {
-                return Err(EstimateError::Parameter(format!(
-                    "{name} must be finite and >= 0, got {v}"
-                )));
-            }
+        ] {
+            check_real(key, v, 0.0, 1e6, false)?;
         }
-        if !(self.sigma.is_finite() && self.sigma > 0.0) {
-            return Err(EstimateError::Parameter(format!(
-                "sigma must be finite and > 0, got {}",
-                self.sigma
-            )));
-        }
-        if !(self.cd_objective_tolerance.is_finite() && self.cd_objective_tolerance >= 0.0) {
-            return Err(EstimateError::Parameter(format!(
-                "cd_objective_tolerance must be finite and >= 0, got {}",
-                self.cd_objective_tolerance
-            )));
-        }
-        if !(self.tolerance.is_finite() && self.tolerance > 0.0) {
-            return Err(EstimateError::Parameter(format!(
-                "tolerance must be finite and > 0, got {}",
-                self.tolerance
-            )));
-        }
-        if !self.visibility_threshold.is_finite() {
-            return Err(EstimateError::Parameter(
-                "visibility_threshold must be finite".into(),
-            ));
-        }
-        if self.max_rounds == 0
-            || self.max_em_rounds == 0
-            || self.max_apg_steps == 0
-            || self.admit_per_frame == 0
-            || self.max_em_iterations == 0
-        {
-            return Err(EstimateError::Parameter(
-                "iteration caps must be at least 1".into(),
-            ));
-        }
+        check_real("sigma", self.sigma, 0.0, 1e3, true)?;
+        check_real(
+            "visibility_threshold",
+            self.visibility_threshold,
+            -1e6,
+            1e6,
+            false,
+        )?;
+        check_real("tolerance", self.tolerance, 0.0, 1.0, true)?;
+        check_real(
+            "cd_objective_tolerance",
+            self.cd_objective_tolerance,
+            0.0,
+            1.0,
+            false,
+        )?;
+        check_range("max_em_iterations", self.max_em_iterations, 1, 10_000)?;
+        check_range("max_rounds", self.max_rounds, 1, 10_000)?;
+        check_range("max_em_rounds", self.max_em_rounds, 1, 1_000)?;
+        check_range("max_apg_steps", self.max_apg_steps, 1, 100_000)?;
+        check_range("max_newton_steps", self.max_newton_steps, 0, 1_000)?;
+        check_range("admit_per_frame", self.admit_per_frame, 1, 10_000)?;
+        check_range("max_rotation_sweeps", self.max_rotation_sweeps, 0, 100_000)?;
+        check_range("max_init_iterations", self.max_init_iterations, 0, 100_000)?;
         Ok(())
     }
 }

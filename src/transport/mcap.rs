@@ -52,15 +52,23 @@ impl SharedRecorder {
         }
     }
 
-    /// Finalises the file (summary, footer); sinks still around can no longer write.
+    /// Finalises the file (summary, footer) and puts it in place; sinks still around can
+    /// no longer write.
     pub fn finish(&self) -> Result<RecordingSummary, RecordingError> {
-        match self.lock().take() {
-            Some(r) => r.finish(),
-            None => Err(RecordingError::Io {
-                path: self.path.clone().into(),
-                source: std::io::Error::other("the recording was already finished"),
-            }),
-        }
+        self.take()?.finish()
+    }
+
+    /// Finalises the file but leaves it under its temporary name (the run failed; the
+    /// output stays as it was); returns that name.
+    pub fn finish_partial(&self) -> Result<std::path::PathBuf, RecordingError> {
+        self.take()?.finish_partial()
+    }
+
+    fn take(&self) -> Result<Recorder, RecordingError> {
+        self.lock().take().ok_or_else(|| RecordingError::Io {
+            path: self.path.clone().into(),
+            source: std::io::Error::other("the recording was already finished"),
+        })
     }
 }
 
@@ -100,13 +108,31 @@ pub struct McapSource<M> {
 }
 
 impl<M: Message> McapSource<M> {
-    /// Opens `path` and reads `topic` (messages of other types on it are skipped).
+    /// Opens `path` and reads `topic` (messages of other types on it are skipped), with
+    /// the default record limit.
     pub fn open(path: impl AsRef<Path>, topic: &str) -> Result<Self, TransportError> {
-        let reader = RecordingReader::open(path.as_ref()).map_err(|e| TransportError::Setup {
-            transport: TRANSPORT,
-            what: path.as_ref().display().to_string(),
-            reason: e.to_string(),
-        })?;
+        Self::open_with_limit(
+            path,
+            topic,
+            crate::limits::Limits::default().max_record_bytes,
+        )
+    }
+
+    /// Opens `path` and reads `topic`; records longer than `max_record_bytes` end
+    /// reading.
+    pub fn open_with_limit(
+        path: impl AsRef<Path>,
+        topic: &str,
+        max_record_bytes: usize,
+    ) -> Result<Self, TransportError> {
+        let reader =
+            RecordingReader::open_with_limit(path.as_ref(), max_record_bytes).map_err(|e| {
+                TransportError::Setup {
+                    transport: TRANSPORT,
+                    what: path.as_ref().display().to_string(),
+                    reason: e.to_string(),
+                }
+            })?;
         Ok(Self {
             reader,
             topic: topic.to_string(),
@@ -123,7 +149,8 @@ impl<M: Message> McapSource<M> {
 
 impl<M: Message> Source<M> for McapSource<M> {
     /// Never waits: the next message of the topic, or [`Received::Closed`] at the end
-    /// of the file. A file cut short yields every complete message, then one
+    /// of the file. A file cut short yields every complete message, a warning, then
+    /// `Closed`; a corrupt one every message before the bad record, then one
     /// [`TransportError::Broken`], then `Closed`.
     fn recv(&mut self, _timeout: Duration) -> Result<Received<M>, TransportError> {
         while !self.closed {
@@ -131,14 +158,22 @@ impl<M: Message> Source<M> for McapSource<M> {
                 self.closed = true;
                 break;
             };
-            let msg = next.map_err(|e| {
-                self.closed = true;
-                TransportError::Broken {
-                    transport: TRANSPORT,
-                    topic: self.topic.clone(),
-                    reason: e.to_string(),
+            let msg = match next {
+                Ok(msg) => msg,
+                Err(e @ RecordingError::Truncated { .. }) => {
+                    tracing::warn!("{e}");
+                    self.closed = true;
+                    break;
                 }
-            })?;
+                Err(e) => {
+                    self.closed = true;
+                    return Err(TransportError::Broken {
+                        transport: TRANSPORT,
+                        topic: self.topic.clone(),
+                        reason: e.to_string(),
+                    });
+                }
+            };
             if msg.topic != self.topic || msg.schema != M::NAME {
                 continue;
             }

@@ -24,6 +24,7 @@ use ros2_client::{
 use serde::{Deserialize, Serialize};
 
 use super::{Message, Received, Sink, Source, TransportError};
+use crate::error::{OutOfDomain, check_range};
 
 const TRANSPORT: &str = "ros2";
 
@@ -97,6 +98,55 @@ pub enum DurabilityKind {
     Volatile,
     /// The writer keeps its history for late readers.
     TransientLocal,
+}
+
+impl RosSettings {
+    /// Checks every value is in its domain; the error names the key (`[ros]`).
+    pub fn check(&self) -> Result<(), OutOfDomain> {
+        // DDS maps domain ids to UDP ports: 232 is the largest that fits (ROS 2's range).
+        check_range("domain_id", self.domain_id, 0, 232)?;
+        check_range("qos.depth", self.qos.depth, 1, 10_000)?;
+        let token_ok = |t: &str| {
+            t.chars()
+                .next()
+                .is_some_and(|c| c.is_ascii_alphabetic() || c == '_')
+                && t.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
+        };
+        if !token_ok(&self.node_name) {
+            return Err(OutOfDomain::new(
+                "node_name",
+                "a ROS name (letters, digits and _, not starting with a digit)",
+                format!("{:?}", self.node_name),
+            ));
+        }
+        if self.namespace != "/" {
+            check_topic_name("namespace", &self.namespace)?;
+        }
+        Ok(())
+    }
+}
+
+/// Checks that `name` is an absolute ROS 2 topic name: `/` then tokens of letters,
+/// digits and `_` (not starting with a digit) separated by single `/`.
+pub fn check_topic_name(key: &str, name: &str) -> Result<(), OutOfDomain> {
+    let ok = name.len() <= 255
+        && name.strip_prefix('/').is_some_and(|rest| {
+            rest.split('/').all(|t| {
+                t.chars()
+                    .next()
+                    .is_some_and(|c| c.is_ascii_alphabetic() || c == '_')
+                    && t.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
+            })
+        });
+    if ok {
+        Ok(())
+    } else {
+        Err(OutOfDomain::new(
+            key,
+            "an absolute ROS 2 topic name (/a/b_c: letters, digits, _ and single /)",
+            format!("{name:?}"),
+        ))
+    }
 }
 
 impl QosSettings {

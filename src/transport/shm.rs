@@ -25,6 +25,7 @@ use iceoryx2::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::{Received, Sink, Source, TransportError};
+use crate::limits::Limits;
 use crate::msgs::{Header, HeatMapEncoding, HeatMaps, Skeleton3D, Time};
 
 const TRANSPORT: &str = "iceoryx2";
@@ -402,8 +403,12 @@ impl Shm {
         })
     }
 
-    /// A subscriber to heat maps on service `name`.
-    pub fn heatmaps_source(&self, name: &str) -> Result<ShmHeatMapsSource, TransportError> {
+    /// A subscriber to heat maps on service `name` (samples beyond `limits` refused).
+    pub fn heatmaps_source(
+        &self,
+        name: &str,
+        limits: &Limits,
+    ) -> Result<ShmHeatMapsSource, TransportError> {
         let service = self.heatmaps_service(name)?;
         let subscriber = service
             .subscriber_builder()
@@ -413,6 +418,7 @@ impl Shm {
         Ok(ShmHeatMapsSource {
             subscriber,
             name: name.to_string(),
+            limits: limits.clone(),
             _service: service,
         })
     }
@@ -524,53 +530,68 @@ impl Sink<HeatMaps> for ShmHeatMapsSink {
     }
 }
 
-/// Takes [`HeatMaps`] (f32 encoding) from the heat-map service.
+/// Takes [`HeatMaps`] (f32 encoding) from the heat-map service; samples beyond the
+/// [`Limits`] are refused before anything is copied.
 pub struct ShmHeatMapsSource {
     subscriber: Subscriber<ipc_threadsafe::Service, [f32], HeatMapsHeader>,
     name: String,
+    limits: Limits,
     _service: HeatMapsService,
+}
+
+/// The [`HeatMaps`] message of a shared-memory sample. The header's sizes are the
+/// publisher's claim: they are checked against `limits` (checked arithmetic) and
+/// against the payload's length before anything is copied.
+pub fn heatmaps_from_sample(
+    h: &HeatMapsHeader,
+    payload: &[f32],
+    limits: &Limits,
+) -> Result<HeatMaps, String> {
+    let joints = h.joints as usize;
+    if joints > MAX_JOINTS {
+        return Err(format!("{joints} joints, at most {MAX_JOINTS}"));
+    }
+    let expected = limits
+        .heatmap_values(u64::from(h.joints), u64::from(h.height), u64::from(h.width))
+        .map_err(|e| e.to_string())?;
+    if payload.len() != expected {
+        return Err(format!(
+            "{} scores for {joints} joints x {} x {}",
+            payload.len(),
+            h.height,
+            h.width
+        ));
+    }
+    Ok(HeatMaps {
+        header: Header {
+            stamp: Time::from_nanos(h.stamp_ns),
+            frame_id: unpack(&h.frame_id, "frame id")?,
+        },
+        sequence: h.sequence,
+        track_id: h.track_id,
+        joint_names: unpack_names(&h.joint_names, joints)?,
+        height: h.height,
+        width: h.width,
+        crop_x: h.crop[0],
+        crop_y: h.crop[1],
+        crop_width: h.crop[2],
+        crop_height: h.crop[3],
+        encoding: HeatMapEncoding::Float32.code(),
+        values: payload.to_vec(),
+        ..HeatMaps::default()
+    })
 }
 
 impl Source<HeatMaps> for ShmHeatMapsSource {
     fn recv(&mut self, timeout: Duration) -> Result<Received<HeatMaps>, TransportError> {
         let name = self.name.clone();
-        let subscriber = &self.subscriber;
+        let (subscriber, limits) = (&self.subscriber, &self.limits);
         let got = poll(timeout, || {
             let Some(sample) = subscriber.receive().map_err(|e| error(&name, broken, e))? else {
                 return Ok(None);
             };
-            let h = *sample.user_header();
-            let decode = || -> Result<HeatMaps, String> {
-                let joints = h.joints as usize;
-                let expected = joints * h.height as usize * h.width as usize;
-                if sample.payload().len() != expected {
-                    return Err(format!(
-                        "{} scores for {joints} joints x {} x {}",
-                        sample.payload().len(),
-                        h.height,
-                        h.width
-                    ));
-                }
-                Ok(HeatMaps {
-                    header: Header {
-                        stamp: Time::from_nanos(h.stamp_ns),
-                        frame_id: unpack(&h.frame_id, "frame id")?,
-                    },
-                    sequence: h.sequence,
-                    track_id: h.track_id,
-                    joint_names: unpack_names(&h.joint_names, joints)?,
-                    height: h.height,
-                    width: h.width,
-                    crop_x: h.crop[0],
-                    crop_y: h.crop[1],
-                    crop_width: h.crop[2],
-                    crop_height: h.crop[3],
-                    encoding: HeatMapEncoding::Float32.code(),
-                    values: sample.payload().to_vec(),
-                    ..HeatMaps::default()
-                })
-            };
-            decode()
+            let h = sample.user_header();
+            heatmaps_from_sample(h, sample.payload(), limits)
                 .map(|m| Some((m, u64::try_from(h.stamp_ns).unwrap_or(0))))
                 .map_err(|e| error(&name, malformed, e))
         })?;

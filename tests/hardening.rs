@@ -1,0 +1,879 @@
+//! Hostile inputs: each defect of the hardening issue, reproduced against the library and
+//! the release binary. Files give one clear error (exit 1); bad frames in a stream are
+//! refused and counted while the stream goes on; nothing panics, aborts or allocates
+//! without bound, and nothing already recorded is lost.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use common::{peak_memory_run, recording, root};
+use posestream::msgs::{self, HeatMaps, Skeleton3D};
+use posestream::nodes::{EstimatorNode, ServiceConfig};
+use posestream::recording::{Recorder, RecordingError, RecordingReader, read_topic};
+
+const HEATMAPS: &str = "/posestream/heatmaps";
+const SKELETONS: &str = "/posestream/skeletons";
+/// Peak resident memory any hostile input may cost the process (kB).
+const MEMORY_BUDGET_KB: u64 = 200 * 1024;
+
+fn config() -> ServiceConfig {
+    let mut c = ServiceConfig::load(root().join("config/default.toml")).expect("config");
+    c.estimator.dictionary = root().join(&c.estimator.dictionary);
+    c.outputs.ros2 = false;
+    c
+}
+
+fn frames(name: &str) -> Vec<(u64, HeatMaps)> {
+    read_topic(&recording(name), HEATMAPS).expect("reads")
+}
+
+/// The binary under test: this build's, or `POSESTREAM_BIN` (to run these cases against
+/// another build, e.g. the one before a fix).
+fn binary() -> PathBuf {
+    std::env::var_os("POSESTREAM_BIN")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_BIN_EXE_posestream")))
+}
+
+fn posestream() -> Command {
+    let mut c = Command::new(binary());
+    c.current_dir(env!("CARGO_MANIFEST_DIR"));
+    c
+}
+
+/// What a run of the binary did.
+struct Run {
+    code: Option<i32>,
+    stdout: String,
+    stderr: String,
+    peak_kb: u64,
+}
+
+impl Run {
+    fn report(&self) -> serde_json::Value {
+        serde_json::from_str(&self.stdout)
+            .unwrap_or_else(|e| panic!("report: {e}\n{}\n{}", self.stdout, self.stderr))
+    }
+
+    /// Exit status 1 with exactly one line on stderr, an error containing `needle`.
+    fn assert_one_error(&self, needle: &str) {
+        assert_eq!(self.code, Some(1), "{}", self.stderr);
+        let lines: Vec<&str> = self.stderr.lines().collect();
+        assert_eq!(lines.len(), 1, "{}", self.stderr);
+        assert!(
+            lines[0].starts_with("posestream: error: ") && lines[0].contains(needle),
+            "expected an error about {needle:?}: {}",
+            self.stderr
+        );
+        self.assert_bounded();
+    }
+
+    fn assert_bounded(&self) {
+        assert!(!self.stderr.contains("panicked"), "{}", self.stderr);
+        assert!(
+            self.peak_kb < MEMORY_BUDGET_KB,
+            "peak memory {} MB",
+            self.peak_kb / 1024
+        );
+    }
+}
+
+fn run(args: &[&str]) -> Run {
+    let (code, out, peak_kb) = peak_memory_run(&binary(), args, &[]);
+    Run {
+        code,
+        stdout: String::from_utf8_lossy(&out.stdout).into_owned(),
+        stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
+        peak_kb,
+    }
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().expect("utf-8 path")
+}
+
+/// A recording of `messages` (raw CDR) on the heat-map topic, a chunk every `per_chunk`.
+fn write_raw(path: &Path, messages: &[(u64, Vec<u8>)], per_chunk: usize) {
+    let mut rec = Recorder::create(path).expect("create");
+    rec.set_flush_interval(None);
+    for (i, (t, bytes)) in messages.iter().enumerate() {
+        rec.write_encoded::<HeatMaps>(HEATMAPS, *t, bytes)
+            .expect("write");
+        if (i + 1) % per_chunk == 0 {
+            rec.flush().expect("flush");
+        }
+    }
+    rec.finish().expect("finish");
+}
+
+fn encoded(frames: &[(u64, HeatMaps)]) -> Vec<(u64, Vec<u8>)> {
+    frames
+        .iter()
+        .map(|(t, m)| (*t, msgs::encode(m).expect("encodes")))
+        .collect()
+}
+
+/// byebye.mcap with `bad` in place of frame `at`.
+fn with_frame(at: usize, bad: Vec<u8>) -> Vec<(u64, Vec<u8>)> {
+    let mut all = encoded(&frames("byebye.mcap"));
+    all[at].1 = bad;
+    all
+}
+
+fn replay_json(input: &Path) -> Run {
+    run(&["replay", "--json", s(input)])
+}
+
+// Defect 1: 17 x h x w wraps around to the number of values sent.
+
+fn overflowing_frame() -> HeatMaps {
+    let mut m = frames("byebye.mcap").remove(40).1;
+    m.height = 3_537_046_315;
+    m.width = 4_294_949_781;
+    // 17 * h * w = 96631 (mod 2^64): as many values as the wrapped product.
+    m.encoding = 0;
+    m.values = vec![0.5; 96_631];
+    m.quantized_values.clear();
+    m
+}
+
+#[test]
+fn a_map_size_that_overflows_is_refused_and_the_stream_goes_on() {
+    let mut node = EstimatorNode::from_config(&config().estimator).expect("node");
+    let mut out = Vec::new();
+    let all = frames("byebye.mcap");
+    for (i, (_, m)) in all.iter().enumerate() {
+        if i == 40 {
+            assert!(node.handle(&overflowing_frame(), &mut out).is_err());
+        } else {
+            node.handle(m, &mut out).expect("good frame");
+        }
+    }
+    node.finish(&mut out);
+    assert_eq!(node.malformed(), 1);
+    assert_eq!(out.len(), 2 * (all.len() - 1));
+
+    let dir = tempfile::tempdir().expect("tempdir");
+    let input = dir.path().join("overflow.mcap");
+    write_raw(
+        &input,
+        &with_frame(40, msgs::encode(&overflowing_frame()).expect("encodes")),
+        1000,
+    );
+    let r = replay_json(&input);
+    assert_eq!(r.code, Some(0), "{}", r.stderr);
+    r.assert_bounded();
+    let report = r.report();
+    assert_eq!(report["malformed"], 1);
+    assert_eq!(report["skeletons"], 2 * 120);
+}
+
+// Defect 3: memory grows with the claimed map size.
+
+fn huge_frame(side: u32) -> HeatMaps {
+    let mut m = frames("byebye.mcap").remove(0).1;
+    m.height = side;
+    m.width = side;
+    m.encoding = 1;
+    m.quantization_scale = 1.0 / 255.0;
+    m.quantized_values = vec![0; 17 * side as usize * side as usize];
+    m.values.clear();
+    m
+}
+
+#[test]
+fn frames_beyond_the_limits_are_refused_before_anything_is_allocated() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let recording_with = |side: u32| {
+        let input = dir.path().join(format!("huge-{side}.mcap"));
+        let mut all = encoded(&frames("byebye.mcap")[..30]);
+        all[10].1 = msgs::encode(&huge_frame(side)).expect("encodes");
+        write_raw(&input, &all, 1000);
+        input
+    };
+    // 17 x 1024 x 1024 (a 17 MiB message): read, refused as a frame, the stream goes on.
+    let r = replay_json(&recording_with(1024));
+    assert_eq!(r.code, Some(0), "{}", r.stderr);
+    r.assert_bounded();
+    let report = r.report();
+    assert_eq!(report["malformed"], 1, "{report}");
+    assert_eq!(report["refused"]["beyond-limits"], 1, "{report}");
+    assert_eq!(report["skeletons"], 2 * 29);
+    assert!(
+        r.stderr.contains("beyond the limit"),
+        "the refusal says why: {}",
+        r.stderr
+    );
+    // 17 x 2048 x 2048 (a 68 MiB message): its chunk is beyond `limits.max_record_bytes`,
+    // so reading the file ends there with one error, nothing of that size allocated.
+    let r = run(&["replay", s(&recording_with(2048))]);
+    r.assert_one_error("limits.max_record_bytes");
+    // The limits are configuration: 64 x 64 maps are refused under a 32 limit.
+    let mut node_config = config();
+    node_config.limits.max_map_size = 32;
+    let mut node = EstimatorNode::from_service_config(&node_config).expect("node");
+    let err = node
+        .handle(&frames("byebye.mcap")[0].1, &mut Vec::new())
+        .expect_err("64 x 64 maps beyond a 32 limit");
+    assert!(err.to_string().contains("beyond the limit"), "{err}");
+}
+
+// Defect 4: record lengths are trusted.
+
+/// The offsets of the records of an MCAP file: (offset of the opcode, opcode).
+fn records(bytes: &[u8]) -> Vec<(usize, u8)> {
+    let mut out = Vec::new();
+    let mut at = 8;
+    while at + 9 <= bytes.len() {
+        let op = bytes[at];
+        let len = u64::from_le_bytes(bytes[at + 1..at + 9].try_into().expect("8 bytes"));
+        out.push((at, op));
+        if op == 0x02 {
+            break; // footer
+        }
+        at += 9 + len as usize;
+    }
+    out
+}
+
+const CHUNK: u8 = 0x06;
+
+/// Heat-map messages per chunk of [`chunked`] (10 of 70 kB: under the recorder's 1 MiB
+/// chunk size, so every chunk holds exactly this many).
+const PER_CHUNK: usize = 10;
+
+/// byebye.mcap's heat maps in chunks of [`PER_CHUNK`] messages (13 chunks).
+fn chunked(dir: &Path) -> (PathBuf, Vec<u8>) {
+    let path = dir.join("chunked.mcap");
+    write_raw(&path, &encoded(&frames("byebye.mcap")), PER_CHUNK);
+    let bytes = std::fs::read(&path).expect("read");
+    (path, bytes)
+}
+
+/// The frames estimated at once (lag 0), not counting the owed estimates of a track's end.
+fn newest_estimates(skeletons: &[(u64, Skeleton3D)]) -> usize {
+    skeletons
+        .iter()
+        .filter(|(_, s)| s.lag == 0 && s.state != msgs::SkeletonState::Lost as u8)
+        .count()
+}
+
+/// The `.partial` file a failed run left beside `output`, if any.
+fn partial_of(output: &Path) -> Option<PathBuf> {
+    let name = output.file_name()?.to_str()?.to_string();
+    std::fs::read_dir(output.parent()?)
+        .ok()?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .find(|p| {
+            p.file_name()
+                .and_then(|n| n.to_str())
+                .is_some_and(|n| n.starts_with(&format!("{name}.")) && n.ends_with(".partial"))
+        })
+}
+
+fn patched(dir: &Path, name: &str, bytes: &[u8], at: usize, with: &[u8]) -> PathBuf {
+    let mut b = bytes.to_vec();
+    b[at..at + with.len()].copy_from_slice(with);
+    let path = dir.join(name);
+    std::fs::write(&path, b).expect("write");
+    path
+}
+
+#[test]
+fn hostile_record_lengths_end_reading_with_one_error_and_keep_what_came_before() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (_, bytes) = chunked(dir.path());
+    let recs = records(&bytes);
+    assert_eq!(recs[0].1, 0x01, "a header first");
+    let chunks: Vec<usize> = recs
+        .iter()
+        .filter(|(_, op)| *op == CHUNK)
+        .map(|(at, _)| *at)
+        .collect();
+    assert!(chunks.len() >= 6, "{} chunks", chunks.len());
+    let tib = (1_u64 << 40).to_le_bytes();
+    let cases = [
+        ("header-1tib.mcap", recs[0].0 + 1, tib.to_vec(), 0),
+        (
+            "header-max.mcap",
+            recs[0].0 + 1,
+            u64::MAX.to_le_bytes().to_vec(),
+            0,
+        ),
+        (
+            "chunk5-1tib.mcap",
+            chunks[4] + 1,
+            tib.to_vec(),
+            4 * PER_CHUNK,
+        ),
+        (
+            "chunk5-max.mcap",
+            chunks[4] + 1,
+            u64::MAX.to_le_bytes().to_vec(),
+            4 * PER_CHUNK,
+        ),
+    ];
+    for (name, at, with, frames_before) in cases {
+        let input = patched(dir.path(), name, &bytes, at, &with);
+        let out = dir.path().join(format!("{name}.out.mcap"));
+        let r = run(&["replay", s(&input), "--record", s(&out)]);
+        r.assert_one_error(name);
+        // The output is not written (the run failed); everything before the bad record
+        // was replayed and its skeletons kept in the output's `.partial` file, which the
+        // error names.
+        assert!(!out.exists(), "{name}");
+        match partial_of(&out) {
+            Some(kept) => {
+                assert!(r.stderr.contains(s(&kept)), "{}", r.stderr);
+                let kept: Vec<(u64, Skeleton3D)> = read_topic(&kept, SKELETONS).expect("complete");
+                let newest = newest_estimates(&kept);
+                assert_eq!(newest, frames_before, "{name}");
+            }
+            None => assert_eq!(frames_before, 0, "{name}: nothing kept"),
+        }
+    }
+    // The magic, then random bytes.
+    let mut random = b"\x89MCAP0\r\n".to_vec();
+    let mut x: u64 = 0x9E37_79B9_7F4A_7C15;
+    for _ in 0..4096 {
+        x ^= x << 13;
+        x ^= x >> 7;
+        x ^= x << 17;
+        random.push(x as u8);
+    }
+    let input = dir.path().join("random.mcap");
+    std::fs::write(&input, random).expect("write");
+    run(&["replay", s(&input)]).assert_one_error("random.mcap");
+}
+
+// Defect 5: chunk CRCs.
+
+#[test]
+fn a_corrupt_chunk_is_reported_and_never_used() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (_, bytes) = chunked(dir.path());
+    let third = records(&bytes)
+        .into_iter()
+        .filter(|(_, op)| *op == CHUNK)
+        .nth(2)
+        .expect("a third chunk")
+        .0;
+    // Chunk body: start, end, uncompressed size (u64 each), uncompressed CRC (u32), ...
+    let crc_at = third + 9 + 24;
+    let wrong_crc = patched(dir.path(), "wrong-crc.mcap", &bytes, crc_at, &[0xde, 0xad]);
+    // A byte in the middle of the chunk's compressed records.
+    let next = records(&bytes)
+        .into_iter()
+        .filter(|(_, op)| *op == CHUNK)
+        .nth(3)
+        .expect("a fourth chunk")
+        .0;
+    let middle = (third + next) / 2;
+    let flipped = patched(
+        dir.path(),
+        "flipped.mcap",
+        &bytes,
+        middle,
+        &[bytes[middle] ^ 0x10],
+    );
+    for input in [wrong_crc, flipped] {
+        let name = input.file_name().and_then(|n| n.to_str()).expect("name");
+        let out = dir.path().join(format!("{name}.out.mcap"));
+        let r = run(&["replay", s(&input), "--record", s(&out)]);
+        r.assert_one_error(name);
+        assert!(!out.exists());
+        let kept = partial_of(&out).expect("the skeletons before are kept");
+        let kept: Vec<(u64, Skeleton3D)> = read_topic(&kept, SKELETONS).expect("complete");
+        let newest = newest_estimates(&kept);
+        assert_eq!(
+            newest,
+            2 * PER_CHUNK,
+            "only the two chunks before the corrupt one"
+        );
+        // The library says which kind of failure it was.
+        let mut reader = RecordingReader::open(&input).expect("opens");
+        let err = reader.by_ref().find_map(|m| m.err()).expect("an error");
+        assert!(
+            matches!(err, RecordingError::Corrupt { messages: 20, .. }),
+            "{err:?}"
+        );
+    }
+}
+
+// Defect 6: a frame with another map size wedged the track.
+
+/// The first frame of kick.mcap with 32 x 32 maps (every other row and column).
+fn downsampled(m: &HeatMaps) -> HeatMaps {
+    let mut small = m.clone();
+    let (h, w) = (m.height as usize, m.width as usize);
+    small.height = (h / 2) as u32;
+    small.width = (w / 2) as u32;
+    small.quantized_values = (0..17)
+        .flat_map(|j| (0..h / 2).flat_map(move |r| (0..w / 2).map(move |c| (j, 2 * r, 2 * c))))
+        .map(|(j, r, c)| m.quantized_values[j * h * w + r * w + c])
+        .collect();
+    small
+}
+
+#[test]
+fn a_map_size_change_starts_a_new_track_instead_of_wedging_it() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut all = frames("kick.mcap");
+    let n = all.len();
+    all[0].1 = downsampled(&all[0].1);
+    let input = dir.path().join("resized.mcap");
+    write_raw(&input, &encoded(&all), 1000);
+    let r = replay_json(&input);
+    assert_eq!(r.code, Some(0), "{}", r.stderr);
+    let report = r.report();
+    assert_eq!(report["malformed"], 0, "{report}");
+    assert_eq!(report["skeletons"], 2 * n);
+    assert_eq!(report["counters"]["tracks"], 2);
+}
+
+#[test]
+fn refused_frames_do_not_keep_an_idle_track_alive() {
+    use std::sync::atomic::AtomicBool;
+    use std::time::Duration;
+
+    use posestream::nodes::service::{EstimatorOutputs, Middleware, run_estimator};
+    use posestream::transport::Sink;
+    use posestream::transport::memory;
+
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut c = config();
+    c.outputs.markers = false;
+    c.outputs.record = dir.path().join("idle.mcap");
+    c.estimator.window.max_gap_seconds = 0.5;
+    let mut node = EstimatorNode::from_config(&c.estimator).expect("node");
+    let mut middleware = Middleware::open(&c, None).expect("middleware");
+    let recorder = posestream::nodes::service::output_recording(&c)
+        .expect("recording")
+        .expect("configured");
+    let mut outputs = EstimatorOutputs::open(&c, &mut middleware, Some(&recorder), node.bones())
+        .expect("outputs");
+    let (mut sink, mut source) = memory::channel::<HeatMaps>(256);
+    let all = frames("kick.mcap");
+    let stop = AtomicBool::new(false);
+    std::thread::scope(|scope| {
+        scope.spawn(|| {
+            for (t, m) in &all[..20] {
+                sink.send(m, *t).expect("send");
+            }
+            // Frames the node refuses (another joint layout), for longer than the gap.
+            let mut wrong = all[20].1.clone();
+            wrong.joint_names.reverse();
+            for _ in 0..16 {
+                std::thread::sleep(Duration::from_millis(60));
+                sink.send(&wrong, 0).expect("send");
+            }
+            // The same person goes on: a track that was not ended by the idle time would
+            // simply continue.
+            for (t, m) in &all[20..40] {
+                sink.send(m, *t).expect("send");
+            }
+            drop(sink);
+        });
+        let report = run_estimator(&mut node, &mut source, &mut outputs, &stop);
+        assert_eq!(report.malformed, 16);
+        assert_eq!(
+            report.counters.tracks, 2,
+            "the idle track ended while only refused frames arrived"
+        );
+    });
+    drop(outputs);
+    recorder.finish().expect("finish");
+}
+
+// Defect 7: configuration values without bounds.
+
+#[test]
+fn configuration_values_outside_their_domain_are_one_error_naming_the_key() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let cases = [
+        (
+            "[estimator.window]\nsize = 1000000000\n",
+            "estimator.window.size",
+        ),
+        (
+            "[estimator.window]\nsize = 9223372036854775807\n",
+            "estimator.window.size",
+        ),
+        (
+            "[estimator.window]\nlocal_frames = 0\n",
+            "estimator.window.local_frames",
+        ),
+        ("[estimator.window]\nlag = 30\n", "estimator.window.lag"),
+        (
+            "[estimator.window]\nem_iterations = 100000\n",
+            "estimator.window.em_iterations",
+        ),
+        (
+            "[estimator.window]\nmax_gap_seconds = -1.0\n",
+            "estimator.window.max_gap_seconds",
+        ),
+        (
+            "[estimator.window]\nmax_gap_frames = 0\n",
+            "estimator.window.max_gap_frames",
+        ),
+        (
+            "[estimator.params]\nalpha = -1.0\n",
+            "estimator.params.alpha",
+        ),
+        (
+            "[estimator.params]\nsigma = nan\n",
+            "estimator.params.sigma",
+        ),
+        (
+            "[estimator.params]\nmax_apg_steps = 100000000000\n",
+            "estimator.params.max_apg_steps",
+        ),
+        ("[ros]\ndomain_id = 500\n", "ros.domain_id"),
+        ("[ros.qos]\ndepth = 0\n", "ros.qos.depth"),
+        ("[ros.qos]\ndepth = 100000000\n", "ros.qos.depth"),
+        ("[topics]\nheatmaps = \"\"\n", "topics.heatmaps"),
+        (
+            "[topics]\nskeletons = \"no/leading/slash\"\n",
+            "topics.skeletons",
+        ),
+        ("[iceoryx2]\nheatmaps = \"\"\n", "iceoryx2.heatmaps"),
+        ("[detector.images]\nfps = 0.0\n", "detector.images.fps"),
+        (
+            "[detector.images]\npresence_threshold = 2.0\n",
+            "detector.images.presence_threshold",
+        ),
+        (
+            "[detector.images]\nperson_box = [0.0, 0.0, -5.0, 10.0]\n",
+            "detector.images.person_box",
+        ),
+        ("[limits]\nmax_map_size = 0\n", "limits.max_map_size"),
+        ("[limits]\nmax_joints = 100000\n", "limits.max_joints"),
+        (
+            "[limits]\nmax_record_bytes = 10\n",
+            "limits.max_record_bytes",
+        ),
+    ];
+    for (i, (text, key)) in cases.iter().enumerate() {
+        let path = dir.path().join(format!("bad-{i}.toml"));
+        std::fs::write(&path, text).expect("write");
+        let r = run(&["replay", "recordings/byebye.mcap", "--config", s(&path)]);
+        r.assert_one_error(key);
+        assert!(
+            r.stderr.contains(" must be ") || r.stderr.contains("expected"),
+            "the domain is named: {}",
+            r.stderr
+        );
+    }
+    // The shipped configuration is inside every domain.
+    config().validate().expect("valid");
+}
+
+// Defect 8: an output that is an input.
+
+#[test]
+fn an_output_that_is_an_input_is_refused_and_a_failed_run_keeps_the_old_output() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let input = dir.path().join("same.mcap");
+    std::fs::copy(recording("byebye.mcap"), &input).expect("copy");
+    let before = std::fs::read(&input).expect("read");
+    run(&["replay", s(&input), "--record", s(&input)]).assert_one_error("same.mcap");
+    let link = dir.path().join("link.mcap");
+    std::os::unix::fs::symlink(&input, &link).expect("symlink");
+    run(&["replay", s(&input), "--record", s(&link)]).assert_one_error("link.mcap");
+    let hard = dir.path().join("hard.mcap");
+    std::fs::hard_link(&input, &hard).expect("hard link");
+    run(&["replay", s(&input), "--record", s(&hard)]).assert_one_error("hard.mcap");
+    assert_eq!(std::fs::read(&input).expect("read"), before, "input intact");
+    // `run` too.
+    let r = run(&[
+        "run",
+        "--recording",
+        s(&input),
+        "--record",
+        s(&input),
+        "--ros2",
+        "false",
+    ]);
+    r.assert_one_error("same.mcap");
+    assert_eq!(std::fs::read(&input).expect("read"), before, "input intact");
+
+    // A run that fails leaves an existing output as it was.
+    let old = dir.path().join("old.mcap");
+    std::fs::write(&old, b"precious").expect("write");
+    let not_mcap = dir.path().join("text.mcap");
+    std::fs::write(&not_mcap, "hello\n").expect("write");
+    run(&["replay", s(&not_mcap), "--record", s(&old)]).assert_one_error("text.mcap");
+    assert_eq!(std::fs::read(&old).expect("read"), b"precious");
+    // A successful run replaces it, and leaves no temporary file behind.
+    let r = run(&["replay", s(&input), "--record", s(&old)]);
+    assert_eq!(r.code, Some(0), "{}", r.stderr);
+    assert!(
+        !read_topic::<Skeleton3D>(&old, SKELETONS)
+            .expect("reads")
+            .is_empty()
+    );
+    let names: Vec<String> = std::fs::read_dir(dir.path())
+        .expect("list")
+        .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
+        .collect();
+    assert!(names.iter().all(|n| !n.contains("partial")), "{names:?}");
+}
+
+// Defect 9: files that are not recordings, or hold no heat maps.
+
+#[test]
+fn a_file_that_is_not_a_recording_of_heat_maps_is_one_error() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let text = dir.path().join("notes.txt");
+    std::fs::write(&text, "not a recording\n").expect("write");
+    let png = dir.path().join("picture.png");
+    image::RgbImage::new(4, 4).save(&png).expect("png");
+    let random = dir.path().join("random.bin");
+    std::fs::write(
+        &random,
+        (0..5000_u32)
+            .map(|i| (i.wrapping_mul(2_654_435_761) >> 13) as u8)
+            .collect::<Vec<_>>(),
+    )
+    .expect("write");
+    let empty = dir.path().join("empty.mcap");
+    std::fs::write(&empty, b"").expect("write");
+    for input in [&text, &png, &random, &empty] {
+        run(&["replay", s(input)]).assert_one_error("not an MCAP");
+    }
+    // A recording without heat maps (skeletons only).
+    let skeletons = dir.path().join("skeletons.mcap");
+    let mut rec = Recorder::create(&skeletons).expect("create");
+    rec.write(SKELETONS, 1, &Skeleton3D::default())
+        .expect("write");
+    rec.finish().expect("finish");
+    run(&["replay", s(&skeletons)]).assert_one_error("no messages on /posestream/heatmaps");
+    // A cut-short recording: everything complete is replayed, a warning says where it
+    // was cut, and the exit status is 0 (README, "Limits and failure behaviour").
+    let (_, bytes) = chunked(dir.path());
+    let cut = dir.path().join("cut.mcap");
+    let third = records(&bytes)
+        .into_iter()
+        .filter(|(_, op)| *op == CHUNK)
+        .nth(2)
+        .expect("chunk")
+        .0;
+    std::fs::write(&cut, &bytes[..third + 100]).expect("write");
+    let r = run(&["replay", "--json", s(&cut)]);
+    assert_eq!(r.code, Some(0), "{}", r.stderr);
+    assert_eq!(r.report()["frames"], 2 * PER_CHUNK);
+    assert!(r.stderr.starts_with("posestream: warning: ") && r.stderr.contains("cut short"));
+    assert_eq!(r.stderr.lines().count(), 1, "{}", r.stderr);
+}
+
+// Minor defects.
+
+#[test]
+fn huge_crop_boxes_never_give_non_finite_skeletons() {
+    let mut node = EstimatorNode::from_config(&config().estimator).expect("node");
+    let mut out = Vec::new();
+    for (i, (_, m)) in frames("byebye.mcap").iter().enumerate().take(30) {
+        let mut m = m.clone();
+        if i >= 10 {
+            m.crop_x = 1e308;
+            m.crop_width = 1.7e308;
+        }
+        let _ = node.handle(&m, &mut out);
+    }
+    node.finish(&mut out);
+    assert!(!out.is_empty());
+    for s in &out {
+        let values = s
+            .positions
+            .iter()
+            .chain(&s.position_std)
+            .chain(&s.keypoints)
+            .chain(&s.keypoint_std)
+            .chain(&s.projected);
+        assert!(
+            values.clone().all(|v| v.is_finite()),
+            "frame {}",
+            s.sequence
+        );
+    }
+    assert_eq!(node.malformed(), 20, "the boxes are refused");
+}
+
+#[test]
+fn frames_without_evidence_are_not_tracking() {
+    let mut node = EstimatorNode::from_config(&config().estimator).expect("node");
+    let mut out = Vec::new();
+    for (_, m) in frames("byebye.mcap").iter().take(30) {
+        let mut m = m.clone();
+        m.quantized_values.iter_mut().for_each(|v| *v = 0);
+        let _ = node.handle(&m, &mut out);
+    }
+    node.finish(&mut out);
+    assert!(
+        out.iter()
+            .all(|s| s.state != msgs::SkeletonState::Tracking as u8),
+        "{} skeletons said they were tracking nothing",
+        out.len()
+    );
+    assert_eq!(node.counters().empty, 30);
+}
+
+#[test]
+fn a_non_finite_value_is_reported_with_its_frame() {
+    let mut node = EstimatorNode::from_config(&config().estimator).expect("node");
+    let mut m = frames("byebye.mcap").remove(7).1;
+    let mut values = Vec::new();
+    m.values_into(&mut values).expect("values");
+    values[5 * 64 * 64 + 3] = f32::NAN;
+    m.encoding = 0;
+    m.values = values;
+    let err = node.handle(&m, &mut Vec::new()).expect_err("NaN");
+    let text = err.to_string();
+    assert!(text.contains(&format!("frame {}", m.sequence)), "{text}");
+    assert!(!text.contains("frame 0"), "{text}");
+    assert!(text.contains("joint 5"), "{text}");
+}
+
+#[test]
+fn sigterm_finalises_the_recording_as_sigint_does() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().join("terminated.mcap");
+    let mut child = posestream()
+        .args([
+            "replay",
+            "recordings/byebye.mcap",
+            "--rate",
+            "recorded",
+            "--record",
+        ])
+        .arg(&out)
+        .stdout(std::process::Stdio::null())
+        .spawn()
+        .expect("starts");
+    std::thread::sleep(std::time::Duration::from_millis(1500));
+    let status = Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .expect("kill");
+    assert!(status.success());
+    assert!(child.wait().expect("waits").success());
+    let all = RecordingReader::open(&out)
+        .expect("open")
+        .collect::<Result<Vec<_>, _>>()
+        .expect("a complete recording, footer included");
+    assert!(all.len() > 20 && all.len() < 363, "{} messages", all.len());
+}
+
+#[test]
+fn lift_errors_name_the_file_at_fault() {
+    use posestream::npy;
+    let dir = tempfile::tempdir().expect("tempdir");
+    let kp = common::fixture("synthetic-s0").join("keypoints.npy");
+    let frames = common::read(kp.clone()).shape[0];
+    // Confidences outside [0, 1]: the error names the confidence file, not the keypoints.
+    let confidence = dir.path().join("confidence.npy");
+    npy::write(&confidence, &[frames, 17], &vec![1.5; frames * 17]).expect("write");
+    let out = dir.path().join("S.npy");
+    let k128 = common::k128();
+    let r = run(&[
+        "lift",
+        "--dict",
+        s(&k128),
+        "--keypoints",
+        s(&kp),
+        "--confidence",
+        s(&confidence),
+        "--out",
+        s(&out),
+    ]);
+    r.assert_one_error("confidence.npy");
+    // An NPY whose shape's product overflows is not "empty".
+    let header =
+        "{'descr': '<f8', 'fortran_order': False, 'shape': (4294967296, 4294967296, 17, 2), }";
+    let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
+    let padded = format!("{header:<118}\n");
+    bytes.extend((padded.len() as u16).to_le_bytes());
+    bytes.extend(padded.as_bytes());
+    bytes.extend([0_u8; 64]);
+    let overflow = dir.path().join("overflow.npy");
+    std::fs::write(&overflow, bytes).expect("write");
+    let r = run(&[
+        "lift",
+        "--dict",
+        s(&k128),
+        "--keypoints",
+        s(&overflow),
+        "--out",
+        s(&out),
+    ]);
+    r.assert_one_error("overflow.npy");
+    assert!(!r.stderr.contains("empty"), "{}", r.stderr);
+    assert!(r.stderr.contains("too large"), "{}", r.stderr);
+}
+
+#[test]
+fn dictionaries_written_by_scipy_savemat_load() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("scipy.mat");
+    let k128 = posestream::Dictionary::load(common::k128()).expect("dictionary");
+    let (p, k) = (k128.num_joints(), k128.num_bases());
+    let skel = k128.skeleton();
+    // B: 3k x p (rows 3i..3i+2 are basis i); mu: 3 x p; skel.tree(j).name/children and
+    // skel.torso, 1-based, as the authors' files hold them.
+    let b: Vec<Vec<f64>> = (0..3 * k)
+        .map(|r| {
+            let (i, d) = (r / 3, r % 3);
+            (0..p)
+                .map(|j| k128.bases()[i * 3 * p + d * p + j])
+                .collect()
+        })
+        .collect();
+    let mu: Vec<Vec<f64>> = (0..3)
+        .map(|d| (0..p).map(|j| k128.mean()[d * p + j]).collect())
+        .collect();
+    let children: Vec<Vec<usize>> = (0..p)
+        .map(|j| {
+            (0..p)
+                .filter(|&c| skel.parents[c] == Some(j))
+                .map(|c| c + 1)
+                .collect()
+        })
+        .collect();
+    let torso: Vec<usize> = skel.torso.iter().map(|t| t + 1).collect();
+    let json = dir.path().join("dict.json");
+    let spec = serde_json::json!({
+        "B": b, "mu": mu, "names": skel.joints, "children": children, "torso": torso,
+    });
+    std::fs::write(&json, spec.to_string()).expect("write");
+    let code = "import json, sys\n\
+        import numpy as np, scipy.io\n\
+        d = json.load(open(sys.argv[1]))\n\
+        p = len(d['names'])\n\
+        tree = np.zeros((1, p), dtype=[('name', 'O'), ('children', 'O')])\n\
+        for j in range(p):\n\
+        \x20   tree[0, j]['name'] = d['names'][j]\n\
+        \x20   tree[0, j]['children'] = np.array(d['children'][j], dtype=float).reshape(1, -1)\n\
+        skel = {'tree': tree, 'torso': np.array(d['torso'], dtype=float).reshape(1, -1)}\n\
+        scipy.io.savemat(sys.argv[2], {'B': np.array(d['B']), 'mu': np.array(d['mu']), 'skel': skel})\n";
+    let status = Command::new(common::python())
+        .args(["-c", code, s(&json), s(&path)])
+        .status()
+        .expect("python runs");
+    assert!(
+        status.success(),
+        "scipy (installed by .ci/run with scikit-image) writes the file"
+    );
+    let header = std::fs::read(&path).expect("read");
+    // scipy's header text has no comma after "MAT-file", unlike MATLAB's and Octave's.
+    assert!(
+        header.starts_with(b"MATLAB 5.0 MAT-file Platform"),
+        "{:?}",
+        String::from_utf8_lossy(&header[..40])
+    );
+    let loaded = posestream::Dictionary::load(&path).expect("a scipy MAT file loads");
+    assert_eq!(loaded.bases(), k128.bases());
+    assert_eq!(loaded.mean(), k128.mean());
+    assert_eq!(loaded.skeleton(), k128.skeleton());
+}
