@@ -150,6 +150,11 @@ impl Recorder {
         })
     }
 
+    /// True after a write failed: nothing more is written.
+    pub fn failed(&self) -> bool {
+        self.failed.is_some()
+    }
+
     /// Where the recording is written until it is finished.
     pub fn partial_path(&self) -> &Path {
         &self.partial

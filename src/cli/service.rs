@@ -152,6 +152,9 @@ pub struct SourceArgs {
     /// Pace of a replayed recording (overrides `detector.rate`).
     #[arg(long, value_enum)]
     pub rate: Option<ReplayRate>,
+    /// Times a replayed recording is played, 0 for ever (overrides `detector.repeat`).
+    #[arg(long)]
+    pub repeat: Option<u64>,
 }
 
 impl SourceArgs {
@@ -178,6 +181,9 @@ impl SourceArgs {
         }
         if let Some(rate) = self.rate {
             d.rate = rate;
+        }
+        if let Some(times) = self.repeat {
+            d.repeat = times;
         }
     }
 }
@@ -221,10 +227,13 @@ pub fn detector(args: &DetectorArgs) -> Result<(), CliError> {
     let mut report = run_detector(&mut source, &mut sinks, rate, &stop);
     report.images = service::DetectorInput::stats_now(&stats);
     drop(sinks);
-    if let Some(r) = recorder {
-        r.finish()?;
+    let finished = recorder.map(|r| r.finish()).transpose();
+    print(args.json, &report)?;
+    finished?;
+    match report.input_error {
+        Some(e) => Err(err(e)),
+        None => Ok(()),
     }
-    print(args.json, &report)
 }
 
 /// Options of `estimator`.
@@ -259,10 +268,10 @@ pub fn estimator(args: &EstimatorArgs) -> Result<(), CliError> {
     stop_after(args.duration, &stop);
     let report = run_estimator(&mut node, &mut source, &mut outputs, &stop);
     drop(outputs);
-    if let Some(r) = recorder {
-        r.finish()?;
-    }
-    print(args.json, &report)
+    let finished = recorder.map(|r| r.finish()).transpose();
+    print(args.json, &report)?;
+    finished?;
+    Ok(())
 }
 
 /// Sets `stop` after `seconds`, if given.
@@ -311,7 +320,11 @@ pub fn run(args: &RunArgs) -> Result<(), CliError> {
     }
     let stop = stop_flag();
     let report = service::run_pipeline(&config, &stop).map_err(err)?;
-    print(args.json, &report)
+    print(args.json, &report)?;
+    match report.recording_error {
+        Some(e) => Err(err(e)),
+        None => Ok(()),
+    }
 }
 
 /// Options of `record`.

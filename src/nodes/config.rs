@@ -51,6 +51,9 @@ pub struct DetectorConfig {
     /// `recorded`: at the recorded pace, as a camera would; `fast`: as fast as the
     /// readers take them (source `recording`; image sources run as fast as the model).
     pub rate: ReplayRate,
+    /// Times the recording is played (source `recording`; 0: forever). Each pass starts
+    /// a new track; log times go on.
+    pub repeat: u64,
     /// The image detector (the other sources).
     pub images: ImageSettings,
 }
@@ -61,6 +64,7 @@ impl Default for DetectorConfig {
             source: DetectorSource::Recording,
             recording: PathBuf::from("recordings/byebye.mcap"),
             rate: ReplayRate::Recorded,
+            repeat: 1,
             images: ImageSettings::default(),
         }
     }
@@ -140,6 +144,8 @@ impl ServiceConfig {
     /// Checks every value is in its domain; the error names the key as the file spells
     /// it (`estimator.window.size must be in 1..=300, got 1000000000`).
     pub fn validate(&self) -> Result<(), OutOfDomain> {
+        crate::error::check_range("repeat", self.detector.repeat, 0, 1_000_000)
+            .map_err(|x| x.within("detector"))?;
         let e = &self.estimator;
         e.params.check().map_err(|x| x.within("estimator.params"))?;
         e.window.check().map_err(|x| x.within("estimator.window"))?;

@@ -126,10 +126,10 @@ impl Refusals {
         *n += 1;
         if *n == 1 {
             tracing::warn!(
-                "refused a heat-map message ({kind}): {what} (further ones of this kind are counted, not logged)"
+                "refused a message ({kind}): {what} (further ones of this kind are counted, not logged)"
             );
         } else {
-            tracing::debug!("refused a heat-map message ({kind}): {what}");
+            tracing::debug!("refused a message ({kind}): {what}");
         }
     }
 

@@ -186,7 +186,8 @@ impl<M> Publishers<M> {
 
     fn failure(name: &str, failures: &mut u64, e: &TransportError) {
         *failures += 1;
-        if *failures == 1 {
+        // A sink closed by an earlier failure (reported then) is only counted.
+        if *failures == 1 && !matches!(e, TransportError::Closed { .. }) {
             tracing::warn!("{name}: {e} (further failures of this output are counted, not logged)");
         } else {
             tracing::debug!("{name}: {e}");
@@ -353,7 +354,7 @@ pub fn run_estimator(
             Ok(Received::Closed) => break,
             Err(e @ TransportError::Malformed { .. }) => node.count_malformed(&e),
             Err(e) => {
-                tracing::warn!("{e}");
+                // Reported by the caller, from the report.
                 input_error = Some(e.to_string());
                 break;
             }
@@ -400,7 +401,7 @@ pub fn run_detector(
     stop: &AtomicBool,
 ) -> DetectorReport {
     let start = Instant::now();
-    let (mut first, mut malformed, mut input_error) = (None, 0, None);
+    let (mut first, mut refused, mut input_error) = (None, Refusals::default(), None);
     while !stop.load(Ordering::Relaxed) {
         match source.recv(POLL) {
             Ok(Received::Message(maps, stamp)) => {
@@ -418,12 +419,9 @@ pub fn run_detector(
             }
             Ok(Received::Idle) => {}
             Ok(Received::Closed) => break,
-            Err(e @ TransportError::Malformed { .. }) => {
-                malformed += 1;
-                tracing::warn!("{e}");
-            }
+            Err(e @ TransportError::Malformed { .. }) => refused.note("undecodable", &e),
             Err(e) => {
-                tracing::warn!("{e}");
+                // Reported by the caller, from the report.
                 input_error = Some(e.to_string());
                 break;
             }
@@ -432,7 +430,7 @@ pub fn run_detector(
     sinks.flush();
     DetectorReport {
         published: sinks.sent,
-        malformed,
+        malformed: refused.total(),
         failed_sends: sinks.failed,
         input_error,
         images: None,
@@ -461,16 +459,18 @@ pub fn detector_outputs(
     )
 }
 
-/// The replay source of the detector: the heat maps of a recording.
+/// The replay source of the detector: the heat maps of a recording, played
+/// `detector.repeat` times.
 pub fn recording_source(
     config: &ServiceConfig,
     path: &Path,
 ) -> Result<McapSource<HeatMaps>, TransportError> {
-    McapSource::open_with_limit(
+    Ok(McapSource::open_with_limit(
         path,
         &config.topics.heatmaps,
         config.limits.max_record_bytes,
-    )
+    )?
+    .repeat(config.detector.repeat))
 }
 
 /// The detector node's input: heat maps from the configured source.
@@ -534,6 +534,9 @@ pub struct PipelineReport {
     pub seconds: f64,
     /// The output recording, if any.
     pub recording: Option<RecordingSummary>,
+    /// Why the output recording could not be finished, if it could not (the service
+    /// went on; what was written is in its `.partial` file).
+    pub recording_error: Option<String>,
 }
 
 /// Detector and estimator in one process: the detector (the configured source,
@@ -590,12 +593,17 @@ pub fn run_pipeline(
         let kept = recorder.map(|r| r.finish_partial()).transpose()?;
         return Err(ServiceError::Input { reason, kept });
     }
-    let recording = recorder.map(|r| r.finish()).transpose()?;
+    let (recording, recording_error) = match recorder.map(|r| r.finish()) {
+        Some(Ok(summary)) => (Some(summary), None),
+        Some(Err(e)) => (None, Some(e.to_string())),
+        None => (None, None),
+    };
     Ok(PipelineReport {
         detector,
         estimator,
         seconds: start.elapsed().as_secs_f64(),
         recording,
+        recording_error,
     })
 }
 

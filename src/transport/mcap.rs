@@ -44,6 +44,13 @@ impl SharedRecorder {
         self.inner.lock().unwrap_or_else(|e| e.into_inner())
     }
 
+    fn closed(&self, topic: &str) -> TransportError {
+        TransportError::Closed {
+            transport: TRANSPORT,
+            topic: format!("{} ({topic})", self.path),
+        }
+    }
+
     fn error(&self, topic: &str, reason: impl ToString) -> TransportError {
         TransportError::Send {
             transport: TRANSPORT,
@@ -80,12 +87,17 @@ pub struct McapSink<M> {
 }
 
 impl<M: Message> Sink<M> for McapSink<M> {
+    /// Writes the message. The first failed write (a full disk) is an error; after it,
+    /// every sink of the recording is [`TransportError::Closed`].
     fn send(&mut self, message: &M, stamp_ns: u64) -> Result<(), TransportError> {
         let mut guard = self.recorder.lock();
         let recorder = guard.as_mut().ok_or_else(|| {
             self.recorder
                 .error(&self.topic, "the recording is finished")
         })?;
+        if recorder.failed() {
+            return Err(self.recorder.closed(&self.topic));
+        }
         recorder
             .write(&self.topic, stamp_ns, message)
             .map_err(|e| self.recorder.error(&self.topic, e))
@@ -93,17 +105,29 @@ impl<M: Message> Sink<M> for McapSink<M> {
 
     fn flush(&mut self) -> Result<(), TransportError> {
         match self.recorder.lock().as_mut() {
+            Some(r) if r.failed() => Err(self.recorder.closed(&self.topic)),
             Some(r) => r.flush().map_err(|e| self.recorder.error(&self.topic, e)),
             None => Ok(()),
         }
     }
 }
 
-/// Reads the messages of one topic of a recording, in order, as fast as asked.
+/// Reads the messages of one topic of a recording, in order, as fast as asked; once, or
+/// several times over ([`McapSource::repeat`]).
 pub struct McapSource<M> {
     reader: RecordingReader,
+    path: std::path::PathBuf,
+    max_record_bytes: usize,
     topic: String,
     closed: bool,
+    /// Passes still to play after this one (`None`: forever).
+    passes_left: Option<u64>,
+    /// Added to log times in this pass, so that time goes on across passes.
+    offset_ns: u64,
+    /// Log times of this pass: the first and the last.
+    span: Option<(u64, u64)>,
+    /// Whether this pass has yielded a message of the topic.
+    yielded: bool,
     _message: PhantomData<fn() -> M>,
 }
 
@@ -125,20 +149,57 @@ impl<M: Message> McapSource<M> {
         topic: &str,
         max_record_bytes: usize,
     ) -> Result<Self, TransportError> {
-        let reader =
-            RecordingReader::open_with_limit(path.as_ref(), max_record_bytes).map_err(|e| {
-                TransportError::Setup {
-                    transport: TRANSPORT,
-                    what: path.as_ref().display().to_string(),
-                    reason: e.to_string(),
-                }
-            })?;
+        let reader = Self::reader(path.as_ref(), max_record_bytes)?;
         Ok(Self {
             reader,
+            path: path.as_ref().to_path_buf(),
+            max_record_bytes,
             topic: topic.to_string(),
             closed: false,
+            passes_left: Some(0),
+            offset_ns: 0,
+            span: None,
+            yielded: false,
             _message: PhantomData,
         })
+    }
+
+    /// Plays the recording `times` times in all (0: forever), log times going on from
+    /// one pass to the next (a pass starts one mean message interval after the last one
+    /// ended). Every pass starts the detector's numbering again, so the estimator sees a
+    /// new track.
+    pub fn repeat(mut self, times: u64) -> Self {
+        self.passes_left = times.checked_sub(1);
+        self
+    }
+
+    fn reader(path: &Path, max_record_bytes: usize) -> Result<RecordingReader, TransportError> {
+        RecordingReader::open_with_limit(path, max_record_bytes).map_err(|e| {
+            TransportError::Setup {
+                transport: TRANSPORT,
+                what: path.display().to_string(),
+                reason: e.to_string(),
+            }
+        })
+    }
+
+    /// Starts the next pass, if there is one.
+    fn next_pass(&mut self) -> Result<bool, TransportError> {
+        let Some((first, last)) = self.span.take().filter(|_| self.yielded) else {
+            return Ok(false); // nothing of the topic: another pass would yield nothing
+        };
+        self.yielded = false;
+        match self.passes_left {
+            Some(0) => return Ok(false),
+            Some(n) => self.passes_left = Some(n - 1),
+            None => {}
+        }
+        let messages = self.reader.messages_read().max(2);
+        let interval = (last - first) / (messages - 1);
+        self.offset_ns = self.offset_ns.saturating_add(last - first + interval);
+        self.reader = Self::reader(&self.path, self.max_record_bytes)?;
+        self.closed = false;
+        Ok(true)
     }
 
     /// Messages read from the file so far (all topics).
@@ -153,6 +214,20 @@ impl<M: Message> Source<M> for McapSource<M> {
     /// `Closed`; a corrupt one every message before the bad record, then one
     /// [`TransportError::Broken`], then `Closed`.
     fn recv(&mut self, _timeout: Duration) -> Result<Received<M>, TransportError> {
+        loop {
+            if let Some(got) = self.next_of_pass()? {
+                return Ok(got);
+            }
+            if !self.next_pass()? {
+                return Ok(Received::Closed);
+            }
+        }
+    }
+}
+
+impl<M: Message> McapSource<M> {
+    /// The next message of the topic in this pass, `None` at its end.
+    fn next_of_pass(&mut self) -> Result<Option<Received<M>>, TransportError> {
         while !self.closed {
             let Some(next) = self.reader.next_message() else {
                 self.closed = true;
@@ -174,11 +249,15 @@ impl<M: Message> Source<M> for McapSource<M> {
                     });
                 }
             };
+            let t = msg.log_time_ns;
+            self.span = Some(self.span.map_or((t, t), |(a, b)| (a.min(t), b.max(t))));
             if msg.topic != self.topic || msg.schema != M::NAME {
                 continue;
             }
+            let stamp = msg.log_time_ns.saturating_add(self.offset_ns);
+            self.yielded = true;
             return match msgs::decode::<M>(&msg.data) {
-                Ok(m) => Ok(Received::Message(m, msg.log_time_ns)),
+                Ok(m) => Ok(Some(Received::Message(m, stamp))),
                 Err(e) => Err(TransportError::Malformed {
                     transport: TRANSPORT,
                     topic: self.topic.clone(),
@@ -186,6 +265,6 @@ impl<M: Message> Source<M> for McapSource<M> {
                 }),
             };
         }
-        Ok(Received::Closed)
+        Ok(None)
     }
 }

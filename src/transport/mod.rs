@@ -74,6 +74,14 @@ pub enum TransportError {
         /// The cause.
         reason: String,
     },
+    /// The sink failed earlier (the first failure was reported) and takes nothing more.
+    #[error("{transport}: {topic} is closed after an earlier failure")]
+    Closed {
+        /// The backend.
+        transport: &'static str,
+        /// The topic or service.
+        topic: String,
+    },
     /// The source cannot go on (a recording cut short, a broken connection).
     #[error("{transport}: {topic}: {reason}")]
     Broken {

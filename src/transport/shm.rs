@@ -304,6 +304,21 @@ impl HeatMapsHeader {
     }
 }
 
+/// The iceoryx2 nodes on this machine whose process died without cleaning up (killed).
+/// Their shared-memory resources are reclaimed when any process creates a node (as
+/// every posestream node does at start), so after a restart this is 0.
+pub fn dead_nodes() -> Result<usize, TransportError> {
+    let mut dead = 0;
+    Node::<ipc_threadsafe::Service>::list(Config::global_config(), |state| {
+        if matches!(state, NodeState::Dead(_)) {
+            dead += 1;
+        }
+        CallbackProgression::Continue
+    })
+    .map_err(|e| setup("the list of nodes", format!("{e:?}")))?;
+    Ok(dead)
+}
+
 /// An iceoryx2 node: makes the shared-memory publishers and subscribers.
 pub struct Shm {
     node: Node<ipc_threadsafe::Service>,

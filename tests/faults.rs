@@ -1,0 +1,588 @@
+//! Faults the service survives, with nothing lost that was recorded: a full disk under
+//! the recorder, SIGKILL of the estimator and of `run` then a restart, a ROS 2 detector
+//! that goes away and comes back, a hostile DDS participant publishing malformed heat
+//! maps beside a good detector, and a soak of more than 100,000 frames.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+use common::{peak_memory_run, python, python_client, recording, root};
+use posestream::msgs::{self, HeatMaps, Skeleton3D, SkeletonState};
+use posestream::recording::{Recorder, RecordingError, RecordingReader, read_topic};
+
+const SKELETONS: &str = "/posestream/skeletons";
+
+fn bin() -> PathBuf {
+    PathBuf::from(env!("CARGO_BIN_EXE_posestream"))
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().expect("utf-8 path")
+}
+
+/// Starts `posestream args`, stdout captured, stderr inherited (shown on failure).
+fn spawn(args: &[&str]) -> Child {
+    Command::new(bin())
+        .current_dir(root())
+        .args(args)
+        .stdout(Stdio::piped())
+        .spawn()
+        .expect("starts")
+}
+
+fn signal(child: &Child, sig: &str) {
+    let ok = Command::new("kill")
+        .args([sig, &child.id().to_string()])
+        .status()
+        .expect("kill")
+        .success();
+    assert!(ok, "kill {sig}");
+}
+
+fn json_of(out: &Output) -> serde_json::Value {
+    serde_json::from_slice(&out.stdout).unwrap_or_else(|e| {
+        panic!(
+            "report: {e}\n{}\n{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        )
+    })
+}
+
+/// A service configuration file: the default with `extra` TOML sections appended.
+fn config_file(dir: &Path, name: &str, extra: &str) -> PathBuf {
+    let text = std::fs::read_to_string(root().join("config/default.toml")).expect("default");
+    // Later tables of the same name would be duplicates: replace the sections instead.
+    let mut config: toml::Table = toml::from_str(&text).expect("toml");
+    let extra: toml::Table = toml::from_str(extra).expect("extra toml");
+    merge(&mut config, extra);
+    let path = dir.join(name);
+    std::fs::write(&path, toml::to_string(&config).expect("toml")).expect("write");
+    path
+}
+
+fn merge(into: &mut toml::Table, from: toml::Table) {
+    for (k, v) in from {
+        match (into.get_mut(&k), v) {
+            (Some(toml::Value::Table(a)), toml::Value::Table(b)) => merge(a, b),
+            (_, v) => {
+                into.insert(k, v);
+            }
+        }
+    }
+}
+
+/// The `.partial` files in `dir`.
+fn partials(dir: &Path) -> Vec<PathBuf> {
+    std::fs::read_dir(dir)
+        .expect("list")
+        .map(|e| e.expect("entry").path())
+        .filter(|p| p.to_string_lossy().ends_with(".partial"))
+        .collect()
+}
+
+/// Every complete message of a recording cut short, and how reading ended.
+fn complete_messages(path: &Path) -> (u64, Option<RecordingError>) {
+    let mut reader = RecordingReader::open(path).expect("opens");
+    let mut n = 0;
+    for m in reader.by_ref() {
+        match m {
+            Ok(_) => n += 1,
+            Err(e) => return (n, Some(e)),
+        }
+    }
+    (n, None)
+}
+
+/// The number of messages Python `mcap` reads from a recording cut short.
+fn python_count(path: &Path) -> u64 {
+    let py = python_client("read_recording.py", &[s(path), "--allow-truncated"]);
+    py["topics"]
+        .as_object()
+        .expect("topics")
+        .values()
+        .map(|v| v.as_u64().unwrap_or(0))
+        .sum()
+}
+
+#[test]
+fn a_full_disk_under_the_recorder_is_reported_once_and_the_service_goes_on() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().join("full.mcap");
+    // A file-size limit makes the recorder's writes fail with EFBIG once 300 kB are
+    // written, as a full disk would (ENOSPC) without filling this machine's.
+    let run = Command::new("prlimit")
+        .arg("--fsize=300000")
+        .arg(bin())
+        .current_dir(root())
+        .args([
+            "run",
+            "--recording",
+            "recordings/byebye.mcap",
+            "--rate",
+            "fast",
+            "--ros2",
+            "false",
+            "--json",
+            "--record",
+            s(&out),
+        ])
+        .output()
+        .expect("runs");
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert_eq!(run.status.code(), Some(1), "{stderr}");
+    // Reported once (a warning when it happened), and one error at the end naming what
+    // is left.
+    let warnings: Vec<&str> = stderr.lines().filter(|l| l.contains("WARN")).collect();
+    assert_eq!(warnings.len(), 1, "{stderr}");
+    assert!(warnings[0].contains("mcap"), "{stderr}");
+    let last = stderr.lines().last().expect("an error line");
+    assert!(
+        last.starts_with("posestream: error: ") && last.contains("could not be finished"),
+        "{stderr}"
+    );
+    assert!(!stderr.contains("panic"), "{stderr}");
+    // The service went on: every frame estimated and published.
+    let report = json_of(&run);
+    assert_eq!(report["estimator"]["frames"], 121, "{report}");
+    assert_eq!(report["estimator"]["skeletons"], 242, "{report}");
+    assert!(report["estimator"]["failed_sends"].as_u64() > Some(0));
+    // The output was not replaced; what was written is readable up to its last complete
+    // chunk, by us and by Python `mcap` alike.
+    assert!(!out.exists());
+    let partial = partials(dir.path());
+    assert_eq!(partial.len(), 1, "{partial:?}");
+    assert!(last.contains(s(&partial[0])), "{stderr}");
+    let (n, ended) = complete_messages(&partial[0]);
+    assert!(n > 0, "at least one complete chunk");
+    assert!(
+        matches!(ended, Some(RecordingError::Truncated { .. })),
+        "{ended:?}"
+    );
+    assert_eq!(python_count(&partial[0]), n);
+}
+
+/// A configuration of processes talking over iceoryx2 services of their own.
+fn iceoryx2_config(dir: &Path, name: &str, record: &Path) -> PathBuf {
+    let services = format!("posestream-faults-{}", std::process::id());
+    config_file(
+        dir,
+        name,
+        &format!(
+            "[outputs]\nros2 = false\niceoryx2 = true\nmarkers = false\nrecord = {:?}\n\
+             [estimator]\ninput = \"iceoryx2\"\n\
+             [iceoryx2]\nheatmaps = \"{services}/heatmaps\"\nskeletons = \"{services}/skeletons\"\n",
+            s(record)
+        ),
+    )
+}
+
+#[test]
+fn a_killed_estimator_restarts_on_a_clean_track_and_iceoryx2_reclaims_its_resources() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (first, second) = (
+        dir.path().join("first.mcap"),
+        dir.path().join("second.mcap"),
+    );
+    let c1 = iceoryx2_config(dir.path(), "first.toml", &first);
+    let c2 = iceoryx2_config(dir.path(), "second.toml", &second);
+    let detector_config = config_file(
+        dir.path(),
+        "detector.toml",
+        &format!(
+            "[outputs]\nros2 = false\niceoryx2 = true\n\
+             [iceoryx2]\nheatmaps = \"posestream-faults-{}/heatmaps\"\n",
+            std::process::id()
+        ),
+    );
+    let first_estimator = spawn(&["estimator", "--config", s(&c1), "--json"]);
+    std::thread::sleep(Duration::from_millis(500));
+    let detector = spawn(&[
+        "detector",
+        "--config",
+        s(&detector_config),
+        "--recording",
+        "recordings/byebye.mcap",
+        "--rate",
+        "recorded",
+        "--json",
+    ]);
+    std::thread::sleep(Duration::from_millis(1500));
+    signal(&first_estimator, "-KILL");
+    let killed = first_estimator.wait_with_output().expect("waits");
+    assert!(!killed.status.success());
+    assert!(
+        posestream::transport::shm::dead_nodes().expect("node list") >= 1,
+        "the killed estimator left its iceoryx2 node behind"
+    );
+    // The restart: a new node reclaims the dead one's resources.
+    let second_estimator = spawn(&["estimator", "--config", s(&c2), "--duration", "4", "--json"]);
+    let detector = detector.wait_with_output().expect("detector");
+    assert!(detector.status.success());
+    assert_eq!(json_of(&detector)["published"], 121);
+    let second_run = second_estimator.wait_with_output().expect("estimator");
+    assert!(second_run.status.success());
+    assert_eq!(
+        posestream::transport::shm::dead_nodes().expect("node list"),
+        0
+    );
+    let report = json_of(&second_run);
+    assert_eq!(report["counters"]["tracks"], 1, "{report}");
+    assert_eq!(report["malformed"], 0, "{report}");
+    let skeletons: Vec<(u64, Skeleton3D)> = read_topic(&second, SKELETONS).expect("reads");
+    let newest: Vec<&Skeleton3D> = skeletons
+        .iter()
+        .map(|(_, s)| s)
+        .filter(|s| s.lag == 0 && s.state != SkeletonState::Lost as u8)
+        .collect();
+    // It picked up the stream where it was: a new track, from its first frame on.
+    assert!(newest.len() > 40, "{} frames", newest.len());
+    assert_eq!(newest[0].state, SkeletonState::Initialising as u8);
+    assert!(newest[0].sequence > 20, "it joined mid-stream");
+    assert_eq!(newest.last().map(|s| s.sequence), Some(120));
+    // The killed estimator's recording is in its `.partial` file, readable.
+    let partial = partials(dir.path());
+    assert_eq!(partial.len(), 1, "{partial:?}");
+    let (n, _) = complete_messages(&partial[0]);
+    println!("the killed estimator left {n} complete messages");
+}
+
+#[test]
+fn a_killed_run_leaves_its_complete_chunks_and_a_restart_runs_clean() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().join("run.mcap");
+    let args = [
+        "run",
+        "--recording",
+        "recordings/byebye.mcap",
+        "--rate",
+        "recorded",
+        "--ros2",
+        "false",
+        "--json",
+        "--record",
+        s(&out),
+    ];
+    let first = spawn(&args);
+    std::thread::sleep(Duration::from_millis(2500));
+    signal(&first, "-KILL");
+    assert!(!first.wait_with_output().expect("waits").status.success());
+    assert!(!out.exists());
+    let partial = partials(dir.path());
+    assert_eq!(partial.len(), 1, "{partial:?}");
+    let (n, ended) = complete_messages(&partial[0]);
+    assert!(n > 100, "chunks are flushed every second: {n} messages");
+    assert!(
+        matches!(ended, Some(RecordingError::Truncated { .. })),
+        "{ended:?}"
+    );
+    assert_eq!(python_count(&partial[0]), n);
+    // The restart runs to its end: one clean track, the output in place, the killed
+    // run's `.partial` file untouched.
+    let second = spawn(&args).wait_with_output().expect("waits");
+    assert!(second.status.success());
+    let report = json_of(&second);
+    assert_eq!(report["estimator"]["counters"]["tracks"], 1, "{report}");
+    assert_eq!(report["estimator"]["skeletons"], 242, "{report}");
+    assert_eq!(
+        read_topic::<Skeleton3D>(&out, SKELETONS)
+            .expect("reads")
+            .len(),
+        242
+    );
+    assert_eq!(complete_messages(&partial[0]).0, n);
+}
+
+/// A configuration of processes talking over ROS 2 on their own domain (loopback).
+fn ros2_config(dir: &Path, name: &str, domain: u16, record: Option<&Path>) -> PathBuf {
+    let record = record
+        .map(|r| format!("record = {:?}\n", s(r)))
+        .unwrap_or_default();
+    config_file(
+        dir,
+        name,
+        &format!(
+            "[outputs]\nros2 = true\nmarkers = false\n{record}\
+             [ros]\ndomain_id = {domain}\nlocalhost_only = true\nnode_name = \"{}\"\n",
+            name.trim_end_matches(".toml")
+        ),
+    )
+}
+
+fn test_domain(offset: u32) -> u16 {
+    ((std::process::id() + offset) % 80) as u16 + 110
+}
+
+#[test]
+fn the_estimator_ends_the_track_when_its_detector_goes_away_and_takes_the_next_one() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let domain = test_domain(1);
+    let out = dir.path().join("estimator.mcap");
+    let est = ros2_config(dir.path(), "estimator.toml", domain, Some(&out));
+    let det = ros2_config(dir.path(), "detector.toml", domain, None);
+    let estimator = spawn(&[
+        "estimator",
+        "--config",
+        s(&est),
+        "--duration",
+        "14",
+        "--json",
+    ]);
+    std::thread::sleep(Duration::from_millis(1000));
+    let detector_args = [
+        "detector",
+        "--config",
+        s(&det),
+        "--recording",
+        "recordings/byebye.mcap",
+        "--rate",
+        "recorded",
+        "--json",
+    ];
+    let first = spawn(&detector_args);
+    std::thread::sleep(Duration::from_millis(2500));
+    signal(&first, "-KILL");
+    let _ = first.wait_with_output();
+    // Longer than the window's max_gap_seconds (1 s): the track ends on its own.
+    std::thread::sleep(Duration::from_millis(2000));
+    let second = spawn(&detector_args).wait_with_output().expect("waits");
+    assert!(second.status.success());
+    let run = estimator.wait_with_output().expect("waits");
+    assert!(run.status.success());
+    let report = json_of(&run);
+    assert_eq!(report["counters"]["tracks"], 2, "{report}");
+    assert_eq!(report["malformed"], 0, "{report}");
+    let skeletons: Vec<Skeleton3D> = read_topic::<Skeleton3D>(&out, SKELETONS)
+        .expect("reads")
+        .into_iter()
+        .map(|(_, s)| s)
+        .collect();
+    // The first track's owed estimates (lost) come before the second track's first.
+    let first_lost = skeletons
+        .iter()
+        .position(|s| s.state == SkeletonState::Lost as u8)
+        .expect("the first track ended");
+    let restart = skeletons
+        .iter()
+        .enumerate()
+        .position(|(i, s)| i > first_lost && s.state == SkeletonState::Initialising as u8)
+        .unwrap_or_else(|| panic!("a second track from the restarted detector: {report}"));
+    assert!(
+        skeletons[first_lost..restart]
+            .iter()
+            .all(|s| s.state == SkeletonState::Lost as u8)
+    );
+    assert!(skeletons[restart..].iter().any(|s| s.sequence == 120));
+}
+
+#[test]
+fn a_hostile_participant_cannot_stop_a_good_track_or_grow_the_estimator() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let domain = test_domain(2);
+    let out = dir.path().join("estimator.mcap");
+    let est = ros2_config(dir.path(), "estimator.toml", domain, Some(&out));
+    let det = ros2_config(dir.path(), "detector.toml", domain, None);
+    let estimator = std::thread::spawn({
+        let est = est.clone();
+        move || {
+            peak_memory_run(
+                &bin(),
+                &[
+                    "estimator",
+                    "--config",
+                    s(&est),
+                    "--duration",
+                    "9",
+                    "--json",
+                ],
+                &[],
+            )
+        }
+    });
+    std::thread::sleep(Duration::from_millis(1000));
+    let mut hostile = Command::new(python())
+        .arg(root().join("tests/python/ros2_hostile_publisher.py"))
+        .args([&domain.to_string(), "/posestream/heatmaps", "6", "40"])
+        .stdout(Stdio::piped())
+        .spawn()
+        .expect("the hostile publisher starts (cyclonedds: .ci/run installs it)");
+    let detector = spawn(&[
+        "detector",
+        "--config",
+        s(&det),
+        "--recording",
+        "recordings/byebye.mcap",
+        "--rate",
+        "recorded",
+        "--json",
+    ])
+    .wait_with_output()
+    .expect("waits");
+    assert!(detector.status.success());
+    let hostile_out = {
+        let status = hostile.wait().expect("waits");
+        let mut text = String::new();
+        use std::io::Read;
+        hostile
+            .stdout
+            .take()
+            .expect("stdout")
+            .read_to_string(&mut text)
+            .expect("reads");
+        assert!(status.success(), "{text}");
+        text
+    };
+    let sent: serde_json::Value =
+        serde_json::from_str(hostile_out.lines().last().expect("a summary")).expect("json");
+    let (code, run, peak_kb) = estimator.join().expect("estimator thread");
+    assert_eq!(code, Some(0), "{}", String::from_utf8_lossy(&run.stderr));
+    let report = json_of(&run);
+    println!(
+        "hostile: {sent}\nestimator: {report}\npeak {} MB",
+        peak_kb / 1024
+    );
+    // The hostile messages that arrived were refused, by kind, and the good track went
+    // on as one track.
+    let refused = report["malformed"].as_u64().expect("count");
+    assert!(
+        refused > sent["total"].as_u64().expect("total") / 2,
+        "{report}"
+    );
+    assert_eq!(
+        report["refused"]["panic"],
+        serde_json::Value::Null,
+        "{report}"
+    );
+    assert_eq!(report["counters"]["tracks"], 1, "{report}");
+    let frames = report["counters"]["frames"].as_u64().expect("frames");
+    assert!(frames > 100, "the good frames were taken: {report}");
+    assert_eq!(report["skeletons"].as_u64(), Some(2 * frames));
+    // Nothing of the hostile sizes was allocated.
+    assert!(peak_kb < 200 * 1024, "peak {} MB", peak_kb / 1024);
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    // One warning per kind of refusal, not one per message (DDS's own warnings aside).
+    let warnings = stderr
+        .lines()
+        .filter(|l| l.contains("refused a message"))
+        .count();
+    let kinds = report["refused"].as_object().expect("kinds").len();
+    assert_eq!(warnings, kinds, "{stderr}");
+}
+
+/// VmRSS of a process, kB.
+fn resident_kb(pid: u32) -> Option<u64> {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmRSS:"))?;
+    line.split_whitespace().nth(1)?.parse().ok()
+}
+
+#[test]
+fn a_soak_of_100000_frames_keeps_memory_flat_and_the_counters_consistent() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    // byebye's heat maps with malformed messages of several kinds between them.
+    let input = dir.path().join("soak.mcap");
+    let good: Vec<(u64, HeatMaps)> =
+        read_topic(&recording("byebye.mcap"), "/posestream/heatmaps").expect("reads");
+    let mut rec = Recorder::create(&input).expect("create");
+    // Undecodable ones the detector's source refuses; invalid ones reach the estimator.
+    let (mut undecodable_per_pass, mut invalid_per_pass) = (0, 0);
+    for (i, (t, m)) in good.iter().enumerate() {
+        rec.write("/posestream/heatmaps", *t, m).expect("write");
+        if i % 10 == 5 {
+            invalid_per_pass += u64::from((i / 10) % 4 != 0);
+            let bad = match (i / 10) % 4 {
+                0 => {
+                    undecodable_per_pass += 1;
+                    msgs::encode(m).expect("encodes")[..100].to_vec()
+                }
+                1 => {
+                    let mut b = m.clone();
+                    b.height = 3_537_046_315;
+                    b.width = 4_294_949_781;
+                    msgs::encode(&b).expect("encodes")
+                }
+                2 => {
+                    let mut b = m.clone();
+                    b.quantized_values.truncate(10);
+                    msgs::encode(&b).expect("encodes")
+                }
+                _ => {
+                    let mut b = m.clone();
+                    b.joint_names.reverse();
+                    msgs::encode(&b).expect("encodes")
+                }
+            };
+            rec.write_encoded::<HeatMaps>("/posestream/heatmaps", *t, &bad)
+                .expect("write");
+        }
+    }
+    rec.finish().expect("finish");
+    let passes: u64 = 100_000 / good.len() as u64 + 1;
+    let mut child = spawn(&[
+        "run",
+        "--recording",
+        s(&input),
+        "--repeat",
+        &passes.to_string(),
+        "--rate",
+        "fast",
+        "--ros2",
+        "false",
+        "--json",
+    ]);
+    let started = Instant::now();
+    let mut samples = Vec::new();
+    loop {
+        if let Some(kb) = resident_kb(child.id()) {
+            samples.push((started.elapsed().as_secs_f64(), kb));
+        }
+        if child.try_wait().expect("polls").is_some() {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(500));
+    }
+    let run = child.wait_with_output().expect("waits");
+    assert!(run.status.success());
+    let report = json_of(&run);
+    let (d, e) = (&report["detector"], &report["estimator"]);
+    let frames = passes * good.len() as u64;
+    assert!(frames >= 100_000);
+    // The counters add up.
+    assert_eq!(
+        d["malformed"].as_u64(),
+        Some(passes * undecodable_per_pass),
+        "{report}"
+    );
+    assert_eq!(
+        d["published"].as_u64(),
+        Some(frames + passes * invalid_per_pass),
+        "{report}"
+    );
+    assert_eq!(e["frames"].as_u64(), d["published"].as_u64(), "{report}");
+    assert_eq!(e["counters"]["frames"].as_u64(), Some(frames), "{report}");
+    assert_eq!(e["counters"]["tracks"].as_u64(), Some(passes), "{report}");
+    assert_eq!(
+        e["malformed"].as_u64(),
+        Some(passes * invalid_per_pass),
+        "{report}"
+    );
+    assert_eq!(e["skeletons"].as_u64(), Some(2 * frames), "{report}");
+    // Resident memory is flat: after the first seconds it does not grow.
+    let warm: Vec<u64> = samples
+        .iter()
+        .filter(|(t, _)| *t > 5.0)
+        .map(|(_, kb)| *kb)
+        .collect();
+    assert!(warm.len() > 10, "{samples:?}");
+    let (start, end) = (warm[0], *warm.last().expect("samples"));
+    let max = *warm.iter().max().expect("samples");
+    println!(
+        "soak: {frames} frames in {:.0} s; resident {start} kB after 5 s, {end} kB at the end, {max} kB at most",
+        started.elapsed().as_secs_f64()
+    );
+    assert!(max < start + 8 * 1024, "grew from {start} to {max} kB");
+    assert!(max < 200 * 1024);
+}
