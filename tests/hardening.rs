@@ -155,19 +155,22 @@ fn a_map_size_that_overflows_is_refused_and_the_stream_goes_on() {
     assert_eq!(node.malformed(), 1);
     assert_eq!(out.len(), 2 * (all.len() - 1));
 
+    // Through the binary, in the middle of a track and as the first frame of one.
     let dir = tempfile::tempdir().expect("tempdir");
-    let input = dir.path().join("overflow.mcap");
-    write_raw(
-        &input,
-        &with_frame(40, msgs::encode(&overflowing_frame()).expect("encodes")),
-        1000,
-    );
-    let r = replay_json(&input);
-    assert_eq!(r.code, Some(0), "{}", r.stderr);
-    r.assert_bounded();
-    let report = r.report();
-    assert_eq!(report["malformed"], 1);
-    assert_eq!(report["skeletons"], 2 * 120);
+    for at in [40, 0] {
+        let input = dir.path().join(format!("overflow-{at}.mcap"));
+        write_raw(
+            &input,
+            &with_frame(at, msgs::encode(&overflowing_frame()).expect("encodes")),
+            1000,
+        );
+        let r = replay_json(&input);
+        assert_eq!(r.code, Some(0), "{}", r.stderr);
+        r.assert_bounded();
+        let report = r.report();
+        assert_eq!(report["malformed"], 1);
+        assert_eq!(report["skeletons"], 2 * 120);
+    }
 }
 
 // Defect 3: memory grows with the claimed map size.
@@ -670,6 +673,31 @@ fn a_file_that_is_not_a_recording_of_heat_maps_is_one_error() {
 
 // Minor defects.
 
+/// Replays the first 30 frames of byebye.mcap, each changed by `change`, through the
+/// binary; returns the skeletons recorded and the run.
+fn replay_changed(
+    dir: &Path,
+    name: &str,
+    change: impl Fn(usize, &mut HeatMaps),
+) -> (Vec<Skeleton3D>, Run) {
+    let input = dir.join(format!("{name}.mcap"));
+    let out = dir.join(format!("{name}.out.mcap"));
+    let mut all = frames("byebye.mcap");
+    all.truncate(30);
+    for (i, (_, m)) in all.iter_mut().enumerate() {
+        change(i, m);
+    }
+    write_raw(&input, &encoded(&all), 1000);
+    let r = run(&["replay", "--json", s(&input), "--record", s(&out)]);
+    assert_eq!(r.code, Some(0), "{}", r.stderr);
+    let skeletons = read_topic::<Skeleton3D>(&out, SKELETONS)
+        .expect("reads")
+        .into_iter()
+        .map(|(_, s)| s)
+        .collect();
+    (skeletons, r)
+}
+
 #[test]
 fn huge_crop_boxes_never_give_non_finite_skeletons() {
     let mut node = EstimatorNode::from_config(&config().estimator).expect("node");
@@ -699,6 +727,16 @@ fn huge_crop_boxes_never_give_non_finite_skeletons() {
         );
     }
     assert_eq!(node.malformed(), 20, "the boxes are refused");
+    // The binary publishes nothing non-finite either.
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (skeletons, _) = replay_changed(dir.path(), "crop", |i, m| {
+        if i >= 10 {
+            m.crop_x = 1e308;
+            m.crop_width = 1.7e308;
+        }
+    });
+    assert!(!skeletons.is_empty());
+    assert!(skeletons.iter().all(Skeleton3D::is_finite));
 }
 
 #[test]
@@ -718,6 +756,18 @@ fn frames_without_evidence_are_not_tracking() {
         out.len()
     );
     assert_eq!(node.counters().empty, 30);
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (skeletons, r) = replay_changed(dir.path(), "zero", |_, m| {
+        m.quantized_values.iter_mut().for_each(|v| *v = 0);
+    });
+    assert!(
+        skeletons
+            .iter()
+            .all(|s| s.state != msgs::SkeletonState::Tracking as u8),
+        "{} skeletons said they were tracking nothing",
+        skeletons.len()
+    );
+    assert_eq!(r.report()["counters"]["empty"], 30);
 }
 
 #[test]
@@ -734,6 +784,27 @@ fn a_non_finite_value_is_reported_with_its_frame() {
     assert!(text.contains(&format!("frame {}", m.sequence)), "{text}");
     assert!(!text.contains("frame 0"), "{text}");
     assert!(text.contains("joint 5"), "{text}");
+    // The binary's log says which frame.
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (_, r) = replay_changed(dir.path(), "nan", |i, m| {
+        if i == 7 {
+            let mut values = Vec::new();
+            m.values_into(&mut values).expect("values");
+            values[5 * 64 * 64 + 3] = f32::NAN;
+            m.encoding = 0;
+            m.values = values;
+            m.quantized_values.clear();
+        }
+    });
+    let line = r
+        .stderr
+        .lines()
+        .find(|l| l.contains("non-finite"))
+        .unwrap_or_else(|| panic!("a refusal is logged: {}", r.stderr));
+    assert!(
+        line.contains("frame 7") && !line.contains("frame 0"),
+        "{line}"
+    );
 }
 
 #[test]
@@ -876,4 +947,17 @@ fn dictionaries_written_by_scipy_savemat_load() {
     assert_eq!(loaded.bases(), k128.bases());
     assert_eq!(loaded.mean(), k128.mean());
     assert_eq!(loaded.skeleton(), k128.skeleton());
+    // And the binary lifts with it.
+    let kp = common::fixture("synthetic-s0").join("keypoints.npy");
+    let out = dir.path().join("S.npy");
+    let r = run(&[
+        "lift",
+        "--dict",
+        s(&path),
+        "--keypoints",
+        s(&kp),
+        "--out",
+        s(&out),
+    ]);
+    assert_eq!(r.code, Some(0), "{}", r.stderr);
 }
