@@ -331,7 +331,10 @@ fn install_panic_hook() {
             .name()
             .map(|n| format!(" (thread {n})"))
             .unwrap_or_default();
-        if first {
+        // A dependency's parser failing on a bad file: the caller reports the file.
+        if posestream::error::panic_is_contained() {
+            tracing::debug!("contained panic at {location}{thread}: {message}");
+        } else if first {
             tracing::error!("panic at {location}{thread}: {message}");
         } else {
             tracing::debug!("panic at {location}{thread}: {message}");

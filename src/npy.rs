@@ -51,6 +51,42 @@ impl Element for f32 {
     }
 }
 
+/// Checks the header text of an NPY file before `npyz` parses it: a plain array's header
+/// is one flat dictionary (`{'descr': '<f8', 'fortran_order': False, 'shape': (2, 3)}`),
+/// and the Python-literal parser `npyz` uses backtracks for a very long time on deeply
+/// nested brackets (a 191-byte file of `{{{{…` took over 20 s: found by fuzzing). Only the
+/// bracket structure is checked here; `npyz` reads the rest.
+fn check_header(bytes: &[u8]) -> Result<(), String> {
+    let (Some(&major), Some(magic)) = (bytes.get(6), bytes.get(..6)) else {
+        return Err("not an NPY file (too short)".into());
+    };
+    if magic != b"\x93NUMPY" {
+        return Err("not an NPY file (no \\x93NUMPY magic)".into());
+    }
+    let (len, start) = match major {
+        1 => (
+            bytes
+                .get(8..10)
+                .map(|b| usize::from(u16::from_le_bytes([b[0], b[1]]))),
+            10_usize,
+        ),
+        _ => (
+            bytes
+                .get(8..12)
+                .and_then(|b| usize::try_from(u32::from_le_bytes([b[0], b[1], b[2], b[3]])).ok()),
+            12,
+        ),
+    };
+    let header = len
+        .and_then(|len| bytes.get(start..start.checked_add(len)?))
+        .ok_or("the header is cut short")?;
+    let count = |c: u8| header.iter().filter(|&&b| b == c).count();
+    if count(b'{') != 1 || count(b'(') > 1 || count(b'[') > 0 {
+        return Err("the header is not one flat dictionary of a plain array".into());
+    }
+    Ok(())
+}
+
 /// Reads an f32/f64 array, rejecting empty arrays and non-finite values.
 pub fn read<T: Element>(path: &Path) -> Result<Array<T>, ArrayError> {
     let bytes = std::fs::read(path).map_err(|source| ArrayError::Io {
@@ -66,6 +102,7 @@ pub fn from_bytes<T: Element>(bytes: &[u8], path: &Path) -> Result<Array<T>, Arr
         path: path.to_path_buf(),
         reason,
     };
+    check_header(bytes).map_err(fmt)?;
     let file = npyz::NpyFile::new(bytes).map_err(|e| fmt(e.to_string()))?;
     let order = file.order();
     let type_str = match file.dtype() {

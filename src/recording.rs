@@ -524,12 +524,13 @@ impl<R: Read + Seek> RecordingReader<R> {
         }
         // The mcap crate checks its input, but a parser of outside data may still panic
         // on a case nobody thought of: that is a corrupt file, not the end of the process.
-        let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| self.advance()))
-            .unwrap_or_else(|_| {
-                Some(Err(
-                    self.corrupt("the MCAP reader failed on this record".into())
-                ))
-            });
+        // (In release builds the crate's arithmetic wraps instead; an overflow there found
+        // by fuzzing, at `linear_reader.rs:745`, then ends reading with an error too.)
+        let result = crate::error::contain_panics(|| self.advance()).unwrap_or_else(|panic| {
+            Some(Err(self.corrupt(format!(
+                "the MCAP reader failed on this record ({panic})"
+            ))))
+        });
         if !matches!(result, Some(Ok(_))) {
             self.done = true;
         }

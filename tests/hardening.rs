@@ -80,14 +80,24 @@ impl Run {
     }
 }
 
+/// Runs the binary; every run, whatever its input, must end without a panic or an abort
+/// and stay within the memory budget.
 fn run(args: &[&str]) -> Run {
     let (code, out, peak_kb) = peak_memory_run(&binary(), args, &[]);
-    Run {
+    let run = Run {
         code,
         stdout: String::from_utf8_lossy(&out.stdout).into_owned(),
         stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
         peak_kb,
-    }
+    };
+    assert!(
+        matches!(run.code, Some(0 | 1)),
+        "exit status {:?}: {}",
+        run.code,
+        run.stderr
+    );
+    run.assert_bounded();
+    run
 }
 
 fn s(p: &Path) -> &str {

@@ -20,7 +20,21 @@ pub fn load(path: &Path) -> Result<Dictionary, DictionaryError> {
 }
 
 /// Parses a MATLAB dictionary from memory; `path` names it in errors.
+///
+/// The MAT reader (`matrw` 0.1) panics on some malformed inputs, while parsing (a
+/// truncated deflate stream) and in its accessors (`not implemented` for some variable
+/// kinds; found by fuzzing): the whole reading is one contained region, and a panic in it
+/// is reported as a malformed file.
 pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Dictionary, DictionaryError> {
+    crate::error::contain_panics(|| read(bytes, path)).unwrap_or_else(|_| {
+        Err(DictionaryError::Mat {
+            path: path.to_path_buf(),
+            reason: "malformed file".into(),
+        })
+    })
+}
+
+fn read(bytes: &[u8], path: &Path) -> Result<Dictionary, DictionaryError> {
     let missing = |what: &str| DictionaryError::Missing {
         path: path.to_path_buf(),
         what: what.to_string(),
@@ -29,27 +43,12 @@ pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Dictionary, DictionaryErr
         path: path.to_path_buf(),
         detail,
     };
-    // The MAT parser (matrw 0.1) panics on some malformed inputs (e.g. a truncated
-    // deflate stream): contain the panic and report it as an error. (The panic hook still
-    // runs; the CLI installs a quiet one.)
     let normalised = normalise_header(bytes);
     let bytes = normalised.as_deref().unwrap_or(bytes);
-    let parsed = std::panic::catch_unwind(|| matrw::load_matfile_from_u8(bytes));
-    let file = match parsed {
-        Ok(Ok(f)) => f,
-        Ok(Err(e)) => {
-            return Err(DictionaryError::Mat {
-                path: path.to_path_buf(),
-                reason: one_line(&e.to_string()),
-            });
-        }
-        Err(_) => {
-            return Err(DictionaryError::Mat {
-                path: path.to_path_buf(),
-                reason: "malformed file".into(),
-            });
-        }
-    };
+    let file = matrw::load_matfile_from_u8(bytes).map_err(|e| DictionaryError::Mat {
+        path: path.to_path_buf(),
+        reason: one_line(&e.to_string()),
+    })?;
     if !file.contains("B") {
         return Err(missing("B"));
     }

@@ -210,7 +210,7 @@ impl Bvh {
             });
         }
         let values = &tok.items[tok.pos..];
-        if values.len() != frames * channels {
+        if frames.checked_mul(channels) != Some(values.len()) {
             return Err(BvhError::MotionSize {
                 declared: frames,
                 channels,

@@ -138,6 +138,10 @@ fn index_vector(d: &tflite::DimensionMetadata, segments: bool) -> Option<Vec<usi
     })
 }
 
+/// Values of one densified constant at most: 16 M (32 MB of float16); the largest tensor
+/// of any BlazePose model holds 1.6 M values (`pose_landmark_heavy`).
+const MAX_DENSE_VALUES: usize = 1 << 24;
+
 /// The dense float16 values of a sparse constant tensor.
 fn densify(tensor: &tflite::Tensor, data: &[u8]) -> Result<Vec<u8>, RewriteError> {
     let unsupported = |what: &str| RewriteError::Unsupported(format!("sparse tensor: {what}"));
@@ -178,13 +182,24 @@ fn densify(tensor: &tflite::Tensor, data: &[u8]) -> Result<Vec<u8>, RewriteError
             _ => Err(unsupported("unknown dimension format")),
         })
         .collect::<Result<_, _>>()?;
-    if dims.len() != shape.len() {
+    if dims.len() != shape.len()
+        || dims
+            .iter()
+            .zip(&shape)
+            .any(|(d, &s)| matches!(d, Dim::Dense(size) if *size != s))
+    {
         return Err(unsupported("metadata and shape disagree"));
     }
+    // The shape is the file's claim: its size must be countable and bounded before the
+    // dense copy is allocated (a 1 kB file once asked for gigabytes: found by fuzzing).
+    let total = shape
+        .iter()
+        .try_fold(1_usize, |n, &s| n.checked_mul(s))
+        .filter(|&n| n <= MAX_DENSE_VALUES)
+        .ok_or_else(|| unsupported("more values than a model constant holds"))?;
     let strides: Vec<usize> = (0..shape.len())
         .map(|k| shape[k + 1..].iter().product())
         .collect();
-    let total: usize = shape.iter().product();
     let mut dense = vec![0_u8; 2 * total];
     // Depth-first over the storage: (level, index of the parent entry, dense offset).
     let mut stack = vec![(0_usize, 0_usize, 0_usize)];
@@ -246,10 +261,34 @@ pub fn rewrite_for_tract(model: &[u8]) -> Result<(Vec<u8>, RewriteReport), Rewri
     let tensors = graph.tensors().ok_or_else(|| invalid(&"no tensors"))?;
     let buffers = root.buffers().ok_or_else(|| invalid(&"no buffers"))?;
     let operators = graph.operators().ok_or_else(|| invalid(&"no operators"))?;
+    // Every index the file holds (operator codes, tensors, buffers) is checked once here,
+    // so that the lookups below stay in range whatever the file says.
+    for op in operators.iter() {
+        if op.opcode_index() as usize >= codes.len() {
+            return Err(invalid(&"an operator code index out of range"));
+        }
+        let ios = op
+            .inputs()
+            .into_iter()
+            .chain(op.outputs())
+            .flat_map(|v| v.iter());
+        for t in ios {
+            if t < -1 || t >= 0 && t as usize >= tensors.len() {
+                return Err(invalid(&"a tensor index out of range"));
+            }
+        }
+    }
+    if tensors.iter().any(|t| t.buffer() as usize >= buffers.len()) {
+        return Err(invalid(&"a buffer index out of range"));
+    }
     let builtin = |op: &tflite::Operator| builtin_of(&codes.get(op.opcode_index() as usize));
     let io = |op: &tflite::Operator| -> Result<(i32, i32), RewriteError> {
         match (op.inputs(), op.outputs()) {
-            (Some(i), Some(o)) if !i.is_empty() && !o.is_empty() => Ok((i.get(0), o.get(0))),
+            (Some(i), Some(o))
+                if !i.is_empty() && !o.is_empty() && i.get(0) >= 0 && o.get(0) >= 0 =>
+            {
+                Ok((i.get(0), o.get(0)))
+            }
             _ => Err(invalid(&"an operator without inputs or outputs")),
         }
     };
@@ -340,7 +379,7 @@ pub fn rewrite_for_tract(model: &[u8]) -> Result<(Vec<u8>, RewriteReport), Rewri
     let mut spare_buffers: Vec<u32> = spare_tensors
         .iter()
         .map(|&t| tensors.get(t as usize).buffer())
-        .filter(|&b| b != 0 && buffer_users[b as usize] == 1)
+        .filter(|&b| b != 0 && buffer_users.get(b as usize) == Some(&1))
         .collect();
     // Operator codes nothing uses any more.
     let mut spare_codes: Vec<usize> = (0..codes.len())
@@ -470,10 +509,16 @@ pub fn rewrite_for_tract(model: &[u8]) -> Result<(Vec<u8>, RewriteReport), Rewri
                 "DEPTH_TO_SPACE of a non-4D tensor".into(),
             ));
         };
-        if block < 1 || c % (block * block) != 0 {
+        let squared = block.checked_mul(block).filter(|&b| b >= 1);
+        let (Some(squared), Some(out_h), Some(out_w)) =
+            (squared, h.checked_mul(block), w.checked_mul(block))
+        else {
+            return Err(invalid(&"DEPTH_TO_SPACE block size"));
+        };
+        if block < 1 || c % squared != 0 {
             return Err(invalid(&"DEPTH_TO_SPACE block size"));
         }
-        let c_out = c / (block * block);
+        let c_out = c / squared;
         let name = format!("depth_to_space_{}", report.depth_to_space);
         let perm = match perm {
             Some(p) => p,
@@ -548,7 +593,7 @@ pub fn rewrite_for_tract(model: &[u8]) -> Result<(Vec<u8>, RewriteReport), Rewri
             reshape,
             vec![moved],
             vec![output],
-            reshape_to(vec![n, h * block, w * block, c_out]),
+            reshape_to(vec![n, out_h, out_w, c_out]),
         )?);
         report.depth_to_space += 1;
     }

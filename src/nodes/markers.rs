@@ -48,7 +48,8 @@ pub fn skeleton_markers(skeleton: &Skeleton3D, bones: &[(usize, usize)]) -> Mark
         },
         ..Marker::default()
     };
-    let id = i32::try_from(skeleton.track_id).unwrap_or(i32::MAX / 2);
+    // Two markers per track: ids 2t and 2t + 1 (track ids past 2^30 wrap around).
+    let id = (skeleton.track_id % (1 << 30)) as i32;
     let line = 0.015 * extent;
     let sphere = 0.035 * extent;
     let bones_marker = Marker {

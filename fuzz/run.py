@@ -1,0 +1,120 @@
+#!/usr/bin/env python3
+"""Runs posestream's fuzz targets (coverage-guided, libFuzzer through cargo-fuzz).
+
+    python3 fuzz/run.py [--seconds N] [--quiet M] [--jobs J] [TARGET ...]
+
+Builds every target once (`cargo fuzz build`, stable toolchain with RUSTC_BOOTSTRAP=1,
+no sanitizer: the sanitizer runtimes are nightly-only), then runs each target (all of
+them by default) on its corpus in `fuzz/corpus/<target>` for at most N seconds
+(default 60), or, with --quiet M, until it has found no new coverage for M seconds
+(at most N).
+J targets run at once (default 1); --seconds caps each run also with --quiet. New corpus entries are written back to the corpus
+folder (`cargo fuzz cmin` keeps it small); a failing input lands in
+`fuzz/artifacts/<target>/`: copy it to `fuzz/regressions/<target>/` once fixed, and
+`tests/fuzz_corpora.rs` replays it in every CI run.
+
+Prints one line per target: CPU seconds, executions, coverage (libFuzzer's `cov`
+counter), corpus size, and whether it failed. Exit status 1 if any target failed.
+Needs `cargo install cargo-fuzz`.
+"""
+
+import argparse
+import concurrent.futures
+import os
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+FUZZ = Path(__file__).resolve().parent
+TARGETS = sorted(p.stem for p in (FUZZ / "fuzz_targets").glob("*.rs"))
+
+
+def build():
+    env = dict(os.environ, RUSTC_BOOTSTRAP="1")
+    subprocess.run(
+        ["cargo", "fuzz", "build", "--sanitizer", "none", "--release", "--debug-assertions"],
+        cwd=FUZZ.parent,
+        env=env,
+        check=True,
+    )
+    triple = subprocess.run(
+        ["rustc", "-vV"], capture_output=True, text=True, check=True
+    ).stdout
+    host = re.search(r"host: (\S+)", triple).group(1)
+    return FUZZ / "target" / host / "release"
+
+
+def run(binary, target, seconds, quiet):
+    corpus = FUZZ / "corpus" / target
+    artifacts = FUZZ / "artifacts" / target
+    corpus.mkdir(parents=True, exist_ok=True)
+    artifacts.mkdir(parents=True, exist_ok=True)
+    args = [
+        str(binary / target),
+        str(corpus),
+        f"-artifact_prefix={artifacts}/",
+        # Allocations beyond the service's limits show up as an RSS far above them.
+        "-rss_limit_mb=1024",
+        "-timeout=20",
+        "-max_len=1048576",
+        "-print_final_stats=1",
+    ]
+    args.append(f"-max_total_time={seconds}")
+    start = time.time()
+    proc = subprocess.Popen(args, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True)
+    last_new, stats, failed, log = time.time(), {}, False, []
+    for line in proc.stderr:
+        log.append(line)
+        if len(log) > 200:
+            log.pop(0)
+        if re.search(r"\sNEW\s", line):
+            last_new = time.time()
+        m = re.search(r"#(\d+)\s+\S+\s+cov: (\d+).*corp: (\d+)", line)
+        if m:
+            stats.update(execs=int(m.group(1)), cov=int(m.group(2)), corpus=int(m.group(3)))
+        if "ERROR: libFuzzer" in line or "panicked at" in line or "deadly signal" in line:
+            failed = True
+        if quiet is not None and time.time() - last_new > quiet:
+            proc.terminate()
+    _, status, usage = os.wait4(proc.pid, 0)
+    returncode = os.waitstatus_to_exitcode(status)
+    stats["cpu_s"] = round(usage.ru_utime + usage.ru_stime, 1)
+    stats["wall_s"] = round(time.time() - start, 1)
+    stats["quiet_s"] = round(time.time() - last_new, 1)
+    failed = failed or returncode not in (0, -15)
+    return target, stats, failed, "".join(log[-40:]) if failed else ""
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--seconds", type=int, default=60)
+    p.add_argument("--quiet", type=int, default=None)
+    p.add_argument("--jobs", type=int, default=1)
+    p.add_argument("targets", nargs="*", default=TARGETS)
+    a = p.parse_args()
+    unknown = set(a.targets) - set(TARGETS)
+    if unknown:
+        sys.exit(f"unknown targets {sorted(unknown)}; known: {TARGETS}")
+    binary = build()
+    any_failed = False
+    with concurrent.futures.ThreadPoolExecutor(a.jobs) as pool:
+        for target, stats, failed, log in pool.map(
+            lambda t: run(binary, t, a.seconds, a.quiet), a.targets
+        ):
+            any_failed |= failed
+            print(
+                f"{target:14} {'FAILED' if failed else 'ok':6} cpu {stats.get('cpu_s')} s, "
+                f"wall {stats.get('wall_s')} s, {stats.get('execs', 0)} runs, "
+                f"cov {stats.get('cov', 0)}, corpus {stats.get('corpus', 0)}, "
+                f"last new coverage {stats.get('quiet_s')} s before the end",
+                flush=True,
+            )
+            if log:
+                print(log, flush=True)
+    sys.exit(1 if any_failed else 0)
+
+
+if __name__ == "__main__":
+    main()
