@@ -160,7 +160,7 @@ pub enum EstimateError {
     /// A value is NaN or infinite.
     #[error("non-finite input value in frame {frame}, joint {joint}")]
     NonFinite {
-        /// Frame index.
+        /// Frame index (in a stream: the frame's sequence number).
         frame: usize,
         /// Joint index.
         joint: usize,
@@ -337,16 +337,19 @@ pub fn contain_panics<T>(f: impl FnOnce() -> T) -> Result<T, String> {
     CONTAINING.with(|c| c.set(c.get() + 1));
     let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(f));
     CONTAINING.with(|c| c.set(c.get().saturating_sub(1)));
-    result.map_err(|payload| {
-        payload
-            .downcast_ref::<&str>()
-            .map(|s| s.to_string())
-            .or_else(|| payload.downcast_ref::<String>().cloned())
-            .unwrap_or_else(|| "a panic".into())
-    })
+    result.map_err(|payload| panic_text(payload.as_ref()))
 }
 
 /// True while [`contain_panics`] runs its function on this thread.
 pub fn panic_is_contained() -> bool {
     CONTAINING.with(|c| c.get() > 0)
+}
+
+/// The text of a panic's payload (`panic!("…")` gives a `&str` or a `String`).
+pub fn panic_text(payload: &(dyn std::any::Any + Send)) -> String {
+    payload
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| payload.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "a panic".into())
 }

@@ -317,12 +317,7 @@ fn install_panic_hook() {
         let location = info
             .location()
             .map_or_else(|| "an unknown place".to_string(), |l| l.to_string());
-        let payload = info.payload();
-        let message = payload
-            .downcast_ref::<&str>()
-            .map(|s| s.to_string())
-            .or_else(|| payload.downcast_ref::<String>().cloned())
-            .unwrap_or_default();
+        let message = posestream::error::panic_text(info.payload());
         let first = SEEN
             .lock()
             .map(|mut seen| seen.insert(location.clone()))

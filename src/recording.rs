@@ -116,14 +116,20 @@ impl Recorder {
     /// Starts a recording that [`Recorder::finish`] puts at `path` (replacing a file
     /// there).
     pub fn create(path: impl AsRef<Path>) -> Result<Self, RecordingError> {
-        let path = path.as_ref().to_path_buf();
+        let asked = path.as_ref();
         let io = |source| RecordingError::Io {
-            path: path.clone(),
+            path: asked.to_path_buf(),
             source,
         };
-        if path.is_dir() {
+        if asked.is_dir() {
             return Err(io(std::io::Error::other("is a directory")));
         }
+        // An output that is a symbolic link is written where the link points.
+        let path = if asked.is_symlink() {
+            std::fs::canonicalize(asked).map_err(io)?
+        } else {
+            asked.to_path_buf()
+        };
         let (partial, file) = crate::files::create_partial(&path).map_err(io)?;
         let writer = WriteOptions::new()
             .profile("ros2")
@@ -153,11 +159,6 @@ impl Recorder {
     /// True after a write failed: nothing more is written.
     pub fn failed(&self) -> bool {
         self.failed.is_some()
-    }
-
-    /// Where the recording is written until it is finished.
-    pub fn partial_path(&self) -> &Path {
-        &self.partial
     }
 
     /// Closes a chunk and flushes it to the file at least this often (default 1 s;
@@ -266,13 +267,7 @@ impl Recorder {
     /// Writes the summary and footer, makes the file durable and renames it into place;
     /// returns what was recorded. If a write failed, or fails now, the output is left as
     /// it was and the error names the `.partial` file holding what was written.
-    pub fn finish(mut self) -> Result<RecordingSummary, RecordingError> {
-        if let Some(reason) = self.failed.take() {
-            return Err(self.failure(reason));
-        }
-        if let Err(e) = self.writer.finish() {
-            return Err(self.failure(e.to_string()));
-        }
+    pub fn finish(self) -> Result<RecordingSummary, RecordingError> {
         let summary = RecordingSummary {
             path: self.path.clone(),
             topics: self.counts.clone(),
@@ -280,31 +275,50 @@ impl Recorder {
             end_ns: self.last_ns,
         };
         let (path, partial) = (self.path.clone(), self.partial.clone());
+        self.complete()?;
         let unfinished = |reason: String| RecordingError::Unfinished {
             path: path.clone(),
             partial: partial.clone(),
             reason,
         };
-        let file = self
-            .writer
-            .into_inner()
-            .into_inner()
-            .map_err(|e| unfinished(e.error().to_string()))?;
-        file.sync_all().map_err(|e| unfinished(e.to_string()))?;
         std::fs::rename(&partial, &path).map_err(|e| unfinished(e.to_string()))?;
+        // The rename itself is durable once the folder is.
+        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+            if let Ok(d) = File::open(dir) {
+                let _ = d.sync_all();
+            }
+        }
         Ok(summary)
     }
 
     /// Writes the summary and footer but leaves the file under its temporary name (the
     /// run failed: the output stays as it was); returns that name.
-    pub fn finish_partial(mut self) -> Result<PathBuf, RecordingError> {
+    pub fn finish_partial(self) -> Result<PathBuf, RecordingError> {
+        let partial = self.partial.clone();
+        self.complete()?;
+        Ok(partial)
+    }
+
+    /// Writes the summary and footer and makes the file durable, under its temporary
+    /// name.
+    fn complete(mut self) -> Result<(), RecordingError> {
         if let Some(reason) = self.failed.take() {
             return Err(self.failure(reason));
         }
         if let Err(e) = self.writer.finish() {
             return Err(self.failure(e.to_string()));
         }
-        Ok(self.partial.clone())
+        let failure = |reason: String| RecordingError::Unfinished {
+            path: self.path.clone(),
+            partial: self.partial.clone(),
+            reason,
+        };
+        let file = self
+            .writer
+            .into_inner()
+            .into_inner()
+            .map_err(|e| failure(e.error().to_string()))?;
+        file.sync_all().map_err(|e| failure(e.to_string()))
     }
 
     /// Drops the recording: nothing of value was written; the temporary file is removed
@@ -408,7 +422,8 @@ pub struct RecordingReader<R = File> {
     channels: BTreeMap<u16, (String, u16)>,
     schemas: BTreeMap<u16, String>,
     messages: u64,
-    records: u64,
+    /// Whether the first record (an MCAP header) has been read.
+    seen_header: bool,
     /// Bytes handed to the MCAP reader so far (it asks for what it needs, no more).
     fed: u64,
     max_record_bytes: usize,
@@ -492,7 +507,7 @@ impl<R: Read + Seek> RecordingReader<R> {
             channels: BTreeMap::new(),
             schemas: BTreeMap::new(),
             messages: 0,
-            records: 0,
+            seen_header: false,
             fed: 0,
             max_record_bytes,
             done: false,
@@ -522,15 +537,9 @@ impl<R: Read + Seek> RecordingReader<R> {
         if self.done {
             return None;
         }
-        // The mcap crate checks its input, but a parser of outside data may still panic
-        // on a case nobody thought of: that is a corrupt file, not the end of the process.
-        // (In release builds the crate's arithmetic wraps instead; an overflow there found
-        // by fuzzing, at `linear_reader.rs:745`, then ends reading with an error too.)
-        let result = crate::error::contain_panics(|| self.advance()).unwrap_or_else(|panic| {
-            Some(Err(self.corrupt(format!(
-                "the MCAP reader failed on this record ({panic})"
-            ))))
-        });
+        // The mcap crate's calls are contained (`reader_failed`): a panic there is a
+        // corrupt file, not the end of the process.
+        let result = self.advance();
         if !matches!(result, Some(Ok(_))) {
             self.done = true;
         }
@@ -539,9 +548,13 @@ impl<R: Read + Seek> RecordingReader<R> {
 
     fn advance(&mut self) -> Option<Result<RecordedMessage, RecordingError>> {
         loop {
-            let event = match self.reader.next_event()? {
-                Ok(e) => e,
-                Err(e) => return Some(Err(self.classify(e))),
+            let reader = &mut self.reader;
+            let event = match crate::error::contain_panics(move || reader.next_event()) {
+                Ok(next) => match next? {
+                    Ok(e) => e,
+                    Err(e) => return Some(Err(self.classify(e))),
+                },
+                Err(panic) => return Some(Err(self.reader_failed(panic))),
             };
             match event {
                 LinearReadEvent::ReadRequest(need) => {
@@ -560,16 +573,20 @@ impl<R: Read + Seek> RecordingReader<R> {
                     }
                 }
                 LinearReadEvent::Record { opcode, data } => {
-                    let record = match mcap::parse_record(opcode, data) {
-                        Ok(r) => r,
-                        Err(e) => return Some(Err(self.corrupt(e.to_string()))),
-                    };
-                    self.records += 1;
-                    if self.records == 1 && !matches!(record, Record::Header(_)) {
-                        return Some(Err(RecordingError::NotMcap {
-                            path: self.path.clone(),
-                            reason: "its first record is not an MCAP header".into(),
-                        }));
+                    let record =
+                        match crate::error::contain_panics(|| mcap::parse_record(opcode, data)) {
+                            Ok(Ok(r)) => r,
+                            Ok(Err(e)) => return Some(Err(self.corrupt(e.to_string()))),
+                            Err(panic) => return Some(Err(self.reader_failed(panic))),
+                        };
+                    if !self.seen_header {
+                        if !matches!(record, Record::Header(_)) {
+                            return Some(Err(RecordingError::NotMcap {
+                                path: self.path.clone(),
+                                reason: "its first record is not an MCAP header".into(),
+                            }));
+                        }
+                        self.seen_header = true;
                     }
                     match record {
                         Record::Schema { header, .. } => {
@@ -603,6 +620,13 @@ impl<R: Read + Seek> RecordingReader<R> {
                 }
             }
         }
+    }
+
+    /// The `mcap` crate panicked on this record (its arithmetic overflows on some
+    /// malformed chunks: found by fuzzing, `linear_reader.rs:745`; release builds wrap and
+    /// then fail further on): a corrupt file.
+    fn reader_failed(&self, panic: String) -> RecordingError {
+        self.corrupt(format!("the MCAP reader failed on this record ({panic})"))
     }
 
     /// What a failure of the MCAP reader means: the file cut short, or corrupt.

@@ -159,6 +159,20 @@ impl<'a> FrameMaps<'a> {
     }
 }
 
+/// A frame [`WindowEstimator::check_frame`] found well formed (sizes agree, every score
+/// finite), and whether it holds evidence of someone (a positive score).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct CheckedFrame {
+    evidence: bool,
+}
+
+impl CheckedFrame {
+    /// True if some score is positive.
+    pub fn has_evidence(&self) -> bool {
+        self.evidence
+    }
+}
+
 /// Where a track stands.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -208,7 +222,8 @@ pub struct StreamCounters {
     /// Frames without evidence (no positive score in any map): no estimate; they count
     /// as dropped frames.
     pub empty: u64,
-    /// Frames missing from the numbering within a track (dropped upstream).
+    /// Frames missing from the numbering within a track (dropped upstream; frames that
+    /// came without evidence are counted in `empty` instead).
     pub missing: u64,
     /// Tracks ended by a gap or a restart.
     pub resets: u64,
@@ -341,6 +356,8 @@ pub struct WindowEstimator {
     anchor: Option<FrameFit>,
     maps: MapRing,
     last: Option<(u64, i64)>,
+    /// Frames without evidence since the last frame taken (not counted as missing).
+    empty_since_last: u64,
     counters: StreamCounters,
     // Buffers.
     obs: Observations,
@@ -379,6 +396,7 @@ impl WindowEstimator {
             anchor: None,
             maps: MapRing::default(),
             last: None,
+            empty_since_last: 0,
             counters: StreamCounters::default(),
             obs: Observations::default(),
             one: Observations::new(p, vec![0.0; 2 * p]),
@@ -431,25 +449,45 @@ impl WindowEstimator {
         frame: &FrameMaps<'_>,
         out: &mut Vec<FrameEstimate>,
     ) -> Result<(), EstimateError> {
-        let evidence = match self.check(frame) {
-            Ok(evidence) => evidence,
+        let checked = self.check_frame(frame)?;
+        self.push_checked(frame, checked, out);
+        Ok(())
+    }
+
+    /// Checks a frame's sizes and values, as [`WindowEstimator::push`] does first: a
+    /// malformed frame is counted and returned as an error, nothing else changes. For a
+    /// caller that must know a frame is good before acting on it (the node ends a track
+    /// only for a good frame of another track).
+    pub fn check_frame(&mut self, frame: &FrameMaps<'_>) -> Result<CheckedFrame, EstimateError> {
+        match self.check(frame) {
+            Ok(evidence) => Ok(CheckedFrame { evidence }),
             Err(e) => {
                 self.counters.malformed += 1;
-                return Err(e);
+                Err(e)
             }
-        };
-        if !evidence {
+        }
+    }
+
+    /// [`WindowEstimator::push`] of a frame [`WindowEstimator::check_frame`] passed.
+    pub fn push_checked(
+        &mut self,
+        frame: &FrameMaps<'_>,
+        checked: CheckedFrame,
+        out: &mut Vec<FrameEstimate>,
+    ) {
+        if !checked.evidence {
             // Nothing seen: no estimate, and the frame counts as dropped (a long run of
-            // them ends the track as a gap does).
+            // them ends the track as a gap does), though not as missing.
             self.counters.empty += 1;
-            return Ok(());
+            self.empty_since_last += 1;
+            return;
         }
         if let Some((seq, stamp)) = self.last {
             let late =
                 frame.sequence <= seq && seq - frame.sequence <= self.settings.max_gap_frames;
             if late {
                 self.counters.late += 1;
-                return Ok(());
+                return;
             }
             let gap_seconds = frame.stamp_ns.abs_diff(stamp) as f64 * 1e-9;
             let restart = frame.sequence < seq
@@ -459,9 +497,11 @@ impl WindowEstimator {
                 self.counters.resets += 1;
                 self.finish(out);
             } else {
-                self.counters.missing += frame.sequence - seq - 1;
+                self.counters.missing +=
+                    (frame.sequence - seq - 1).saturating_sub(self.empty_since_last);
             }
         }
+        self.empty_since_last = 0;
         let geometry = (frame.height, frame.width);
         if (self.maps.height, self.maps.width) != geometry {
             // Maps of another size: the detector changed; the track ends here.
@@ -490,7 +530,6 @@ impl WindowEstimator {
         if self.settings.outputs != Outputs::Lagged {
             out.push(self.estimate(newest, state));
         }
-        Ok(())
     }
 
     /// Ends the track: appends the lagged estimates still owed (state
@@ -516,6 +555,15 @@ impl WindowEstimator {
         self.maps.clear();
         self.since_window = 0;
         self.last = None;
+        self.empty_since_last = 0;
+    }
+
+    /// A new window over the same estimator and settings, keeping only the counters: for
+    /// starting again after a failure left this one's state in doubt.
+    pub fn fresh(&self) -> Result<Self, EstimateError> {
+        let mut window = Self::new(self.estimator.clone(), self.settings.clone())?;
+        window.counters = self.counters;
+        Ok(window)
     }
 
     /// Checks a frame's sizes and values; true if any score is positive (the frame has

@@ -219,10 +219,13 @@ fn a_killed_estimator_restarts_on_a_clean_track_and_iceoryx2_reclaims_its_resour
         "the killed estimator left its iceoryx2 node behind"
     );
     // The restart: a new node reclaims the dead one's resources.
-    let second_estimator = spawn(&["estimator", "--config", s(&c2), "--duration", "4", "--json"]);
+    let second_estimator = spawn(&["estimator", "--config", s(&c2), "--json"]);
     let detector = detector.wait_with_output().expect("detector");
     assert!(detector.status.success());
     assert_eq!(json_of(&detector)["published"], 121);
+    // The last frames reach the estimator, then Ctrl-C stops it.
+    std::thread::sleep(Duration::from_millis(1000));
+    signal(&second_estimator, "-INT");
     let second_run = second_estimator.wait_with_output().expect("estimator");
     assert!(second_run.status.success());
     assert_eq!(
@@ -241,13 +244,14 @@ fn a_killed_estimator_restarts_on_a_clean_track_and_iceoryx2_reclaims_its_resour
     // It picked up the stream where it was: a new track, from its first frame on.
     assert!(newest.len() > 40, "{} frames", newest.len());
     assert_eq!(newest[0].state, SkeletonState::Initialising as u8);
-    assert!(newest[0].sequence > 20, "it joined mid-stream");
+    assert!(newest[0].sequence > 10, "it joined mid-stream");
     assert_eq!(newest.last().map(|s| s.sequence), Some(120));
     // The killed estimator's recording is in its `.partial` file, readable.
     let partial = partials(dir.path());
     assert_eq!(partial.len(), 1, "{partial:?}");
     let (n, _) = complete_messages(&partial[0]);
-    println!("the killed estimator left {n} complete messages");
+    assert!(n > 0, "the killed estimator's flushed chunks are kept");
+    assert_eq!(python_count(&partial[0]), n);
 }
 
 #[test]
@@ -323,14 +327,7 @@ fn the_estimator_ends_the_track_when_its_detector_goes_away_and_takes_the_next_o
     let out = dir.path().join("estimator.mcap");
     let est = ros2_config(dir.path(), "estimator.toml", domain, Some(&out));
     let det = ros2_config(dir.path(), "detector.toml", domain, None);
-    let estimator = spawn(&[
-        "estimator",
-        "--config",
-        s(&est),
-        "--duration",
-        "14",
-        "--json",
-    ]);
+    let estimator = spawn(&["estimator", "--config", s(&est), "--json"]);
     std::thread::sleep(Duration::from_millis(1000));
     let detector_args = [
         "detector",
@@ -350,6 +347,9 @@ fn the_estimator_ends_the_track_when_its_detector_goes_away_and_takes_the_next_o
     std::thread::sleep(Duration::from_millis(2000));
     let second = spawn(&detector_args).wait_with_output().expect("waits");
     assert!(second.status.success());
+    // The last frames reach the estimator, then Ctrl-C stops it.
+    std::thread::sleep(Duration::from_millis(2000));
+    signal(&estimator, "-INT");
     let run = estimator.wait_with_output().expect("waits");
     assert!(run.status.success());
     let report = json_of(&run);
@@ -395,7 +395,7 @@ fn a_hostile_participant_cannot_stop_a_good_track_or_grow_the_estimator() {
                     "--config",
                     s(&est),
                     "--duration",
-                    "9",
+                    "12",
                     "--json",
                 ],
                 &[],
@@ -464,10 +464,7 @@ fn a_hostile_participant_cannot_stop_a_good_track_or_grow_the_estimator() {
     assert!(peak_kb < 200 * 1024, "peak {} MB", peak_kb / 1024);
     let stderr = String::from_utf8_lossy(&run.stderr);
     // One warning per kind of refusal, not one per message (DDS's own warnings aside).
-    let warnings = stderr
-        .lines()
-        .filter(|l| l.contains("refused a message"))
-        .count();
+    let warnings = stderr.lines().filter(|l| l.contains("refused (")).count();
     let kinds = report["refused"].as_object().expect("kinds").len();
     assert_eq!(warnings, kinds, "{stderr}");
 }
@@ -576,7 +573,7 @@ fn a_soak_of_100000_frames_keeps_memory_flat_and_the_counters_consistent() {
         .filter(|(t, _)| *t > 5.0)
         .map(|(_, kb)| *kb)
         .collect();
-    assert!(warm.len() > 10, "{samples:?}");
+    assert!(warm.len() >= 3, "{samples:?}");
     let (start, end) = (warm[0], *warm.last().expect("samples"));
     let max = *warm.iter().max().expect("samples");
     println!(

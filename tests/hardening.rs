@@ -197,7 +197,7 @@ fn huge_frame(side: u32) -> HeatMaps {
 }
 
 #[test]
-fn frames_beyond_the_limits_are_refused_before_anything_is_allocated() {
+fn frames_beyond_the_limits_are_refused_within_the_memory_budget() {
     let dir = tempfile::tempdir().expect("tempdir");
     let recording_with = |side: u32| {
         let input = dir.path().join(format!("huge-{side}.mcap"));
@@ -478,7 +478,7 @@ fn refused_frames_do_not_keep_an_idle_track_alive() {
             // Frames the node refuses (another joint layout), for longer than the gap.
             let mut wrong = all[20].1.clone();
             wrong.joint_names.reverse();
-            for _ in 0..16 {
+            for _ in 0..30 {
                 std::thread::sleep(Duration::from_millis(60));
                 sink.send(&wrong, 0).expect("send");
             }
@@ -490,7 +490,7 @@ fn refused_frames_do_not_keep_an_idle_track_alive() {
             drop(sink);
         });
         let report = run_estimator(&mut node, &mut source, &mut outputs, &stop);
-        assert_eq!(report.malformed, 16);
+        assert_eq!(report.malformed, 30);
         assert_eq!(
             report.counters.tracks, 2,
             "the idle track ended while only refused frames arrived"
@@ -751,33 +751,90 @@ fn huge_crop_boxes_never_give_non_finite_skeletons() {
 
 #[test]
 fn frames_without_evidence_are_not_tracking() {
+    // Frames 10..15 of 30 have nothing in their maps (a gap the track survives).
+    let empty = |i: usize| (10..15).contains(&i);
     let mut node = EstimatorNode::from_config(&config().estimator).expect("node");
     let mut out = Vec::new();
-    for (_, m) in frames("byebye.mcap").iter().take(30) {
+    let all = frames("byebye.mcap");
+    for (i, (_, m)) in all.iter().take(30).enumerate() {
         let mut m = m.clone();
-        m.quantized_values.iter_mut().for_each(|v| *v = 0);
-        let _ = node.handle(&m, &mut out);
+        if empty(i) {
+            m.quantized_values.iter_mut().for_each(|v| *v = 0);
+        }
+        node.handle(&m, &mut out).expect("not refused");
     }
     node.finish(&mut out);
+    let empty_sequences: Vec<u64> = all[10..15].iter().map(|(_, m)| m.sequence).collect();
+    assert!(
+        out.iter().all(|s| !empty_sequences.contains(&s.sequence)),
+        "an estimate of a frame without evidence"
+    );
     assert!(
         out.iter()
-            .all(|s| s.state != msgs::SkeletonState::Tracking as u8),
-        "{} skeletons said they were tracking nothing",
-        out.len()
+            .any(|s| s.state == msgs::SkeletonState::Tracking as u8)
     );
-    assert_eq!(node.counters().empty, 30);
+    let c = node.counters();
+    assert_eq!(
+        (c.empty, c.missing, c.frames, c.tracks),
+        (5, 0, 25, 1),
+        "{c:?}"
+    );
     let dir = tempfile::tempdir().expect("tempdir");
-    let (skeletons, r) = replay_changed(dir.path(), "zero", |_, m| {
-        m.quantized_values.iter_mut().for_each(|v| *v = 0);
+    let (skeletons, r) = replay_changed(dir.path(), "zero", |i, m| {
+        if empty(i) {
+            m.quantized_values.iter_mut().for_each(|v| *v = 0);
+        }
     });
+    assert!(!skeletons.is_empty());
     assert!(
         skeletons
             .iter()
-            .all(|s| s.state != msgs::SkeletonState::Tracking as u8),
-        "{} skeletons said they were tracking nothing",
-        skeletons.len()
+            .all(|s| !empty_sequences.contains(&s.sequence)),
+        "the binary estimated a frame without evidence"
     );
-    assert_eq!(r.report()["counters"]["empty"], 30);
+    assert_eq!(r.report()["counters"]["empty"], 5);
+}
+
+#[test]
+fn a_refused_frame_of_another_track_does_not_end_the_current_one() {
+    let mut node = EstimatorNode::from_config(&config().estimator).expect("node");
+    let mut out = Vec::new();
+    for (i, (_, m)) in frames("byebye.mcap").iter().take(40).enumerate() {
+        let mut m = m.clone();
+        if i == 20 {
+            // Another track id, and a non-finite score: refused, and nothing else.
+            m.track_id = 7;
+            let mut values = Vec::new();
+            m.values_into(&mut values).expect("values");
+            values[3] = f32::NAN;
+            m.encoding = 0;
+            m.values = values;
+            assert!(node.handle(&m, &mut out).is_err());
+        } else {
+            node.handle(&m, &mut out).expect("good frame");
+        }
+    }
+    assert_eq!(node.counters().tracks, 1);
+    assert!(
+        out.iter()
+            .all(|s| s.state != msgs::SkeletonState::Lost as u8)
+    );
+}
+
+#[test]
+fn the_regression_recordings_of_the_fuzzer_are_one_error() {
+    // In release builds the `mcap` crate's arithmetic wraps where the fuzzer (with
+    // overflow checks) saw a panic: the file must still end as a corrupt one.
+    let dir = common::root().join("fuzz/regressions/mcap");
+    let mut n = 0;
+    for entry in std::fs::read_dir(dir).expect("regressions") {
+        let path = entry.expect("entry").path();
+        let r = run(&["replay", s(&path)]);
+        assert_eq!(r.code, Some(1), "{}: {}", path.display(), r.stderr);
+        assert_eq!(r.stderr.lines().count(), 1, "{}", r.stderr);
+        n += 1;
+    }
+    assert!(n > 0);
 }
 
 #[test]
@@ -970,4 +1027,32 @@ fn dictionaries_written_by_scipy_savemat_load() {
         s(&out),
     ]);
     assert_eq!(r.code, Some(0), "{}", r.stderr);
+}
+
+#[test]
+fn a_short_recording_played_again_is_a_new_track_each_pass() {
+    // 5 frames: fewer than max_gap_frames, so without a new track each pass the second
+    // pass would look like late frames of the first.
+    let dir = tempfile::tempdir().expect("tempdir");
+    let input = dir.path().join("short.mcap");
+    write_raw(&input, &encoded(&frames("byebye.mcap")[..5]), 1000);
+    let r = run(&[
+        "run",
+        "--recording",
+        s(&input),
+        "--repeat",
+        "3",
+        "--rate",
+        "fast",
+        "--ros2",
+        "false",
+        "--json",
+    ]);
+    assert_eq!(r.code, Some(0), "{}", r.stderr);
+    let report = r.report();
+    let e = &report["estimator"];
+    assert_eq!(e["counters"]["frames"], 15, "{report}");
+    assert_eq!(e["counters"]["tracks"], 3, "{report}");
+    assert_eq!(e["counters"]["late"], 0, "{report}");
+    assert_eq!(e["skeletons"], 30, "{report}");
 }

@@ -103,6 +103,8 @@ pub fn heatmaps_cdr(data: &[u8]) {
         out.iter().all(Skeleton3D::is_finite),
         "a non-finite skeleton"
     );
+    // The node catches panics to go on; here any one is a failure.
+    assert_eq!(node.refused().of("panic"), 0, "a panic inside the node");
 }
 
 /// A `posestream_msgs/Skeleton3D` message: decoded, put into a shared-memory sample and
@@ -176,8 +178,9 @@ pub fn shm_sample(data: &[u8]) {
             .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
             .collect();
         if let Ok(m) = heatmaps_from_sample(&h, &payload, &Limits::default()) {
-            let mut out = Vec::new();
-            let _ = node().handle(&m, &mut out);
+            let mut node = node();
+            let _ = node.handle(&m, &mut Vec::new());
+            assert_eq!(node.refused().of("panic"), 0, "a panic inside the node");
         }
     } else {
         let mut s = SkeletonSample::from_message(&Skeleton3D::default()).expect("empty sample");

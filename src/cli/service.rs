@@ -227,13 +227,28 @@ pub fn detector(args: &DetectorArgs) -> Result<(), CliError> {
     let mut report = run_detector(&mut source, &mut sinks, rate, &stop);
     report.images = service::DetectorInput::stats_now(&stats);
     drop(sinks);
-    let finished = recorder.map(|r| r.finish()).transpose();
+    let concluded = conclude(recorder, report.input_error.as_deref());
     print(args.json, &report)?;
-    finished?;
-    match report.input_error {
-        Some(e) => Err(err(e)),
-        None => Ok(()),
+    concluded
+}
+
+/// Finishes the output recording, if any, after the service's loop ended: in place if
+/// the input held; if it broke, left under its temporary name, named in the one error
+/// (exit 1), so that a failed run replaces no existing output.
+fn conclude(recorder: Option<SharedRecorder>, input_error: Option<&str>) -> Result<(), CliError> {
+    match (input_error, recorder) {
+        (None, Some(r)) => r.finish().map(|_| ())?,
+        (None, None) => {}
+        (Some(e), None) => return Err(err(e)),
+        (Some(e), Some(r)) => {
+            let kept = r.finish_partial()?;
+            return Err(err(format!(
+                "{e}; what was recorded before is in {}",
+                kept.display()
+            )));
+        }
     }
+    Ok(())
 }
 
 /// Options of `estimator`.
@@ -268,10 +283,9 @@ pub fn estimator(args: &EstimatorArgs) -> Result<(), CliError> {
     stop_after(args.duration, &stop);
     let report = run_estimator(&mut node, &mut source, &mut outputs, &stop);
     drop(outputs);
-    let finished = recorder.map(|r| r.finish()).transpose();
+    let concluded = conclude(recorder, report.input_error.as_deref());
     print(args.json, &report)?;
-    finished?;
-    Ok(())
+    concluded
 }
 
 /// Sets `stop` after `seconds`, if given.

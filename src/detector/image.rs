@@ -22,7 +22,7 @@ use serde::{Deserialize, Serialize};
 use super::crop::{box_from_alignment, crop_input, squared, whole_image_box};
 use super::mapping::{ChannelMapping, MappingError};
 use crate::camera::CropBox;
-use crate::error::{OutOfDomain, check_range, check_real};
+use crate::error::{OutOfDomain, check_real};
 use crate::images::ImageFrame;
 use crate::models::landmarks::{HEATMAP_SIZE, INPUT_SIZE, LandmarkNetwork, NetworkError};
 use crate::models::person::{INPUT_SIZE as PERSON_INPUT, PersonNetwork};
@@ -129,7 +129,13 @@ impl ImageSettings {
             false,
         )?;
         check_topic_name("topic", &self.topic)?;
-        check_range("frame_id bytes", self.frame_id.len(), 0, FRAME_ID_BYTES)?;
+        if self.frame_id.len() > FRAME_ID_BYTES {
+            return Err(OutOfDomain::new(
+                "frame_id",
+                format!("at most {FRAME_ID_BYTES} bytes"),
+                format!("{:?}", self.frame_id),
+            ));
+        }
         self.person_box().map_err(|_| {
             OutOfDomain::new(
                 "person_box",

@@ -3,6 +3,7 @@
 //! skipped; the frame numbers of the others stay those of their place in the folder, so
 //! the estimator sees the gap.
 
+use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
@@ -92,16 +93,17 @@ impl Source<ImageFrame> for FolderSource {
             topic: self.folder.display().to_string(),
             reason: format!("{name}: {reason}"),
         };
-        let size = std::fs::metadata(path)
-            .map_err(|e| malformed(e.to_string()))?
-            .len();
-        if size > self.limits.max_record_bytes as u64 {
+        // Read through a bound: the file may grow while it is read.
+        let limit = self.limits.max_record_bytes as u64;
+        let mut bytes = Vec::new();
+        std::fs::File::open(path)
+            .and_then(|f| f.take(limit + 1).read_to_end(&mut bytes))
+            .map_err(|e| malformed(e.to_string()))?;
+        if bytes.len() as u64 > limit {
             return Err(malformed(format!(
-                "{size} bytes, beyond limits.max_record_bytes = {}",
-                self.limits.max_record_bytes
+                "more than limits.max_record_bytes = {limit} bytes"
             )));
         }
-        let bytes = std::fs::read(path).map_err(|e| malformed(e.to_string()))?;
         let rgb = super::decode_bytes(&bytes, &self.limits).map_err(malformed)?;
         Ok(ImageFrame::from_file(
             index,

@@ -163,19 +163,7 @@ impl ServiceConfig {
             check_topic_name(key, topic).map_err(|x| x.within("topics"))?;
         }
         self.ros.check().map_err(|x| x.within("ros"))?;
-        for (key, name) in [
-            ("skeletons", &self.iceoryx2.skeletons),
-            ("heatmaps", &self.iceoryx2.heatmaps),
-        ] {
-            if name.is_empty() || name.len() > 255 || name.contains('\0') {
-                return Err(OutOfDomain::new(
-                    key,
-                    "a service name of 1 to 255 bytes",
-                    format!("{name:?}"),
-                )
-                .within("iceoryx2"));
-            }
-        }
+        self.iceoryx2.check().map_err(|x| x.within("iceoryx2"))?;
         self.limits.check().map_err(|x| x.within("limits"))?;
         Ok(())
     }

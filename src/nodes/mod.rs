@@ -25,6 +25,7 @@ use crate::limits::{LimitError, Limits};
 use crate::mocap::mapping::same_layout;
 use crate::msgs::{self, DecodeError, Header, Skeleton3D, Time, Units};
 use crate::streaming::{FrameEstimate, FrameMaps, StreamCounters, TrackState, WindowEstimator};
+use crate::transport::TransportError;
 
 pub use config::ServiceConfig;
 
@@ -60,12 +61,12 @@ pub enum NodeError {
         /// The cause.
         source: EstimateError,
     },
-    /// Handling the frame panicked (a bug): the frame is dropped and the track reset,
-    /// since its state may be inconsistent.
-    #[error("frame {sequence}: internal error ({message}); the track was reset")]
+    /// Handling a frame, or ending a track, panicked (a bug): the frame is dropped and
+    /// the track reset, since its state may be inconsistent.
+    #[error("{during}: internal error ({message}); the track was reset")]
     Panic {
-        /// The frame.
-        sequence: u64,
+        /// What was being done (`frame 12`, `ending a track`).
+        during: String,
         /// The panic's message.
         message: String,
     },
@@ -85,7 +86,11 @@ impl NodeError {
             Self::Decode(_) => "undecodable",
             Self::Joints { .. } => "joints",
             Self::Limit { .. } => "beyond-limits",
-            Self::Estimate { .. } => "rejected",
+            Self::Estimate {
+                source: EstimateError::NonFinite { .. },
+                ..
+            } => "non-finite",
+            Self::Estimate { .. } => "inconsistent",
             Self::Panic { .. } => "panic",
             Self::NonFiniteOutput { .. } => "non-finite-output",
         }
@@ -126,10 +131,10 @@ impl Refusals {
         *n += 1;
         if *n == 1 {
             tracing::warn!(
-                "refused a message ({kind}): {what} (further ones of this kind are counted, not logged)"
+                "refused ({kind}): {what} (further ones of this kind are counted, not logged)"
             );
         } else {
-            tracing::debug!("refused a message ({kind}): {what}");
+            tracing::debug!("refused ({kind}): {what}");
         }
     }
 
@@ -219,9 +224,14 @@ impl EstimatorNode {
         &self.refused
     }
 
-    /// Counts a message the transport could not decode (it never reached the node).
-    pub fn count_malformed(&mut self, error: &dyn std::fmt::Display) {
-        self.refused.note("undecodable", error);
+    /// Counts a message the transport refused before it reached the node: one it could
+    /// not decode, or one beyond the limits (an iceoryx2 sample).
+    pub fn count_refused(&mut self, error: &TransportError) {
+        let kind = match error {
+            TransportError::BeyondLimits { .. } => "beyond-limits",
+            _ => "undecodable",
+        };
+        self.refused.note(kind, error);
     }
 
     /// The window's settings.
@@ -258,20 +268,39 @@ impl EstimatorNode {
         msg: &msgs::HeatMaps,
         out: &mut Vec<Skeleton3D>,
     ) -> Result<(), NodeError> {
-        let handled = std::panic::catch_unwind(AssertUnwindSafe(|| self.handle_inner(msg, out)));
-        let result = handled.unwrap_or_else(|payload| {
-            // The window may be half-updated: start again from the next frame.
-            self.window.reset();
-            self.frames.clear();
-            Err(NodeError::Panic {
-                sequence: msg.sequence,
-                message: panic_message(payload.as_ref()),
-            })
-        });
+        let result = self
+            .isolated(out, |node, out| node.handle_inner(msg, out))
+            .unwrap_or_else(|message| {
+                Err(NodeError::Panic {
+                    during: format!("frame {}", msg.sequence),
+                    message,
+                })
+            });
         if let Err(e) = &result {
             self.refused.note(e.kind(), e);
         }
         result
+    }
+
+    /// Runs `f` behind the node's boundary: should it panic (a bug), the messages it
+    /// added to `out` are dropped, the window is replaced by a fresh one (its state may be
+    /// inconsistent) and the panic's message is returned.
+    fn isolated<T>(
+        &mut self,
+        out: &mut Vec<Skeleton3D>,
+        f: impl FnOnce(&mut Self, &mut Vec<Skeleton3D>) -> T,
+    ) -> Result<T, String> {
+        let before = out.len();
+        let caught = std::panic::catch_unwind(AssertUnwindSafe(|| f(self, out)));
+        caught.map_err(|payload| {
+            out.truncate(before);
+            self.frames.clear();
+            match self.window.fresh() {
+                Ok(window) => self.window = window,
+                Err(_) => self.window.reset(),
+            }
+            crate::error::panic_text(payload.as_ref())
+        })
     }
 
     fn handle_inner(
@@ -305,30 +334,52 @@ impl EstimatorNode {
         }
         let crop: CropBox = msg.crop()?;
         msg.values_into(&mut self.values)?;
-        // Another person (the detector lost its track and found one again): the old
-        // track ends here, its owed estimates first.
-        if msg.track_id != self.track_id && !self.window.is_empty() {
-            self.estimates.clear();
-            self.window.finish(&mut self.estimates);
-            self.release(out);
-            self.frames.clear();
-        }
+        // The scores are lent out while the window and the outputs change.
+        let values = std::mem::take(&mut self.values);
+        let result = self.push(msg, crop, &values, out);
+        self.values = values;
+        result
+    }
+
+    /// Checks the frame, ends the current track if a good frame of another one came,
+    /// and pushes the frame into the window.
+    fn push(
+        &mut self,
+        msg: &msgs::HeatMaps,
+        crop: CropBox,
+        values: &[f32],
+        out: &mut Vec<Skeleton3D>,
+    ) -> Result<(), NodeError> {
         let frame = FrameMaps {
             sequence: msg.sequence,
             stamp_ns: msg.header.stamp.nanos(),
             height: msg.height as usize,
             width: msg.width as usize,
-            values: &self.values,
+            values,
         };
-        self.track_id = msg.track_id;
-        self.estimates.clear();
-        let accepted_before = self.window.counters().frames;
-        self.window
-            .push(&frame, &mut self.estimates)
+        let checked = self
+            .window
+            .check_frame(&frame)
             .map_err(|source| NodeError::Estimate {
                 sequence: msg.sequence,
                 source,
             })?;
+        // Another person (the detector lost its track and found one again): the old
+        // track ends here, its owed estimates first. Only a well-formed frame with
+        // evidence can end a track.
+        if checked.has_evidence() && msg.track_id != self.track_id {
+            if !self.window.is_empty() {
+                self.estimates.clear();
+                self.window.finish(&mut self.estimates);
+                self.release(out);
+                self.frames.clear();
+            }
+            self.track_id = msg.track_id;
+        }
+        self.estimates.clear();
+        let accepted_before = self.window.counters().frames;
+        self.window
+            .push_checked(&frame, checked, &mut self.estimates);
         // Only frames the window accepted are remembered (not late ones).
         if self.window.counters().frames > accepted_before {
             self.frames.push_back(FrameInfo {
@@ -346,12 +397,22 @@ impl EstimatorNode {
         self.window.counters().frames
     }
 
-    /// Ends the stream: the estimates still owed.
+    /// Ends the stream: the estimates still owed. Behind the same boundary as
+    /// [`EstimatorNode::handle`]: a panic is counted and logged, and the track dropped.
     pub fn finish(&mut self, out: &mut Vec<Skeleton3D>) {
-        self.estimates.clear();
-        self.window.finish(&mut self.estimates);
-        self.release(out);
-        self.frames.clear();
+        let finished = self.isolated(out, |node, out| {
+            node.estimates.clear();
+            node.window.finish(&mut node.estimates);
+            node.release(out);
+            node.frames.clear();
+        });
+        if let Err(message) = finished {
+            let e = NodeError::Panic {
+                during: "ending a track".into(),
+                message,
+            };
+            self.refused.note(e.kind(), &e);
+        }
     }
 
     /// Turns the window's estimates into messages; forgets frames no estimate can
@@ -377,15 +438,6 @@ impl EstimatorNode {
             self.frames.pop_front();
         }
     }
-}
-
-/// The text of a panic's payload.
-fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
-    payload
-        .downcast_ref::<&str>()
-        .map(|s| s.to_string())
-        .or_else(|| payload.downcast_ref::<String>().cloned())
-        .unwrap_or_else(|| "a panic".into())
 }
 
 /// The message of one estimate.

@@ -130,7 +130,8 @@ fn missing(transport: &'static str) -> TransportError {
 /// the first failure of each sink is logged (a full disk under a recording fails every
 /// later write too), and the other sinks go on.
 pub struct Publishers<M> {
-    sinks: Vec<(String, Box<dyn Sink<M>>, u64)>,
+    /// Each sink with its name and whether a failure of it was logged.
+    sinks: Vec<(String, Box<dyn Sink<M>>, bool)>,
     /// Messages handed to every sink.
     pub sent: u64,
     /// Sends that failed (per sink).
@@ -150,7 +151,7 @@ impl<M> Default for Publishers<M> {
 impl<M> Publishers<M> {
     /// Adds a sink, named for the logs.
     pub fn add(&mut self, name: impl Into<String>, sink: Box<dyn Sink<M>>) {
-        self.sinks.push((name.into(), sink, 0));
+        self.sinks.push((name.into(), sink, false));
     }
 
     /// Sinks configured.
@@ -166,28 +167,28 @@ impl<M> Publishers<M> {
     /// Sends to every sink.
     pub fn publish(&mut self, message: &M, stamp_ns: u64) {
         self.sent += 1;
-        for (name, sink, failures) in &mut self.sinks {
+        for (name, sink, logged) in &mut self.sinks {
             if let Err(e) = sink.send(message, stamp_ns) {
                 self.failed += 1;
-                Self::failure(name, failures, &e);
+                Self::failure(name, logged, &e);
             }
         }
     }
 
     /// Flushes every sink.
     pub fn flush(&mut self) {
-        for (name, sink, failures) in &mut self.sinks {
+        for (name, sink, logged) in &mut self.sinks {
             if let Err(e) = sink.flush() {
                 self.failed += 1;
-                Self::failure(name, failures, &e);
+                Self::failure(name, logged, &e);
             }
         }
     }
 
-    fn failure(name: &str, failures: &mut u64, e: &TransportError) {
-        *failures += 1;
+    fn failure(name: &str, logged: &mut bool, e: &TransportError) {
         // A sink closed by an earlier failure (reported then) is only counted.
-        if *failures == 1 && !matches!(e, TransportError::Closed { .. }) {
+        if !*logged && !matches!(e, TransportError::Closed { .. }) {
+            *logged = true;
             tracing::warn!("{name}: {e} (further failures of this output are counted, not logged)");
         } else {
             tracing::debug!("{name}: {e}");
@@ -352,7 +353,9 @@ pub fn run_estimator(
                 }
             }
             Ok(Received::Closed) => break,
-            Err(e @ TransportError::Malformed { .. }) => node.count_malformed(&e),
+            Err(e @ (TransportError::Malformed { .. } | TransportError::BeyondLimits { .. })) => {
+                node.count_refused(&e)
+            }
             Err(e) => {
                 // Reported by the caller, from the report.
                 input_error = Some(e.to_string());
@@ -420,6 +423,7 @@ pub fn run_detector(
             Ok(Received::Idle) => {}
             Ok(Received::Closed) => break,
             Err(e @ TransportError::Malformed { .. }) => refused.note("undecodable", &e),
+            Err(e @ TransportError::BeyondLimits { .. }) => refused.note("beyond-limits", &e),
             Err(e) => {
                 // Reported by the caller, from the report.
                 input_error = Some(e.to_string());
@@ -464,13 +468,31 @@ pub fn detector_outputs(
 pub fn recording_source(
     config: &ServiceConfig,
     path: &Path,
-) -> Result<McapSource<HeatMaps>, TransportError> {
-    Ok(McapSource::open_with_limit(
-        path,
-        &config.topics.heatmaps,
-        config.limits.max_record_bytes,
-    )?
-    .repeat(config.detector.repeat))
+) -> Result<RecordedHeatMaps, TransportError> {
+    Ok(RecordedHeatMaps(
+        McapSource::open_with_limit(
+            path,
+            &config.topics.heatmaps,
+            config.limits.max_record_bytes,
+        )?
+        .repeat(config.detector.repeat),
+    ))
+}
+
+/// The heat maps of a recording, each pass of a repeated one a track of its own (its
+/// track ids offset by the pass), as a detector seeing the scene again would number it.
+pub struct RecordedHeatMaps(McapSource<HeatMaps>);
+
+impl Source<HeatMaps> for RecordedHeatMaps {
+    fn recv(&mut self, timeout: Duration) -> Result<Received<HeatMaps>, TransportError> {
+        Ok(match self.0.recv(timeout)? {
+            Received::Message(mut m, stamp) => {
+                m.track_id = m.track_id.wrapping_add(self.0.pass() as u32);
+                Received::Message(m, stamp)
+            }
+            other => other,
+        })
+    }
 }
 
 /// The detector node's input: heat maps from the configured source.

@@ -128,6 +128,8 @@ pub struct McapSource<M> {
     span: Option<(u64, u64)>,
     /// Whether this pass has yielded a message of the topic.
     yielded: bool,
+    /// Passes started before this one.
+    pass: u64,
     _message: PhantomData<fn() -> M>,
 }
 
@@ -160,14 +162,15 @@ impl<M: Message> McapSource<M> {
             offset_ns: 0,
             span: None,
             yielded: false,
+            pass: 0,
             _message: PhantomData,
         })
     }
 
     /// Plays the recording `times` times in all (0: forever), log times going on from
     /// one pass to the next (a pass starts one mean message interval after the last one
-    /// ended). Every pass starts the detector's numbering again, so the estimator sees a
-    /// new track.
+    /// ended); the messages themselves are as recorded ([`McapSource::pass`] tells which
+    /// pass they belong to).
     pub fn repeat(mut self, times: u64) -> Self {
         self.passes_left = times.checked_sub(1);
         self
@@ -199,7 +202,13 @@ impl<M: Message> McapSource<M> {
         self.offset_ns = self.offset_ns.saturating_add(last - first + interval);
         self.reader = Self::reader(&self.path, self.max_record_bytes)?;
         self.closed = false;
+        self.pass += 1;
         Ok(true)
+    }
+
+    /// The pass being played: 0 for the first.
+    pub fn pass(&self) -> u64 {
+        self.pass
     }
 
     /// Messages read from the file so far (all topics).
@@ -209,10 +218,10 @@ impl<M: Message> McapSource<M> {
 }
 
 impl<M: Message> Source<M> for McapSource<M> {
-    /// Never waits: the next message of the topic, or [`Received::Closed`] at the end
-    /// of the file. A file cut short yields every complete message, a warning, then
-    /// `Closed`; a corrupt one every message before the bad record, then one
-    /// [`TransportError::Broken`], then `Closed`.
+    /// Never waits: the next message of the topic, or [`Received::Closed`] after the
+    /// last pass. A file cut short yields every complete message, a warning, then the
+    /// next pass (or `Closed`); a corrupt one every message before the bad record, then
+    /// one [`TransportError::Broken`].
     fn recv(&mut self, _timeout: Duration) -> Result<Received<M>, TransportError> {
         loop {
             if let Some(got) = self.next_of_pass()? {

@@ -74,6 +74,17 @@ pub enum TransportError {
         /// The cause.
         reason: String,
     },
+    /// A message arrived that declares sizes beyond the configured limits; it was not
+    /// copied. The source can go on.
+    #[error("{transport}: message on {topic} refused: {reason}")]
+    BeyondLimits {
+        /// The backend.
+        transport: &'static str,
+        /// The topic or service.
+        topic: String,
+        /// What is beyond which limit.
+        reason: String,
+    },
     /// The sink failed earlier (the first failure was reported) and takes nothing more.
     #[error("{transport}: {topic} is closed after an earlier failure")]
     Closed {
@@ -107,8 +118,9 @@ pub trait Sink<M>: Send {
 
 /// Where messages of type `M` come from: a subscriber.
 pub trait Source<M>: Send {
-    /// Waits up to `timeout` for the next message. A [`TransportError::Malformed`]
-    /// message is skipped: the next call goes on with the one after it.
+    /// Waits up to `timeout` for the next message. A [`TransportError::Malformed`] or
+    /// [`TransportError::BeyondLimits`] message is skipped: the next call goes on with
+    /// the one after it.
     fn recv(&mut self, timeout: Duration) -> Result<Received<M>, TransportError>;
 }
 

@@ -106,13 +106,7 @@ impl RosSettings {
         // DDS maps domain ids to UDP ports: 232 is the largest that fits (ROS 2's range).
         check_range("domain_id", self.domain_id, 0, 232)?;
         check_range("qos.depth", self.qos.depth, 1, 10_000)?;
-        let token_ok = |t: &str| {
-            t.chars()
-                .next()
-                .is_some_and(|c| c.is_ascii_alphabetic() || c == '_')
-                && t.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
-        };
-        if !token_ok(&self.node_name) {
+        if !is_ros_token(&self.node_name) {
             return Err(OutOfDomain::new(
                 "node_name",
                 "a ROS name (letters, digits and _, not starting with a digit)",
@@ -126,18 +120,21 @@ impl RosSettings {
     }
 }
 
+/// A token of a ROS name: letters, digits and `_`, not starting with a digit.
+fn is_ros_token(t: &str) -> bool {
+    t.chars()
+        .next()
+        .is_some_and(|c| c.is_ascii_alphabetic() || c == '_')
+        && t.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
+}
+
 /// Checks that `name` is an absolute ROS 2 topic name: `/` then tokens of letters,
 /// digits and `_` (not starting with a digit) separated by single `/`.
 pub fn check_topic_name(key: &str, name: &str) -> Result<(), OutOfDomain> {
     let ok = name.len() <= 255
-        && name.strip_prefix('/').is_some_and(|rest| {
-            rest.split('/').all(|t| {
-                t.chars()
-                    .next()
-                    .is_some_and(|c| c.is_ascii_alphabetic() || c == '_')
-                    && t.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
-            })
-        });
+        && name
+            .strip_prefix('/')
+            .is_some_and(|rest| rest.split('/').all(is_ros_token));
     if ok {
         Ok(())
     } else {
@@ -389,14 +386,19 @@ impl<M: Message> Source<M> for Ros2Source<M> {
             if left.is_zero() {
                 return Ok(Received::Idle);
             }
-            // Edge-triggered: a wake-up means "something arrived since the last take".
-            self.poll
-                .poll(&mut self.events, Some(left))
-                .map_err(|e| TransportError::Broken {
-                    transport: TRANSPORT,
-                    topic: self.topic.clone(),
-                    reason: format!("poll: {e}"),
-                })?;
+            // Edge-triggered: a wake-up means "something arrived since the last take". A
+            // signal (Ctrl-C) interrupts the wait: take again, it is no broken input.
+            match self.poll.poll(&mut self.events, Some(left)) {
+                Ok(()) => {}
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) => {
+                    return Err(TransportError::Broken {
+                        transport: TRANSPORT,
+                        topic: self.topic.clone(),
+                        reason: format!("poll: {e}"),
+                    });
+                }
+            }
         }
     }
 }

@@ -50,6 +50,22 @@ pub struct ShmSettings {
     pub heatmaps: String,
 }
 
+impl ShmSettings {
+    /// Checks every value is in its domain; the error names the key (`[iceoryx2]`).
+    pub fn check(&self) -> Result<(), crate::error::OutOfDomain> {
+        for (key, name) in [("skeletons", &self.skeletons), ("heatmaps", &self.heatmaps)] {
+            if name.is_empty() || name.len() > 255 || name.contains('\0') {
+                return Err(crate::error::OutOfDomain::new(
+                    key,
+                    "a service name of 1 to 255 bytes",
+                    format!("{name:?}"),
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
 impl Default for ShmSettings {
     fn default() -> Self {
         Self {
@@ -147,6 +163,14 @@ fn broken(t: &'static str, topic: String, reason: String) -> TransportError {
 
 fn malformed(t: &'static str, topic: String, reason: String) -> TransportError {
     TransportError::Malformed {
+        transport: t,
+        topic,
+        reason,
+    }
+}
+
+fn beyond_limits(t: &'static str, topic: String, reason: String) -> TransportError {
+    TransportError::BeyondLimits {
         transport: t,
         topic,
         reason,
@@ -554,6 +578,17 @@ pub struct ShmHeatMapsSource {
     _service: HeatMapsService,
 }
 
+/// Why a shared-memory heat-map sample was not taken.
+#[derive(Debug, thiserror::Error)]
+pub enum SampleError {
+    /// Its header declares sizes beyond the limits.
+    #[error(transparent)]
+    Limit(#[from] crate::limits::LimitError),
+    /// Its header and payload disagree, or its names are not UTF-8.
+    #[error("{0}")]
+    Malformed(String),
+}
+
 /// The [`HeatMaps`] message of a shared-memory sample. The header's sizes are the
 /// publisher's claim: they are checked against `limits` (checked arithmetic) and
 /// against the payload's length before anything is copied.
@@ -561,30 +596,33 @@ pub fn heatmaps_from_sample(
     h: &HeatMapsHeader,
     payload: &[f32],
     limits: &Limits,
-) -> Result<HeatMaps, String> {
+) -> Result<HeatMaps, SampleError> {
     let joints = h.joints as usize;
     if joints > MAX_JOINTS {
-        return Err(format!("{joints} joints, at most {MAX_JOINTS}"));
+        return Err(SampleError::Malformed(format!(
+            "{joints} joints, at most {MAX_JOINTS}"
+        )));
     }
-    let expected = limits
-        .heatmap_values(u64::from(h.joints), u64::from(h.height), u64::from(h.width))
-        .map_err(|e| e.to_string())?;
+    let expected =
+        limits.heatmap_values(u64::from(h.joints), u64::from(h.height), u64::from(h.width))?;
     if payload.len() != expected {
-        return Err(format!(
+        return Err(SampleError::Malformed(format!(
             "{} scores for {joints} joints x {} x {}",
             payload.len(),
             h.height,
             h.width
-        ));
+        )));
     }
+    let names = unpack_names(&h.joint_names, joints).map_err(SampleError::Malformed)?;
+    let frame_id = unpack(&h.frame_id, "frame id").map_err(SampleError::Malformed)?;
     Ok(HeatMaps {
         header: Header {
             stamp: Time::from_nanos(h.stamp_ns),
-            frame_id: unpack(&h.frame_id, "frame id")?,
+            frame_id,
         },
         sequence: h.sequence,
         track_id: h.track_id,
-        joint_names: unpack_names(&h.joint_names, joints)?,
+        joint_names: names,
         height: h.height,
         width: h.width,
         crop_x: h.crop[0],
@@ -606,9 +644,11 @@ impl Source<HeatMaps> for ShmHeatMapsSource {
                 return Ok(None);
             };
             let h = sample.user_header();
-            heatmaps_from_sample(h, sample.payload(), limits)
-                .map(|m| Some((m, u64::try_from(h.stamp_ns).unwrap_or(0))))
-                .map_err(|e| error(&name, malformed, e))
+            match heatmaps_from_sample(h, sample.payload(), limits) {
+                Ok(m) => Ok(Some((m, u64::try_from(h.stamp_ns).unwrap_or(0)))),
+                Err(e @ SampleError::Limit(_)) => Err(error(&name, beyond_limits, e)),
+                Err(e) => Err(error(&name, malformed, e)),
+            }
         })?;
         Ok(match got {
             Some((m, stamp)) => Received::Message(m, stamp),
