@@ -583,3 +583,44 @@ fn a_soak_of_100000_frames_keeps_memory_flat_and_the_counters_consistent() {
     assert!(max < start + 8 * 1024, "grew from {start} to {max} kB");
     assert!(max < 200 * 1024);
 }
+
+/// VmHWM (peak resident memory) of a process, kB.
+fn peak_kb(pid: u32) -> Option<u64> {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    line.split_whitespace().nth(1)?.parse().ok()
+}
+
+#[test]
+fn a_hand_made_data_frag_cannot_make_the_estimator_allocate() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let domain = test_domain(3);
+    let est = ros2_config(dir.path(), "estimator.toml", domain, None);
+    let estimator = spawn(&["estimator", "--config", s(&est), "--json"]);
+    std::thread::sleep(Duration::from_millis(1500));
+    let before = resident_kb(estimator.id()).expect("running");
+    // Claims of 1 GiB and 4 GiB from a forged writer, to the heat-map reader and to a
+    // discovery reader; 1 GiB and 4 x 30 MiB from a writer the estimator has matched.
+    let attack = Command::new(python())
+        .arg(root().join("tests/python/rtps_datafrag.py"))
+        .args([&estimator.id().to_string(), &domain.to_string()])
+        .output()
+        .expect("the script runs (cyclonedds: .ci/run installs it)");
+    assert!(
+        attack.status.success(),
+        "{}",
+        String::from_utf8_lossy(&attack.stderr)
+    );
+    std::thread::sleep(Duration::from_millis(1500));
+    let after = resident_kb(estimator.id()).expect("still running");
+    let peak = peak_kb(estimator.id()).expect("still running");
+    signal(&estimator, "-INT");
+    let run = estimator.wait_with_output().expect("waits");
+    assert!(run.status.success());
+    println!(
+        "{}: resident {before} kB before, {after} kB after, peak {peak} kB",
+        String::from_utf8_lossy(&attack.stdout).trim()
+    );
+    // At most two matched samples of 30 MiB are held (the reader's 64 MiB bound).
+    assert!(peak < 200 * 1024, "peak {} MB", peak / 1024);
+}
