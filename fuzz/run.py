@@ -64,7 +64,7 @@ def run(binary, target, seconds, quiet):
     args.append(f"-max_total_time={seconds}")
     start = time.time()
     proc = subprocess.Popen(args, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True)
-    last_new, stats, failed, log = time.time(), {}, False, []
+    last_new, stats, failed, log, stopped = time.time(), {}, False, [], False
     for line in proc.stderr:
         log.append(line)
         if len(log) > 200:
@@ -76,14 +76,17 @@ def run(binary, target, seconds, quiet):
             stats.update(execs=int(m.group(1)), cov=int(m.group(2)), corpus=int(m.group(3)))
         if "ERROR: libFuzzer" in line or "panicked at" in line or "deadly signal" in line:
             failed = True
-        if quiet is not None and time.time() - last_new > quiet:
+        if quiet is not None and time.time() - last_new > quiet and not stopped:
             proc.terminate()
+            stopped = True
     _, status, usage = os.wait4(proc.pid, 0)
     returncode = os.waitstatus_to_exitcode(status)
     stats["cpu_s"] = round(usage.ru_utime + usage.ru_stime, 1)
     stats["wall_s"] = round(time.time() - start, 1)
     stats["quiet_s"] = round(time.time() - last_new, 1)
-    failed = failed or returncode not in (0, -15)
+    # libFuzzer exits with 72 when interrupted (our stop after a quiet spell).
+    failed = failed or not (returncode == 0 or stopped and returncode in (72, -15))
+    stats["stopped"] = "quiet" if stopped else "time cap"
     return target, stats, failed, "".join(log[-40:]) if failed else ""
 
 
@@ -108,7 +111,7 @@ def main():
                 f"{target:14} {'FAILED' if failed else 'ok':6} cpu {stats.get('cpu_s')} s, "
                 f"wall {stats.get('wall_s')} s, {stats.get('execs', 0)} runs, "
                 f"cov {stats.get('cov', 0)}, corpus {stats.get('corpus', 0)}, "
-                f"last new coverage {stats.get('quiet_s')} s before the end",
+                f"last new coverage {stats.get('quiet_s')} s before the end ({stats.get('stopped')})",
                 flush=True,
             )
             if log:

@@ -103,7 +103,12 @@ pub fn from_bytes<T: Element>(bytes: &[u8], path: &Path) -> Result<Array<T>, Arr
         reason,
     };
     check_header(bytes).map_err(fmt)?;
-    let file = npyz::NpyFile::new(bytes).map_err(|e| fmt(e.to_string()))?;
+    // `npyz` multiplies the header's shape without checking for overflow (a panic with
+    // overflow checks, found by fuzzing; release builds wrap, and the size check below
+    // refuses the result): its parsing is contained.
+    let file = crate::error::contain_panics(|| npyz::NpyFile::new(bytes))
+        .map_err(|panic| fmt(format!("malformed header ({panic})")))?
+        .map_err(|e| fmt(e.to_string()))?;
     let order = file.order();
     let type_str = match file.dtype() {
         npyz::DType::Plain(ts) => ts.to_string(),
