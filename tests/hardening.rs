@@ -663,6 +663,22 @@ fn a_file_that_is_not_a_recording_of_heat_maps_is_one_error() {
         .expect("write");
     rec.finish().expect("finish");
     run(&["replay", s(&skeletons)]).assert_one_error("no messages on /posestream/heatmaps");
+    // The same through the service: `run` and the detector replaying it say so too, not
+    // a normal end with nothing published.
+    for command in [
+        &["run", "--recording"][..],
+        &["detector", "--recording"][..],
+    ] {
+        let mut args = command.to_vec();
+        args.push(s(&skeletons));
+        let r = run(&args);
+        assert_eq!(r.code, Some(1), "{args:?}: {}", r.stderr);
+        assert!(
+            r.stderr.contains("has no messages on this topic") && r.stderr.contains(SKELETONS),
+            "{args:?}: {}",
+            r.stderr
+        );
+    }
     // A cut-short recording: everything complete is replayed, a warning says where it
     // was cut, and the exit status is 0 (README, "Limits and failure behaviour").
     let (_, bytes) = chunked(dir.path());

@@ -219,13 +219,19 @@ impl<M: Message> McapSource<M> {
 
 impl<M: Message> Source<M> for McapSource<M> {
     /// Never waits: the next message of the topic, or [`Received::Closed`] after the
-    /// last pass. A file cut short yields every complete message, a warning, then the
+    /// last pass; a recording without any message on the topic is one
+    /// [`TransportError::Broken`] naming the topics it has. A file cut short yields every complete message, a warning, then the
     /// next pass (or `Closed`); a corrupt one every message before the bad record, then
     /// one [`TransportError::Broken`].
     fn recv(&mut self, _timeout: Duration) -> Result<Received<M>, TransportError> {
         loop {
             if let Some(got) = self.next_of_pass()? {
                 return Ok(got);
+            }
+            if self.pass == 0 && !self.yielded {
+                // Nothing of the topic in the whole file: a wrong topic or file, not an
+                // empty stream.
+                return Err(self.no_messages());
             }
             if !self.next_pass()? {
                 return Ok(Received::Closed);
@@ -235,6 +241,29 @@ impl<M: Message> Source<M> for McapSource<M> {
 }
 
 impl<M: Message> McapSource<M> {
+    /// The error for a recording without any message on the topic, naming what it has.
+    fn no_messages(&self) -> TransportError {
+        let found: Vec<String> = self
+            .reader
+            .topics()
+            .into_iter()
+            .map(|(t, ty)| format!("{t} ({ty})"))
+            .collect();
+        TransportError::Broken {
+            transport: TRANSPORT,
+            topic: self.topic.clone(),
+            reason: format!(
+                "{} has no messages on this topic; it has {}",
+                self.path.display(),
+                if found.is_empty() {
+                    "no topics".to_string()
+                } else {
+                    found.join(", ")
+                }
+            ),
+        }
+    }
+
     /// The next message of the topic in this pass, `None` at its end.
     fn next_of_pass(&mut self) -> Result<Option<Received<M>>, TransportError> {
         while !self.closed {
