@@ -2,14 +2,16 @@
 """Runs posestream's fuzz targets (coverage-guided, libFuzzer through cargo-fuzz).
 
     python3 fuzz/run.py [--seconds N] [--quiet M] [--jobs J] [TARGET ...]
+    python3 fuzz/run.py --cmin [TARGET ...]
 
 Builds every target once (`cargo fuzz build`, stable toolchain with RUSTC_BOOTSTRAP=1,
 no sanitizer: the sanitizer runtimes are nightly-only), then runs each target (all of
 them by default) on its corpus in `fuzz/corpus/<target>` for at most N seconds
 (default 60), or, with --quiet M, until it has found no new coverage for M seconds
-(at most N).
-J targets run at once (default 1); --seconds caps each run also with --quiet. New corpus entries are written back to the corpus
-folder (`cargo fuzz cmin` keeps it small); a failing input lands in
+(at most N: --seconds caps each run also with --quiet). The quiet spell is checked
+whenever libFuzzer prints a line, so a quiet stop may come somewhat after M seconds.
+J targets run at once (default 1). New corpus entries are written back to the corpus
+folder (`--cmin` keeps it small); a failing input lands in
 `fuzz/artifacts/<target>/`: copy it to `fuzz/regressions/<target>/` once fixed, and
 `tests/fuzz_corpora.rs` replays it in every CI run.
 
@@ -20,6 +22,7 @@ Needs `cargo install cargo-fuzz`.
 
 import argparse
 import concurrent.futures
+import hashlib
 import os
 import re
 import subprocess
@@ -44,6 +47,32 @@ def build():
     ).stdout
     host = re.search(r"host: (\S+)", triple).group(1)
     return FUZZ / "target" / host / "release"
+
+
+def cmin(target):
+    """Shrinks a target's corpus (`cargo fuzz cmin`: the smallest inputs that keep its
+    coverage, renamed to their SHA-1), then brings back its committed `seed-*` files
+    under their own names instead of their hash names."""
+    env = dict(os.environ, RUSTC_BOOTSTRAP="1")
+    subprocess.run(
+        ["cargo", "fuzz", "cmin", "--sanitizer", "none", "--release", "--debug-assertions", target],
+        cwd=FUZZ.parent,
+        env=env,
+        check=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    corpus = FUZZ / "corpus" / target
+    seeds = subprocess.run(
+        ["git", "ls-files", "--", f"corpus/{target}/seed-*"],
+        cwd=FUZZ, capture_output=True, text=True, check=True,
+    ).stdout.split()
+    if seeds:
+        subprocess.run(["git", "checkout", "--", *seeds], cwd=FUZZ, check=True)
+    for seed in seeds:
+        digest = hashlib.sha1((FUZZ / seed).read_bytes()).hexdigest()
+        (corpus / digest).unlink(missing_ok=True)
+    return len(list(corpus.iterdir()))
 
 
 def run(binary, target, seconds, quiet):
@@ -95,12 +124,20 @@ def main():
     p.add_argument("--seconds", type=int, default=60)
     p.add_argument("--quiet", type=int, default=None)
     p.add_argument("--jobs", type=int, default=1)
+    p.add_argument(
+        "--cmin", action="store_true",
+        help="shrink the corpora instead of fuzzing (keeps the seed-* files)",
+    )
     p.add_argument("targets", nargs="*", default=TARGETS)
     a = p.parse_args()
     unknown = set(a.targets) - set(TARGETS)
     if unknown:
         sys.exit(f"unknown targets {sorted(unknown)}; known: {TARGETS}")
     binary = build()
+    if a.cmin:
+        for target in a.targets:
+            print(f"{target:14} corpus {cmin(target)} files", flush=True)
+        return
     any_failed = False
     with concurrent.futures.ThreadPoolExecutor(a.jobs) as pool:
         for target, stats, failed, log in pool.map(
