@@ -469,11 +469,19 @@ fn a_hostile_participant_cannot_stop_a_good_track_or_grow_the_estimator() {
     assert_eq!(warnings, kinds, "{stderr}");
 }
 
-/// VmRSS of a process, kB.
-fn resident_kb(pid: u32) -> Option<u64> {
+/// A memory figure of a process from `/proc/PID/status` (`VmRSS`, `VmHWM`, …), kB.
+fn status_kb(pid: u32, key: &str) -> Option<u64> {
     let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
-    let line = status.lines().find(|l| l.starts_with("VmRSS:"))?;
+    let line = status.lines().find(|l| {
+        l.strip_prefix(key)
+            .is_some_and(|rest| rest.starts_with(':'))
+    })?;
     line.split_whitespace().nth(1)?.parse().ok()
+}
+
+/// VmRSS (resident memory) of a process, kB.
+fn resident_kb(pid: u32) -> Option<u64> {
+    status_kb(pid, "VmRSS")
 }
 
 #[test]
@@ -586,9 +594,7 @@ fn a_soak_of_100000_frames_keeps_memory_flat_and_the_counters_consistent() {
 
 /// VmHWM (peak resident memory) of a process, kB.
 fn peak_kb(pid: u32) -> Option<u64> {
-    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
-    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
-    line.split_whitespace().nth(1)?.parse().ok()
+    status_kb(pid, "VmHWM")
 }
 
 #[test]

@@ -8,41 +8,20 @@ Keeps DDS on the loopback interface (unicast discovery to 127.0.0.1).
 """
 
 import json
-import os
 import sys
 import time
 from dataclasses import dataclass
 
 domain, topic, count, timeout = int(sys.argv[1]), sys.argv[2], int(sys.argv[3]), float(sys.argv[4])
-os.environ["CYCLONEDDS_URI"] = (
-    "<CycloneDDS><Domain id='any'><General><Interfaces>"
-    "<NetworkInterface address='127.0.0.1'/></Interfaces>"
-    "<AllowMulticast>false</AllowMulticast></General>"
-    "<Discovery><ParticipantIndex>auto</ParticipantIndex><MaxAutoParticipantIndex>50</MaxAutoParticipantIndex>"
-    "<Peers><Peer address='127.0.0.1'/></Peers></Discovery></Domain></CycloneDDS>"
-)
+from ros2_types import Header  # noqa: E402  (DDS on loopback, set on import)
 
 from cyclonedds.core import Policy, Qos  # noqa: E402
 from cyclonedds.domain import DomainParticipant  # noqa: E402
 from cyclonedds.idl import IdlStruct  # noqa: E402
 from cyclonedds.idl.annotations import final  # noqa: E402
-from cyclonedds.idl.types import float64, int32, sequence, uint8, uint32, uint64  # noqa: E402
+from cyclonedds.idl.types import float64, sequence, uint8, uint32, uint64  # noqa: E402
 from cyclonedds.sub import DataReader  # noqa: E402
 from cyclonedds.topic import Topic  # noqa: E402
-
-
-@final
-@dataclass
-class Time(IdlStruct, typename="builtin_interfaces::msg::dds_::Time_"):
-    sec: int32
-    nanosec: uint32
-
-
-@final
-@dataclass
-class Header(IdlStruct, typename="std_msgs::msg::dds_::Header_"):
-    stamp: Time
-    frame_id: str
 
 
 @final

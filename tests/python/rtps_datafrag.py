@@ -18,60 +18,17 @@ import socket
 import struct
 import sys
 import time
-from dataclasses import dataclass
 
 pid, domain = int(sys.argv[1]), int(sys.argv[2])
-os.environ["CYCLONEDDS_URI"] = (
-    "<CycloneDDS><Domain id='any'><General><Interfaces>"
-    "<NetworkInterface address='127.0.0.1'/></Interfaces>"
-    "<AllowMulticast>false</AllowMulticast></General>"
-    "<Discovery><ParticipantIndex>auto</ParticipantIndex><MaxAutoParticipantIndex>50</MaxAutoParticipantIndex>"
-    "<Peers><Peer address='127.0.0.1'/></Peers></Discovery></Domain></CycloneDDS>"
-)
+from ros2_types import HeatMaps  # noqa: E402  (DDS on loopback, set on import)
 
 from cyclonedds.builtin import BuiltinDataReader, BuiltinTopicDcpsPublication, BuiltinTopicDcpsSubscription  # noqa: E402
 from cyclonedds.core import Policy, Qos  # noqa: E402
 from cyclonedds.domain import DomainParticipant  # noqa: E402
-from cyclonedds.idl import IdlStruct  # noqa: E402
-from cyclonedds.idl.annotations import final  # noqa: E402
-from cyclonedds.idl.types import float32, float64, int32, sequence, uint8, uint32, uint64  # noqa: E402
 from cyclonedds.pub import DataWriter  # noqa: E402
 from cyclonedds.topic import Topic  # noqa: E402
 
 GiB, MiB = 1 << 30, 1 << 20
-
-
-@final
-@dataclass
-class Time(IdlStruct, typename="builtin_interfaces::msg::dds_::Time_"):
-    sec: int32
-    nanosec: uint32
-
-
-@final
-@dataclass
-class Header(IdlStruct, typename="std_msgs::msg::dds_::Header_"):
-    stamp: Time
-    frame_id: str
-
-
-@final
-@dataclass
-class HeatMaps(IdlStruct, typename="posestream_msgs::msg::dds_::HeatMaps_"):
-    header: Header
-    sequence: uint64
-    track_id: uint32
-    joint_names: sequence[str]
-    height: uint32
-    width: uint32
-    crop_x: float64
-    crop_y: float64
-    crop_width: float64
-    crop_height: float64
-    encoding: uint8
-    values: sequence[float32]
-    quantized_values: sequence[uint8]
-    quantization_scale: float32
 
 
 def udp_ports(pid):
