@@ -532,6 +532,21 @@ impl<R: Read + Seek> RecordingReader<R> {
             .collect()
     }
 
+    /// [`RecordingReader::topics`] for a message: `"/a (pkg/msg/A), /b (pkg/msg/B)"`, or
+    /// `"no topics"`.
+    pub fn topics_text(&self) -> String {
+        let found: Vec<String> = self
+            .topics()
+            .into_iter()
+            .map(|(t, ty)| format!("{t} ({ty})"))
+            .collect();
+        if found.is_empty() {
+            "no topics".into()
+        } else {
+            found.join(", ")
+        }
+    }
+
     /// The next message; `None` at the end. After an error the reader is done.
     pub fn next_message(&mut self) -> Option<Result<RecordedMessage, RecordingError>> {
         if self.done {

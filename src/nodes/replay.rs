@@ -186,19 +186,10 @@ pub fn replay(
         if let Some(r) = recorder {
             r.abandon();
         }
-        let found: Vec<String> = reader
-            .topics()
-            .into_iter()
-            .map(|(t, ty)| format!("{t} ({ty})"))
-            .collect();
         return Err(ReplayError::NoHeatMaps {
             path: input.to_path_buf(),
             topic: topics.heatmaps.clone(),
-            found: if found.is_empty() {
-                "no topics".into()
-            } else {
-                found.join(", ")
-            },
+            found: reader.topics_text(),
         });
     }
     let output = match recorder {

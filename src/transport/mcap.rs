@@ -243,23 +243,13 @@ impl<M: Message> Source<M> for McapSource<M> {
 impl<M: Message> McapSource<M> {
     /// The error for a recording without any message on the topic, naming what it has.
     fn no_messages(&self) -> TransportError {
-        let found: Vec<String> = self
-            .reader
-            .topics()
-            .into_iter()
-            .map(|(t, ty)| format!("{t} ({ty})"))
-            .collect();
         TransportError::Broken {
             transport: TRANSPORT,
             topic: self.topic.clone(),
             reason: format!(
                 "{} has no messages on this topic; it has {}",
                 self.path.display(),
-                if found.is_empty() {
-                    "no topics".to_string()
-                } else {
-                    found.join(", ")
-                }
+                self.reader.topics_text()
             ),
         }
     }
