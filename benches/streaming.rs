@@ -7,7 +7,7 @@ use criterion::{Criterion, criterion_group, criterion_main};
 use posestream::msgs;
 use posestream::nodes::ServiceConfig;
 use posestream::recording::read_topic;
-use posestream::streaming::{FrameMaps, WindowEstimator};
+use posestream::streaming::{Estimates, FrameMaps, WindowEstimator};
 use posestream::{Dictionary, Estimator};
 
 fn bench(c: &mut Criterion) {
@@ -27,9 +27,9 @@ fn bench(c: &mut Criterion) {
     let estimator = Estimator::new(dict, config.estimator.params.clone()).expect("estimator");
     let mut window =
         WindowEstimator::new(estimator, config.estimator.window.clone()).expect("window");
-    let mut out = Vec::new();
+    let mut out = Estimates::default();
     let mut seq = 0_u64;
-    let mut push = |window: &mut WindowEstimator, out: &mut Vec<_>| {
+    let mut push = |window: &mut WindowEstimator, out: &mut Estimates| {
         let t = (seq as usize) % frames.len();
         let frame = FrameMaps {
             sequence: seq,
@@ -42,8 +42,8 @@ fn bench(c: &mut Criterion) {
         if t == 0 {
             window.reset();
         }
-        window.push(&frame, out).expect("frame");
         out.clear();
+        window.push_into(&frame, out).expect("frame");
         seq += 1;
     };
     for _ in 0..40 {

@@ -6,10 +6,11 @@
 
 Builds every target once (`cargo fuzz build`, stable toolchain with RUSTC_BOOTSTRAP=1,
 no sanitizer: the sanitizer runtimes are nightly-only), then runs each target (all of
-them by default) on its corpus in `fuzz/corpus/<target>` for at most N seconds
-(default 60), or, with --quiet M, until it has found no new coverage for M seconds
-(at most N: --seconds caps each run also with --quiet). The quiet spell is checked
-whenever libFuzzer prints a line, so a quiet stop may come somewhat after M seconds.
+them by default) on its corpus in `fuzz/corpus/<target>` for at most N seconds of CPU
+time (default 60), or, with --quiet M, until it has added nothing to its corpus (no
+new coverage: libFuzzer's NEW) for M seconds of CPU time (at most N: --seconds caps
+each run also with --quiet). Both spans are the fuzzer's own CPU time, sampled every
+2 s, so a busy machine neither shortens a quiet spell nor a run.
 J targets run at once (default 1). New corpus entries are written back to the corpus
 folder (`--cmin` keeps it small); a failing input lands in
 `fuzz/artifacts/<target>/`: copy it to `fuzz/regressions/<target>/` once fixed, and
@@ -25,7 +26,9 @@ import concurrent.futures
 import hashlib
 import os
 import re
+import signal
 import subprocess
+import threading
 import sys
 import time
 from pathlib import Path
@@ -75,7 +78,20 @@ def cmin(target):
     return len(list(corpus.iterdir()))
 
 
+def cpu_seconds(pid):
+    """CPU time (user + system) the process has used so far, from /proc."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def run(binary, target, seconds, quiet):
+    """Runs one target until it has used `seconds` of CPU time or, with `quiet`, until
+    it has used `quiet` CPU seconds since its last new corpus entry. Both spans count the
+    fuzzer's CPU time, not wall time, so that other work on the machine (a build, a
+    second target) can neither shorten a quiet spell nor eat into a run's budget."""
     corpus = FUZZ / "corpus" / target
     artifacts = FUZZ / "artifacts" / target
     corpus.mkdir(parents=True, exist_ok=True)
@@ -90,33 +106,56 @@ def run(binary, target, seconds, quiet):
         "-max_len=1048576",
         "-print_final_stats=1",
     ]
-    args.append(f"-max_total_time={seconds}")
     start = time.time()
     proc = subprocess.Popen(args, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True)
-    last_new, stats, failed, log, stopped = time.time(), {}, False, [], False
-    for line in proc.stderr:
-        log.append(line)
-        if len(log) > 200:
-            log.pop(0)
-        if re.search(r"\sNEW\s", line):
-            last_new = time.time()
-        m = re.search(r"#(\d+)\s+\S+\s+cov: (\d+).*corp: (\d+)", line)
-        if m:
-            stats.update(execs=int(m.group(1)), cov=int(m.group(2)), corpus=int(m.group(3)))
-        if "ERROR: libFuzzer" in line or "panicked at" in line or "deadly signal" in line:
-            failed = True
-        if quiet is not None and time.time() - last_new > quiet and not stopped:
-            proc.terminate()
-            stopped = True
-    _, status, usage = os.wait4(proc.pid, 0)
-    returncode = os.waitstatus_to_exitcode(status)
-    stats["cpu_s"] = round(usage.ru_utime + usage.ru_stime, 1)
+    state = {"last_new_cpu": 0.0, "cpu": 0.0, "stats": {}, "failed": False, "log": []}
+    lock = threading.Lock()
+
+    def read():
+        for line in proc.stderr:
+            cpu = cpu_seconds(proc.pid)
+            with lock:
+                state["log"].append(line)
+                if len(state["log"]) > 200:
+                    state["log"].pop(0)
+                # The quiet spell starts once the corpus is loaded (INITED), then at
+                # every new corpus entry.
+                if re.search(r"\s(NEW|INITED)\s", line) and cpu is not None:
+                    state["last_new_cpu"] = cpu
+                m = re.search(r"#(\d+)\s+\S+\s+cov: (\d+).*corp: (\d+)", line)
+                if m:
+                    state["stats"].update(
+                        execs=int(m.group(1)), cov=int(m.group(2)), corpus=int(m.group(3))
+                    )
+                if "ERROR: libFuzzer" in line or "panicked at" in line or "deadly signal" in line:
+                    state["failed"] = True
+
+    reader = threading.Thread(target=read, name=f"fuzz-{target}")
+    reader.start()
+    stopped = None
+    while proc.poll() is None:
+        time.sleep(2)
+        cpu = cpu_seconds(proc.pid)
+        if cpu is None or stopped:
+            continue
+        with lock:
+            state["cpu"] = cpu
+            if quiet is not None and cpu - state["last_new_cpu"] > quiet:
+                stopped = "quiet"
+            elif cpu > seconds:
+                stopped = "time cap"
+        if stopped:
+            proc.send_signal(signal.SIGINT)
+    reader.join()
+    returncode = proc.returncode
+    stats = state["stats"]
+    stats["cpu_s"] = round(state["cpu"], 1)
     stats["wall_s"] = round(time.time() - start, 1)
-    stats["quiet_s"] = round(time.time() - last_new, 1)
-    # libFuzzer exits with 72 when interrupted (our stop after a quiet spell).
-    failed = failed or not (returncode == 0 or stopped and returncode in (72, -15))
-    stats["stopped"] = "quiet" if stopped else "time cap"
-    return target, stats, failed, "".join(log[-40:]) if failed else ""
+    stats["quiet_s"] = round(stats["cpu_s"] - state["last_new_cpu"], 1)
+    # libFuzzer exits with 72 when interrupted (our stop after a quiet spell or at the cap).
+    failed = state["failed"] or not (returncode == 0 or stopped and returncode in (72, -2, -15))
+    stats["stopped"] = stopped or "exited"
+    return target, stats, failed, "".join(state["log"][-40:]) if failed else ""
 
 
 def main():
@@ -148,7 +187,7 @@ def main():
                 f"{target:14} {'FAILED' if failed else 'ok':6} cpu {stats.get('cpu_s')} s, "
                 f"wall {stats.get('wall_s')} s, {stats.get('execs', 0)} runs, "
                 f"cov {stats.get('cov', 0)}, corpus {stats.get('corpus', 0)}, "
-                f"last new coverage {stats.get('quiet_s')} s before the end ({stats.get('stopped')})",
+                f"last new corpus entry {stats.get('quiet_s')} CPU s before the end ({stats.get('stopped')})",
                 flush=True,
             )
             if log:

@@ -1,60 +1,48 @@
 //! # posestream
 //!
 //! Monocular 3D human pose estimation after Zhou et al., "Sparseness Meets Deepness: 3D
-//! Human Pose Estimation from Monocular Video" (CVPR 2016): a sparse [`Dictionary`] of
-//! 3D basis poses, a weak-perspective camera, temporal smoothness, and an EM algorithm
-//! that treats the 2D joints as latent variables under [`HeatMaps`].
+//! Human Pose Estimation from Monocular Video" (CVPR 2016), as a streaming service.
 //!
-//! The math lives in [`solver`] and knows nothing of files or transports; [`Estimator`]
-//! is its entry point:
+//! This crate is the `posestream` program: its nodes ([`nodes`]) and command line
+//! (`src/cli`). The layers below it are crates of their own, re-exported here under the
+//! module names they are known by:
+//!
+//! | crate | holds | re-exported as |
+//! |---|---|---|
+//! | `posestream-math` | skeleton, dictionary, camera, heat maps, solver, estimator, streaming window, metrics | [`camera`], [`dictionary`], [`estimator`], [`geometry`], [`heatmaps`], [`metrics`], [`skeleton`], [`solver`], [`streaming`] |
+//! | `posestream-msgs` | the ROS 2 messages, recordings (MCAP), NPY and TOML files, limits | [`msgs`], [`recording`], [`npy`], [`files`], [`limits`] |
+//! | `posestream-transport` | the Source and Sink traits: in-memory, MCAP, ROS 2, iceoryx2 | [`transport`] |
+//! | `posestream-detector` | camera images, landmark models, the image detector, pictures | [`detector`], [`images`], [`models`], [`render`] |
+//! | `posestream-mocap` | BVH motion capture, synthesis, evaluation | [`mocap`], [`synth`], [`evaluation`] |
 //!
 //! ```no_run
 //! use posestream::{Dictionary, Estimator, Params};
 //! let dict = Dictionary::load("poseDict-all-K128.mat")?;
 //! let estimator = Estimator::new(dict, Params::default())?;
-//! // One frame of 17 joints, pixels (x right, y down).
-//! let xy: Vec<f64> = (0..34).map(|i| (i * 7 % 13) as f64).collect();
-//! let keypoints = posestream::Keypoints { joints: 17, xy, confidence: None };
-//! let estimate = estimator.lift_keypoints(&keypoints)?;
-//! println!("{} frames, objective {}", estimate.report.frames, estimate.report.objective);
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
-//!
-//! Vocabulary: a *Pose* is 3 x p joint positions; a [`Dictionary`] holds basis poses over
-//! a [`Skeleton`]; [`HeatMaps`] are a detector's per-joint score maps; a
-//! [`solver::Window`] is the frames solved together.
 
-pub mod camera;
-pub mod config;
-pub mod detector;
-pub mod dictionary;
-pub mod error;
-pub mod estimator;
-pub mod evaluation;
-pub mod files;
-pub mod geometry;
-pub mod heatmaps;
-pub mod images;
-pub mod limits;
-pub mod metrics;
-pub mod mocap;
-pub mod models;
-pub mod msgs;
+pub use posestream_detector::{self as detector, images, models, render};
+pub use posestream_math::{
+    camera, dictionary, estimator, geometry, heatmaps, metrics, skeleton, solver, streaming,
+};
+pub use posestream_mocap::{self as mocap, evaluation, synth};
+pub use posestream_msgs::{self as msgs, files, limits, npy, recording};
+pub use posestream_transport as transport;
+
+pub use posestream_math::{
+    CameraError, CropBox, Dictionary, DictionaryError, Estimate, EstimateError, Estimator,
+    FrameEstimate, FrameMaps, HeatMaps, InitMethod, Intrinsics, Keypoints, MetricEstimate, Params,
+    PixelMap, Report, Skeleton, StreamSettings, WindowEstimator,
+};
+pub use posestream_mocap::BvhError;
+pub use posestream_msgs::error::ArrayError;
+
 pub mod nodes;
-pub mod npy;
-pub mod recording;
-pub mod render;
-pub mod skeleton;
-pub mod solver;
-pub mod streaming;
-pub mod synth;
-pub mod transport;
 
-pub use camera::{CropBox, Intrinsics, PixelMap};
-pub use dictionary::Dictionary;
-pub use error::{ArrayError, BvhError, CameraError, DictionaryError, EstimateError};
-pub use estimator::{Estimate, Estimator, Keypoints, MetricEstimate, Report};
-pub use heatmaps::HeatMaps;
-pub use skeleton::Skeleton;
-pub use solver::{InitMethod, Params};
-pub use streaming::{FrameEstimate, FrameMaps, StreamSettings, WindowEstimator};
+/// The errors of every layer, in one place.
+pub mod error {
+    pub use posestream_math::error::*;
+    pub use posestream_mocap::error::*;
+    pub use posestream_msgs::error::*;
+}

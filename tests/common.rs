@@ -1,5 +1,5 @@
 //! Shared helpers of the integration tests.
-#![allow(dead_code)]
+#![allow(dead_code, reason = "each test binary uses some of the helpers")]
 
 use std::path::PathBuf;
 
@@ -121,4 +121,15 @@ pub fn peak_memory_run(
     let code = v["returncode"].as_i64().expect("returncode");
     let peak = v["maxrss_kb"].as_u64().expect("maxrss_kb");
     ((code >= 0).then_some(code as i32), out, peak)
+}
+
+/// Starts a named thread (the project's rule: no unnamed threads, `clippy.toml`).
+pub fn spawn<T: Send + 'static>(
+    name: &str,
+    f: impl FnOnce() -> T + Send + 'static,
+) -> std::thread::JoinHandle<T> {
+    std::thread::Builder::new()
+        .name(name.to_string())
+        .spawn(f)
+        .expect("a thread")
 }

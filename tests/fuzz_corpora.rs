@@ -4,7 +4,11 @@
 
 mod common;
 
-#[allow(dead_code, missing_docs)]
+#[allow(
+    dead_code,
+    missing_docs,
+    reason = "the fuzz crate's helpers, of which this test uses some"
+)]
 #[path = "../fuzz/src/lib.rs"]
 mod targets;
 

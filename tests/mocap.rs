@@ -131,7 +131,7 @@ fn learn_dict_writes_a_dictionary_in_the_layout() {
 fn the_shipped_dictionary_is_in_the_default_layout() {
     let d = Dictionary::load(repo("config/dictionaries/default-k128.json")).expect("loads");
     assert_eq!((d.num_bases(), d.num_joints()), (128, 17));
-    assert!(posestream::mocap::mapping::is_default_layout(
+    assert!(posestream::skeleton::is_default_layout(
         &d.skeleton().joints
     ));
 }
@@ -172,7 +172,7 @@ fn synth_writes_what_lift_reads() {
     // The metric scale is an input of the perspective step: the subject's own mean bone
     // length over the layout's tree.
     let truth: Array<f64> = npy::read(&dir.join("gt_3d.npy")).expect("truth");
-    let layout = posestream::mocap::mapping::default_layout();
+    let layout = posestream::skeleton::default_layout();
     let bones: Vec<f64> = layout
         .bones()
         .map(|(a, b)| {

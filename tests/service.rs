@@ -97,7 +97,7 @@ fn spawn_estimator(
     let mut outputs = EstimatorOutputs::open(&c, &mut middleware, recorder.as_ref(), node.bones())
         .expect("outputs");
     let mut source = middleware.heatmaps_source(&c, input).expect("source");
-    std::thread::spawn(move || {
+    common::spawn("estimator", move || {
         let report = run_estimator(&mut node, &mut source, &mut outputs, stop);
         drop(outputs);
         drop(middleware);
@@ -133,7 +133,7 @@ fn detector_and_estimator_nodes_talk_over_ros2() {
     let mut heard = listener
         .source::<Skeleton3D>(&c.topics.skeletons)
         .expect("subscription");
-    let listening = std::thread::spawn(move || {
+    let listening = common::spawn("listener", move || {
         let mut received = 0;
         let until = Instant::now() + Duration::from_secs(25);
         while received < 242 && Instant::now() < until && !STOP.load(Ordering::Relaxed) {

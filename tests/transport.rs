@@ -306,7 +306,7 @@ impl PythonSubscriber {
         mut sink: impl Sink<Skeleton3D> + 'static,
         period: Duration,
     ) -> Vec<serde_json::Value> {
-        let publishing = std::thread::spawn(move || {
+        let publishing = common::spawn("publisher", move || {
             for seq in 0..600 {
                 if sink.send(&skeleton(seq), 0).is_err() {
                     break;

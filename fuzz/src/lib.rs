@@ -23,8 +23,11 @@ use posestream::transport::shm::{
 };
 use posestream::{Dictionary, Estimator, Params, StreamSettings, WindowEstimator};
 
-/// Every target: its name (the folder of its corpus) and its function.
-pub const TARGETS: &[(&str, fn(&[u8]))] = &[
+/// A fuzz target: its name (the folder of its corpus) and its function.
+pub type Target = (&'static str, fn(&[u8]));
+
+/// Every target.
+pub const TARGETS: &[Target] = &[
     ("heatmaps_cdr", heatmaps_cdr),
     ("skeleton_cdr", skeleton_cdr),
     ("shm_sample", shm_sample),
@@ -268,7 +271,7 @@ pub fn toml(data: &[u8]) {
             let _ = posestream::detector::mapping::ChannelMapping::parse(text, path, joints);
         }
         _ => {
-            let _ = posestream::config::parse_toml::<Split>(text, path);
+            let _ = posestream::msgs::toml_file::parse_toml::<Split>(text, path);
         }
     }
 }

@@ -5,9 +5,9 @@ use std::path::PathBuf;
 use clap::Args;
 use posestream::Dictionary;
 use posestream::evaluation::{self, Case, Evaluator, Settings};
-use posestream::mocap::mapping::same_layout;
 use posestream::mocap::split::list_bvh;
 use posestream::mocap::{Bvh, MotionName, SkeletonMapping, Split};
+use posestream::skeleton::same_layout;
 
 use super::{CliError, progress_bar};
 
@@ -54,7 +54,7 @@ pub struct EvalArgs {
 /// Runs `eval`.
 pub fn run(args: &EvalArgs) -> Result<(), CliError> {
     if args.max_frames == 0 {
-        return Err(CliError::Input("--max-frames must be at least 1".into()));
+        return Err(CliError::Usage("--max-frames must be at least 1".into()));
     }
     let mapping = SkeletonMapping::load(&args.mapping)?;
     let split = Split::load(&args.split)?;
@@ -66,7 +66,7 @@ pub fn run(args: &EvalArgs) -> Result<(), CliError> {
         };
         let d = Dictionary::load(&path)?;
         if !same_layout(&d.skeleton().joints, &mapping.layout.joints) {
-            return Err(CliError::Input(format!(
+            return Err(CliError::Usage(format!(
                 "{}: its joints ({}) are not the mapping's layout ({})",
                 path.display(),
                 d.skeleton().joints.join(", "),
@@ -87,7 +87,7 @@ pub fn run(args: &EvalArgs) -> Result<(), CliError> {
         })
         .collect();
     if files.is_empty() {
-        return Err(CliError::Input("the split holds out no files".into()));
+        return Err(CliError::Nothing("the split holds out no files".into()));
     }
     let settings = Settings {
         max_frames: args.max_frames,
@@ -112,7 +112,7 @@ pub fn run(args: &EvalArgs) -> Result<(), CliError> {
             .map_or_else(String::new, |s| s.to_string_lossy().into_owned());
         let action = MotionName::parse(file).map_or_else(|| name.clone(), |m| m.content);
         let case = Case::new(name, action, &seq, &mapping.layout, &settings, i)
-            .map_err(|e| CliError::Input(format!("{}: {e}", file.display())))?;
+            .map_err(|e| CliError::Failed(format!("{}: {e}", file.display())))?;
         for ev in &mut evaluators {
             ev.add(&case)?;
         }
@@ -137,8 +137,7 @@ shows the held-out contents). Dictionaries: {}.\n\n{text}",
             split.test_styles.join(", "),
             args.dict.join("; ")
         );
-        std::fs::write(path, doc)
-            .map_err(|e| CliError::Input(format!("cannot write {}: {e}", path.display())))?;
+        std::fs::write(path, doc).map_err(|e| CliError::write(path, e))?;
     }
     Ok(())
 }

@@ -51,7 +51,7 @@ pub struct LearnArgs {
 /// Runs `learn-dict`.
 pub fn run(args: &LearnArgs) -> Result<(), CliError> {
     if args.stride == 0 {
-        return Err(CliError::Input("--stride must be at least 1".into()));
+        return Err(CliError::Usage("--stride must be at least 1".into()));
     }
     let mapping = SkeletonMapping::load(&args.mapping)?;
     let split = match &args.split {
@@ -63,7 +63,9 @@ pub fn run(args: &LearnArgs) -> Result<(), CliError> {
         .filter(|f| !split.is_test(f))
         .collect();
     if files.is_empty() {
-        return Err(CliError::Input("the split leaves no training files".into()));
+        return Err(CliError::Nothing(
+            "the split leaves no training files".into(),
+        ));
     }
     let bar = progress_bar(files.len(), "reading");
     let mut world = Vec::new();
@@ -79,7 +81,7 @@ pub fn run(args: &LearnArgs) -> Result<(), CliError> {
     bar.finish();
     let skeleton = mapping.layout.clone();
     let poses = normalise_poses(&skeleton, &world).ok_or_else(|| {
-        CliError::Input(
+        CliError::Failed(
             "cannot normalise the poses: a pose without spread, or a layout without left/right torso joints"
                 .into(),
         )
@@ -95,7 +97,7 @@ pub fn run(args: &LearnArgs) -> Result<(), CliError> {
         bar.set_message(format!("obj {objective:.1}"));
         bar.inc(1);
     })
-    .map_err(CliError::Input)?;
+    .map_err(CliError::Failed)?;
     bar.finish();
     let source = format!(
         "posestream learn-dict: {} atoms, lambda {}, {} iterations, {} poses (every {} frame) from {} files mapped by {}",

@@ -57,12 +57,15 @@ pub fn run(args: &ModelsArgs) -> Result<(), CliError> {
             ));
             bar.enable_steady_tick(std::time::Duration::from_millis(120));
             let fetched = models::fetch(&dir, &a.models, a.tarball.as_deref(), a.force)
-                .map_err(|e| CliError::Input(e.to_string()));
+                .map_err(CliError::from);
             bar.finish_and_clear();
             let fetched = fetched?;
             if a.json {
-                let text = serde_json::to_string_pretty(&fetched)
-                    .map_err(|e| CliError::Input(e.to_string()))?;
+                let text =
+                    serde_json::to_string_pretty(&fetched).map_err(|source| CliError::Json {
+                        path: dir.clone(),
+                        source,
+                    })?;
                 println!("{text}");
             } else {
                 for m in &fetched {

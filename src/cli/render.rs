@@ -55,13 +55,9 @@ pub struct RenderArgs {
     pub azimuth: f64,
 }
 
-fn err(e: impl ToString) -> CliError {
-    CliError::Input(e.to_string())
-}
-
 /// Runs `render`.
-pub fn render(args: &RenderArgs) -> Result<(), CliError> {
-    let mut config = ServiceConfig::load(&args.config).map_err(err)?;
+pub fn run(args: &RenderArgs) -> Result<(), CliError> {
+    let mut config = ServiceConfig::load(&args.config)?;
     if let Some(p) = &args.images {
         config.detector.source = DetectorSource::Images;
         config.detector.images.path = p.clone();
@@ -74,21 +70,22 @@ pub fn render(args: &RenderArgs) -> Result<(), CliError> {
         config.detector.source,
         DetectorSource::Recording | DetectorSource::Ros2
     ) {
-        return Err(err(
-            "render needs the run's images: --images DIR, --video FILE, or an image source in [detector]",
+        return Err(CliError::Usage(
+            "render needs the run's images: --images DIR, --video FILE, or an image source in [detector]"
+                .into(),
         ));
     }
     let gif = match args.output.extension().and_then(|e| e.to_str()) {
         Some(e) if e.eq_ignore_ascii_case("gif") => true,
         Some(e) if e.eq_ignore_ascii_case("png") => false,
-        _ => return Err(err("--output must end in .png or .gif")),
+        _ => return Err(CliError::Usage("--output must end in .png or .gif".into())),
     };
-    let dictionary = posestream::Dictionary::load(&config.estimator.dictionary).map_err(err)?;
+    let dictionary = posestream::Dictionary::load(&config.estimator.dictionary)?;
     let bones: Vec<(usize, usize)> = dictionary.skeleton().bones().collect();
     // Per frame, the estimate to draw: the most refined one unless --newest.
     let mut skeletons: BTreeMap<u64, Skeleton3D> = BTreeMap::new();
     let recorded = read_topic::<Skeleton3D>(&args.recording, &config.topics.skeletons);
-    for (_, s) in recorded.map_err(err)? {
+    for (_, s) in recorded? {
         let in_range =
             args.from.is_none_or(|f| s.sequence >= f) && args.to.is_none_or(|t| s.sequence <= t);
         if gif && !in_range {
@@ -104,7 +101,7 @@ pub fn render(args: &RenderArgs) -> Result<(), CliError> {
         }
     }
     if skeletons.is_empty() {
-        return Err(err(format!(
+        return Err(CliError::Nothing(format!(
             "{}: no skeletons on {} (in the frames asked for)",
             args.recording.display(),
             config.topics.skeletons
@@ -123,7 +120,7 @@ pub fn render(args: &RenderArgs) -> Result<(), CliError> {
         keys[keys.len() / 2]
     });
     if !gif && !skeletons.contains_key(&wanted) {
-        return Err(err(format!(
+        return Err(CliError::Nothing(format!(
             "frame {wanted} has no skeleton in the recording"
         )));
     }
@@ -132,7 +129,7 @@ pub fn render(args: &RenderArgs) -> Result<(), CliError> {
         azimuth_deg: args.azimuth,
         ..RenderSettings::default()
     };
-    let mut frames = image_frames(&config, None).map_err(err)?;
+    let mut frames = image_frames(&config, None)?;
     let progress = indicatif::ProgressBar::new(skeletons.len() as u64);
     let mut pictures = Vec::new();
     let mut stamps = Vec::new();
@@ -145,7 +142,7 @@ pub fn render(args: &RenderArgs) -> Result<(), CliError> {
                 tracing::warn!("{e}");
                 continue;
             }
-            Err(e) => return Err(err(e)),
+            Err(e) => return Err(e.into()),
         };
         let Some(skeleton) = skeletons.get(&frame.sequence) else {
             continue;
@@ -169,15 +166,21 @@ pub fn render(args: &RenderArgs) -> Result<(), CliError> {
     }
     progress.finish_and_clear();
     if pictures.is_empty() {
-        return Err(err(
-            "none of the images has a skeleton in the recording (another run?)",
+        return Err(CliError::Nothing(
+            "none of the images has a skeleton in the recording (another run?)".into(),
         ));
     }
     if gif {
-        let file = std::fs::File::create(&args.output)
-            .map_err(|e| err(format!("{}: {e}", args.output.display())))?;
+        let file =
+            std::fs::File::create(&args.output).map_err(|e| CliError::create(&args.output, e))?;
+        let picture_error = |source| CliError::Picture {
+            path: args.output.clone(),
+            source,
+        };
         let mut encoder = GifEncoder::new_with_speed(std::io::BufWriter::new(file), 10);
-        encoder.set_repeat(Repeat::Infinite).map_err(err)?;
+        encoder
+            .set_repeat(Repeat::Infinite)
+            .map_err(picture_error)?;
         for (i, picture) in pictures.into_iter().enumerate() {
             let ms = match (stamps.get(i), stamps.get(i + 1)) {
                 (Some(a), Some(b)) if b > a => ((b - a) / 1_000_000).clamp(20, 2000),
@@ -187,13 +190,16 @@ pub fn render(args: &RenderArgs) -> Result<(), CliError> {
             let delay = Delay::from_saturating_duration(Duration::from_millis(ms));
             encoder
                 .encode_frame(Frame::from_parts(rgba, 0, 0, delay))
-                .map_err(err)?;
+                .map_err(picture_error)?;
         }
         println!("{} frames -> {}", stamps.len(), args.output.display());
     } else {
         pictures[0]
             .save(&args.output)
-            .map_err(|e| err(format!("{}: {e}", args.output.display())))?;
+            .map_err(|source| CliError::Picture {
+                path: args.output.clone(),
+                source,
+            })?;
         println!("frame {wanted} -> {}", args.output.display());
     }
     Ok(())

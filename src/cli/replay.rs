@@ -35,15 +35,14 @@ pub struct ReplayArgs {
 
 /// Runs `replay`. Ctrl-C stops it and still finalises the output.
 pub fn run(args: &ReplayArgs) -> Result<(), CliError> {
-    let config = ServiceConfig::load(&args.config).map_err(|e| CliError::Input(e.to_string()))?;
+    let config = ServiceConfig::load(&args.config)?;
     let stop = stop_flag();
     let options = ReplayOptions {
         record: args.record.clone(),
         rosbag2: args.rosbag2,
         rate: args.rate.unwrap_or(config.replay.rate),
     };
-    let report = replay(&config, &args.input, &options, &stop)
-        .map_err(|e| CliError::Input(e.to_string()))?;
+    let report = replay(&config, &args.input, &options, &stop)?;
     if args.json {
         let text = serde_json::to_string_pretty(&report).map_err(|source| CliError::Json {
             path: args.input.clone(),

@@ -145,15 +145,15 @@ pub struct SynthArgs {
 /// Runs `synth`.
 pub fn run(args: &SynthArgs) -> Result<(), CliError> {
     if !(args.margin.is_finite() && args.margin >= 1.0) {
-        return Err(CliError::Input(format!(
+        return Err(CliError::Usage(format!(
             "--margin must be >= 1, got {}",
             args.margin
         )));
     }
     let cam = args.camera.spec();
-    cam.validate().map_err(CliError::Input)?;
+    cam.validate().map_err(CliError::Usage)?;
     let model = args.errors.model();
-    model.validate().map_err(CliError::Input)?;
+    model.validate().map_err(CliError::Usage)?;
     let mapping = SkeletonMapping::load(&args.mapping)?;
     let bvh = Bvh::load(&args.bvh)?;
     let seq = mapping.apply(&bvh, &args.bvh.display().to_string())?;
@@ -163,18 +163,17 @@ pub fn run(args: &SynthArgs) -> Result<(), CliError> {
         args.frames
     };
     let seq = seq.frames_from(args.start, len).ok_or_else(|| {
-        CliError::Input(format!(
+        CliError::Usage(format!(
             "--start {} is past the last frame ({} frames)",
             args.start, seq.frames
         ))
     })?;
     let skel = &mapping.layout;
-    let view = synth::view(&seq, skel, &cam).map_err(CliError::Input)?;
+    let view = synth::view(&seq, skel, &cam).map_err(CliError::Failed)?;
     let boxes = synth::crop_boxes(&view.image_2d, view.joints, args.margin);
     let rendered = heatmaps::render(&view.image_2d, &boxes, skel, &model)?;
     let (f, p) = (view.frames, view.joints);
-    std::fs::create_dir_all(&args.out)
-        .map_err(|e| CliError::Input(format!("cannot create {}: {e}", args.out.display())))?;
+    std::fs::create_dir_all(&args.out).map_err(|e| CliError::create(&args.out, e))?;
     let out = |name: &str| args.out.join(name);
     npy::write(&out("gt_3d.npy"), &[f, p, 3], &view.camera_3d)?;
     npy::write(&out("keypoints.npy"), &[f, p, 2], &view.image_2d)?;
@@ -204,8 +203,7 @@ pub fn run(args: &SynthArgs) -> Result<(), CliError> {
             path: out(name),
             source,
         })?;
-        std::fs::write(out(name), text)
-            .map_err(|e| CliError::Input(format!("cannot write {}: {e}", out(name).display())))
+        std::fs::write(out(name), text).map_err(|e| CliError::write(&out(name), e))
     };
     write_json("meta.json", &meta)?;
     if cam.projection == Projection::Pinhole {

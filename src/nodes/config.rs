@@ -6,7 +6,6 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::config::{ConfigError, load_toml, parse_toml};
 use crate::detector::ImageSettings;
 use crate::error::OutOfDomain;
 use crate::limits::Limits;
@@ -15,6 +14,7 @@ use crate::streaming::StreamSettings;
 use crate::transport::ros2::RosSettings;
 use crate::transport::ros2::check_topic_name;
 use crate::transport::shm::ShmSettings;
+use posestream_msgs::toml_file::{ConfigError, load_toml, parse_toml};
 
 /// The whole configuration.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]

@@ -22,9 +22,11 @@ use crate::camera::{CropBox, PixelMap};
 use crate::error::EstimateError;
 use crate::estimator::Estimator;
 use crate::limits::{LimitError, Limits};
-use crate::mocap::mapping::same_layout;
 use crate::msgs::{self, DecodeError, Header, Skeleton3D, Time, Units};
-use crate::streaming::{FrameEstimate, FrameMaps, StreamCounters, TrackState, WindowEstimator};
+use crate::skeleton::same_layout;
+use crate::streaming::{
+    Estimates, FrameEstimate, FrameMaps, StreamCounters, TrackState, WindowEstimator,
+};
 use crate::transport::TransportError;
 
 pub use config::ServiceConfig;
@@ -160,7 +162,8 @@ pub struct EstimatorNode {
     limits: Limits,
     track_id: u32,
     frames: VecDeque<FrameInfo>,
-    estimates: Vec<FrameEstimate>,
+    /// The window's estimates of the frame in hand (reused from frame to frame).
+    estimates: Estimates,
     values: Vec<f32>,
     refused: Refusals,
     /// Test builds (`--features fault-injection`): the sequence number whose handling
@@ -179,7 +182,7 @@ impl EstimatorNode {
             limits: Limits::default(),
             track_id: 0,
             frames: VecDeque::new(),
-            estimates: Vec::new(),
+            estimates: Estimates::default(),
             values: Vec::new(),
             refused: Refusals::default(),
             #[cfg(feature = "fault-injection")]
@@ -370,7 +373,7 @@ impl EstimatorNode {
         if checked.has_evidence() && msg.track_id != self.track_id {
             if !self.window.is_empty() {
                 self.estimates.clear();
-                self.window.finish(&mut self.estimates);
+                self.window.finish_into(&mut self.estimates);
                 self.release(out);
                 self.frames.clear();
             }
@@ -379,7 +382,7 @@ impl EstimatorNode {
         self.estimates.clear();
         let accepted_before = self.window.counters().frames;
         self.window
-            .push_checked(&frame, checked, &mut self.estimates);
+            .push_checked_into(&frame, checked, &mut self.estimates);
         // Only frames the window accepted are remembered (not late ones).
         if self.window.counters().frames > accepted_before {
             self.frames.push_back(FrameInfo {
@@ -402,7 +405,7 @@ impl EstimatorNode {
     pub fn finish(&mut self, out: &mut Vec<Skeleton3D>) {
         let finished = self.isolated(out, |node, out| {
             node.estimates.clear();
-            node.window.finish(&mut node.estimates);
+            node.window.finish_into(&mut node.estimates);
             node.release(out);
             node.frames.clear();
         });
@@ -420,7 +423,7 @@ impl EstimatorNode {
     fn release(&mut self, out: &mut Vec<Skeleton3D>) {
         let settings = self.window.settings();
         let keep = settings.size + settings.lag + 1;
-        for e in &self.estimates {
+        for e in self.estimates.iter() {
             let Some(info) = self.frames.iter().rev().find(|f| f.sequence == e.sequence) else {
                 continue;
             };

@@ -1,0 +1,138 @@
+//! Person boxes and crops: the square [`CropBox`] the landmark model looks at, where it
+//! comes from (the whole image, an explicit box, the previous frame's landmarks), and
+//! the resampling of that box of the image into the model's input.
+
+use posestream_math::camera::CropBox;
+
+/// The square box centred on the image whose side is the image's longer side (the
+/// image letterboxed): where to look when nothing better is known.
+pub fn whole_image_box(width: u32, height: u32) -> CropBox {
+    let side = f64::from(width.max(height).max(1));
+    CropBox {
+        x0: 0.5 * (f64::from(width) - side),
+        y0: 0.5 * (f64::from(height) - side),
+        width: side,
+        height: side,
+    }
+}
+
+/// The square box around `b` (same centre, side = the longer side).
+pub fn squared(b: &CropBox) -> CropBox {
+    let side = b.width.max(b.height);
+    CropBox {
+        x0: b.x0 + 0.5 * (b.width - side),
+        y0: b.y0 + 0.5 * (b.height - side),
+        width: side,
+        height: side,
+    }
+}
+
+/// MediaPipe's person box from two alignment keypoints, image pixels: `centre` (the
+/// hips' midpoint) and `scale` (a point whose distance to the centre is the radius of
+/// the circle holding the body). The box is square, centred on `centre`, its side the
+/// circle's diameter times 1.25 (as MediaPipe's `RectTransformationCalculator`). Unlike
+/// MediaPipe the box is not rotated upright: crops stay axis-aligned. `None` for a box
+/// smaller than `min_side` pixels or a non-finite one.
+pub fn box_from_alignment(centre: [f64; 2], scale: [f64; 2], min_side: f64) -> Option<CropBox> {
+    let radius = (scale[0] - centre[0]).hypot(scale[1] - centre[1]);
+    let side = 2.0 * radius * 1.25;
+    if !(side.is_finite() && side >= min_side && centre.iter().all(|v| v.is_finite())) {
+        return None;
+    }
+    Some(CropBox {
+        x0: centre[0] - 0.5 * side,
+        y0: centre[1] - 0.5 * side,
+        width: side,
+        height: side,
+    })
+}
+
+/// Resamples box `b` of `rgb` (bilinear) into `out`: `size x size x 3`, row-major, values
+/// in [0, 1]; outside the image is black (0), as MediaPipe's letterboxing. Input pixel
+/// `(u, v)` is the image point `b.x0 + (u + 0.5) * b.width / size - 0.5` (pixel centres).
+pub fn crop_input(rgb: &image::RgbImage, b: &CropBox, size: usize, out: &mut Vec<f32>) {
+    out.clear();
+    out.resize(size * size * 3, 0.0);
+    let (w, h) = (rgb.width() as i64, rgb.height() as i64);
+    let raw = rgb.as_raw();
+    let (sx, sy) = (b.width / size as f64, b.height / size as f64);
+    // Per output column: the two source columns (None outside the image) and the
+    // weight of the second; the same for rows.
+    let taps = |origin: f64, step: f64, limit: i64| -> Vec<(Option<usize>, Option<usize>, f32)> {
+        (0..size)
+            .map(|u| {
+                let x = origin + (u as f64 + 0.5) * step - 0.5;
+                let x0 = x.floor() as i64;
+                let inside = |v: i64| (0..limit).contains(&v).then_some(v as usize);
+                (inside(x0), inside(x0 + 1), (x - x.floor()) as f32)
+            })
+            .collect()
+    };
+    let columns = taps(b.x0, sx, w);
+    let rows = taps(b.y0, sy, h);
+    let row_len = w as usize * 3;
+    let sample = |row: Option<usize>, col: Option<usize>, c: usize| -> f32 {
+        match (row, col) {
+            (Some(r), Some(k)) => f32::from(raw[r * row_len + k * 3 + c]),
+            _ => 0.0,
+        }
+    };
+    for (v, &(r0, r1, fy)) in rows.iter().enumerate() {
+        if r0.is_none() && r1.is_none() {
+            continue;
+        }
+        let line = &mut out[v * size * 3..(v + 1) * size * 3];
+        for (px, &(c0, c1, fx)) in line.chunks_exact_mut(3).zip(&columns) {
+            if c0.is_none() && c1.is_none() {
+                continue;
+            }
+            for (c, value) in px.iter_mut().enumerate() {
+                let top = sample(r0, c0, c) * (1.0 - fx) + sample(r0, c1, c) * fx;
+                let bottom = sample(r1, c0, c) * (1.0 - fx) + sample(r1, c1, c) * fx;
+                *value = (top * (1.0 - fy) + bottom * fy) * (1.0 / 255.0);
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_whole_image_box_is_a_centred_square() {
+        let b = whole_image_box(640, 480);
+        assert_eq!((b.x0, b.y0, b.width, b.height), (0.0, -80.0, 640.0, 640.0));
+        let s = squared(&CropBox::new(10.0, 20.0, 30.0, 50.0).expect("box"));
+        assert_eq!((s.x0, s.y0, s.width, s.height), (0.0, 20.0, 50.0, 50.0));
+    }
+
+    #[test]
+    fn the_alignment_box_is_centred_on_the_hips_and_holds_the_circle() {
+        let b = box_from_alignment([100.0, 200.0], [100.0, 120.0], 8.0).expect("box");
+        assert_eq!((b.width, b.x0, b.y0), (200.0, 0.0, 100.0));
+        assert!(box_from_alignment([1.0, 1.0], [1.0, 2.0], 8.0).is_none());
+        assert!(box_from_alignment([f64::NAN, 1.0], [1.0, 90.0], 8.0).is_none());
+    }
+
+    #[test]
+    fn a_crop_of_the_image_itself_reproduces_it_and_outside_is_black() {
+        let mut rgb = image::RgbImage::new(4, 4);
+        for (x, y, p) in rgb.enumerate_pixels_mut() {
+            *p = image::Rgb([(x * 60) as u8, (y * 60) as u8, 255]);
+        }
+        let mut out = Vec::new();
+        let same = CropBox::new(0.0, 0.0, 4.0, 4.0).expect("box");
+        crop_input(&rgb, &same, 4, &mut out);
+        assert!((out[(2 * 4 + 3) * 3] - 180.0 / 255.0).abs() < 1e-6);
+        assert!((out[(2 * 4 + 3) * 3 + 1] - 120.0 / 255.0).abs() < 1e-6);
+        // A box twice the image, centred: the image fills the middle half.
+        let big = CropBox::new(-2.0, -2.0, 8.0, 8.0).expect("box");
+        crop_input(&rgb, &big, 8, &mut out);
+        assert_eq!(out[2], 0.0, "the corner is outside");
+        assert!(
+            (out[(4 * 8 + 4) * 3 + 2] - 1.0).abs() < 1e-6,
+            "the middle is inside"
+        );
+    }
+}

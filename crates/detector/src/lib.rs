@@ -1,0 +1,17 @@
+//! The image detector: camera frames to the estimator's [`posestream_math::HeatMaps`] layout.
+//!
+//! - [`images`]: where camera frames come from (a folder, a video, image messages);
+//! - [`models`]: the landmark networks (fetched, rewritten for tract);
+//! - [`render`]: pictures of results;
+//! - [`crop`]: person boxes and the crop resampled into the model's input;
+//! - [`image`]: the detector itself (landmark model, tracking, heat-map messages);
+//! - [`mapping`]: the network's channels to the dictionary's joints.
+
+pub mod crop;
+pub mod image;
+pub mod images;
+pub mod mapping;
+pub mod models;
+pub mod render;
+
+pub use image::{DetectorError, DetectorStats, ImageDetector, ImageSettings};

@@ -1,0 +1,572 @@
+//! [`Estimator`]: a [`Dictionary`] plus [`Params`], lifting 2D joints or heat maps of a
+//! sequence to 3D poses. The entry point of the library; the batch `lift` command and the
+//! streaming nodes are thin adapters over it.
+
+use std::time::Instant;
+
+use nalgebra::Vector3;
+use serde::Serialize;
+
+use crate::camera::{Intrinsics, PixelMap};
+use crate::dictionary::Dictionary;
+use crate::error::EstimateError;
+use crate::heatmaps::HeatMaps;
+use crate::solver::bcd::{self, BcdWorkspace};
+use crate::solver::coefficients::basis_gram_max;
+use crate::solver::em::{self, EmWorkspace, PreparedMaps};
+use crate::solver::init::{InitCache, InitWorkspace, initialise_frame, initialise_frame_into};
+use crate::solver::normalise::{heatmap_scale, keypoint_scale};
+use crate::solver::perspective::{
+    self, PerspectiveFit, PerspectiveParams, PerspectiveWorkspace, start_from_weak_fit,
+};
+use crate::solver::{FrameFit, InitMethod, Observations, Params};
+
+/// 2D joints of a sequence in pixels, with optional per-joint confidence in [0, 1].
+#[derive(Debug, Clone, PartialEq)]
+pub struct Keypoints {
+    /// Joints per frame.
+    pub joints: usize,
+    /// `[x, y]` per joint, frame-major (x right, y down).
+    pub xy: Vec<f64>,
+    /// Confidence per joint (`t*p + j`); `None` means all 1. A joint with confidence 0 is
+    /// not observed.
+    pub confidence: Option<Vec<f64>>,
+}
+
+impl Keypoints {
+    /// Number of frames.
+    pub fn frames(&self) -> usize {
+        if self.joints == 0 {
+            0
+        } else {
+            self.xy.len() / (2 * self.joints)
+        }
+    }
+}
+
+/// How the estimate was reached.
+#[derive(Debug, Clone, PartialEq, Serialize, Default)]
+pub struct Report {
+    /// Frames.
+    pub frames: usize,
+    /// Initialisation method.
+    pub init: String,
+    /// EM iterations (1 for given 2D joints).
+    pub em_iterations: usize,
+    /// Block-coordinate rounds per EM iteration.
+    pub rounds: Vec<usize>,
+    /// Objective after initialisation.
+    pub objective_init: f64,
+    /// Objective at the end.
+    pub objective: f64,
+    /// Objective history: for given 2D joints, before Algorithm 1 and after each of its
+    /// rounds (never increasing); for heat maps, after each EM iteration's M-step (each
+    /// E-step changes the data, so this sequence may rise slightly).
+    pub objective_rounds: Vec<f64>,
+    /// Seconds spent initialising.
+    pub seconds_init: f64,
+    /// Seconds in total.
+    pub seconds: f64,
+}
+
+/// The result of lifting a sequence.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Estimate {
+    /// Joints per frame.
+    pub joints: usize,
+    /// 3D poses `R_t S_t`, camera frame (x right, y down, z forward), dictionary units,
+    /// centred: `[x, y, z]` per joint, frame-major.
+    pub poses: Vec<f64>,
+    /// The 2D joints the model was fitted to, in input pixels: the given keypoints, or the
+    /// EM's expected joints.
+    pub keypoints: Vec<f64>,
+    /// The model's reprojection `Pi R_t S_t + T_t`, in input pixels.
+    pub projected: Vec<f64>,
+    /// Per-joint 2D variance (trace of the covariance, pixels^2) from the E-step; heat-map
+    /// input only.
+    pub variance: Option<Vec<f64>>,
+    /// The model parameters per frame (normalised units).
+    pub fits: Vec<FrameFit>,
+    /// Input pixels per normalised unit (the fits' units).
+    pub pixels_per_unit: f64,
+    /// Weight of each joint in the fit (`t*p + j`): the keypoints' confidence, or 1.
+    pub weights: Vec<f64>,
+    /// How it was reached.
+    pub report: Report,
+}
+
+/// The result of the perspective adjustment of an [`Estimate`]
+/// ([`Estimator::adjust_perspective`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct MetricEstimate {
+    /// Joints per frame.
+    pub joints: usize,
+    /// 3D poses, metres, camera frame (x right, y down, z forward), absolute position:
+    /// `[x, y, z]` per joint, frame-major.
+    pub poses: Vec<f64>,
+    /// The 2D joints the model was fitted to, image pixels.
+    pub keypoints: Vec<f64>,
+    /// The perspective projection of the poses, image pixels.
+    pub projected: Vec<f64>,
+    /// The model per frame.
+    pub fits: Vec<PerspectiveFit>,
+    /// Seconds spent.
+    pub seconds: f64,
+}
+
+/// Lifts 2D joints or heat maps to 3D with one dictionary and one parameter set.
+///
+/// ```
+/// use posestream_math::{Dictionary, Estimator, Keypoints, Params};
+///
+/// let root = concat!(env!("CARGO_MANIFEST_DIR"), "/../..");
+/// let dict = Dictionary::load(format!("{root}/config/dictionaries/default-k128.json"))?;
+/// let estimator = Estimator::new(dict, Params::default())?;
+/// // Two frames of 17 joints, pixels (x right, y down): a standing figure, 100 px tall.
+/// let standing: [f64; 34] = [
+///     50., 50., 58., 50., 58., 75., 58., 100., 42., 50., 42., 75., 42., 100., 50., 35.,
+///     50., 20., 50., 12., 50., 0., 60., 22., 68., 38., 70., 52., 40., 22., 32., 38.,
+///     30., 52.,
+/// ];
+/// let xy: Vec<f64> = standing.iter().chain(&standing).copied().collect();
+/// let estimate = estimator.lift_keypoints(&Keypoints { joints: 17, xy, confidence: None })?;
+/// assert_eq!(estimate.poses.len(), 2 * 17 * 3); // (F, p, 3), dictionary units
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+#[derive(Debug, Clone)]
+pub struct Estimator {
+    dict: Dictionary,
+    params: Params,
+    cache: InitCache,
+    gram_max: f64,
+}
+
+impl Estimator {
+    /// Prepares an estimator (precomputes the dictionary's factorisations).
+    pub fn new(dict: Dictionary, params: Params) -> Result<Self, EstimateError> {
+        params.validate()?;
+        let gram_max = basis_gram_max(&dict);
+        let cache = InitCache::new(&dict, gram_max);
+        Ok(Self {
+            dict,
+            params,
+            cache,
+            gram_max,
+        })
+    }
+
+    /// The dictionary.
+    pub fn dictionary(&self) -> &Dictionary {
+        &self.dict
+    }
+
+    /// The parameters.
+    pub fn params(&self) -> &Params {
+        &self.params
+    }
+
+    /// Precomputed quantities of the initialisation.
+    pub fn init_cache(&self) -> &InitCache {
+        &self.cache
+    }
+
+    /// `lambda_max` of the vectorised bases' Gram matrix (Lipschitz bound of the C-step).
+    pub fn basis_gram_max(&self) -> f64 {
+        self.gram_max
+    }
+
+    /// The initialisation used for given 2D joints (default: convex+robust+refine).
+    pub fn keypoint_init(&self) -> InitMethod {
+        self.params.init.unwrap_or(InitMethod::ConvexRobustRefine)
+    }
+
+    /// The initialisation used for heat maps (default: altern, the reference's most
+    /// accurate heat-map mode: P-MPJPE 0.123 against 0.163 for its convex default).
+    pub fn heatmap_init(&self) -> InitMethod {
+        self.params.init.unwrap_or(InitMethod::Altern)
+    }
+
+    /// Algorithm 1 on given 2D joints.
+    pub fn lift_keypoints(&self, kp: &Keypoints) -> Result<Estimate, EstimateError> {
+        self.keypoints_inner(kp, true)
+    }
+
+    /// The single-frame baseline on given 2D joints: each frame's initialisation alone,
+    /// without Algorithm 1's joint optimisation over the sequence.
+    pub fn initialise_keypoints(&self, kp: &Keypoints) -> Result<Estimate, EstimateError> {
+        self.keypoints_inner(kp, false)
+    }
+
+    fn keypoints_inner(&self, kp: &Keypoints, solve: bool) -> Result<Estimate, EstimateError> {
+        let start = Instant::now();
+        let p = self.dict.num_joints();
+        if kp.joints != p {
+            return Err(EstimateError::JointCount {
+                expected: p,
+                found: kp.joints,
+            });
+        }
+        let f = kp.frames();
+        if f == 0 {
+            return Err(EstimateError::NoFrames);
+        }
+        let weights = match &kp.confidence {
+            Some(c) => {
+                if c.len() != f * p {
+                    return Err(EstimateError::Parameter(format!(
+                        "confidence holds {} values, expected {f} x {p}",
+                        c.len()
+                    )));
+                }
+                if let Some(i) = c
+                    .iter()
+                    .position(|v| !v.is_finite() || *v < 0.0 || *v > 1.0)
+                {
+                    return Err(EstimateError::Parameter(format!(
+                        "confidence of frame {}, joint {} is {}, expected a value in [0, 1]",
+                        i / p,
+                        i % p,
+                        c[i]
+                    )));
+                }
+                c.clone()
+            }
+            None => vec![1.0; f * p],
+        };
+        for (i, v) in kp.xy.iter().enumerate() {
+            if !v.is_finite() {
+                return Err(EstimateError::NonFinite {
+                    frame: i / (2 * p),
+                    joint: (i / 2) % p,
+                });
+            }
+        }
+        for t in 0..f {
+            let observed = weights[t * p..(t + 1) * p]
+                .iter()
+                .filter(|&&w| w > 0.0)
+                .count();
+            if observed < 2 {
+                return Err(EstimateError::TooFewJoints { frame: t, observed });
+            }
+        }
+        let scale = keypoint_scale(&kp.xy, &weights, p);
+        if !(scale > 0.0 && scale.is_finite()) {
+            return Err(EstimateError::Degenerate);
+        }
+        let obs = Observations {
+            joints: p,
+            xy: kp.xy.iter().map(|v| v / scale).collect(),
+            weights,
+        };
+        let mut fits = Vec::with_capacity(f);
+        let mut init_ws = InitWorkspace::default();
+        for t in 0..f {
+            let visible: Vec<bool> = obs.frame_weights(t).iter().map(|&w| w > 0.0).collect();
+            fits.push(
+                initialise_frame(
+                    &self.dict,
+                    &self.cache,
+                    obs.frame(t),
+                    &visible,
+                    self.keypoint_init(),
+                    &self.params,
+                    &mut init_ws,
+                )
+                .0,
+            );
+        }
+        let seconds_init = start.elapsed().as_secs_f64();
+        if !solve {
+            return Ok(self.initial_estimate(
+                fits,
+                obs,
+                scale,
+                start,
+                seconds_init,
+                self.keypoint_init(),
+            ));
+        }
+        let mut ws = BcdWorkspace::default();
+        let info = bcd::solve(
+            &self.dict,
+            self.gram_max,
+            &obs,
+            &mut fits,
+            &self.params,
+            &mut ws,
+        );
+        let mut est = self.finish(fits, obs, scale, None);
+        est.report = Report {
+            frames: f,
+            init: self.keypoint_init().to_string(),
+            em_iterations: 1,
+            rounds: vec![info.rounds],
+            objective_init: info.objective[0],
+            objective: info.objective.last().copied().unwrap_or(f64::NAN),
+            objective_rounds: info.objective,
+            seconds_init,
+            seconds: start.elapsed().as_secs_f64(),
+        };
+        Ok(est)
+    }
+
+    /// Algorithm 2 (EM) on heat maps. Output 2D values are in heat-map pixels.
+    pub fn lift_heatmaps(&self, maps: &HeatMaps) -> Result<Estimate, EstimateError> {
+        self.heatmaps_inner(maps, true)
+    }
+
+    /// The single-frame baseline on heat maps: each frame initialised from its maps'
+    /// arg-max, without the EM. `keypoints` are the arg-max joints (heat-map pixels);
+    /// joints whose peak is not above the visibility threshold have weight 0.
+    pub fn initialise_heatmaps(&self, maps: &HeatMaps) -> Result<Estimate, EstimateError> {
+        self.heatmaps_inner(maps, false)
+    }
+
+    fn heatmaps_inner(&self, maps: &HeatMaps, solve: bool) -> Result<Estimate, EstimateError> {
+        let start = Instant::now();
+        let p = self.dict.num_joints();
+        if maps.joints != p {
+            return Err(EstimateError::JointCount {
+                expected: p,
+                found: maps.joints,
+            });
+        }
+        if maps.frames == 0 {
+            return Err(EstimateError::NoFrames);
+        }
+        let f = maps.frames;
+        let scale = heatmap_scale(maps.height);
+        let prepared = PreparedMaps::new(maps);
+        // Initialise each frame from the arg-max of each map.
+        let mut fits = Vec::with_capacity(f);
+        let mut init_ws = InitWorkspace::default();
+        let mut argmax = Observations::new(p, vec![0.0; 2 * p * f]);
+        let (mut w, mut visible) = (vec![0.0; 2 * p], vec![false; p]);
+        for t in 0..f {
+            let mut fit = FrameFit::zero(self.dict.num_bases());
+            self.initialise_from_argmax(
+                |j| maps.map(t, j),
+                maps.width,
+                scale,
+                &mut w,
+                &mut visible,
+                &self.params,
+                &mut init_ws,
+                &mut fit,
+            );
+            argmax.xy[2 * p * t..2 * p * (t + 1)].copy_from_slice(&w);
+            for (j, &v) in visible.iter().enumerate() {
+                argmax.weights[t * p + j] = if v { 1.0 } else { 0.0 };
+            }
+            fits.push(fit);
+        }
+        let seconds_init = start.elapsed().as_secs_f64();
+        if !solve {
+            return Ok(self.initial_estimate(
+                fits,
+                argmax,
+                scale,
+                start,
+                seconds_init,
+                self.heatmap_init(),
+            ));
+        }
+        let mut ws = EmWorkspace::default();
+        let mut scratch = Observations::new(p, vec![0.0; 2 * p * f]);
+        let (obs, info) = em::run(
+            &self.dict,
+            self.gram_max,
+            &prepared,
+            &mut fits,
+            scale,
+            &self.params,
+            &mut ws,
+        );
+        let mut variance = vec![0.0; f * p];
+        em::e_step(
+            &self.dict,
+            &prepared,
+            &fits,
+            scale,
+            self.params.sigma,
+            &mut scratch,
+            Some(&mut variance),
+            &mut ws,
+        );
+        let mut est = self.finish(fits, obs, scale, Some(variance));
+        est.report = Report {
+            frames: f,
+            init: self.heatmap_init().to_string(),
+            em_iterations: info.iterations,
+            rounds: info.rounds,
+            objective_init: info.objective_start,
+            objective: info.objective.last().copied().unwrap_or(f64::NAN),
+            objective_rounds: info.objective,
+            seconds_init,
+            seconds: start.elapsed().as_secs_f64(),
+        };
+        Ok(est)
+    }
+
+    /// The per-frame initialisation from heat maps (`map(j)`: joint j's map, `width`
+    /// columns; `scale` pixels per unit): each joint at its map's arg-max, visible if its
+    /// peak is above the visibility threshold (all, if fewer than two are). Leaves the
+    /// arg-max (normalised units) in `xy` and the visibility in `visible`, and the fit
+    /// in `fit` (its buffers reused). Shared by the batch EM and the sliding window
+    /// (which caps the iterations in `params`).
+    pub(crate) fn initialise_from_argmax<'m>(
+        &self,
+        map: impl Fn(usize) -> &'m [f32],
+        width: usize,
+        scale: f64,
+        xy: &mut [f64],
+        visible: &mut [bool],
+        params: &Params,
+        ws: &mut InitWorkspace,
+        fit: &mut FrameFit,
+    ) {
+        for (j, v) in visible.iter_mut().enumerate() {
+            let (x, y, peak) = crate::heatmaps::argmax(map(j), width);
+            xy[2 * j] = x / scale;
+            xy[2 * j + 1] = y / scale;
+            *v = f64::from(peak) > self.params.visibility_threshold;
+        }
+        if visible.iter().filter(|&&v| v).count() < 2 {
+            visible.iter_mut().for_each(|v| *v = true);
+        }
+        initialise_frame_into(
+            &self.dict,
+            &self.cache,
+            xy,
+            visible,
+            self.heatmap_init(),
+            params,
+            ws,
+            fit,
+        );
+    }
+
+    /// The estimate of the initialisation alone.
+    fn initial_estimate(
+        &self,
+        fits: Vec<FrameFit>,
+        obs: Observations,
+        scale: f64,
+        start: Instant,
+        seconds_init: f64,
+        init: InitMethod,
+    ) -> Estimate {
+        let mut est = self.finish(fits, obs, scale, None);
+        est.report = Report {
+            frames: est.fits.len(),
+            init: init.to_string(),
+            em_iterations: 0,
+            seconds_init,
+            seconds: start.elapsed().as_secs_f64(),
+            ..Report::default()
+        };
+        est
+    }
+
+    /// Poses and 2D outputs from the fits and the observations they were fitted to.
+    fn finish(
+        &self,
+        fits: Vec<FrameFit>,
+        obs: Observations,
+        scale: f64,
+        variance: Option<Vec<f64>>,
+    ) -> Estimate {
+        let p = self.dict.num_joints();
+        let f = fits.len();
+        let mut poses = vec![0.0; 3 * p * f];
+        let mut projected = vec![0.0; 2 * p * f];
+        let mut s = vec![0.0; 3 * p];
+        for (t, fit) in fits.iter().enumerate() {
+            self.dict.compose_into(&fit.coefficients, &mut s);
+            for j in 0..p {
+                let q = fit.rotation * Vector3::new(s[j], s[p + j], s[2 * p + j]);
+                poses[3 * (t * p + j)..3 * (t * p + j) + 3].copy_from_slice(q.as_slice());
+                projected[2 * (t * p + j)] = (q.x + fit.translation.x) * scale;
+                projected[2 * (t * p + j) + 1] = (q.y + fit.translation.y) * scale;
+            }
+        }
+        Estimate {
+            joints: p,
+            poses,
+            keypoints: obs.xy.iter().map(|v| v * scale).collect(),
+            projected,
+            variance,
+            fits,
+            pixels_per_unit: scale,
+            weights: obs.weights,
+            report: Report::default(),
+        }
+    }
+
+    /// The perspective adjustment (see [`perspective`]): metric poses in the camera frame
+    /// under the pinhole `camera`. `to_image` maps the estimate's input pixels to image
+    /// pixels, one map per frame or one for all (keypoints in image pixels:
+    /// [`PixelMap::IDENTITY`]; heat maps: [`CropBox::pixel_map`](crate::CropBox::pixel_map)).
+    pub fn adjust_perspective(
+        &self,
+        est: &Estimate,
+        camera: &Intrinsics,
+        to_image: &[PixelMap],
+        params: &PerspectiveParams,
+    ) -> Result<MetricEstimate, EstimateError> {
+        let start = Instant::now();
+        params.validate()?;
+        let p = self.dict.num_joints();
+        let f = est.fits.len();
+        if to_image.len() != f && to_image.len() != 1 {
+            return Err(EstimateError::Parameter(format!(
+                "{} crop boxes for {f} frames",
+                to_image.len()
+            )));
+        }
+        let mut poses = Vec::with_capacity(3 * p * f);
+        let mut keypoints = Vec::with_capacity(2 * p * f);
+        let mut projected = Vec::with_capacity(2 * p * f);
+        let mut fits = Vec::with_capacity(f);
+        let mut ws = PerspectiveWorkspace::default();
+        for (t, fit) in est.fits.iter().enumerate() {
+            let map = to_image[t.min(to_image.len() - 1)];
+            let uv: Vec<f64> = est.keypoints[2 * p * t..2 * p * (t + 1)]
+                .chunks_exact(2)
+                .flat_map(|xy| map.apply(xy[0], xy[1]))
+                .collect();
+            let units_to_image = PixelMap {
+                scale: map.scale.map(|s| s * est.pixels_per_unit),
+                offset: map.offset,
+            };
+            let mut pf = start_from_weak_fit(&self.dict, fit, &units_to_image, camera, params)
+                .ok_or(EstimateError::ZeroSize { frame: t })?;
+            perspective::adjust_frame(
+                &self.dict,
+                self.gram_max,
+                camera,
+                &uv,
+                &est.weights[p * t..p * (t + 1)],
+                &mut pf,
+                params,
+                &mut ws,
+            );
+            let joints = pf.joints(&self.dict);
+            for q in joints.chunks_exact(3) {
+                projected.extend(camera.project(&Vector3::new(q[0], q[1], q[2])));
+            }
+            poses.extend(joints);
+            keypoints.extend(uv);
+            fits.push(pf);
+        }
+        Ok(MetricEstimate {
+            joints: p,
+            poses,
+            keypoints,
+            projected,
+            fits,
+            seconds: start.elapsed().as_secs_f64(),
+        })
+    }
+}

@@ -1,0 +1,49 @@
+//! # posestream-math
+//!
+//! The math of posestream, and nothing else: no files of the service, no transports, no
+//! images (it depends on none of ros2-client, iceoryx2, mcap, tract, image or ureq).
+//!
+//!
+//! Monocular 3D human pose estimation after Zhou et al., "Sparseness Meets Deepness: 3D
+//! Human Pose Estimation from Monocular Video" (CVPR 2016): a sparse [`Dictionary`] of
+//! 3D basis poses, a weak-perspective camera, temporal smoothness, and an EM algorithm
+//! that treats the 2D joints as latent variables under [`HeatMaps`].
+//!
+//! The math lives in [`solver`] and knows nothing of files or transports; [`Estimator`]
+//! is its entry point:
+//!
+//! ```no_run
+//! use posestream_math::{Dictionary, Estimator, Params};
+//! let dict = Dictionary::load("poseDict-all-K128.mat")?;
+//! let estimator = Estimator::new(dict, Params::default())?;
+//! // One frame of 17 joints, pixels (x right, y down).
+//! let xy: Vec<f64> = (0..34).map(|i| (i * 7 % 13) as f64).collect();
+//! let keypoints = posestream_math::Keypoints { joints: 17, xy, confidence: None };
+//! let estimate = estimator.lift_keypoints(&keypoints)?;
+//! println!("{} frames, objective {}", estimate.report.frames, estimate.report.objective);
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+//!
+//! Vocabulary: a *Pose* is 3 x p joint positions; a [`Dictionary`] holds basis poses over
+//! a [`Skeleton`]; [`HeatMaps`] are a detector's per-joint score maps; a
+//! [`solver::Window`] is the frames solved together.
+
+pub mod camera;
+pub mod dictionary;
+pub mod error;
+pub mod estimator;
+pub mod geometry;
+pub mod heatmaps;
+pub mod metrics;
+pub mod skeleton;
+pub mod solver;
+pub mod streaming;
+
+pub use camera::{CropBox, Intrinsics, PixelMap};
+pub use dictionary::Dictionary;
+pub use error::{CameraError, DictionaryError, EstimateError};
+pub use estimator::{Estimate, Estimator, Keypoints, MetricEstimate, Report};
+pub use heatmaps::HeatMaps;
+pub use skeleton::Skeleton;
+pub use solver::{InitMethod, Params};
+pub use streaming::{Estimates, FrameEstimate, FrameMaps, StreamSettings, WindowEstimator};

@@ -1,0 +1,851 @@
+//! The streaming estimator: EM over a sliding [`Window`](crate::solver::Window) of the
+//! most recent frames, one frame in, estimates out with bounded lag.
+//!
+//! For each new frame of heat maps, [`WindowEstimator::push`]:
+//! 1. checks where it falls: the next frame, a short gap (frames dropped: carry on), a
+//!    long gap or a restart of the detector's numbering (end the track: emit the
+//!    estimates still owed, start again), or late / out of order (drop it and count it);
+//! 2. initialises it from its maps' arg-max, as the batch EM initialises every frame
+//!    ([`StreamSettings::warm_start`] copies the previous frame's fit instead: measured
+//!    worse, because a track then keeps its first frame's depth ambiguity);
+//! 3. if the window is full, freezes its oldest frame: that frame leaves the window and
+//!    becomes the *anchor*, a fixed neighbour whose coefficients and rotation keep
+//!    pulling the first frame of the window through the smoothness terms
+//!    ([`em::run_anchored`]);
+//! 4. runs [`StreamSettings::local_iterations`] EM iterations over the newest
+//!    [`StreamSettings::local_frames`] frames (anchored on the frame before them), which
+//!    is what makes the lag-0 estimate good, then [`StreamSettings::em_iterations`] over
+//!    the whole window;
+//! 5. emits the estimate of the newest frame (lag 0) and/or of the frame `lag` frames
+//!    back, which has seen `lag` more frames of evidence ([`StreamSettings::outputs`]).
+//!
+//! The math is the batch EM's ([`crate::solver::em`]); nothing here knows about
+//! transports. Once the window has filled, the solver's buffers are reused, and
+//! [`WindowEstimator::push_into`] writes the estimates over those of the previous frame:
+//! a warm update allocates nothing (`tests/allocations.rs` counts).
+
+use nalgebra::Vector3;
+use serde::{Deserialize, Serialize};
+
+use crate::dictionary::Dictionary;
+use crate::error::{EstimateError, OutOfDomain, check_range, check_real};
+use crate::estimator::Estimator;
+use crate::heatmaps::HeatMaps;
+use crate::solver::em::{self, EmWorkspace, MapSource};
+use crate::solver::estep::MapMoments;
+use crate::solver::init::InitWorkspace;
+use crate::solver::normalise::heatmap_scale;
+use crate::solver::{FrameFit, Observations, Params};
+
+/// Which estimates the window emits for each new frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Outputs {
+    /// Only the newest frame, at once (lag 0).
+    Newest,
+    /// Only the frame `lag` frames back (refined by the frames after it).
+    Lagged,
+    /// Both.
+    Both,
+}
+
+/// Settings of the sliding window (`[estimator.window]` in the configuration).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct StreamSettings {
+    /// Frames solved together (N).
+    pub size: usize,
+    /// Frames back of the refined estimate (L < N).
+    pub lag: usize,
+    /// Which estimates to emit.
+    pub outputs: Outputs,
+    /// EM iterations over the window per new frame at most.
+    pub em_iterations: usize,
+    /// Start each new frame from the previous frame's fit instead of its own
+    /// initialisation. Off by default: on held-out motion it tracks a wrong start for the
+    /// whole track (README, "Streaming").
+    pub warm_start: bool,
+    /// Newest frames refined on their own first (anchored on the frame before them).
+    pub local_frames: usize,
+    /// EM iterations over those newest frames per new frame at most (0: none).
+    pub local_iterations: usize,
+    /// Run the EM over the whole window on every n-th frame only (1: every frame); the
+    /// frames between get only the EM over the newest frames. Spreads the window's cost.
+    pub window_every: usize,
+    /// Iterations of a new frame's initialisation at most (the estimator's
+    /// `max_init_iterations` caps it too).
+    pub init_iterations: usize,
+    /// Coefficients the window's C-steps admit per frame and Newton step at most (the
+    /// window is warm-started: few are needed; see `Params::admit_per_frame`).
+    pub admit_per_frame: usize,
+    /// A jump in the sequence number larger than this ends the track (a restart);
+    /// smaller gaps are dropped frames and the track carries on.
+    pub max_gap_frames: u64,
+    /// A jump in capture time larger than this (seconds) ends the track.
+    pub max_gap_seconds: f64,
+}
+
+impl Default for StreamSettings {
+    fn default() -> Self {
+        Self {
+            size: 30,
+            lag: 10,
+            outputs: Outputs::Both,
+            em_iterations: 1,
+            warm_start: false,
+            local_frames: 4,
+            local_iterations: 2,
+            window_every: 10,
+            init_iterations: 5,
+            admit_per_frame: 2,
+            max_gap_frames: 10,
+            max_gap_seconds: 1.0,
+        }
+    }
+}
+
+impl StreamSettings {
+    /// Window sizes allowed at most: the window holds `size` frames of maps
+    /// (`size x joints x height x width` f32 values per track).
+    pub const MAX_SIZE: usize = 300;
+
+    /// Checks every value is in its domain.
+    pub fn validate(&self) -> Result<(), EstimateError> {
+        self.check().map_err(EstimateError::from)
+    }
+
+    /// Checks every value is in its domain; the error names the key
+    /// (`[estimator.window]` in the service configuration).
+    pub fn check(&self) -> Result<(), OutOfDomain> {
+        check_range("size", self.size, 1, Self::MAX_SIZE)?;
+        check_range("lag", self.lag, 0, self.size - 1)?;
+        check_range("em_iterations", self.em_iterations, 1, 100)?;
+        check_range("local_frames", self.local_frames, 1, self.size)?;
+        check_range("local_iterations", self.local_iterations, 0, 100)?;
+        check_range("window_every", self.window_every, 1, 10_000)?;
+        check_range("init_iterations", self.init_iterations, 1, 100_000)?;
+        check_range("admit_per_frame", self.admit_per_frame, 1, 10_000)?;
+        check_range("max_gap_frames", self.max_gap_frames, 1, 1_000_000)?;
+        check_real("max_gap_seconds", self.max_gap_seconds, 0.0, 3600.0, true)?;
+        Ok(())
+    }
+}
+
+/// One frame of heat maps as the window receives it.
+#[derive(Debug, Clone, Copy)]
+pub struct FrameMaps<'a> {
+    /// The detector's frame number (consecutive frames differ by one).
+    pub sequence: u64,
+    /// Capture time, nanoseconds.
+    pub stamp_ns: i64,
+    /// Map height (rows).
+    pub height: usize,
+    /// Map width (columns).
+    pub width: usize,
+    /// p maps of `height x width`, row-major, joint-major.
+    pub values: &'a [f32],
+}
+
+impl<'a> FrameMaps<'a> {
+    /// The frame of a sequence of heat maps.
+    pub fn of(maps: &'a HeatMaps, t: usize, sequence: u64, stamp_ns: i64) -> Self {
+        let n = maps.joints * maps.height * maps.width;
+        Self {
+            sequence,
+            stamp_ns,
+            height: maps.height,
+            width: maps.width,
+            values: &maps.values[t * n..(t + 1) * n],
+        }
+    }
+}
+
+/// A frame [`WindowEstimator::check_frame`] found well formed (sizes agree, every score
+/// finite), and whether it holds evidence of someone (a positive score).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct CheckedFrame {
+    evidence: bool,
+}
+
+impl CheckedFrame {
+    /// True if some score is positive.
+    pub fn has_evidence(&self) -> bool {
+        self.evidence
+    }
+}
+
+/// Where a track stands.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum TrackState {
+    /// Fewer frames than the lag have arrived since the track started.
+    Initialising,
+    /// Running normally.
+    Tracking,
+    /// The last estimates of a track that ended (gap, restart or end of stream).
+    Lost,
+}
+
+/// One estimate emitted by the window.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrameEstimate {
+    /// The sequence number of the frame it describes.
+    pub sequence: u64,
+    /// That frame's capture time, nanoseconds.
+    pub stamp_ns: i64,
+    /// Frames that arrived after it before this estimate was made (0: newest).
+    pub lag: usize,
+    /// Where the track stood.
+    pub state: TrackState,
+    /// 3D joints `R S`, camera frame (x right, y down, z forward), dictionary units,
+    /// centred: `[x, y, z]` per joint.
+    pub pose: Vec<f64>,
+    /// Per-joint 3D standard deviation (dictionary units): the E-step's 2D spread moved
+    /// to model units, the same on every axis (depth is not observed separately).
+    pub pose_std: Vec<f64>,
+    /// The expected 2D joints (heat-map pixels): `[x, y]` per joint.
+    pub keypoints: Vec<f64>,
+    /// Per-joint 2D standard deviation (heat-map pixels) from the E-step.
+    pub keypoint_std: Vec<f64>,
+    /// The model's reprojection (heat-map pixels): `[x, y]` per joint.
+    pub projected: Vec<f64>,
+}
+
+impl Default for FrameEstimate {
+    fn default() -> Self {
+        Self {
+            sequence: 0,
+            stamp_ns: 0,
+            lag: 0,
+            state: TrackState::Initialising,
+            pose: Vec::new(),
+            pose_std: Vec::new(),
+            keypoints: Vec::new(),
+            keypoint_std: Vec::new(),
+            projected: Vec::new(),
+        }
+    }
+}
+
+/// The estimates a push releases, oldest first, in buffers reused from push to push:
+/// [`Estimates::clear`] keeps every estimate and its vectors, and the next push writes
+/// over them, so a warm window emits without allocating
+/// ([`WindowEstimator::push_into`]). Reads as a slice of [`FrameEstimate`]s.
+#[derive(Debug, Clone, Default)]
+pub struct Estimates {
+    items: Vec<FrameEstimate>,
+    len: usize,
+}
+
+impl Estimates {
+    /// Forgets the estimates, keeping their buffers for the next push.
+    pub fn clear(&mut self) {
+        self.len = 0;
+    }
+
+    /// The next estimate to fill: a reused one (its vectors keep their capacity), or a
+    /// new one while fewer have ever been needed.
+    fn next_slot(&mut self) -> &mut FrameEstimate {
+        if self.len == self.items.len() {
+            self.items.push(FrameEstimate::default());
+        }
+        self.len += 1;
+        &mut self.items[self.len - 1]
+    }
+}
+
+impl std::ops::Deref for Estimates {
+    type Target = [FrameEstimate];
+    fn deref(&self) -> &[FrameEstimate] {
+        &self.items[..self.len]
+    }
+}
+
+/// Counters of what the window did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
+pub struct StreamCounters {
+    /// Frames accepted.
+    pub frames: u64,
+    /// Frames dropped because they came late or out of order.
+    pub late: u64,
+    /// Frames rejected as malformed (wrong size, non-finite values).
+    pub malformed: u64,
+    /// Frames without evidence (no positive score in any map): no estimate; they count
+    /// as dropped frames.
+    pub empty: u64,
+    /// Frames missing from the numbering within a track (dropped upstream; frames that
+    /// came without evidence are counted in `empty` instead).
+    pub missing: u64,
+    /// Tracks ended by a gap or a restart.
+    pub resets: u64,
+    /// Tracks started.
+    pub tracks: u64,
+}
+
+/// One frame in the window.
+#[derive(Debug, Clone)]
+struct Slot {
+    sequence: u64,
+    stamp_ns: i64,
+    /// Frames since the track started (0 for its first).
+    age: u64,
+}
+
+/// The window's maps in a ring: slot `i` holds window frame `(i - start) mod size`.
+#[derive(Debug, Clone, Default)]
+struct MapRing {
+    joints: usize,
+    height: usize,
+    width: usize,
+    start: usize,
+    len: usize,
+    capacity: usize,
+    values: Vec<f32>,
+    moments: Vec<MapMoments>,
+}
+
+impl MapRing {
+    fn slot(&self, t: usize) -> usize {
+        (self.start + t) % self.capacity
+    }
+
+    fn configure(&mut self, capacity: usize, joints: usize, height: usize, width: usize) {
+        let n = joints * height * width;
+        self.capacity = capacity;
+        self.joints = joints;
+        self.height = height;
+        self.width = width;
+        self.values.resize(capacity * n, 0.0);
+        self.moments
+            .resize(capacity * joints, MapMoments::default());
+        self.start = 0;
+        self.len = 0;
+    }
+
+    fn clear(&mut self) {
+        self.start = 0;
+        self.len = 0;
+    }
+
+    fn pop_front(&mut self) {
+        self.start = (self.start + 1) % self.capacity;
+        self.len -= 1;
+    }
+
+    /// Appends a frame (negatives clipped) and its moments.
+    fn push_back(&mut self, values: &[f32]) {
+        let n = self.joints * self.height * self.width;
+        let m = self.height * self.width;
+        let slot = self.slot(self.len);
+        let dst = &mut self.values[slot * n..(slot + 1) * n];
+        for (d, v) in dst.iter_mut().zip(values) {
+            *d = v.max(0.0);
+        }
+        for j in 0..self.joints {
+            self.moments[slot * self.joints + j] =
+                MapMoments::new(&dst[j * m..(j + 1) * m], self.width);
+        }
+        self.len += 1;
+    }
+}
+
+impl MapSource for MapRing {
+    fn height(&self) -> usize {
+        self.height
+    }
+    fn width(&self) -> usize {
+        self.width
+    }
+    fn map(&self, t: usize, j: usize) -> &[f32] {
+        let m = self.height * self.width;
+        let i = self.slot(t) * self.joints + j;
+        &self.values[i * m..(i + 1) * m]
+    }
+    fn moments(&self, t: usize, j: usize) -> &MapMoments {
+        &self.moments[self.slot(t) * self.joints + j]
+    }
+}
+
+/// The frames `from..` of another source.
+struct Tail<'a, M> {
+    inner: &'a M,
+    from: usize,
+}
+
+impl<M: MapSource> MapSource for Tail<'_, M> {
+    fn height(&self) -> usize {
+        self.inner.height()
+    }
+    fn width(&self) -> usize {
+        self.inner.width()
+    }
+    fn map(&self, t: usize, j: usize) -> &[f32] {
+        self.inner.map(self.from + t, j)
+    }
+    fn moments(&self, t: usize, j: usize) -> &MapMoments {
+        self.inner.moments(self.from + t, j)
+    }
+}
+
+/// EM over a sliding window of heat-map frames: the core of the estimator node.
+#[derive(Debug, Clone)]
+pub struct WindowEstimator {
+    estimator: Estimator,
+    settings: StreamSettings,
+    /// The estimator's parameters with the EM capped for the newest frames, and for the
+    /// whole window.
+    local_params: Params,
+    window_params: Params,
+    /// The estimator's parameters with the initialisation capped.
+    init_params: Params,
+    /// Frames since the last EM over the whole window.
+    since_window: usize,
+    /// The window's frames, oldest first, and their fits (same order).
+    slots: Vec<Slot>,
+    fits: Vec<FrameFit>,
+    /// The frozen frame just before the window, if the track has one.
+    anchor: Option<FrameFit>,
+    maps: MapRing,
+    last: Option<(u64, i64)>,
+    /// Frames without evidence since the last frame taken (not counted as missing).
+    empty_since_last: u64,
+    counters: StreamCounters,
+    // Buffers.
+    obs: Observations,
+    one: Observations,
+    variance: Vec<f64>,
+    shape: Vec<f64>,
+    em: EmWorkspace,
+    init: InitWorkspace,
+    argmax: Vec<f64>,
+    visible: Vec<bool>,
+    spare: Vec<FrameFit>,
+    /// The estimates of the allocating API ([`WindowEstimator::push`]), cloned out.
+    released: Estimates,
+}
+
+impl WindowEstimator {
+    /// A window over `estimator`'s dictionary and parameters.
+    pub fn new(estimator: Estimator, settings: StreamSettings) -> Result<Self, EstimateError> {
+        settings.validate()?;
+        let p = estimator.dictionary().num_joints();
+        let capped = |iterations| Params {
+            max_em_iterations: iterations,
+            admit_per_frame: settings.admit_per_frame,
+            ..estimator.params().clone()
+        };
+        Ok(Self {
+            local_params: capped(settings.local_iterations.max(1)),
+            window_params: capped(settings.em_iterations),
+            init_params: Params {
+                max_init_iterations: settings
+                    .init_iterations
+                    .min(estimator.params().max_init_iterations),
+                ..estimator.params().clone()
+            },
+            since_window: 0,
+            slots: Vec::with_capacity(settings.size),
+            fits: Vec::with_capacity(settings.size),
+            anchor: None,
+            maps: MapRing::default(),
+            last: None,
+            empty_since_last: 0,
+            counters: StreamCounters::default(),
+            obs: Observations::default(),
+            one: Observations::new(p, vec![0.0; 2 * p]),
+            variance: vec![0.0; p],
+            shape: vec![0.0; 3 * p],
+            em: EmWorkspace::default(),
+            init: InitWorkspace::default(),
+            argmax: vec![0.0; 2 * p],
+            visible: vec![false; p],
+            spare: Vec::new(),
+            released: Estimates::default(),
+            estimator,
+            settings,
+        })
+    }
+
+    /// The settings.
+    pub fn settings(&self) -> &StreamSettings {
+        &self.settings
+    }
+
+    /// The dictionary.
+    pub fn dictionary(&self) -> &Dictionary {
+        self.estimator.dictionary()
+    }
+
+    /// What the window has done so far.
+    pub fn counters(&self) -> StreamCounters {
+        self.counters
+    }
+
+    /// Frames in the window now.
+    pub fn len(&self) -> usize {
+        self.slots.len()
+    }
+
+    /// True when no track is running.
+    pub fn is_empty(&self) -> bool {
+        self.slots.is_empty()
+    }
+
+    /// Takes one frame; appends the estimates it releases to `out` (oldest first).
+    ///
+    /// A malformed frame (wrong size, non-finite values) is counted and returned as an
+    /// error; the window is unchanged and the stream can go on. Late and out-of-order
+    /// frames, and frames without evidence (every map zero), are counted and ignored. A
+    /// frame whose maps have another size than the track's ends the track and starts a
+    /// new one.
+    ///
+    /// Each estimate is a new allocation; a service emitting for every frame uses
+    /// [`WindowEstimator::push_into`], which reuses them.
+    pub fn push(
+        &mut self,
+        frame: &FrameMaps<'_>,
+        out: &mut Vec<FrameEstimate>,
+    ) -> Result<(), EstimateError> {
+        let checked = self.check_frame(frame)?;
+        self.push_checked(frame, checked, out);
+        Ok(())
+    }
+
+    /// [`WindowEstimator::push`] into reused estimates: appends the estimates the frame
+    /// releases to `out` (call [`Estimates::clear`] first to keep only this frame's).
+    /// Once the window is full and `out` has held as many estimates, nothing allocates.
+    ///
+    /// ```
+    /// use posestream_math::streaming::{Estimates, FrameMaps, StreamSettings, WindowEstimator};
+    /// use posestream_math::{Dictionary, Estimator, Params};
+    ///
+    /// let root = concat!(env!("CARGO_MANIFEST_DIR"), "/../..");
+    /// let dict = Dictionary::load(format!("{root}/config/dictionaries/default-k128.json"))
+    ///     .expect("the shipped dictionary");
+    /// let estimator = Estimator::new(dict, Params::default())?;
+    /// let mut window = WindowEstimator::new(estimator, StreamSettings::default())?;
+    /// let mut out = Estimates::default();
+    /// // One frame: 17 maps of 16 x 16, a peak in each.
+    /// let mut values = vec![0.0f32; 17 * 256];
+    /// for j in 0..17 {
+    ///     values[j * 256 + 16 * (4 + j % 8) + 5 + j % 6] = 1.0;
+    /// }
+    /// let frame = FrameMaps { sequence: 0, stamp_ns: 0, height: 16, width: 16, values: &values };
+    /// out.clear();
+    /// window.push_into(&frame, &mut out)?;
+    /// assert_eq!(out.len(), 1); // the newest frame at lag 0; lagged ones come later
+    /// assert_eq!(out[0].pose.len(), 3 * 17);
+    /// # Ok::<(), posestream_math::EstimateError>(())
+    /// ```
+    pub fn push_into(
+        &mut self,
+        frame: &FrameMaps<'_>,
+        out: &mut Estimates,
+    ) -> Result<(), EstimateError> {
+        let checked = self.check_frame(frame)?;
+        self.push_checked_into(frame, checked, out);
+        Ok(())
+    }
+
+    /// Checks a frame's sizes and values, as [`WindowEstimator::push`] does first: a
+    /// malformed frame is counted and returned as an error, nothing else changes. For a
+    /// caller that must know a frame is good before acting on it (the node ends a track
+    /// only for a good frame of another track).
+    pub fn check_frame(&mut self, frame: &FrameMaps<'_>) -> Result<CheckedFrame, EstimateError> {
+        match self.check(frame) {
+            Ok(evidence) => Ok(CheckedFrame { evidence }),
+            Err(e) => {
+                self.counters.malformed += 1;
+                Err(e)
+            }
+        }
+    }
+
+    /// [`WindowEstimator::push`] of a frame [`WindowEstimator::check_frame`] passed.
+    pub fn push_checked(
+        &mut self,
+        frame: &FrameMaps<'_>,
+        checked: CheckedFrame,
+        out: &mut Vec<FrameEstimate>,
+    ) {
+        let mut released = std::mem::take(&mut self.released);
+        released.clear();
+        self.push_checked_into(frame, checked, &mut released);
+        out.extend(released.iter().cloned());
+        self.released = released;
+    }
+
+    /// [`WindowEstimator::push_into`] of a frame [`WindowEstimator::check_frame`] passed.
+    pub fn push_checked_into(
+        &mut self,
+        frame: &FrameMaps<'_>,
+        checked: CheckedFrame,
+        out: &mut Estimates,
+    ) {
+        if !checked.evidence {
+            // Nothing seen: no estimate, and the frame counts as dropped (a long run of
+            // them ends the track as a gap does), though not as missing.
+            self.counters.empty += 1;
+            self.empty_since_last += 1;
+            return;
+        }
+        if let Some((seq, stamp)) = self.last {
+            let late =
+                frame.sequence <= seq && seq - frame.sequence <= self.settings.max_gap_frames;
+            if late {
+                self.counters.late += 1;
+                return;
+            }
+            let gap_seconds = frame.stamp_ns.abs_diff(stamp) as f64 * 1e-9;
+            let restart = frame.sequence < seq
+                || frame.sequence - seq > self.settings.max_gap_frames
+                || gap_seconds > self.settings.max_gap_seconds;
+            if restart {
+                self.counters.resets += 1;
+                self.finish_into(out);
+            } else {
+                self.counters.missing +=
+                    (frame.sequence - seq - 1).saturating_sub(self.empty_since_last);
+            }
+        }
+        self.empty_since_last = 0;
+        let geometry = (frame.height, frame.width);
+        if (self.maps.height, self.maps.width) != geometry {
+            // Maps of another size: the detector changed; the track ends here.
+            if !self.slots.is_empty() {
+                self.counters.resets += 1;
+                self.finish_into(out);
+            }
+            let p = self.dictionary().num_joints();
+            self.maps
+                .configure(self.settings.size, p, frame.height, frame.width);
+        }
+        self.counters.frames += 1;
+        self.last = Some((frame.sequence, frame.stamp_ns));
+        self.admit(frame);
+        self.solve();
+        let newest = self.slots.len() - 1;
+        let state = if self.slots[newest].age < self.settings.lag as u64 {
+            TrackState::Initialising
+        } else {
+            TrackState::Tracking
+        };
+        if self.settings.outputs != Outputs::Newest && newest >= self.settings.lag {
+            let t = newest - self.settings.lag;
+            self.estimate(t, TrackState::Tracking, out.next_slot());
+        }
+        if self.settings.outputs != Outputs::Lagged {
+            self.estimate(newest, state, out.next_slot());
+        }
+    }
+
+    /// Ends the track: appends the lagged estimates still owed (state
+    /// [`TrackState::Lost`], lag smaller than configured) and empties the window.
+    pub fn finish(&mut self, out: &mut Vec<FrameEstimate>) {
+        let mut released = std::mem::take(&mut self.released);
+        released.clear();
+        self.finish_into(&mut released);
+        out.extend(released.iter().cloned());
+        self.released = released;
+    }
+
+    /// [`WindowEstimator::finish`] into reused estimates.
+    pub fn finish_into(&mut self, out: &mut Estimates) {
+        if self.settings.outputs != Outputs::Newest {
+            let n = self.slots.len();
+            let first_owed = n.saturating_sub(self.settings.lag);
+            for t in first_owed..n {
+                self.estimate(t, TrackState::Lost, out.next_slot());
+            }
+        }
+        self.reset();
+    }
+
+    /// Forgets the track without emitting anything.
+    pub fn reset(&mut self) {
+        self.slots.clear();
+        self.spare.append(&mut self.fits);
+        if let Some(a) = self.anchor.take() {
+            self.spare.push(a);
+        }
+        self.maps.clear();
+        self.since_window = 0;
+        self.last = None;
+        self.empty_since_last = 0;
+    }
+
+    /// A new window over the same estimator and settings, keeping only the counters: for
+    /// starting again after a failure left this one's state in doubt.
+    pub fn fresh(&self) -> Result<Self, EstimateError> {
+        let mut window = Self::new(self.estimator.clone(), self.settings.clone())?;
+        window.counters = self.counters;
+        Ok(window)
+    }
+
+    /// Checks a frame's sizes and values; true if any score is positive (the frame has
+    /// evidence of someone).
+    fn check(&self, frame: &FrameMaps<'_>) -> Result<bool, EstimateError> {
+        let p = self.dictionary().num_joints();
+        let n = frame.height.checked_mul(frame.width).unwrap_or(0);
+        if n == 0 || p.checked_mul(n) != Some(frame.values.len()) {
+            return Err(EstimateError::Parameter(format!(
+                "frame {} holds {} values, expected {p} joints x {} x {}",
+                frame.sequence,
+                frame.values.len(),
+                frame.height,
+                frame.width
+            )));
+        }
+        let mut evidence = false;
+        for (i, v) in frame.values.iter().enumerate() {
+            if !v.is_finite() {
+                return Err(EstimateError::NonFinite {
+                    frame: usize::try_from(frame.sequence).unwrap_or(usize::MAX),
+                    joint: i / n,
+                });
+            }
+            evidence |= *v > 0.0;
+        }
+        Ok(evidence)
+    }
+
+    /// Adds the frame to the window (freezing the oldest if full) and initialises it.
+    fn admit(&mut self, frame: &FrameMaps<'_>) {
+        let k = self.dictionary().num_bases();
+        if self.slots.len() == self.settings.size {
+            self.slots.remove(0);
+            let frozen = self.fits.remove(0);
+            if let Some(old) = self.anchor.replace(frozen) {
+                self.spare.push(old);
+            }
+            self.maps.pop_front();
+        }
+        self.maps.push_back(frame.values);
+        let age = self.slots.last().map_or(0, |s| s.age + 1);
+        if age == 0 {
+            self.counters.tracks += 1;
+        }
+        self.slots.push(Slot {
+            sequence: frame.sequence,
+            stamp_ns: frame.stamp_ns,
+            age,
+        });
+        let mut fit = self.spare.pop().unwrap_or_else(|| FrameFit::zero(k));
+        match self.fits.last().filter(|_| self.settings.warm_start) {
+            Some(prev) => {
+                fit.coefficients.copy_from_slice(&prev.coefficients);
+                fit.rotation = prev.rotation;
+                fit.translation = prev.translation;
+            }
+            None => self.initialise(&mut fit),
+        }
+        self.fits.push(fit);
+    }
+
+    /// The batch EM's per-frame initialisation of the newest frame, from its arg-max.
+    fn initialise(&mut self, fit: &mut FrameFit) {
+        let t = self.maps.len - 1;
+        let maps = &self.maps;
+        self.estimator.initialise_from_argmax(
+            |j| maps.map(t, j),
+            maps.width,
+            heatmap_scale(maps.height),
+            &mut self.argmax,
+            &mut self.visible,
+            &self.init_params,
+            &mut self.init,
+            fit,
+        );
+    }
+
+    /// EM iterations: first over the newest frames (anchored on the frame before them),
+    /// then, every [`StreamSettings::window_every`] frames, over the whole window
+    /// (anchored on the frozen frame).
+    fn solve(&mut self) {
+        let scale = heatmap_scale(self.maps.height);
+        let n = self.fits.len();
+        let local = self.settings.local_frames.min(n);
+        let has_local = local < n && self.settings.local_iterations > 0;
+        self.since_window += 1;
+        if has_local {
+            let (before, tail) = self.fits.split_at_mut(n - local);
+            let view = Tail {
+                inner: &self.maps,
+                from: n - local,
+            };
+            em::run_anchored_in(
+                self.estimator.dictionary(),
+                self.estimator.basis_gram_max(),
+                &view,
+                tail,
+                before.last(),
+                scale,
+                &self.local_params,
+                &mut self.obs,
+                &mut self.em,
+            );
+        }
+        if has_local && self.since_window < self.settings.window_every {
+            return;
+        }
+        self.since_window = 0;
+        em::run_anchored_in(
+            self.estimator.dictionary(),
+            self.estimator.basis_gram_max(),
+            &self.maps,
+            &mut self.fits,
+            self.anchor.as_ref(),
+            scale,
+            &self.window_params,
+            &mut self.obs,
+            &mut self.em,
+        );
+    }
+
+    /// The estimate of window frame `t`, written over `e`.
+    fn estimate(&mut self, t: usize, state: TrackState, e: &mut FrameEstimate) {
+        let dict = self.estimator.dictionary();
+        let p = dict.num_joints();
+        let scale = heatmap_scale(self.maps.height);
+        let fit = &self.fits[t];
+        let view = Tail {
+            inner: &self.maps,
+            from: t,
+        };
+        em::e_step(
+            dict,
+            &view,
+            std::slice::from_ref(fit),
+            scale,
+            self.estimator.params().sigma,
+            &mut self.one,
+            Some(&mut self.variance),
+            &mut self.em,
+        );
+        dict.compose_into(&fit.coefficients, &mut self.shape);
+        let s = &self.shape;
+        e.pose.clear();
+        e.projected.clear();
+        for j in 0..p {
+            let q = fit.rotation * Vector3::new(s[j], s[p + j], s[2 * p + j]);
+            e.pose.extend_from_slice(q.as_slice());
+            e.projected.push((q.x + fit.translation.x) * scale);
+            e.projected.push((q.y + fit.translation.y) * scale);
+        }
+        // The variance is the trace of the 2D covariance: per axis, half of it.
+        e.keypoint_std.clear();
+        e.pose_std.clear();
+        for v in &self.variance {
+            let std = (0.5 * v).sqrt();
+            e.keypoint_std.push(std);
+            e.pose_std.push(std / scale);
+        }
+        e.keypoints.clear();
+        e.keypoints.extend(self.one.xy.iter().map(|v| v * scale));
+        let slot = &self.slots[t];
+        e.sequence = slot.sequence;
+        e.stamp_ns = slot.stamp_ns;
+        e.lag = self.slots.len() - 1 - t;
+        e.state = state;
+    }
+}

@@ -1,0 +1,273 @@
+//! Synthetic test sequences from motion capture: a camera looking at a mapped BVH
+//! sequence ([`view`]), square crop boxes around the body ([`crop_boxes`]) and heat maps
+//! with the failure modes of real detectors ([`heatmaps::render`]).
+//!
+//! World axes are those of [`MappedSequence`](crate::MappedSequence): metres,
+//! z up. The camera frame is x right, y down, z forward, as everywhere in posestream.
+
+pub mod heatmaps;
+
+use nalgebra::{Matrix3, Vector3};
+use serde::{Deserialize, Serialize};
+
+use crate::MappedSequence;
+use posestream_math::camera::{CropBox, Intrinsics};
+use posestream_math::skeleton::Skeleton;
+
+pub use heatmaps::{ErrorModel, RenderedMaps};
+
+/// How the camera projects.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum Projection {
+    /// Parallel projection at `focal / distance` pixels per metre (the same image size as
+    /// the pinhole camera at the body's distance).
+    Orthographic,
+    /// A pinhole camera with the given focal length.
+    Pinhole,
+}
+
+/// Where the camera is and how it sees.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraSpec {
+    /// Distance from the body's root (pelvis), metres.
+    pub distance: f64,
+    /// Azimuth around the vertical, degrees: 0 = in front of the body as it faces in the
+    /// first frame, 90 = at its left.
+    pub azimuth_deg: f64,
+    /// Elevation above the root's height, degrees.
+    pub elevation_deg: f64,
+    /// Orbit speed, degrees per second (azimuth grows with time).
+    pub orbit_deg_per_s: f64,
+    /// Projection model.
+    pub projection: Projection,
+    /// Focal length, pixels.
+    pub focal: f64,
+    /// Image width and height, pixels (the principal point is the centre).
+    pub image_size: [f64; 2],
+    /// Follow the body: the camera keeps its place relative to the root's current
+    /// horizontal position (a dolly); otherwise it stays where the first frame puts it.
+    pub follow: bool,
+}
+
+impl Default for CameraSpec {
+    fn default() -> Self {
+        Self {
+            distance: 5.0,
+            azimuth_deg: 0.0,
+            elevation_deg: 10.0,
+            orbit_deg_per_s: 0.0,
+            projection: Projection::Pinhole,
+            focal: 1000.0,
+            image_size: [1000.0, 1000.0],
+            follow: true,
+        }
+    }
+}
+
+impl CameraSpec {
+    /// Checks the values.
+    pub fn validate(&self) -> Result<(), String> {
+        let finite = [
+            self.distance,
+            self.azimuth_deg,
+            self.elevation_deg,
+            self.orbit_deg_per_s,
+            self.focal,
+            self.image_size[0],
+            self.image_size[1],
+        ];
+        if finite.iter().any(|v| !v.is_finite()) {
+            return Err("camera values must be finite".into());
+        }
+        if self.distance <= 0.0 || self.focal <= 0.0 {
+            return Err("camera distance and focal length must be positive".into());
+        }
+        if self.elevation_deg.abs() >= 90.0 {
+            return Err("camera elevation must lie strictly between -90 and 90 degrees".into());
+        }
+        if self.image_size.iter().any(|&v| v < 1.0) {
+            return Err("image size must be at least 1 x 1".into());
+        }
+        Ok(())
+    }
+
+    /// The pinhole intrinsics (also the orthographic camera's image centre and scale).
+    pub fn intrinsics(&self) -> Intrinsics {
+        Intrinsics {
+            fx: self.focal,
+            fy: self.focal,
+            cx: 0.5 * self.image_size[0],
+            cy: 0.5 * self.image_size[1],
+        }
+    }
+}
+
+/// A sequence seen by a camera.
+#[derive(Debug, Clone, PartialEq)]
+pub struct View {
+    /// Joints per frame.
+    pub joints: usize,
+    /// Frames.
+    pub frames: usize,
+    /// Joint positions in the camera frame, metres: `[x, y, z]` per joint, frame-major.
+    pub camera_3d: Vec<f64>,
+    /// Their images, pixels: `[x, y]` per joint, frame-major.
+    pub image_2d: Vec<f64>,
+}
+
+/// Projects a mapped sequence through the camera.
+pub fn view(seq: &MappedSequence, skeleton: &Skeleton, cam: &CameraSpec) -> Result<View, String> {
+    cam.validate()?;
+    let p = seq.joints;
+    if p != skeleton.len() || seq.frames == 0 {
+        return Err("the sequence does not match the layout or has no frames".into());
+    }
+    let root = skeleton.root();
+    let root_at = |t: usize| Vector3::from_column_slice(&seq.positions[3 * (t * p + root)..][..3]);
+    let front = skeleton
+        .facing(&seq.positions[..3 * p])
+        .ok_or("the layout has no left/right torso joints to tell where the body faces")?;
+    let left = Vector3::z().cross(&front);
+    let first_root = root_at(0);
+    let k = cam.intrinsics();
+    let mut camera_3d = Vec::with_capacity(seq.frames * p * 3);
+    let mut image_2d = Vec::with_capacity(seq.frames * p * 2);
+    for t in 0..seq.frames {
+        let az = (cam.azimuth_deg + cam.orbit_deg_per_s * t as f64 * seq.frame_time).to_radians();
+        let el = cam.elevation_deg.to_radians();
+        let target = if cam.follow { root_at(t) } else { first_root };
+        let target = Vector3::new(target.x, target.y, first_root.z);
+        let dir = (front * az.cos() + left * az.sin()) * el.cos() + Vector3::z() * el.sin();
+        let centre = target + dir * cam.distance;
+        let forward = -dir;
+        let right = forward.cross(&Vector3::z()).normalize();
+        let down = forward.cross(&right);
+        let r = Matrix3::from_rows(&[right.transpose(), down.transpose(), forward.transpose()]);
+        for j in 0..p {
+            let w = Vector3::from_column_slice(&seq.positions[3 * (t * p + j)..][..3]);
+            let c = r * (w - centre);
+            camera_3d.extend([c.x, c.y, c.z]);
+            let uv = match cam.projection {
+                Projection::Pinhole => {
+                    if c.z <= 1e-6 {
+                        return Err(format!(
+                            "frame {t}: joint {} is behind the camera (move it further away)",
+                            skeleton.joints[j]
+                        ));
+                    }
+                    k.project(&c)
+                }
+                Projection::Orthographic => {
+                    let s = cam.focal / cam.distance;
+                    [k.cx + s * c.x, k.cy + s * c.y]
+                }
+            };
+            image_2d.extend(uv);
+        }
+    }
+    Ok(View {
+        joints: p,
+        frames: seq.frames,
+        camera_3d,
+        image_2d,
+    })
+}
+
+/// A square box per frame around the joints' images, `margin` times their larger extent.
+pub fn crop_boxes(image_2d: &[f64], joints: usize, margin: f64) -> Vec<CropBox> {
+    image_2d
+        .chunks_exact(2 * joints)
+        .map(|f| {
+            let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+            for q in f.chunks_exact(2) {
+                for a in 0..2 {
+                    lo[a] = lo[a].min(q[a]);
+                    hi[a] = hi[a].max(q[a]);
+                }
+            }
+            let side = ((hi[0] - lo[0]).max(hi[1] - lo[1]) * margin).max(1.0);
+            let centre = [0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1])];
+            CropBox {
+                x0: centre[0] - 0.5 * side,
+                y0: centre[1] - 0.5 * side,
+                width: side,
+                height: side,
+            }
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mapping::default_layout;
+
+    /// A standing figure facing world -y (its left at +x).
+    fn standing(frames: usize) -> MappedSequence {
+        let skel = default_layout();
+        let mut one = Vec::new();
+        for name in &skel.joints {
+            let side = if name.starts_with("l-") {
+                0.15
+            } else if name.starts_with("r-") {
+                -0.15
+            } else {
+                0.0
+            };
+            let z = match name.split('-').next_back().unwrap_or("") {
+                "ankle" => 0.1,
+                "knee" => 0.5,
+                "hip" | "pelvis" => 0.9,
+                "spine" => 1.1,
+                "thorax" | "shoulder" => 1.4,
+                "neck" => 1.5,
+                "top" => 1.7,
+                "elbow" => 1.15,
+                _ => 0.9,
+            };
+            one.extend([side, 0.0, z]);
+        }
+        MappedSequence {
+            joints: skel.len(),
+            frames,
+            frame_time: 0.1,
+            positions: one.repeat(frames),
+        }
+    }
+
+    #[test]
+    fn a_camera_in_front_sees_the_left_side_on_the_image_right() {
+        let skel = default_layout();
+        let seq = standing(3);
+        let front = skel.facing(&seq.positions).expect("faces");
+        assert!((front + Vector3::y()).norm() < 1e-12);
+        let cam = CameraSpec {
+            elevation_deg: 0.0,
+            ..CameraSpec::default()
+        };
+        let v = view(&seq, &skel, &cam).expect("view");
+        let l = skel.index_of("l-hip").expect("joint");
+        let r = skel.index_of("r-hip").expect("joint");
+        let top = skel.index_of("head-top").expect("joint");
+        // Facing the camera, the body's left is on the image's right; the head is up.
+        assert!(v.image_2d[2 * l] > v.image_2d[2 * r]);
+        assert!(v.image_2d[2 * top + 1] < v.image_2d[1]);
+        // The pelvis is straight ahead at the given distance.
+        assert!((v.camera_3d[2] - 5.0).abs() < 1e-9 && v.camera_3d[0].abs() < 1e-9);
+        // Orbiting 90 deg/s for 1 s (10 frames of 0.1 s) shows the body's left side.
+        let seq = standing(11);
+        let cam = CameraSpec {
+            orbit_deg_per_s: 90.0,
+            elevation_deg: 0.0,
+            ..CameraSpec::default()
+        };
+        let v = view(&seq, &skel, &cam).expect("view");
+        let at = |t: usize, j: usize| v.camera_3d[3 * (t * 17 + j) + 2];
+        assert!(at(10, l) < at(10, r), "the left hip is nearer the camera");
+        let boxes = crop_boxes(&v.image_2d, 17, 1.2);
+        assert_eq!(boxes.len(), 11);
+        assert!((boxes[0].width - boxes[0].height).abs() < 1e-12);
+    }
+}

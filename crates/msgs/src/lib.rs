@@ -1,0 +1,279 @@
+//! The wire messages of posestream (ROS 2 package `posestream_msgs`, in `msgs/`) and the
+//! ROS 2 standard messages they use (`std_msgs/Header`, `builtin_interfaces/Time`,
+//! mirrored from ROS 2 Humble's `std_msgs` and `builtin_interfaces` packages), plus
+//! `visualization_msgs/MarkerArray` ([`visualization`]) for RViz2 and Foxglove, and the
+//! camera images the image detector reads ([`sensor`]).
+//!
+//! Each message is declared once, with [`ros_message!`]: the macro writes the Rust struct
+//! (serde, so CDR comes from `cdr-encoding`) and its ROS field list, derived from the
+//! Rust field types through [`RosType`]. The `.msg` text lives in `msgs/msg/*.msg`
+//! (included here with `include_str!`); `tests/msgs.rs` parses it and checks that it
+//! declares exactly these fields, so the two cannot drift.
+//!
+//! Encoding: CDR little-endian (XCDR1, plain), behind the 4-byte encapsulation header
+//! `00 01 00 00`, as ROS 2 puts on the wire and in rosbag2 MCAP files ([`encode`],
+//! [`decode`]).
+//!
+//! Besides the messages, this crate holds the files they are kept in and read from:
+//! [`recording`] (rosbag2-compatible MCAP), [`npy`] arrays, [`toml_file`] (TOML
+//! documents read into typed structs), [`files`] (outputs that never replace an input)
+//! and [`limits`], the largest sizes taken from a peer or a file.
+
+pub mod error;
+pub mod files;
+pub mod limits;
+pub mod npy;
+pub mod recording;
+pub mod toml_file;
+
+mod heatmaps;
+pub mod sensor;
+mod skeleton;
+pub mod visualization;
+
+pub use heatmaps::{HeatMapEncoding, HeatMaps};
+pub use sensor::{CompressedImage, Image};
+pub use skeleton::{Skeleton3D, SkeletonState, Units};
+pub use visualization::{Marker, MarkerArray};
+
+use byteorder::LittleEndian;
+use serde::Serialize;
+use serde::de::DeserializeOwned;
+
+/// The 4-byte CDR encapsulation header: representation `CDR_LE`, options 0.
+pub const CDR_LE_HEADER: [u8; 4] = [0x00, 0x01, 0x00, 0x00];
+
+/// A type with a ROS 2 interface name (`float64`, `string[]`, `std_msgs/Header`).
+pub trait RosType {
+    /// The type as a `.msg` field declares it.
+    fn ros_type() -> String;
+    /// The messages this type needs, recursively (name, definition text), in first-use
+    /// order; primitives need none.
+    fn dependencies(_out: &mut Vec<(&'static str, &'static str)>) {}
+}
+
+macro_rules! primitive {
+    ($($t:ty => $name:literal),* $(,)?) => {
+        $(impl RosType for $t {
+            fn ros_type() -> String {
+                $name.to_string()
+            }
+        })*
+    };
+}
+
+primitive! {
+    bool => "bool", u8 => "uint8", i8 => "int8", u16 => "uint16", i16 => "int16",
+    u32 => "uint32", i32 => "int32", u64 => "uint64", i64 => "int64",
+    f32 => "float32", f64 => "float64", String => "string",
+}
+
+impl<T: RosType> RosType for Vec<T> {
+    fn ros_type() -> String {
+        format!("{}[]", T::ros_type())
+    }
+    fn dependencies(out: &mut Vec<(&'static str, &'static str)>) {
+        T::dependencies(out);
+    }
+}
+
+/// One field of a message: its ROS type and name.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Field {
+    /// The ROS type (`float64[]`, `std_msgs/Header`).
+    pub ros_type: String,
+    /// The field name.
+    pub name: &'static str,
+}
+
+/// A ROS 2 message: name, definition text and fields.
+pub trait RosMessage: RosType + Serialize + DeserializeOwned {
+    /// The full name, `package/msg/Type` (as rosbag2 and MCAP schemas name it).
+    const NAME: &'static str;
+    /// The `.msg` text.
+    const DEFINITION: &'static str;
+    /// The fields, in order, derived from the Rust type.
+    fn fields() -> Vec<Field>;
+
+    /// The DDS type name ROS 2 uses on the wire: `package::msg::dds_::Type_`.
+    fn dds_type_name() -> String {
+        let mut parts = Self::NAME.split('/');
+        let (pkg, kind, ty) = (
+            parts.next().unwrap_or_default(),
+            parts.next().unwrap_or_default(),
+            parts.next().unwrap_or_default(),
+        );
+        format!("{pkg}::{kind}::dds_::{ty}_")
+    }
+
+    /// The definition with every nested message appended, as the `ros2msg` schema
+    /// encoding of MCAP (and rosbag2) stores it: each after a line of 80 `=` and a line
+    /// `MSG: package/Type`.
+    fn full_definition() -> String {
+        let mut deps = Vec::new();
+        Self::dependencies(&mut deps);
+        let mut text = Self::DEFINITION.trim_end().to_string();
+        text.push('\n');
+        let me = Self::ros_type();
+        for (name, def) in deps.into_iter().filter(|(n, _)| *n != me) {
+            text.push_str(&"=".repeat(80));
+            text.push_str(&format!("\nMSG: {name}\n"));
+            text.push_str(def.trim_end());
+            text.push('\n');
+        }
+        text
+    }
+}
+
+/// Declares a message: the struct (serde), [`RosType`] and [`RosMessage`].
+#[macro_export]
+#[doc(hidden)]
+macro_rules! ros_message {
+    (
+        $(#[$meta:meta])*
+        $name:ident = $full:literal, $short:literal, $definition:expr;
+        $( $(#[$fmeta:meta])* $field:ident : $ty:ty ),* $(,)?
+    ) => {
+        $(#[$meta])*
+        #[derive(Debug, Clone, PartialEq, Default, serde::Serialize, serde::Deserialize)]
+        pub struct $name {
+            $( $(#[$fmeta])* pub $field: $ty, )*
+        }
+
+        impl $crate::RosType for $name {
+            fn ros_type() -> String {
+                $short.to_string()
+            }
+            fn dependencies(out: &mut Vec<(&'static str, &'static str)>) {
+                let mut mine = Vec::new();
+                $( <$ty as $crate::RosType>::dependencies(&mut mine); )*
+                for d in mine {
+                    if !out.contains(&d) {
+                        out.push(d);
+                    }
+                }
+                let me = ($short, <$name as $crate::RosMessage>::DEFINITION);
+                if !out.contains(&me) {
+                    out.push(me);
+                }
+            }
+        }
+
+        impl $crate::RosMessage for $name {
+            const NAME: &'static str = $full;
+            const DEFINITION: &'static str = $definition;
+            fn fields() -> Vec<$crate::Field> {
+                vec![$($crate::Field {
+                    ros_type: <$ty as $crate::RosType>::ros_type(),
+                    name: stringify!($field).trim_start_matches("r#"),
+                }),*]
+            }
+        }
+    };
+}
+
+ros_message! {
+    /// `builtin_interfaces/Time`: seconds and nanoseconds since the epoch.
+    Time = "builtin_interfaces/msg/Time", "builtin_interfaces/Time",
+        "# Time since the epoch (builtin_interfaces/Time).\nint32 sec\nuint32 nanosec\n";
+    /// Whole seconds.
+    sec: i32,
+    /// Nanoseconds within the second, `[0, 1e9)`.
+    nanosec: u32,
+}
+
+impl Time {
+    /// The time `ns` nanoseconds after the epoch (negative times round down).
+    pub fn from_nanos(ns: i64) -> Self {
+        let sec = ns.div_euclid(1_000_000_000);
+        Self {
+            sec: sec.clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32,
+            nanosec: ns.rem_euclid(1_000_000_000) as u32,
+        }
+    }
+
+    /// Nanoseconds since the epoch.
+    pub fn nanos(&self) -> i64 {
+        i64::from(self.sec) * 1_000_000_000 + i64::from(self.nanosec)
+    }
+}
+
+ros_message! {
+    /// `std_msgs/Header`: a time stamp and a coordinate frame id.
+    Header = "std_msgs/msg/Header", "std_msgs/Header",
+        "# Standard metadata for higher-level stamped data types (std_msgs/Header).\nbuiltin_interfaces/Time stamp\nstring frame_id\n";
+    /// The time the data describes.
+    stamp: Time,
+    /// The coordinate frame.
+    frame_id: String,
+}
+
+/// Why a message could not be decoded.
+#[derive(Debug, thiserror::Error)]
+pub enum DecodeError {
+    /// Fewer than 4 bytes, or an encapsulation other than CDR little-endian.
+    #[error("not a CDR little-endian message (encapsulation header {0:02x?})")]
+    Encapsulation(Vec<u8>),
+    /// The CDR payload does not hold the message.
+    #[error("malformed {message}: {reason}")]
+    Cdr {
+        /// The message type.
+        message: &'static str,
+        /// What the decoder found.
+        reason: String,
+    },
+    /// The message decoded but its contents are inconsistent.
+    #[error("invalid {message}: {reason}")]
+    Invalid {
+        /// The message type.
+        message: &'static str,
+        /// What is wrong.
+        reason: String,
+    },
+}
+
+/// Why a message could not be encoded.
+#[derive(Debug, thiserror::Error)]
+#[error("cannot encode {message}: {reason}")]
+pub struct EncodeError {
+    /// The message type.
+    pub message: &'static str,
+    /// What the encoder said.
+    pub reason: String,
+}
+
+/// Serialises a message to CDR little-endian with the encapsulation header.
+pub fn encode<M: RosMessage>(msg: &M) -> Result<Vec<u8>, EncodeError> {
+    let mut out = CDR_LE_HEADER.to_vec();
+    cdr_encoding::to_writer::<M, LittleEndian, _>(&mut out, msg).map_err(|e| EncodeError {
+        message: M::NAME,
+        reason: e.to_string(),
+    })?;
+    Ok(out)
+}
+
+/// Decodes a CDR message with its encapsulation header.
+pub fn decode<M: RosMessage>(bytes: &[u8]) -> Result<M, DecodeError> {
+    match bytes.get(..4) {
+        Some(h) if h == CDR_LE_HEADER => {}
+        other => return Err(DecodeError::Encapsulation(other.unwrap_or(bytes).to_vec())),
+    }
+    cdr_encoding::from_bytes::<M, LittleEndian>(&bytes[4..])
+        .map(|(m, _)| m)
+        .map_err(|e| DecodeError::Cdr {
+            message: M::NAME,
+            reason: e.to_string(),
+        })
+}
+
+/// The `(type, name)` fields a `.msg` text declares, constants and comments left out.
+pub fn parse_definition(text: &str) -> Vec<(String, String)> {
+    text.lines()
+        .map(|l| l.split('#').next().unwrap_or_default().trim())
+        .filter(|l| !l.is_empty() && !l.contains('='))
+        .filter_map(|l| {
+            let mut it = l.split_whitespace();
+            Some((it.next()?.to_string(), it.next()?.to_string()))
+        })
+        .collect()
+}

@@ -1,0 +1,79 @@
+//! `posestream_msgs/Skeleton3D`: one estimated 3D skeleton.
+
+use super::Header;
+use crate::ros_message;
+
+/// Where the track stood (`STATE_*` in the `.msg`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SkeletonState {
+    /// Fewer frames than the lag since the track started.
+    Initialising = 0,
+    /// Running normally.
+    Tracking = 1,
+    /// The last estimates of a track that ended.
+    Lost = 2,
+}
+
+/// Units of the positions (`UNITS_*` in the `.msg`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Units {
+    /// Centred, dictionary units (no metric scale).
+    Dictionary = 0,
+    /// Metres, camera frame.
+    Metres = 1,
+}
+
+ros_message! {
+    /// One estimated 3D skeleton (`msgs/msg/Skeleton3D.msg` documents each field).
+    Skeleton3D = "posestream_msgs/msg/Skeleton3D", "posestream_msgs/Skeleton3D",
+        include_str!("../../../msgs/msg/Skeleton3D.msg");
+    /// Stamp of the frame described and the camera frame id.
+    header: Header,
+    /// Sequence number of the frame described.
+    sequence: u64,
+    /// The person tracked.
+    track_id: u32,
+    /// Joint of each entry.
+    joint_names: Vec<String>,
+    /// `UNITS_DICTIONARY` (0) or `UNITS_METRES` (1).
+    units: u8,
+    /// `[x, y, z]` per joint.
+    positions: Vec<f64>,
+    /// Standard deviation per joint.
+    position_std: Vec<f64>,
+    /// Expected 2D joints `[u, v]`, image pixels.
+    keypoints: Vec<f64>,
+    /// Standard deviation per 2D joint, image pixels.
+    keypoint_std: Vec<f64>,
+    /// The model's reprojection `[u, v]`, image pixels.
+    projected: Vec<f64>,
+    /// Frames after this one seen before it was estimated.
+    lag: u32,
+    /// `STATE_INITIALISING` (0), `STATE_TRACKING` (1) or `STATE_LOST` (2).
+    state: u8,
+}
+
+impl Skeleton3D {
+    /// The state, if the code is known.
+    pub fn state(&self) -> Option<SkeletonState> {
+        match self.state {
+            0 => Some(SkeletonState::Initialising),
+            1 => Some(SkeletonState::Tracking),
+            2 => Some(SkeletonState::Lost),
+            _ => None,
+        }
+    }
+
+    /// True if every number in the message is finite (nothing else is published).
+    pub fn is_finite(&self) -> bool {
+        [
+            &self.positions,
+            &self.position_std,
+            &self.keypoints,
+            &self.keypoint_std,
+            &self.projected,
+        ]
+        .iter()
+        .all(|v| v.iter().all(|x| x.is_finite()))
+    }
+}

@@ -1,0 +1,438 @@
+//! ROS 2 topics over DDS, through `ros2-client` (pure Rust: no ROS installation).
+//!
+//! Wire facts (checked by `tests/transport.rs` with an independent client, Python
+//! `cyclonedds`): a message type `posestream_msgs/msg/Skeleton3D` travels as the DDS
+//! type `posestream_msgs::msg::dds_::Skeleton3D_`, topic `/posestream/skeletons` as the
+//! DDS topic `rt/posestream/skeletons`, payload CDR (XCDR1) little-endian. Reliability
+//! and durability must be compatible between publisher and subscriber
+//! ([`QosSettings`]).
+//!
+//! The domain is [`RosSettings::domain_id`] unless `ROS_DOMAIN_ID` is set;
+//! [`RosSettings::localhost_only`] (or `ROS_LOCALHOST_ONLY=1`, or
+//! `ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`) keeps DDS on the loopback interface.
+
+use std::net::{IpAddr, Ipv4Addr};
+use std::time::Duration;
+
+use ros2_client::dds::rustdds::DomainParticipantBuilder;
+use ros2_client::dds::rustdds::mio1::{Events, Interest, Poll, Token};
+use ros2_client::qos::{Durability, History, Reliability, WhenFull};
+use ros2_client::{
+    Context, MessageTypeName, Name, Node, NodeName, NodeOptions, Publisher, QosProfile,
+    Subscription,
+};
+use serde::{Deserialize, Serialize};
+
+use super::{Message, Received, Sink, Source, TransportError};
+use posestream_math::error::{OutOfDomain, check_range};
+
+const TRANSPORT: &str = "ros2";
+
+/// `[ros]` in the configuration.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RosSettings {
+    /// DDS domain (0-232); the environment variable `ROS_DOMAIN_ID` overrides it.
+    pub domain_id: u16,
+    /// Keep DDS traffic on the loopback interface (also set by `ROS_LOCALHOST_ONLY=1` or
+    /// `ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`).
+    pub localhost_only: bool,
+    /// Node name.
+    pub node_name: String,
+    /// Node namespace (absolute).
+    pub namespace: String,
+    /// Quality of service of every topic.
+    pub qos: QosSettings,
+}
+
+impl Default for RosSettings {
+    fn default() -> Self {
+        Self {
+            domain_id: 0,
+            localhost_only: false,
+            node_name: "posestream".into(),
+            namespace: "/".into(),
+            qos: QosSettings::default(),
+        }
+    }
+}
+
+/// `[ros.qos]`: the ROS 2 QoS profile of the service's topics.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct QosSettings {
+    /// `reliable` (retransmit; a slow reader slows the writer) or `best-effort`.
+    pub reliability: ReliabilityKind,
+    /// `volatile` (only live messages) or `transient-local` (late joiners get the
+    /// last `depth` messages).
+    pub durability: DurabilityKind,
+    /// History depth (keep last N).
+    pub depth: usize,
+}
+
+impl Default for QosSettings {
+    fn default() -> Self {
+        Self {
+            reliability: ReliabilityKind::Reliable,
+            durability: DurabilityKind::Volatile,
+            depth: 10,
+        }
+    }
+}
+
+/// ROS 2 reliability.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ReliabilityKind {
+    /// Retransmit lost samples.
+    Reliable,
+    /// Drop lost samples.
+    BestEffort,
+}
+
+/// ROS 2 durability.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum DurabilityKind {
+    /// Only samples published while the reader is there.
+    Volatile,
+    /// The writer keeps its history for late readers.
+    TransientLocal,
+}
+
+impl RosSettings {
+    /// Checks every value is in its domain; the error names the key (`[ros]`).
+    pub fn check(&self) -> Result<(), OutOfDomain> {
+        // DDS maps domain ids to UDP ports: 232 is the largest that fits (ROS 2's range).
+        check_range("domain_id", self.domain_id, 0, 232)?;
+        check_range("qos.depth", self.qos.depth, 1, 10_000)?;
+        if !is_ros_token(&self.node_name) {
+            return Err(OutOfDomain::new(
+                "node_name",
+                "a ROS name (letters, digits and _, not starting with a digit)",
+                format!("{:?}", self.node_name),
+            ));
+        }
+        if self.namespace != "/" {
+            check_topic_name("namespace", &self.namespace)?;
+        }
+        Ok(())
+    }
+}
+
+/// A token of a ROS name: letters, digits and `_`, not starting with a digit.
+fn is_ros_token(t: &str) -> bool {
+    t.chars()
+        .next()
+        .is_some_and(|c| c.is_ascii_alphabetic() || c == '_')
+        && t.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
+}
+
+/// Checks that `name` is an absolute ROS 2 topic name: `/` then tokens of letters,
+/// digits and `_` (not starting with a digit) separated by single `/`.
+pub fn check_topic_name(key: &str, name: &str) -> Result<(), OutOfDomain> {
+    let ok = name.len() <= 255
+        && name
+            .strip_prefix('/')
+            .is_some_and(|rest| rest.split('/').all(is_ros_token));
+    if ok {
+        Ok(())
+    } else {
+        Err(OutOfDomain::new(
+            key,
+            "an absolute ROS 2 topic name (/a/b_c: letters, digits, _ and single /)",
+            format!("{name:?}"),
+        ))
+    }
+}
+
+impl QosSettings {
+    /// The `ros2-client` profile.
+    pub fn profile(&self) -> QosProfile {
+        let profile = QosProfile::publisher_default()
+            .history(History::KeepLast {
+                depth: self.depth.max(1),
+            })
+            .durability(match self.durability {
+                DurabilityKind::Volatile => Durability::Volatile,
+                DurabilityKind::TransientLocal => Durability::TransientLocal,
+            });
+        match self.reliability {
+            ReliabilityKind::Reliable => profile.reliability(Reliability::Reliable {
+                when_full: WhenFull::Wait(Duration::from_millis(100)),
+            }),
+            ReliabilityKind::BestEffort => profile.reliability(Reliability::BestEffort),
+        }
+    }
+}
+
+impl RosSettings {
+    /// The domain: `ROS_DOMAIN_ID` if set, else the configured one. A malformed or
+    /// out-of-range `ROS_DOMAIN_ID` is an error, not silently ignored.
+    pub fn effective_domain(&self) -> Result<u16, TransportError> {
+        self.domain_with(std::env::var("ROS_DOMAIN_ID").ok().as_deref())
+    }
+
+    /// The domain given the value of `ROS_DOMAIN_ID` (`None`: unset).
+    pub fn domain_with(&self, env: Option<&str>) -> Result<u16, TransportError> {
+        let domain = match env.map(str::trim) {
+            Some(v) if !v.is_empty() => v.parse::<u16>().map_err(|_| {
+                setup_error("the domain", format!("ROS_DOMAIN_ID={v:?} is not a number"))
+            })?,
+            _ => self.domain_id,
+        };
+        if domain > 232 {
+            return Err(setup_error(
+                "the domain",
+                format!("domain id {domain} is out of 0..=232"),
+            ));
+        }
+        Ok(domain)
+    }
+
+    /// Whether DDS stays on the loopback interface.
+    pub fn effective_localhost_only(&self) -> bool {
+        let env = |k: &str| std::env::var(k).unwrap_or_default();
+        self.localhost_only
+            || env("ROS_LOCALHOST_ONLY").trim() == "1"
+            || env("ROS_AUTOMATIC_DISCOVERY_RANGE")
+                .trim()
+                .eq_ignore_ascii_case("localhost")
+    }
+}
+
+fn setup_error(what: impl ToString, reason: impl ToString) -> TransportError {
+    TransportError::Setup {
+        transport: TRANSPORT,
+        what: what.to_string(),
+        reason: reason.to_string(),
+    }
+}
+
+/// A ROS 2 participant and node: makes publishers and subscriptions.
+pub struct Ros2 {
+    node: Node,
+    qos: QosProfile,
+    domain: u16,
+    // Dropping the context shuts DDS down: keep it as long as the node.
+    _context: Context,
+}
+
+impl Ros2 {
+    /// Joins the domain as node `settings.node_name`.
+    pub fn new(settings: &RosSettings) -> Result<Self, TransportError> {
+        let domain = settings.effective_domain()?;
+        let mut builder = DomainParticipantBuilder::new(domain);
+        if settings.effective_localhost_only() {
+            builder = builder.with_only_networks([IpAddr::V4(Ipv4Addr::LOCALHOST)]);
+        }
+        let participant = builder
+            .build()
+            .map_err(|e| setup_error(format!("a participant in domain {domain}"), e))?;
+        let context = Context::from_domain_participant(participant)
+            .map_err(|e| setup_error("the ROS 2 context", e))?;
+        let name = NodeName::new(&settings.namespace, &settings.node_name).map_err(|e| {
+            setup_error(
+                format!("node {}/{}", settings.namespace, settings.node_name),
+                format!("{e:?}"),
+            )
+        })?;
+        let node = context
+            .new_node(name, NodeOptions::new().enable_rosout(false))
+            .map_err(|e| setup_error("the node", e))?;
+        Ok(Self {
+            node,
+            qos: settings.qos.profile(),
+            domain,
+            _context: context,
+        })
+    }
+
+    /// The DDS domain joined.
+    pub fn domain(&self) -> u16 {
+        self.domain
+    }
+
+    /// Subscriptions to `topic` that DDS discovery has seen so far (any node, this
+    /// process included).
+    pub fn subscriptions(&self, topic: &str) -> usize {
+        self.node.subscription_count(topic)
+    }
+
+    /// Publishers on `topic` that DDS discovery has seen so far.
+    pub fn publishers(&self, topic: &str) -> usize {
+        self.node.publisher_count(topic)
+    }
+
+    fn topic<M: Message>(
+        &mut self,
+        topic: &str,
+    ) -> Result<ros2_client::dds::rustdds::Topic, TransportError> {
+        let name = topic_name(topic)?;
+        let (package, type_name) = type_name::<M>()?;
+        self.node
+            .create_topic(&name, MessageTypeName::new(package, type_name), &self.qos)
+            .map_err(|e| setup_error(format!("topic {topic}"), e))
+    }
+
+    /// A publisher of `M` on `topic` (e.g. `/posestream/skeletons`).
+    pub fn sink<M: Message>(&mut self, topic: &str) -> Result<Ros2Sink<M>, TransportError> {
+        let t = self.topic::<M>(topic)?;
+        let publisher = self
+            .node
+            .create_publisher::<M>(&t, Some(self.qos.clone()))
+            .map_err(|e| setup_error(format!("a publisher on {topic}"), e))?;
+        Ok(Ros2Sink {
+            publisher,
+            topic: topic.to_string(),
+        })
+    }
+
+    /// A subscription to `M` on `topic`.
+    pub fn source<M: Message>(&mut self, topic: &str) -> Result<Ros2Source<M>, TransportError> {
+        let t = self.topic::<M>(topic)?;
+        let mut subscription = self
+            .node
+            .create_subscription::<M>(&t, Some(self.qos.clone()))
+            .map_err(|e| setup_error(format!("a subscription to {topic}"), e))?;
+        let poll = Poll::new().map_err(|e| setup_error("a poller", e))?;
+        poll.registry()
+            .register(&mut subscription, Token(0), Interest::READABLE)
+            .map_err(|e| setup_error("a poller", e))?;
+        Ok(Ros2Source {
+            subscription,
+            poll,
+            events: Events::with_capacity(4),
+            topic: topic.to_string(),
+        })
+    }
+}
+
+/// `/a/b` as a ROS name (namespace `/a`, base `b`).
+fn topic_name(topic: &str) -> Result<Name, TransportError> {
+    let bad = |reason: String| setup_error(format!("topic {topic}"), reason);
+    if !topic.starts_with('/') {
+        return Err(bad(
+            "topic names here are absolute: they start with `/`".into()
+        ));
+    }
+    let (namespace, base) = topic.rsplit_once('/').unwrap_or(("/", topic));
+    let namespace = if namespace.is_empty() { "/" } else { namespace };
+    Name::new(namespace, base).map_err(|e| bad(format!("{e:?}")))
+}
+
+/// `pkg/msg/Type` into `(pkg, Type)`.
+fn type_name<M: Message>() -> Result<(&'static str, &'static str), TransportError> {
+    let mut parts = M::NAME.split('/');
+    match (parts.next(), parts.next(), parts.next(), parts.next()) {
+        (Some(p), Some("msg"), Some(t), None) => Ok((p, t)),
+        _ => Err(setup_error(
+            format!("type {}", M::NAME),
+            "not of the form pkg/msg/Type",
+        )),
+    }
+}
+
+/// Publishes `M` on a ROS 2 topic.
+pub struct Ros2Sink<M: Message> {
+    publisher: Publisher<M>,
+    topic: String,
+}
+
+impl<M: Message> Sink<M> for Ros2Sink<M> {
+    /// Publishes (the stamp travels in the message's header; DDS adds its own).
+    fn send(&mut self, message: &M, _stamp_ns: u64) -> Result<(), TransportError> {
+        self.publisher
+            .publish(message.clone())
+            .map_err(|e| TransportError::Send {
+                transport: TRANSPORT,
+                topic: self.topic.clone(),
+                reason: e.to_string(),
+            })
+    }
+}
+
+/// Takes `M` from a ROS 2 topic.
+pub struct Ros2Source<M: Message> {
+    subscription: Subscription<M>,
+    poll: Poll,
+    events: Events,
+    topic: String,
+}
+
+impl<M: Message> Source<M> for Ros2Source<M> {
+    /// Waits for a sample; the stamp is the source timestamp DDS attached (ns since the
+    /// epoch), or 0 without one. A topic never closes: no [`Received::Closed`].
+    fn recv(&mut self, timeout: Duration) -> Result<Received<M>, TransportError> {
+        let deadline = std::time::Instant::now() + timeout;
+        loop {
+            match self.subscription.take() {
+                Ok(Some((m, info))) => {
+                    let stamp = info
+                        .source_timestamp()
+                        .map_or(0, |t| u64::try_from(t.to_nanos()).unwrap_or(0));
+                    return Ok(Received::Message(m, stamp));
+                }
+                Ok(None) => {}
+                Err(e) => {
+                    return Err(TransportError::Malformed {
+                        transport: TRANSPORT,
+                        topic: self.topic.clone(),
+                        reason: e.to_string(),
+                    });
+                }
+            }
+            let left = deadline.saturating_duration_since(std::time::Instant::now());
+            if left.is_zero() {
+                return Ok(Received::Idle);
+            }
+            // Edge-triggered: a wake-up means "something arrived since the last take". A
+            // signal (Ctrl-C) interrupts the wait: take again, it is no broken input.
+            match self.poll.poll(&mut self.events, Some(left)) {
+                Ok(()) => {}
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) => {
+                    return Err(TransportError::Broken {
+                        transport: TRANSPORT,
+                        topic: self.topic.clone(),
+                        reason: format!("poll: {e}"),
+                    });
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ros_domain_id_overrides_the_configured_domain_and_must_be_valid() {
+        let s = RosSettings {
+            domain_id: 7,
+            ..RosSettings::default()
+        };
+        assert_eq!(s.domain_with(None).ok(), Some(7));
+        assert_eq!(s.domain_with(Some("")).ok(), Some(7));
+        assert_eq!(s.domain_with(Some(" 42 ")).ok(), Some(42));
+        assert!(s.domain_with(Some("abc")).is_err());
+        assert!(s.domain_with(Some("233")).is_err());
+        let bad = RosSettings {
+            domain_id: 300,
+            ..RosSettings::default()
+        };
+        assert!(bad.domain_with(None).is_err());
+    }
+
+    #[test]
+    fn topic_and_type_names_map_to_ros_names() {
+        assert!(topic_name("/posestream/skeletons").is_ok());
+        assert!(topic_name("/top").is_ok());
+        assert!(topic_name("relative").is_err());
+        assert_eq!(
+            type_name::<posestream_msgs::Skeleton3D>().ok(),
+            Some(("posestream_msgs", "Skeleton3D"))
+        );
+    }
+}

@@ -1,0 +1,52 @@
+//! `posestream detector`: the detector node as a service.
+
+use std::path::PathBuf;
+
+use clap::Args;
+use posestream::nodes::ServiceConfig;
+use posestream::nodes::service::{self, Middleware, run_detector};
+
+use super::CliError;
+use super::service::{SourceArgs, conclude, print, stop_flag};
+
+/// Options of `detector`.
+#[derive(Debug, Args)]
+pub struct DetectorArgs {
+    /// Service configuration.
+    #[arg(long, default_value = "config/default.toml")]
+    pub config: PathBuf,
+    /// The source.
+    #[command(flatten)]
+    pub source: SourceArgs,
+    /// Print the report as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Runs `detector`: heat maps from the configured source (a recording replayed, or the
+/// image detector on images) published to `[outputs]`.
+pub fn run(args: &DetectorArgs) -> Result<(), CliError> {
+    let mut config = ServiceConfig::load(&args.config)?;
+    args.source.apply(&mut config);
+    let stop = stop_flag();
+    let mut middleware = Middleware::open(&config, service::detector_transport(&config))?;
+    let input = service::detector_input(&config, &mut middleware)?;
+    let recorder = service::output_recording(&config)?;
+    let mut sinks = service::detector_outputs(&config, &mut middleware, recorder.as_ref())?;
+    if sinks.is_empty() {
+        return Err(CliError::Usage(
+            "no outputs: enable ros2, iceoryx2 or record in [outputs]".into(),
+        ));
+    }
+    let service::DetectorInput {
+        mut source,
+        stats,
+        rate,
+    } = input;
+    let mut report = run_detector(&mut source, &mut sinks, rate, &stop);
+    report.images = service::DetectorInput::stats_now(&stats);
+    drop(sinks);
+    let concluded = conclude(recorder, report.input_error.as_deref());
+    print(args.json, &report)?;
+    concluded
+}

@@ -1,0 +1,140 @@
+//! The streaming update allocates nothing once warm: a counting global allocator over
+//! 1,000 frames of a shipped recording, after a warm-up.
+//!
+//! What is counted: every allocation and reallocation on the test's thread while a
+//! frame is pushed through the window (`WindowEstimator::push_into`: the frame copied
+//! into the window's ring, its initialisation, the local EM, the window EM every
+//! `window_every` frames) and its estimates emitted into reused buffers. Nothing is
+//! excluded. `POSESTREAM_ALLOC_TRACE=1` prints a backtrace of the first allocations,
+//! to find where they come from.
+
+#![allow(unsafe_code, reason = "a global allocator is unsafe to implement")]
+
+mod common;
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::{Cell, RefCell};
+
+use common::{recording, root};
+use posestream::msgs;
+use posestream::recording::read_topic;
+use posestream::streaming::{Estimates, FrameMaps, StreamSettings, WindowEstimator};
+use posestream::{Dictionary, Estimator, Params};
+
+struct Counting;
+
+thread_local! {
+    static ARMED: Cell<bool> = const { Cell::new(false) };
+    static COUNT: Cell<u64> = const { Cell::new(0) };
+    static TRACES: RefCell<Vec<String>> = const { RefCell::new(Vec::new()) };
+}
+
+fn note() {
+    let armed = ARMED.try_with(|a| a.replace(false)).unwrap_or(false);
+    if !armed {
+        return;
+    }
+    let _ = COUNT.try_with(|c| c.set(c.get() + 1));
+    if std::env::var_os("POSESTREAM_ALLOC_TRACE").is_some() {
+        let trace = std::backtrace::Backtrace::force_capture().to_string();
+        let _ = TRACES.try_with(|t| {
+            let mut t = t.borrow_mut();
+            if t.len() < 400 {
+                t.push(trace);
+            }
+        });
+    }
+    let _ = ARMED.try_with(|a| a.set(true));
+}
+
+// SAFETY: every call forwards to `System` with the caller's arguments unchanged; the
+// counting touches only const-initialised thread-locals and allocates only while
+// disarmed.
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        note();
+        // SAFETY: forwarded as received.
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
+        note();
+        // SAFETY: forwarded as received.
+        unsafe { System.alloc_zeroed(layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        note();
+        // SAFETY: forwarded as received.
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: forwarded as received.
+        unsafe { System.dealloc(ptr, layout) }
+    }
+}
+
+#[global_allocator]
+static ALLOCATOR: Counting = Counting;
+
+/// Allocations made by `f` on this thread.
+fn count(f: impl FnOnce()) -> u64 {
+    COUNT.with(|c| c.set(0));
+    ARMED.with(|a| a.set(true));
+    f();
+    ARMED.with(|a| a.set(false));
+    COUNT.with(|c| c.get())
+}
+
+#[test]
+fn a_warm_window_update_allocates_nothing_over_1000_frames() {
+    let messages: Vec<msgs::HeatMaps> =
+        read_topic(&recording("byebye.mcap"), "/posestream/heatmaps")
+            .expect("reads")
+            .into_iter()
+            .map(|(_, m)| m)
+            .collect();
+    let frames: Vec<Vec<f32>> = messages
+        .iter()
+        .map(|m| {
+            let mut v = Vec::new();
+            m.values_into(&mut v).expect("values");
+            v
+        })
+        .collect();
+    let (h, w) = (messages[0].height as usize, messages[0].width as usize);
+    let dict =
+        Dictionary::load(root().join("config/dictionaries/default-k128.json")).expect("dictionary");
+    let estimator = Estimator::new(dict, Params::default()).expect("estimator");
+    let mut window = WindowEstimator::new(estimator, StreamSettings::default()).expect("window");
+    let mut out = Estimates::default();
+    let push = |s: u64, window: &mut WindowEstimator, out: &mut Estimates| {
+        let values = &frames[s as usize % frames.len()];
+        let frame = FrameMaps {
+            sequence: s,
+            stamp_ns: s as i64 * 33_333_333,
+            height: h,
+            width: w,
+            values,
+        };
+        out.clear();
+        window.push_into(&frame, out).expect("a good frame");
+    };
+    // Warm-up: the window fills, every buffer reaches its size.
+    let warm = 2 * frames.len() as u64;
+    for s in 0..warm {
+        push(s, &mut window, &mut out);
+    }
+    let mut emitted = 0;
+    let allocations = count(|| {
+        for s in warm..warm + 1000 {
+            push(s, &mut window, &mut out);
+            emitted += out.len();
+        }
+    });
+    TRACES.with(|t| {
+        for trace in t.borrow().iter() {
+            eprintln!("allocation at:\n{trace}");
+        }
+    });
+    assert_eq!(emitted, 2000, "two estimates per frame");
+    assert_eq!(allocations, 0, "allocations over 1000 warm frames");
+}
