@@ -23,7 +23,7 @@ use posestream::solver::em::{self, EmWorkspace, PreparedMaps};
 use posestream::solver::init::convex::{self, AdmmState};
 use posestream::solver::normalise::{heatmap_scale, keypoint_scale};
 use posestream::solver::perspective::PerspectiveParams;
-use posestream::{CropBox, Dictionary, Estimator, HeatMaps, Intrinsics, Keypoints, Params};
+use posestream::{CropBox, Dictionary, Estimator, HeatMapSequence, Intrinsics, Keypoints, Params};
 
 fn shared() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/reference")
@@ -45,7 +45,8 @@ fn bench(c: &mut Criterion) {
     let kp: Array<f64> = npy::read(&dir.join("keypoints.npy")).expect("keypoints");
     let hm: Array<f32> = npy::read(&dir.join("heatmaps.npy")).expect("heatmaps");
     let mut maps =
-        HeatMaps::new(hm.shape[0], hm.shape[1], hm.shape[2], hm.shape[3], hm.data).expect("maps");
+        HeatMapSequence::new(hm.shape[0], hm.shape[1], hm.shape[2], hm.shape[3], hm.data)
+            .expect("maps");
     // As `posestream lift` reads them.
     maps.clip_negatives();
     let frames = maps.frames;

@@ -32,8 +32,8 @@ pub use posestream_transport as transport;
 
 pub use posestream_math::{
     CameraError, CropBox, Dictionary, DictionaryError, Estimate, EstimateError, Estimator,
-    FrameEstimate, FrameMaps, HeatMaps, InitMethod, Intrinsics, Keypoints, MetricEstimate, Params,
-    PixelMap, Report, Skeleton, StreamSettings, WindowEstimator,
+    FrameEstimate, FrameMaps, HeatMapSequence, InitMethod, Intrinsics, Keypoints, MetricEstimate,
+    Params, PixelMap, Report, Skeleton, StreamSettings, WindowEstimator,
 };
 pub use posestream_mocap::BvhError;
 pub use posestream_msgs::error::ArrayError;

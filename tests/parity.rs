@@ -7,7 +7,7 @@ mod common;
 
 use common::{fixture, k128, read};
 use posestream::npy::{self, Array};
-use posestream::{Dictionary, Estimator, HeatMaps, Keypoints, Params, metrics};
+use posestream::{Dictionary, Estimator, HeatMapSequence, Keypoints, Params, metrics};
 
 fn summary(name: &str) -> serde_json::Value {
     let path = fixture(name).join("reference/summary.json");
@@ -29,9 +29,10 @@ fn estimator() -> Estimator {
     Estimator::new(dict, Params::default()).expect("estimator")
 }
 
-fn heatmaps(name: &str) -> HeatMaps {
+fn heatmaps(name: &str) -> HeatMapSequence {
     let a: Array<f32> = npy::read(&fixture(name).join("heatmaps.npy")).expect("heatmaps");
-    HeatMaps::new(a.shape[0], a.shape[1], a.shape[2], a.shape[3], a.data).expect("valid maps")
+    HeatMapSequence::new(a.shape[0], a.shape[1], a.shape[2], a.shape[3], a.data)
+        .expect("valid maps")
 }
 
 #[test]

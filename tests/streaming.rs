@@ -9,10 +9,10 @@ use posestream::msgs::{self, Skeleton3D};
 use posestream::nodes::{EstimatorNode, ServiceConfig};
 use posestream::recording::read_topic;
 use posestream::streaming::{FrameMaps, StreamSettings, TrackState, WindowEstimator};
-use posestream::{Dictionary, Estimator, HeatMaps, Params};
+use posestream::{Dictionary, Estimator, HeatMapSequence, Params};
 
 /// The heat maps of a recording as one sequence, and its ground truth (metres).
-fn load(name: &str) -> (HeatMaps, Vec<f64>, Vec<msgs::HeatMaps>) {
+fn load(name: &str) -> (HeatMapSequence, Vec<f64>, Vec<msgs::HeatMaps>) {
     let path = recording(name);
     let messages: Vec<msgs::HeatMaps> = read_topic(&path, "/posestream/heatmaps")
         .expect("reads")
@@ -31,9 +31,9 @@ fn load(name: &str) -> (HeatMaps, Vec<f64>, Vec<msgs::HeatMaps>) {
         m.values_into(&mut frame).expect("values");
         values.extend_from_slice(&frame);
     }
-    // Not `HeatMaps::new`: the recordings have missing joints (all-zero maps), which the
+    // Not `HeatMapSequence::new`: the recordings have missing joints (all-zero maps), which the
     // E-step reads as "no observation" and `new` refuses.
-    let maps = HeatMaps {
+    let maps = HeatMapSequence {
         frames: messages.len(),
         joints: 17,
         height: h,

@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 
 use posestream::detector::DetectorError;
-use posestream::mocap::{MappingError, SplitError};
+use posestream::mocap::{SkeletonMappingError, SplitError};
 use posestream::models::FetchError;
 use posestream::msgs::toml_file::ConfigError;
 use posestream::nodes::SetupError;
@@ -36,7 +36,7 @@ pub enum CliError {
     Bvh(#[from] BvhError),
     /// A skeleton mapping could not be read or applied.
     #[error(transparent)]
-    SkeletonMapping(#[from] MappingError),
+    SkeletonMapping(#[from] SkeletonMappingError),
     /// A training/held-out split could not be read.
     #[error(transparent)]
     Split(#[from] SplitError),

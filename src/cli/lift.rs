@@ -6,8 +6,8 @@ use clap::Args;
 use posestream::npy::{self, Array};
 use posestream::solver::perspective::PerspectiveParams;
 use posestream::{
-    ArrayError, CropBox, Dictionary, Estimate, EstimateError, Estimator, HeatMaps, Intrinsics,
-    Keypoints, PixelMap, metrics,
+    ArrayError, CropBox, Dictionary, Estimate, EstimateError, Estimator, HeatMapSequence,
+    Intrinsics, Keypoints, PixelMap, metrics,
 };
 
 use super::CliError;
@@ -113,7 +113,7 @@ pub(super) fn read_keypoints(path: &Path, p: usize) -> Result<Array<f64>, CliErr
 }
 
 /// Heat maps (F, p, h, w) of `p` joints, negatives clipped.
-pub(super) fn read_heatmaps(path: &Path, p: usize) -> Result<HeatMaps, CliError> {
+pub(super) fn read_heatmaps(path: &Path, p: usize) -> Result<HeatMapSequence, CliError> {
     let hm: Array<f32> = npy::read(path)?;
     npy::expect_shape(&hm, path, &[None, None, None, None], "(F, p, h, w)")?;
     let (f, j, h, w) = (hm.shape[0], hm.shape[1], hm.shape[2], hm.shape[3]);
@@ -126,7 +126,8 @@ pub(super) fn read_heatmaps(path: &Path, p: usize) -> Result<HeatMaps, CliError>
             },
         ));
     }
-    let mut maps = HeatMaps::new(f, j, h, w, hm.data).map_err(|e| CliError::in_file(path, e))?;
+    let mut maps =
+        HeatMapSequence::new(f, j, h, w, hm.data).map_err(|e| CliError::in_file(path, e))?;
     maps.clip_negatives();
     Ok(maps)
 }

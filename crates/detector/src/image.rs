@@ -20,7 +20,7 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 
 use super::crop::{box_from_alignment, crop_input, squared, whole_image_box};
-use super::mapping::{ChannelMapping, MappingError};
+use super::mapping::{ChannelMapping, ChannelMappingError};
 use crate::images::ImageFrame;
 use crate::models::landmarks::{HEATMAP_SIZE, INPUT_SIZE, LandmarkNetwork, NetworkError};
 use crate::models::person::{INPUT_SIZE as PERSON_INPUT, PersonNetwork};
@@ -175,14 +175,14 @@ pub enum DetectorError {
     Network(#[from] NetworkError),
     /// The network's maps do not fit the mapping.
     #[error("heat maps: {0}")]
-    Maps(Box<MappingError>),
+    Maps(Box<ChannelMappingError>),
     /// The channel mapping is unusable.
     #[error("{path}: {source}")]
     Mapping {
         /// The mapping file.
         path: PathBuf,
         /// The cause.
-        source: Box<MappingError>,
+        source: Box<ChannelMappingError>,
     },
 }
 

@@ -1,4 +1,4 @@
-//! The image detector: camera frames to the estimator's [`posestream_math::HeatMaps`] layout.
+//! The image detector: camera frames to the estimator's [`posestream_math::HeatMapSequence`] layout.
 //!
 //! - [`images`]: where camera frames come from (a folder, a video, image messages);
 //! - [`models`]: the landmark networks (fetched, rewritten for tract);

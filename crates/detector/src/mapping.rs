@@ -58,7 +58,7 @@ pub struct MappingFile {
 
 /// Why a mapping is unusable.
 #[derive(Debug, thiserror::Error)]
-pub enum MappingError {
+pub enum ChannelMappingError {
     /// The file could not be read or parsed.
     #[error(transparent)]
     Config(#[from] ConfigError),
@@ -90,32 +90,32 @@ pub struct ChannelMapping {
 
 impl ChannelMapping {
     /// Reads `path` and checks it against `joints` (the dictionary's, in order).
-    pub fn load(path: impl AsRef<Path>, joints: &[String]) -> Result<Self, MappingError> {
+    pub fn load(path: impl AsRef<Path>, joints: &[String]) -> Result<Self, ChannelMappingError> {
         let file: MappingFile = load_toml(path.as_ref())?;
         Self::new(&file, joints)
     }
 
     /// Parses mapping text (`path` names it in errors) and checks it against `joints`.
-    pub fn parse(text: &str, path: &Path, joints: &[String]) -> Result<Self, MappingError> {
+    pub fn parse(text: &str, path: &Path, joints: &[String]) -> Result<Self, ChannelMappingError> {
         let file: MappingFile = posestream_msgs::toml_file::parse_toml(text, path)?;
         Self::new(&file, joints)
     }
 
     /// Checks `file` against `joints`.
-    pub fn new(file: &MappingFile, joints: &[String]) -> Result<Self, MappingError> {
+    pub fn new(file: &MappingFile, joints: &[String]) -> Result<Self, ChannelMappingError> {
         if let Some(unknown) = file.joints.keys().find(|k| !joints.contains(k)) {
-            return Err(MappingError::UnknownJoint(unknown.clone()));
+            return Err(ChannelMappingError::UnknownJoint(unknown.clone()));
         }
         let mut sources = Vec::with_capacity(joints.len());
         for joint in joints {
             let source = file
                 .joints
                 .get(joint)
-                .ok_or_else(|| MappingError::MissingJoint(joint.clone()))?;
+                .ok_or_else(|| ChannelMappingError::MissingJoint(joint.clone()))?;
             let channels = match source {
                 JointSource::Channel(c) => vec![c.channel],
                 JointSource::Mean(m) if m.mean.is_empty() => {
-                    return Err(MappingError::Channel {
+                    return Err(ChannelMappingError::Channel {
                         joint: joint.clone(),
                         reason: "a mean of no channels (write \"unobserved\")".into(),
                     });
@@ -124,7 +124,7 @@ impl ChannelMapping {
                 JointSource::Unobserved(_) => Vec::new(),
             };
             if let Some(c) = channels.iter().find(|&&c| c >= file.channels) {
-                return Err(MappingError::Channel {
+                return Err(ChannelMappingError::Channel {
                     joint: joint.clone(),
                     reason: format!("channel {c} of a detector with {}", file.channels),
                 });
@@ -156,10 +156,10 @@ impl ChannelMapping {
         height: usize,
         width: usize,
         out: &mut Vec<f32>,
-    ) -> Result<(), MappingError> {
+    ) -> Result<(), ChannelMappingError> {
         let cells = height * width;
         if logits.len() != cells * self.channels || cells == 0 {
-            return Err(MappingError::Shape(format!(
+            return Err(ChannelMappingError::Shape(format!(
                 "{} logits for {height} x {width} x {} channels",
                 logits.len(),
                 self.channels
@@ -241,18 +241,21 @@ mod tests {
             let f = file(&format!("{base}{extra}"))?;
             Ok::<_, toml::de::Error>(ChannelMapping::new(&f, &joints()))
         };
-        assert!(matches!(check(""), Ok(Err(MappingError::MissingJoint(_)))));
+        assert!(matches!(
+            check(""),
+            Ok(Err(ChannelMappingError::MissingJoint(_)))
+        ));
         assert!(matches!(
             check("pelvis = { channel = 3 }\n"),
-            Ok(Err(MappingError::Channel { .. }))
+            Ok(Err(ChannelMappingError::Channel { .. }))
         ));
         assert!(matches!(
             check("pelvis = { mean = [] }\n"),
-            Ok(Err(MappingError::Channel { .. }))
+            Ok(Err(ChannelMappingError::Channel { .. }))
         ));
         assert!(matches!(
             check("pelvis = { channel = 0 }\nnose = { channel = 2 }\n"),
-            Ok(Err(MappingError::UnknownJoint(_)))
+            Ok(Err(ChannelMappingError::UnknownJoint(_)))
         ));
         assert!(check("pelvis = \"missing\"\n").is_err(), "not a source");
         assert!(check("pelvis = { channel = 0, weight = 2 }\n").is_err());

@@ -10,7 +10,7 @@ use serde::Serialize;
 use crate::camera::{Intrinsics, PixelMap};
 use crate::dictionary::Dictionary;
 use crate::error::EstimateError;
-use crate::heatmaps::HeatMaps;
+use crate::heatmaps::HeatMapSequence;
 use crate::solver::bcd::{self, BcdWorkspace};
 use crate::solver::coefficients::basis_gram_max;
 use crate::solver::em::{self, EmWorkspace, PreparedMaps};
@@ -312,18 +312,22 @@ impl Estimator {
     }
 
     /// Algorithm 2 (EM) on heat maps. Output 2D values are in heat-map pixels.
-    pub fn lift_heatmaps(&self, maps: &HeatMaps) -> Result<Estimate, EstimateError> {
+    pub fn lift_heatmaps(&self, maps: &HeatMapSequence) -> Result<Estimate, EstimateError> {
         self.heatmaps_inner(maps, true)
     }
 
     /// The single-frame baseline on heat maps: each frame initialised from its maps'
     /// arg-max, without the EM. `keypoints` are the arg-max joints (heat-map pixels);
     /// joints whose peak is not above the visibility threshold have weight 0.
-    pub fn initialise_heatmaps(&self, maps: &HeatMaps) -> Result<Estimate, EstimateError> {
+    pub fn initialise_heatmaps(&self, maps: &HeatMapSequence) -> Result<Estimate, EstimateError> {
         self.heatmaps_inner(maps, false)
     }
 
-    fn heatmaps_inner(&self, maps: &HeatMaps, solve: bool) -> Result<Estimate, EstimateError> {
+    fn heatmaps_inner(
+        &self,
+        maps: &HeatMapSequence,
+        solve: bool,
+    ) -> Result<Estimate, EstimateError> {
         let start = Instant::now();
         let p = self.dict.num_joints();
         if maps.joints != p {

@@ -1,4 +1,5 @@
-//! [`HeatMaps`]: per-frame, per-joint 2D score maps from a detector.
+//! [`HeatMapSequence`]: per-frame, per-joint 2D score maps from a detector, F frames of
+//! them (the batch estimator's input; the wire message `HeatMaps` holds one frame).
 //!
 //! Pixel `(row r, col c)` is centred at `x = c, y = r` (x right, y down). Values are
 //! scores, not necessarily normalised; negative values are clipped to 0 by the E-step,
@@ -8,7 +9,7 @@ use crate::error::EstimateError;
 
 /// Heat maps of F frames x p joints, each h x w, row-major `values[((t*p + j)*h + r)*w + c]`.
 #[derive(Debug, Clone, PartialEq)]
-pub struct HeatMaps {
+pub struct HeatMapSequence {
     /// Frames.
     pub frames: usize,
     /// Joints per frame.
@@ -21,7 +22,7 @@ pub struct HeatMaps {
     pub values: Vec<f32>,
 }
 
-impl HeatMaps {
+impl HeatMapSequence {
     /// Wraps `values`, checking the size, finiteness and that every map has a positive value.
     pub fn new(
         frames: usize,

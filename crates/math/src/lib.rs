@@ -7,7 +7,7 @@
 //! Monocular 3D human pose estimation after Zhou et al., "Sparseness Meets Deepness: 3D
 //! Human Pose Estimation from Monocular Video" (CVPR 2016): a sparse [`Dictionary`] of
 //! 3D basis poses, a weak-perspective camera, temporal smoothness, and an EM algorithm
-//! that treats the 2D joints as latent variables under [`HeatMaps`].
+//! that treats the 2D joints as latent variables under heat maps ([`HeatMapSequence`]).
 //!
 //! The math lives in [`solver`] and knows nothing of files or transports; [`Estimator`]
 //! is its entry point:
@@ -25,7 +25,9 @@
 //! ```
 //!
 //! Vocabulary: a *Pose* is 3 x p joint positions; a [`Dictionary`] holds basis poses over
-//! a [`Skeleton`]; [`HeatMaps`] are a detector's per-joint score maps; a
+//! a [`Skeleton`]; *heat maps* are a detector's per-joint score maps (a
+//! [`HeatMapSequence`] holds F frames of them; one frame on the wire is the `HeatMaps`
+//! message of `posestream-msgs`); a
 //! [`solver::Window`] is the frames solved together.
 
 pub mod camera;
@@ -43,7 +45,7 @@ pub use camera::{CropBox, Intrinsics, PixelMap};
 pub use dictionary::Dictionary;
 pub use error::{CameraError, DictionaryError, EstimateError};
 pub use estimator::{Estimate, Estimator, Keypoints, MetricEstimate, Report};
-pub use heatmaps::HeatMaps;
+pub use heatmaps::HeatMapSequence;
 pub use skeleton::Skeleton;
 pub use solver::{InitMethod, Params};
 pub use streaming::{Estimates, FrameEstimate, FrameMaps, StreamSettings, WindowEstimator};

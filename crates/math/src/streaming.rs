@@ -30,7 +30,7 @@ use serde::{Deserialize, Serialize};
 use crate::dictionary::Dictionary;
 use crate::error::{EstimateError, OutOfDomain, check_range, check_real};
 use crate::estimator::Estimator;
-use crate::heatmaps::HeatMaps;
+use crate::heatmaps::HeatMapSequence;
 use crate::solver::em::{self, EmWorkspace, MapSource};
 use crate::solver::estep::MapMoments;
 use crate::solver::init::InitWorkspace;
@@ -148,7 +148,7 @@ pub struct FrameMaps<'a> {
 
 impl<'a> FrameMaps<'a> {
     /// The frame of a sequence of heat maps.
-    pub fn of(maps: &'a HeatMaps, t: usize, sequence: u64, stamp_ns: i64) -> Self {
+    pub fn of(maps: &'a HeatMapSequence, t: usize, sequence: u64, stamp_ns: i64) -> Self {
         let n = maps.joints * maps.height * maps.width;
         Self {
             sequence,

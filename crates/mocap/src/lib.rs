@@ -12,5 +12,5 @@ pub mod synth;
 
 pub use bvh::Bvh;
 pub use error::BvhError;
-pub use mapping::{MappedSequence, MappingError, SkeletonMapping};
+pub use mapping::{MappedSequence, SkeletonMapping, SkeletonMappingError};
 pub use split::{MotionName, Split, SplitError};

@@ -34,7 +34,7 @@ pub use posestream_math::skeleton::{
 
 /// Loading or applying a skeleton mapping failed.
 #[derive(Debug, thiserror::Error)]
-pub enum MappingError {
+pub enum SkeletonMappingError {
     /// The file could not be read or is not a valid mapping document.
     #[error("skeleton mapping: {0}")]
     Config(#[from] ConfigError),
@@ -184,19 +184,19 @@ impl MappedSequence {
 
 impl SkeletonMapping {
     /// Loads a mapping file.
-    pub fn load(path: impl AsRef<Path>) -> Result<Self, MappingError> {
+    pub fn load(path: impl AsRef<Path>) -> Result<Self, SkeletonMappingError> {
         let path = path.as_ref();
         Self::from_file(load_toml(path)?, path)
     }
 
     /// Parses mapping text (`path` names it in errors).
-    pub fn parse(text: &str, path: &Path) -> Result<Self, MappingError> {
+    pub fn parse(text: &str, path: &Path) -> Result<Self, SkeletonMappingError> {
         Self::from_file(posestream_msgs::toml_file::parse_toml(text, path)?, path)
     }
 
     /// Checks a parsed mapping document; `path` names it in errors.
-    fn from_file(file: MappingFile, path: &Path) -> Result<Self, MappingError> {
-        let invalid = |detail: String| MappingError::Invalid {
+    fn from_file(file: MappingFile, path: &Path) -> Result<Self, SkeletonMappingError> {
+        let invalid = |detail: String| SkeletonMappingError::Invalid {
             path: path.to_path_buf(),
             detail,
         };
@@ -241,10 +241,10 @@ impl SkeletonMapping {
     }
 
     /// Maps every frame of `bvh` onto the layout (metres, world axes, z up).
-    pub fn apply(&self, bvh: &Bvh, bvh_name: &str) -> Result<MappedSequence, MappingError> {
+    pub fn apply(&self, bvh: &Bvh, bvh_name: &str) -> Result<MappedSequence, SkeletonMappingError> {
         let resolve = |joint: &str, names: &[String]| {
             names.iter().find_map(|n| bvh.index_of(n)).ok_or_else(|| {
-                MappingError::MissingBvhJoint {
+                SkeletonMappingError::MissingBvhJoint {
                     mapping: self.origin.clone(),
                     bvh: bvh_name.to_string(),
                     joint: joint.to_string(),

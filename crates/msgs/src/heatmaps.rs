@@ -21,6 +21,13 @@ impl HeatMapEncoding {
             Self::Uint8 => 1,
         }
     }
+
+    /// The encoding of a wire value, if it is one.
+    pub fn from_code(code: u8) -> Option<Self> {
+        [Self::Float32, Self::Uint8]
+            .into_iter()
+            .find(|e| e.code() == code)
+    }
 }
 
 ros_message! {
@@ -123,10 +130,11 @@ impl HeatMaps {
         if n == 0 {
             return Err(self.invalid("no joints or empty maps".into()));
         }
-        let found = match self.encoding {
-            0 => self.values.len(),
-            1 => self.quantized_values.len(),
-            e => return Err(self.invalid(format!("unknown encoding {e}"))),
+        let encoding = HeatMapEncoding::from_code(self.encoding)
+            .ok_or_else(|| self.invalid(format!("unknown encoding {}", self.encoding)))?;
+        let found = match encoding {
+            HeatMapEncoding::Float32 => self.values.len(),
+            HeatMapEncoding::Uint8 => self.quantized_values.len(),
         };
         if found != n {
             return Err(self.invalid(format!(
@@ -137,14 +145,15 @@ impl HeatMaps {
             )));
         }
         out.clear();
-        if self.encoding == 0 {
-            out.extend_from_slice(&self.values);
-        } else {
-            let s = self.quantization_scale;
-            if !(s.is_finite() && s > 0.0) {
-                return Err(self.invalid(format!("quantization scale {s}")));
+        match encoding {
+            HeatMapEncoding::Float32 => out.extend_from_slice(&self.values),
+            HeatMapEncoding::Uint8 => {
+                let s = self.quantization_scale;
+                if !(s.is_finite() && s > 0.0) {
+                    return Err(self.invalid(format!("quantization scale {s}")));
+                }
+                out.extend(self.quantized_values.iter().map(|&q| f32::from(q) * s));
             }
-            out.extend(self.quantized_values.iter().map(|&q| f32::from(q) * s));
         }
         Ok(())
     }

@@ -10,7 +10,7 @@ use super::estep::{self, EStepWorkspace, MapMoments};
 use super::{FrameFit, Observations, Params};
 
 use crate::dictionary::Dictionary;
-use crate::heatmaps::HeatMaps;
+use crate::heatmaps::HeatMapSequence;
 
 /// What the EM did.
 #[derive(Debug, Clone, PartialEq, Default)]
@@ -43,14 +43,14 @@ pub struct EmWorkspace {
 #[derive(Debug, Clone)]
 pub struct PreparedMaps<'a> {
     /// The maps, negatives clipped to 0 (borrowed when there is nothing to clip).
-    pub maps: Cow<'a, HeatMaps>,
+    pub maps: Cow<'a, HeatMapSequence>,
     /// Moments per (frame, joint).
     pub moments: Vec<MapMoments>,
 }
 
 impl<'a> PreparedMaps<'a> {
     /// Clips (in a copy, only if a value is negative) and computes moments.
-    pub fn new(maps: &'a HeatMaps) -> Self {
+    pub fn new(maps: &'a HeatMapSequence) -> Self {
         let mut maps = Cow::Borrowed(maps);
         if maps.values.iter().any(|&v| v < 0.0) {
             maps.to_mut()

@@ -37,45 +37,58 @@ use serde::{Deserialize, Serialize};
 use crate::error::{EstimateError, OutOfDomain, check_range, check_real};
 
 /// How each frame is initialised before the joint optimisation.
+///
+/// Named as in the reference (`convex+refine`, `convex+robust+refine`, `altern`; the
+/// kebab-case spellings are accepted too) by one parser, serde's: the configuration
+/// reads it, and [`std::str::FromStr`] (the command line) goes through it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "kebab-case")]
 pub enum InitMethod {
     /// Convex relaxation (spectral-norm ADMM), then rotation recovery and refinement
     /// by alternation. The reference's `convex+refine`.
+    #[serde(rename = "convex+refine", alias = "convex-refine")]
     ConvexRefine,
     /// Convex relaxation with an L1 outlier term, then refinement. The reference's
     /// default `convex+robust+refine`.
     #[default]
+    #[serde(
+        rename = "convex+robust+refine",
+        alias = "convex-robust-refine",
+        alias = "convex"
+    )]
     ConvexRobustRefine,
     /// Alternate a greedy rotation (projected least squares) and a coefficient step (the
     /// configured C-step solver, active-set by default).
     /// The reference's `altern`; about 10x faster than the convex initialisation.
+    #[serde(rename = "altern")]
     Altern,
 }
 
 impl std::str::FromStr for InitMethod {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "convex+refine" | "convex-refine" => Ok(Self::ConvexRefine),
-            "convex+robust+refine" | "convex-robust-refine" | "convex" => {
-                Ok(Self::ConvexRobustRefine)
-            }
-            "altern" => Ok(Self::Altern),
-            other => Err(format!(
-                "unknown init method `{other}` (expected convex+robust+refine, convex+refine or altern)"
-            )),
-        }
+        from_name(s)
     }
 }
 
 impl std::fmt::Display for InitMethod {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(match self {
-            Self::ConvexRefine => "convex+refine",
-            Self::ConvexRobustRefine => "convex+robust+refine",
-            Self::Altern => "altern",
-        })
+        f.write_str(&name_of(self))
+    }
+}
+
+/// A unit enum variant from its name, by the enum's serde `Deserialize` (so the
+/// command line and the configuration accept the same names).
+pub(crate) fn from_name<T: serde::de::DeserializeOwned>(s: &str) -> Result<T, String> {
+    use serde::de::IntoDeserializer;
+    T::deserialize(IntoDeserializer::<serde::de::value::Error>::into_deserializer(s))
+        .map_err(|e| e.to_string())
+}
+
+/// A unit enum variant's serde name.
+pub(crate) fn name_of<T: Serialize>(value: &T) -> String {
+    match serde_json::to_value(value) {
+        Ok(serde_json::Value::String(name)) => name,
+        _ => "?".into(),
     }
 }
 
@@ -343,5 +356,42 @@ pub(crate) fn soft(x: f64, tau: f64) -> f64 {
         x + tau
     } else {
         0.0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::coefficients::CoefficientSolver;
+    use super::*;
+
+    #[test]
+    fn the_command_line_and_the_configuration_take_the_same_names() {
+        for m in [
+            InitMethod::ConvexRefine,
+            InitMethod::ConvexRobustRefine,
+            InitMethod::Altern,
+        ] {
+            let name = m.to_string();
+            assert_eq!(name.parse::<InitMethod>(), Ok(m));
+            assert_eq!(serde_json::to_value(m).ok(), Some(name.clone().into()));
+            let json: InitMethod = serde_json::from_value(name.into()).expect("serde");
+            assert_eq!(json, m);
+        }
+        assert_eq!("convex+refine".parse(), Ok(InitMethod::ConvexRefine));
+        assert_eq!("convex".parse(), Ok(InitMethod::ConvexRobustRefine));
+        for s in [
+            CoefficientSolver::ActiveSet,
+            CoefficientSolver::CoordinateDescent,
+            CoefficientSolver::Apg,
+        ] {
+            let name = s.to_string();
+            assert_eq!(name.parse::<CoefficientSolver>(), Ok(s));
+            let json: CoefficientSolver = serde_json::from_value(name.into()).expect("serde");
+            assert_eq!(json, s);
+        }
+        let cd: CoefficientSolver = serde_json::from_value("cd".into()).expect("serde");
+        assert_eq!(cd, CoefficientSolver::CoordinateDescent);
+        let unknown = "newton".parse::<CoefficientSolver>().expect_err("unknown");
+        assert!(unknown.contains("active-set"), "{unknown}");
     }
 }

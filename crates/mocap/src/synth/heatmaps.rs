@@ -18,7 +18,7 @@ use serde::{Deserialize, Serialize};
 
 use posestream_math::camera::CropBox;
 use posestream_math::error::EstimateError;
-use posestream_math::heatmaps::HeatMaps;
+use posestream_math::heatmaps::HeatMapSequence;
 use posestream_math::skeleton::Skeleton;
 
 /// The error model; lengths in map cells, rates per frame.
@@ -112,7 +112,7 @@ pub struct EpisodeCounts {
 #[derive(Debug, Clone, PartialEq)]
 pub struct RenderedMaps {
     /// The maps, F x p x h x w.
-    pub maps: HeatMaps,
+    pub maps: HeatMapSequence,
     /// True joints in map cells (F, p, 2).
     pub truth: Vec<f64>,
     /// What went wrong, and how often.
@@ -230,7 +230,7 @@ pub fn render(
             }
         }
     }
-    let maps = HeatMaps::new(frames, p, h, w, values)?;
+    let maps = HeatMapSequence::new(frames, p, h, w, values)?;
     Ok(RenderedMaps {
         maps,
         truth,

@@ -54,14 +54,18 @@ pub struct CoefficientProblem {
     sqrt_weights: Vec<f64>,
 }
 
-/// Which algorithm solves the C-step.
+/// Which algorithm solves the C-step: `active-set`, `coordinate-descent` (or `cd`) or
+/// `apg`, by one parser (serde's) for the configuration and, through
+/// [`std::str::FromStr`], the command line.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum CoefficientSolver {
     /// Active-set (feature-sign) method with Newton steps over the window.
     #[default]
+    #[serde(alias = "as")]
     ActiveSet,
     /// Coordinate descent with an active set.
+    #[serde(alias = "cd")]
     CoordinateDescent,
     /// Accelerated proximal gradient with restart (the paper's choice).
     Apg,
@@ -70,14 +74,13 @@ pub enum CoefficientSolver {
 impl std::str::FromStr for CoefficientSolver {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "active-set" | "as" => Ok(Self::ActiveSet),
-            "cd" | "coordinate-descent" => Ok(Self::CoordinateDescent),
-            "apg" => Ok(Self::Apg),
-            other => Err(format!(
-                "unknown C-step solver `{other}` (expected active-set, cd or apg)"
-            )),
-        }
+        super::from_name(s)
+    }
+}
+
+impl std::fmt::Display for CoefficientSolver {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&super::name_of(self))
     }
 }
 
