@@ -31,9 +31,9 @@ pub use posestream_msgs::{self as msgs, files, limits, npy, recording};
 pub use posestream_transport as transport;
 
 pub use posestream_math::{
-    CameraError, CropBox, Dictionary, DictionaryError, Estimate, EstimateError, Estimator,
-    FrameEstimate, FrameMaps, HeatMapSequence, InitMethod, Intrinsics, Keypoints, MetricEstimate,
-    Params, PixelMap, Report, Skeleton, StreamSettings, WindowEstimator,
+    CameraError, CropBox, Dictionary, DictionaryError, Estimate, EstimateError, Estimates,
+    Estimator, FrameEstimate, FrameMaps, HeatMapSequence, InitMethod, Intrinsics, Keypoints,
+    MetricEstimate, Params, PixelMap, Report, Skeleton, StreamSettings, WindowEstimator,
 };
 pub use posestream_mocap::BvhError;
 pub use posestream_msgs::error::ArrayError;

@@ -385,26 +385,23 @@ fn a_hostile_participant_cannot_stop_a_good_track_or_grow_the_estimator() {
     let out = dir.path().join("estimator.mcap");
     let est = ros2_config(dir.path(), "estimator.toml", domain, Some(&out));
     let det = ros2_config(dir.path(), "detector.toml", domain, None);
-    let estimator = std::thread::Builder::new()
-        .name("estimator-run".into())
-        .spawn({
-            let est = est.clone();
-            move || {
-                peak_memory_run(
-                    &bin(),
-                    &[
-                        "estimator",
-                        "--config",
-                        s(&est),
-                        "--duration",
-                        "12",
-                        "--json",
-                    ],
-                    &[],
-                )
-            }
-        })
-        .expect("a thread");
+    let estimator = common::spawn("estimator-run", {
+        let est = est.clone();
+        move || {
+            peak_memory_run(
+                &bin(),
+                &[
+                    "estimator",
+                    "--config",
+                    s(&est),
+                    "--duration",
+                    "12",
+                    "--json",
+                ],
+                &[],
+            )
+        }
+    });
     std::thread::sleep(Duration::from_millis(1000));
     let mut hostile = Command::new(python())
         .arg(root().join("tests/python/ros2_hostile_publisher.py"))

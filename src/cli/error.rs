@@ -80,6 +80,14 @@ pub enum CliError {
         /// What the estimator said.
         source: EstimateError,
     },
+    /// A file could not be opened or created (the cause says which).
+    #[error("{}: {source}", path.display())]
+    File {
+        /// The file.
+        path: PathBuf,
+        /// The cause.
+        source: std::io::Error,
+    },
     /// A file or folder could not be created or written.
     #[error("cannot {action} {}: {source}", path.display())]
     Io {

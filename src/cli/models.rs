@@ -61,11 +61,8 @@ pub fn run(args: &ModelsArgs) -> Result<(), CliError> {
             bar.finish_and_clear();
             let fetched = fetched?;
             if a.json {
-                let text =
-                    serde_json::to_string_pretty(&fetched).map_err(|source| CliError::Json {
-                        path: dir.clone(),
-                        source,
-                    })?;
+                let text = serde_json::to_string_pretty(&fetched)
+                    .map_err(|e| CliError::Failed(format!("cannot write the report: {e}")))?;
                 println!("{text}");
             } else {
                 for m in &fetched {

@@ -171,8 +171,10 @@ pub fn run(args: &RenderArgs) -> Result<(), CliError> {
         ));
     }
     if gif {
-        let file =
-            std::fs::File::create(&args.output).map_err(|e| CliError::create(&args.output, e))?;
+        let file = std::fs::File::create(&args.output).map_err(|source| CliError::File {
+            path: args.output.clone(),
+            source,
+        })?;
         let picture_error = |source| CliError::Picture {
             path: args.output.clone(),
             source,

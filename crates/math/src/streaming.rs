@@ -231,10 +231,16 @@ impl Default for FrameEstimate {
 /// [`Estimates::clear`] keeps every estimate and its vectors, and the next push writes
 /// over them, so a warm window emits without allocating
 /// ([`WindowEstimator::push_into`]). Reads as a slice of [`FrameEstimate`]s.
-#[derive(Debug, Clone, Default)]
+#[derive(Clone, Default)]
 pub struct Estimates {
     items: Vec<FrameEstimate>,
     len: usize,
+}
+
+impl std::fmt::Debug for Estimates {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_list().entries(self.iter()).finish()
+    }
 }
 
 impl Estimates {

@@ -66,7 +66,11 @@ pub enum InitMethod {
 impl std::str::FromStr for InitMethod {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
-        from_name(s)
+        from_name(s).map_err(|_| {
+            format!(
+                "unknown init method `{s}` (expected convex+robust+refine, convex+refine or altern)"
+            )
+        })
     }
 }
 
@@ -300,7 +304,6 @@ pub struct Window {
     pub fits: Vec<FrameFit>,
 }
 
-/// Sum of squares.
 /// Clears `v` and makes it `n` zeros, with capacity for at least `worst` (the largest
 /// `n` possible with the largest sizes seen so far, `worst >= n`), and when it must grow,
 /// twice that. Buffers sized by the active set, which varies from round to round, then
@@ -314,6 +317,7 @@ pub(crate) fn zeroed_with_room(v: &mut Vec<f64>, n: usize, worst: usize) {
     v.resize(n, 0.0);
 }
 
+/// Sum of squares.
 pub(crate) fn sq_norm(v: &[f64]) -> f64 {
     dot(v, v)
 }

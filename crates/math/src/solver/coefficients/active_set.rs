@@ -102,7 +102,9 @@ impl CoefficientProblem {
             a.active[t].reserve(k);
             a.active[t].extend((0..k as u32).filter(|&i| c[t * k + i as usize] != 0.0));
         }
+        a.candidates.clear();
         a.candidates.reserve(k);
+        a.fresh.clear();
         a.fresh.reserve(f * k);
         self.residual(c, &mut a.resid);
         let penalty = |c: &[f64]| self.penalty(c, alpha, beta);

@@ -75,6 +75,7 @@ impl std::str::FromStr for CoefficientSolver {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
         super::from_name(s)
+            .map_err(|_| format!("unknown C-step solver `{s}` (expected active-set, cd or apg)"))
     }
 }
 
