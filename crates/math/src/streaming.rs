@@ -574,9 +574,21 @@ impl WindowEstimator {
         checked: CheckedFrame,
         out: &mut Vec<FrameEstimate>,
     ) {
+        self.cloned_out(out, |window, released| {
+            window.push_checked_into(frame, checked, released);
+        });
+    }
+
+    /// Runs `f` into the window's own reused estimates and appends clones of them to
+    /// `out`: the allocating API over the reusing one.
+    fn cloned_out(
+        &mut self,
+        out: &mut Vec<FrameEstimate>,
+        f: impl FnOnce(&mut Self, &mut Estimates),
+    ) {
         let mut released = std::mem::take(&mut self.released);
         released.clear();
-        self.push_checked_into(frame, checked, &mut released);
+        f(self, &mut released);
         out.extend(released.iter().cloned());
         self.released = released;
     }
@@ -648,11 +660,7 @@ impl WindowEstimator {
     /// Ends the track: appends the lagged estimates still owed (state
     /// [`TrackState::Lost`], lag smaller than configured) and empties the window.
     pub fn finish(&mut self, out: &mut Vec<FrameEstimate>) {
-        let mut released = std::mem::take(&mut self.released);
-        released.clear();
-        self.finish_into(&mut released);
-        out.extend(released.iter().cloned());
-        self.released = released;
+        self.cloned_out(out, Self::finish_into);
     }
 
     /// [`WindowEstimator::finish`] into reused estimates.
