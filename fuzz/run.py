@@ -11,7 +11,7 @@ time (default 60), or, with --quiet M, until it has added nothing to its corpus 
 new coverage: libFuzzer's NEW) for M seconds of CPU time (at most N: --seconds caps
 each run also with --quiet). Both spans are the fuzzer's own CPU time, sampled every
 2 s, so a busy machine neither shortens a quiet spell nor a run.
-J targets run at once (default 1). New corpus entries are written back to the corpus
+J targets run at once (default 1); each prints its line when it ends. New corpus entries are written back to the corpus
 folder (`--cmin` keeps it small); a failing input lands in
 `fuzz/artifacts/<target>/`: copy it to `fuzz/regressions/<target>/` once fixed, and
 `tests/fuzz_corpora.rs` replays it in every CI run.
@@ -179,9 +179,11 @@ def main():
         return
     any_failed = False
     with concurrent.futures.ThreadPoolExecutor(a.jobs) as pool:
-        for target, stats, failed, log in pool.map(
-            lambda t: run(binary, t, a.seconds, a.quiet), a.targets
-        ):
+        # Each result is printed as its target ends, so that a campaign stopped
+        # half-way keeps the lines of the targets that finished.
+        runs = [pool.submit(run, binary, t, a.seconds, a.quiet) for t in a.targets]
+        for done in concurrent.futures.as_completed(runs):
+            target, stats, failed, log = done.result()
             any_failed |= failed
             print(
                 f"{target:14} {'FAILED' if failed else 'ok':6} cpu {stats.get('cpu_s')} s, "

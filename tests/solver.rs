@@ -8,7 +8,7 @@ use posestream::solver::coefficients::{
     CoefficientProblem, CoefficientSolver, CoefficientWorkspace, basis_gram_max, lipschitz_bound,
 };
 use posestream::solver::normalise::keypoint_scale;
-use posestream::solver::{FrameFit, Observations};
+use posestream::solver::{Anchors, FrameFit, Observations};
 use posestream::{Dictionary, Estimator, InitMethod, Keypoints, Params};
 
 #[test]
@@ -127,11 +127,15 @@ fn the_c_step_solvers_reach_the_same_minimum_with_and_without_an_anchor() {
         &translations,
     );
     let (alpha, beta) = (0.5, 20.0);
-    // Unanchored, then anchored on the fit of the frame after the window (any fixed
-    // neighbour will do).
-    for anchor in [None, Some(fits[f].coefficients.as_slice())] {
-        problem.set_anchor(anchor);
-        let lipschitz = lipschitz_bound(basis_gram_max(&dict), 1.0, beta, f + 1);
+    // Unanchored, anchored before on the fit of the frame after the window (any fixed
+    // neighbour will do), anchored after on it, and anchored on both sides.
+    let (near, far) = (
+        Some(fits[f].coefficients.as_slice()),
+        Some(fits[0].coefficients.as_slice()),
+    );
+    for (anchor, after) in [(None, None), (near, None), (None, near), (far, near)] {
+        problem.set_anchors(anchor, after);
+        let lipschitz = lipschitz_bound(basis_gram_max(&dict), 1.0, beta, f + 2);
         let mut ws = CoefficientWorkspace::default();
         let mut reached = Vec::new();
         for solver in [
@@ -147,8 +151,9 @@ fn the_c_step_solvers_reach_the_same_minimum_with_and_without_an_anchor() {
             reached.push(info.objective_after);
         }
         println!(
-            "anchor {}: active set, cd, apg: {reached:?}",
-            anchor.is_some()
+            "anchors before {}, after {}: active set, cd, apg: {reached:?}",
+            anchor.is_some(),
+            after.is_some()
         );
         let (active, cd, apg) = (reached[0], reached[1], reached[2]);
         // The active-set method ends at a KKT point: nothing below it, and the first-order
@@ -266,4 +271,73 @@ fn zero_confidence_joints_do_not_move_the_fit() {
         .map(|(x, y)| (x - y).abs())
         .fold(0.0, f64::max);
     assert!(diff < 1e-9, "max difference {diff}");
+}
+
+#[test]
+fn a_window_part_between_two_anchors_never_raises_its_objective_and_follows_both() {
+    let dict = Dictionary::load(k128()).expect("dictionary");
+    // Frames 1..9 between anchors: the fits of frames 0 and 9, or far-away ones.
+    let f = 8;
+    let (fits, obs) = lifted_window(&dict, 1, f);
+    let params = Params {
+        beta: 200.0,
+        gamma: 200.0,
+        tolerance: 1e-9,
+        max_rounds: 20,
+        ..Params::default()
+    };
+    let gram = basis_gram_max(&dict);
+    let far = |fit: &FrameFit| {
+        let mut far = fit.clone();
+        far.coefficients.iter_mut().for_each(|c| *c = -*c + 1.0);
+        far
+    };
+    let (far_before, far_after) = (far(&fits[0]), far(&fits[f + 1]));
+    let distance = |a: &FrameFit, b: &FrameFit| {
+        let dc: f64 = a
+            .coefficients
+            .iter()
+            .zip(&b.coefficients)
+            .map(|(a, b)| (a - b).powi(2))
+            .sum();
+        dc.sqrt()
+    };
+    let mut to_far = Vec::new();
+    for anchors in [
+        Anchors::default(),
+        Anchors {
+            before: Some(&fits[0]),
+            after: Some(&fits[f + 1]),
+        },
+        Anchors {
+            before: Some(&far_before),
+            after: Some(&far_after),
+        },
+        Anchors {
+            before: None,
+            after: Some(&far_after),
+        },
+    ] {
+        let mut window = fits[1..=f].to_vec();
+        let mut ws = BcdWorkspace::default();
+        let info = bcd::solve_between(&dict, gram, &obs, &mut window, anchors, &params, &mut ws);
+        for w in info.objective.windows(2) {
+            assert!(w[1] <= w[0] * (1.0 + 1e-12), "{:?}", info.objective);
+        }
+        // The reported objective is the full objective, anchor terms included.
+        let end = bcd::objective_between(&dict, &obs, &window, anchors, &params);
+        let last = info.objective.last().copied().unwrap_or(f64::NAN);
+        assert!((end - last).abs() <= 1e-9 * end.abs(), "{end} {last}");
+        to_far.push((
+            distance(&window[0], &far_before),
+            distance(&window[f - 1], &far_after),
+        ));
+    }
+    println!("distances of the first and last frames to the far anchors: {to_far:?}");
+    let (free, near, both_far, after_far) = (to_far[0], to_far[1], to_far[2], to_far[3]);
+    // Far anchors pull both ends towards them; one after pulls only the last frame's
+    // end more than no anchor does.
+    assert!(both_far.0 < 0.9 * free.0.min(near.0), "{to_far:?}");
+    assert!(both_far.1 < 0.9 * free.1.min(near.1), "{to_far:?}");
+    assert!(after_far.1 < 0.9 * free.1, "{to_far:?}");
 }

@@ -35,7 +35,7 @@ use crate::solver::em::{self, EmWorkspace, MapSource};
 use crate::solver::estep::MapMoments;
 use crate::solver::init::InitWorkspace;
 use crate::solver::normalise::heatmap_scale;
-use crate::solver::{FrameFit, Observations, Params};
+use crate::solver::{Anchors, FrameFit, Observations, Params};
 
 /// Which estimates the window emits for each new frame.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -72,6 +72,13 @@ pub struct StreamSettings {
     /// Run the EM over the whole window on every n-th frame only (1: every frame); the
     /// frames between get only the EM over the newest frames. Spreads the window's cost.
     pub window_every: usize,
+    /// The window's EM runs in this many parts, on consecutive frames, oldest part
+    /// first: each part is the EM over its share of the window's frames between frozen
+    /// neighbours (the frames on both sides of it stay fixed and pull its ends through
+    /// the smoothness terms: block coordinate descent over time). Spreads the cost of
+    /// one window EM over several frames (1: the whole window at once; at most one part
+    /// per frame of the window).
+    pub window_parts: usize,
     /// Iterations of a new frame's initialisation at most (the estimator's
     /// `max_init_iterations` caps it too).
     pub init_iterations: usize,
@@ -96,6 +103,7 @@ impl Default for StreamSettings {
             local_frames: 4,
             local_iterations: 2,
             window_every: 10,
+            window_parts: 3,
             init_iterations: 5,
             admit_per_frame: 2,
             max_gap_frames: 10,
@@ -123,6 +131,7 @@ impl StreamSettings {
         check_range("local_frames", self.local_frames, 1, self.size)?;
         check_range("local_iterations", self.local_iterations, 0, 100)?;
         check_range("window_every", self.window_every, 1, 10_000)?;
+        check_range("window_parts", self.window_parts, 1, Self::MAX_SIZE)?;
         check_range("init_iterations", self.init_iterations, 1, 100_000)?;
         check_range("admit_per_frame", self.admit_per_frame, 1, 10_000)?;
         check_range("max_gap_frames", self.max_gap_frames, 1, 1_000_000)?;
@@ -393,6 +402,39 @@ impl<M: MapSource> MapSource for Tail<'_, M> {
     }
 }
 
+/// A window EM running in parts ([`StreamSettings::window_parts`]), one part per frame.
+#[derive(Debug, Clone, Copy)]
+struct Sweep {
+    /// The next part.
+    part: usize,
+    /// Parts in all: [`StreamSettings::window_parts`], at most one per frame.
+    parts: usize,
+    /// Frames in the window when the sweep began: the parts divide these.
+    frames: usize,
+    /// [`WindowEstimator::dropped`] then: frames that left since shift the parts.
+    dropped: usize,
+}
+
+impl Sweep {
+    /// The window frames of the next part (and moves on to the one after), with `n`
+    /// frames in the window and `dropped` frames left so far. Part i holds the frames
+    /// `[i n0 / m, (i+1) n0 / m)` of the n0 there were when the sweep began, shifted by
+    /// the frames that have left since; the last part also takes the frames that have
+    /// come since. So every frame is in exactly one part, unless it left first.
+    fn next_part(&mut self, n: usize, dropped: usize) -> std::ops::Range<usize> {
+        let shift = dropped - self.dropped;
+        let bound = |i: usize| (i * self.frames / self.parts).saturating_sub(shift);
+        let from = bound(self.part);
+        let to = if self.part + 1 == self.parts {
+            n
+        } else {
+            bound(self.part + 1)
+        };
+        self.part += 1;
+        from..to.max(from)
+    }
+}
+
 /// EM over a sliding window of heat-map frames: the core of the estimator node.
 #[derive(Debug, Clone)]
 pub struct WindowEstimator {
@@ -404,8 +446,12 @@ pub struct WindowEstimator {
     window_params: Params,
     /// The estimator's parameters with the initialisation capped.
     init_params: Params,
-    /// Frames since the last EM over the whole window.
+    /// Frames since the last EM over the whole window began.
     since_window: usize,
+    /// The window EM under way in parts, if any.
+    sweep: Option<Sweep>,
+    /// Frames that have left the window at its front since the track began.
+    dropped: usize,
     /// The window's frames, oldest first, and their fits (same order).
     slots: Vec<Slot>,
     fits: Vec<FrameFit>,
@@ -450,6 +496,8 @@ impl WindowEstimator {
                 ..estimator.params().clone()
             },
             since_window: 0,
+            sweep: None,
+            dropped: 0,
             slots: Vec::with_capacity(settings.size),
             fits: Vec::with_capacity(settings.size),
             anchor: None,
@@ -684,6 +732,8 @@ impl WindowEstimator {
         }
         self.maps.clear();
         self.since_window = 0;
+        self.sweep = None;
+        self.dropped = 0;
         self.last = None;
         self.empty_since_last = 0;
     }
@@ -733,6 +783,7 @@ impl WindowEstimator {
                 self.spare.push(old);
             }
             self.maps.pop_front();
+            self.dropped += 1;
         }
         self.maps.push_back(frame.values);
         let age = self.slots.last().map_or(0, |s| s.age + 1);
@@ -774,7 +825,8 @@ impl WindowEstimator {
 
     /// EM iterations: first over the newest frames (anchored on the frame before them),
     /// then, every [`StreamSettings::window_every`] frames, over the whole window
-    /// (anchored on the frozen frame).
+    /// (anchored on the frozen frame), in [`StreamSettings::window_parts`] parts on
+    /// consecutive frames.
     fn solve(&mut self) {
         let scale = heatmap_scale(self.maps.height);
         let n = self.fits.len();
@@ -799,16 +851,61 @@ impl WindowEstimator {
                 &mut self.em,
             );
         }
-        if has_local && self.since_window < self.settings.window_every {
+        if !has_local {
+            // Too few frames for a local EM (or none configured): the whole window, now.
+            self.sweep = None;
+            self.since_window = 0;
+            self.solve_part(0, n);
             return;
         }
-        self.since_window = 0;
-        em::run_anchored_in(
+        if self.sweep.is_none() {
+            if self.since_window < self.settings.window_every {
+                return;
+            }
+            self.since_window = 0;
+            self.sweep = Some(Sweep {
+                part: 0,
+                parts: self.settings.window_parts.min(n),
+                frames: n,
+                dropped: self.dropped,
+            });
+        }
+        let Some(sweep) = self.sweep.as_mut() else {
+            return;
+        };
+        let part = sweep.next_part(n, self.dropped);
+        if sweep.part == sweep.parts {
+            self.sweep = None;
+        }
+        if !part.is_empty() {
+            self.solve_part(part.start, part.end);
+        }
+    }
+
+    /// The window's EM over its frames `[from, to)`, between the frames on both sides
+    /// (the frozen frame before the window when `from` is 0; nothing after the newest).
+    fn solve_part(&mut self, from: usize, to: usize) {
+        let scale = heatmap_scale(self.maps.height);
+        let (before, rest) = self.fits.split_at_mut(from);
+        let (part, after) = rest.split_at_mut(to - from);
+        let anchors = Anchors {
+            before: if from == 0 {
+                self.anchor.as_ref()
+            } else {
+                before.last()
+            },
+            after: after.first(),
+        };
+        let view = Tail {
+            inner: &self.maps,
+            from,
+        };
+        em::run_between_in(
             self.estimator.dictionary(),
             self.estimator.basis_gram_max(),
-            &self.maps,
-            &mut self.fits,
-            self.anchor.as_ref(),
+            &view,
+            part,
+            anchors,
             scale,
             &self.window_params,
             &mut self.obs,
@@ -861,5 +958,46 @@ impl WindowEstimator {
         e.stamp_ns = slot.stamp_ns;
         e.lag = self.slots.len() - 1 - t;
         e.state = state;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Sweep;
+
+    /// Every frame in the window when a sweep begins, or arriving before its last part,
+    /// is in exactly one part, with a full window (which loses its oldest frame with
+    /// each new one) and with one still filling.
+    #[test]
+    fn the_parts_of_a_sweep_cover_each_frame_once() {
+        for (size, start, parts) in [(30, 30, 3), (30, 12, 3), (30, 30, 5), (7, 7, 7), (30, 2, 2)] {
+            // Frames by their number since the track began; the window holds the newest
+            // `size` of them, `[first, newest)`; `first` frames have left it.
+            let first = |newest: usize| newest.saturating_sub(size);
+            let mut newest = start;
+            let begun = first(newest);
+            let mut sweep = Sweep {
+                part: 0,
+                parts,
+                frames: newest - begun,
+                dropped: begun,
+            };
+            let mut seen = vec![0; start + parts];
+            loop {
+                let f = first(newest);
+                for t in sweep.next_part(newest - f, f) {
+                    seen[f + t] += 1;
+                }
+                if sweep.part == parts {
+                    break;
+                }
+                newest += 1;
+            }
+            let covered = &seen[begun..newest];
+            assert!(
+                covered.iter().all(|&times| times == 1),
+                "window {size}, {start} frames, {parts} parts: {covered:?}"
+            );
+        }
     }
 }

@@ -12,7 +12,7 @@ use super::coefficients::{
     CoefficientProblem, CoefficientSolver, CoefficientWorkspace, lipschitz_bound,
 };
 use super::rotations::{self, FrameTerms};
-use super::{FrameFit, Observations, Params};
+use super::{Anchors, FrameFit, Observations, Params};
 use crate::dictionary::Dictionary;
 
 /// What one run of Algorithm 1 did.
@@ -57,16 +57,28 @@ pub fn objective_anchored(
     anchor: Option<&FrameFit>,
     params: &Params,
 ) -> f64 {
-    let mut s = vec![0.0; 3 * dict.num_joints()];
-    objective_with(dict, obs, fits, anchor, params, &mut s)
+    objective_between(dict, obs, fits, Anchors::before(anchor), params)
 }
 
-/// [`objective_anchored`] with a buffer of 3 x p values for the shapes.
+/// The full objective `J` of `fits` on `obs`, with the smoothness terms to the frozen
+/// frames around them.
+pub fn objective_between(
+    dict: &Dictionary,
+    obs: &Observations,
+    fits: &[FrameFit],
+    anchors: Anchors<'_>,
+    params: &Params,
+) -> f64 {
+    let mut s = vec![0.0; 3 * dict.num_joints()];
+    objective_with(dict, obs, fits, anchors, params, &mut s)
+}
+
+/// [`objective_between`] with a buffer of 3 x p values for the shapes.
 fn objective_with(
     dict: &Dictionary,
     obs: &Observations,
     fits: &[FrameFit],
-    anchor: Option<&FrameFit>,
+    anchors: Anchors<'_>,
     params: &Params,
     s: &mut [f64],
 ) -> f64 {
@@ -82,11 +94,12 @@ fn objective_with(
         );
         j_total += params.alpha * fit.coefficients.iter().map(|c| c.abs()).sum::<f64>();
     }
-    let before = anchor.zip(fits.first());
+    let before = anchors.before.zip(fits.first()).map(|(a, f)| [a, f]);
+    let after = anchors.after.zip(fits.last()).map(|(b, l)| [l, b]);
     for w in before
-        .iter()
-        .map(|(a, f)| [*a, f])
+        .into_iter()
         .chain(fits.windows(2).map(|w| [&w[0], &w[1]]))
+        .chain(after)
     {
         let dc: f64 = w[0]
             .coefficients
@@ -163,31 +176,51 @@ pub fn solve_anchored(
     params: &Params,
     ws: &mut BcdWorkspace,
 ) -> BcdInfo {
-    solve_in(dict, basis_gram_max, obs, fits, anchor, params, ws).clone()
+    solve_in(
+        dict,
+        basis_gram_max,
+        obs,
+        fits,
+        Anchors::before(anchor),
+        params,
+        ws,
+    )
+    .clone()
 }
 
-/// [`solve_anchored`], leaving what it did in the workspace (nothing allocates once the
+/// [`solve`] between frozen frames before the first and after the last (see
+/// [`Anchors`]): a part of a window solved on its own.
+pub fn solve_between(
+    dict: &Dictionary,
+    basis_gram_max: f64,
+    obs: &Observations,
+    fits: &mut [FrameFit],
+    anchors: Anchors<'_>,
+    params: &Params,
+    ws: &mut BcdWorkspace,
+) -> BcdInfo {
+    solve_in(dict, basis_gram_max, obs, fits, anchors, params, ws).clone()
+}
+
+/// [`solve_between`], leaving what it did in the workspace (nothing allocates once the
 /// workspace is warm).
 pub(crate) fn solve_in<'w>(
     dict: &Dictionary,
     basis_gram_max: f64,
     obs: &Observations,
     fits: &mut [FrameFit],
-    anchor: Option<&FrameFit>,
+    anchors: Anchors<'_>,
     params: &Params,
     ws: &'w mut BcdWorkspace,
 ) -> &'w BcdInfo {
     let (k, p, f) = (dict.num_bases(), dict.num_joints(), fits.len());
     debug_assert_eq!(obs.frames(), f);
     let max_weight = obs.weights.iter().cloned().fold(0.0, f64::max);
-    let lipschitz = lipschitz_bound(
-        basis_gram_max,
-        max_weight,
-        params.beta,
-        f + usize::from(anchor.is_some()),
+    let lipschitz = lipschitz_bound(basis_gram_max, max_weight, params.beta, f + anchors.count());
+    ws.problem.set_anchors(
+        anchors.before.map(|a| a.coefficients.as_slice()),
+        anchors.after.map(|a| a.coefficients.as_slice()),
     );
-    ws.problem
-        .set_anchor(anchor.map(|a| a.coefficients.as_slice()));
     ws.c.resize(f * k, 0.0);
     ws.shapes.resize(f * 3 * p, 0.0);
     ws.rotations.clear();
@@ -208,7 +241,7 @@ pub(crate) fn solve_in<'w>(
             ws.translations[t] = fit.translation;
         }
     }
-    let start = objective_with(dict, obs, fits, anchor, params, &mut ws.scratch);
+    let start = objective_with(dict, obs, fits, anchors, params, &mut ws.scratch);
     let mut info = std::mem::take(&mut ws.info);
     info.objective.clear();
     info.objective.reserve(params.max_rounds + 1);
@@ -250,10 +283,11 @@ pub(crate) fn solve_in<'w>(
                 obs.frame_weights(t),
             ));
         }
-        let rinfo = rotations::solve_anchored(
+        let rinfo = rotations::solve_between(
             &ws.terms,
             &mut ws.rotations,
-            anchor.map(|a| &a.rotation),
+            anchors.before.map(|a| &a.rotation),
+            anchors.after.map(|a| &a.rotation),
             params.gamma,
             params.tolerance,
             params.max_rotation_sweeps,
@@ -272,8 +306,11 @@ pub(crate) fn solve_in<'w>(
             .windows(2)
             .map(|w| 0.5 * params.gamma * (w[0] - w[1]).norm_squared())
             .sum::<f64>()
-            + anchor.map_or(0.0, |a| {
+            + anchors.before.map_or(0.0, |a| {
                 rotations::anchor_cost(&a.rotation, &ws.rotations[0], params.gamma)
+            })
+            + anchors.after.map_or(0.0, |b| {
+                rotations::anchor_cost(&b.rotation, &ws.rotations[f - 1], params.gamma)
             });
         let obj = data + smooth_r + cinfo.penalty;
         info.objective.push(obj);

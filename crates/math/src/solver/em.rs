@@ -7,7 +7,7 @@ use std::borrow::Cow;
 
 use super::bcd::{self, BcdWorkspace};
 use super::estep::{self, EStepWorkspace, MapMoments};
-use super::{FrameFit, Observations, Params};
+use super::{Anchors, FrameFit, Observations, Params};
 
 use crate::dictionary::Dictionary;
 use crate::heatmaps::HeatMapSequence;
@@ -206,6 +206,32 @@ pub fn run_anchored_in<'w>(
     obs: &mut Observations,
     ws: &'w mut EmWorkspace,
 ) -> &'w EmInfo {
+    run_between_in(
+        dict,
+        basis_gram_max,
+        maps,
+        fits,
+        Anchors::before(anchor),
+        scale,
+        params,
+        obs,
+        ws,
+    )
+}
+
+/// [`run_anchored_in`] between frozen frames before the first and after the last (see
+/// [`Anchors`]): the EM over a part of a sliding window.
+pub fn run_between_in<'w>(
+    dict: &Dictionary,
+    basis_gram_max: f64,
+    maps: &impl MapSource,
+    fits: &mut [FrameFit],
+    anchors: Anchors<'_>,
+    scale: f64,
+    params: &Params,
+    obs: &mut Observations,
+    ws: &'w mut EmWorkspace,
+) -> &'w EmInfo {
     let (p, k) = (dict.num_joints(), dict.num_bases());
     obs.joints = p;
     obs.xy.resize(2 * p * fits.len(), 0.0);
@@ -236,7 +262,7 @@ pub fn run_anchored_in<'w>(
             basis_gram_max,
             obs,
             fits,
-            anchor,
+            anchors,
             &m_step,
             &mut ws.bcd,
         );

@@ -248,6 +248,33 @@ impl FrameFit {
     }
 }
 
+/// Frozen frames around the frames being solved: their fits stay fixed, and the
+/// smoothness terms pull the first frame towards `before` (`beta/2 |c_0 - c_b|^2 +
+/// gamma/2 ||R_0 - R_b||_F^2`) and the last towards `after`. A sliding window has a
+/// `before` (the frame that left it); a part of a window solved on its own has both.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Anchors<'a> {
+    /// The frame just before the first.
+    pub before: Option<&'a FrameFit>,
+    /// The frame just after the last.
+    pub after: Option<&'a FrameFit>,
+}
+
+impl<'a> Anchors<'a> {
+    /// Only a frame before (or none).
+    pub fn before(before: Option<&'a FrameFit>) -> Self {
+        Self {
+            before,
+            after: None,
+        }
+    }
+
+    /// How many anchors there are (0, 1 or 2).
+    pub fn count(&self) -> usize {
+        usize::from(self.before.is_some()) + usize::from(self.after.is_some())
+    }
+}
+
 /// 2D joints of F frames (normalised units) with a weight per joint: the data of
 /// Algorithm 1, and the expected joints the E-step hands to it.
 #[derive(Debug, Clone, PartialEq, Default)]

@@ -91,12 +91,12 @@ pub fn objective(terms: &[FrameTerms], rotations: &[Matrix3<f64>], gamma: f64) -
     f
 }
 
-/// Restores orthonormality after many products (rows Gram–Schmidt, third = first x second).
 /// `gamma/2 ||R_0 - anchor||_F^2`, the smoothness term to a frozen frame.
 pub fn anchor_cost(anchor: &Matrix3<f64>, first: &Matrix3<f64>, gamma: f64) -> f64 {
     0.5 * gamma * (anchor - first).norm_squared()
 }
 
+/// Restores orthonormality after many products (rows Gram–Schmidt, third = first x second).
 fn reorthonormalise(r: &Matrix3<f64>) -> Matrix3<f64> {
     let r1 = r.row(0).transpose().normalize();
     let r2 = r.row(1).transpose();
@@ -126,6 +126,20 @@ pub fn solve_anchored(
     grad_tol: f64,
     max_sweeps: usize,
 ) -> RotationInfo {
+    solve_between(terms, rotations, anchor, None, gamma, grad_tol, max_sweeps)
+}
+
+/// [`solve_anchored`] with also the rotation of a frozen frame after the last: the
+/// smoothness term gains `gamma/2 ||R_F-1 - after||_F^2`.
+pub fn solve_between(
+    terms: &[FrameTerms],
+    rotations: &mut [Matrix3<f64>],
+    anchor: Option<&Matrix3<f64>>,
+    after: Option<&Matrix3<f64>>,
+    gamma: f64,
+    grad_tol: f64,
+    max_sweeps: usize,
+) -> RotationInfo {
     let f = rotations.len();
     let e = [hat(0), hat(1), hat(2)];
     let mut sweeps = 0;
@@ -143,6 +157,8 @@ pub fn solve_anchored(
                 }
                 if t + 1 < f {
                     n += rotations[t + 1];
+                } else if let Some(b) = after {
+                    n += b;
                 }
             }
             let (r_new, gnorm) = newton_step(&terms[t], &rotations[t], &n, gamma, &e);
@@ -158,7 +174,10 @@ pub fn solve_anchored(
         objective: objective(terms, rotations, gamma)
             + anchor
                 .zip(rotations.first())
-                .map_or(0.0, |(a, r)| anchor_cost(a, r, gamma)),
+                .map_or(0.0, |(a, r)| anchor_cost(a, r, gamma))
+            + after
+                .zip(rotations.last())
+                .map_or(0.0, |(b, r)| anchor_cost(b, r, gamma)),
         gradient_norm: gmax,
     }
 }

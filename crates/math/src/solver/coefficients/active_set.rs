@@ -301,8 +301,8 @@ impl CoefficientProblem {
             let gm = MatMut::from_column_major_slice_mut(gt, k, 1);
             matmul(gm, Accum::Replace, x.transpose(), r, -1.0, Par::Seq);
             if beta > 0.0 {
-                if let (0, Some(anchor)) = (t, self.anchor()) {
-                    for ((g, c), a) in gt.iter_mut().zip(&c[..k]).zip(anchor) {
+                for anchor in self.anchors_of(t) {
+                    for ((g, c), a) in gt.iter_mut().zip(&c[t * k..(t + 1) * k]).zip(anchor) {
                         *g += beta * (c - a);
                     }
                 }
@@ -339,7 +339,9 @@ impl CoefficientProblem {
         zeroed_with_room(&mut a.dir, a.system.dim(), worst);
         a.dir.clear();
         for t in 0..f {
-            let degree = usize::from(t > 0 || self.anchor().is_some()) + usize::from(t + 1 < f);
+            // Neighbours in time, the anchors included (they sit at the ends).
+            let degree = usize::from(t > 0 || self.anchor().is_some())
+                + usize::from(t + 1 < f || self.after().is_some());
             let x = self.frame_x(t);
             let atoms = &a.active[t];
             let na = atoms.len();
@@ -404,8 +406,8 @@ impl CoefficientProblem {
                 Par::Seq,
             );
             curvature += dot(xd, xd);
-            if beta > 0.0 && t == 0 && self.anchor().is_some() {
-                // beta |d_0|^2 from the anchor term (the anchor itself is fixed).
+            for _ in self.anchors_of(t).filter(|_| beta > 0.0) {
+                // beta |d_t|^2 from each anchor term of frame t (the anchors are fixed).
                 curvature += beta * dot(&a.dir[off..off + na], &a.dir[off..off + na]);
             }
             if beta > 0.0 && t > 0 {

@@ -102,7 +102,7 @@ impl CoefficientProblem {
         let mut grad = -dot(col, r);
         let mut curv = self.h[t * k + i];
         if beta > 0.0 {
-            if let (0, Some(a)) = (t, self.anchor()) {
+            for a in self.anchors_of(t) {
                 grad += beta * (cur - a[i]);
                 curv += beta;
             }

@@ -50,6 +50,9 @@ pub struct CoefficientProblem {
     /// Coefficients of the frozen frame before the window (empty: none). With an anchor
     /// `a`, the smoothness term gains `beta/2 |c_0 - a|^2`.
     anchor: Vec<f64>,
+    /// Coefficients of the frozen frame after the window (empty: none): the smoothness
+    /// term gains `beta/2 |c_F-1 - b|^2`.
+    after: Vec<f64>,
     /// Square roots of one frame's joint weights (a buffer of [`Self::build`]).
     sqrt_weights: Vec<f64>,
 }
@@ -140,7 +143,8 @@ pub fn laplacian_max_eigenvalue(f: usize) -> f64 {
 /// `max_weight * lambda_max(Bvec' Bvec) + beta * lambda_max(Lap_F)`, where `Bvec` holds
 /// `vec(B_i)` as columns. It holds because every `R_t` has orthonormal rows. With an
 /// anchor, pass `frames + 1`: the anchored Laplacian is a principal submatrix of the
-/// path Laplacian over the window and the anchor.
+/// path Laplacian over the window and the anchor (with anchors on both sides,
+/// `frames + 2`).
 pub fn lipschitz_bound(basis_gram_max: f64, max_weight: f64, beta: f64, frames: usize) -> f64 {
     basis_gram_max * max_weight + beta * laplacian_max_eigenvalue(frames)
 }
@@ -218,22 +222,44 @@ impl CoefficientProblem {
     }
 
     /// Sets (or clears) the anchor: the coefficients of the frozen frame just before the
-    /// window, which the first frame is pulled towards by the smoothness term.
+    /// window, which the first frame is pulled towards by the smoothness term. Clears
+    /// the anchor after the window.
     pub fn set_anchor(&mut self, anchor: Option<&[f64]>) {
-        self.anchor.clear();
-        if let Some(a) = anchor {
-            self.anchor.extend_from_slice(a);
+        self.set_anchors(anchor, None);
+    }
+
+    /// Sets (or clears) both anchors: the coefficients of the frozen frames just before
+    /// and just after the window, which its first and last frames are pulled towards.
+    pub fn set_anchors(&mut self, before: Option<&[f64]>, after: Option<&[f64]>) {
+        for (v, a) in [(&mut self.anchor, before), (&mut self.after, after)] {
+            v.clear();
+            if let Some(a) = a {
+                v.extend_from_slice(a);
+            }
         }
     }
 
-    /// The anchor coefficients of frame 0, if any.
+    /// The anchor coefficients before frame 0, if any.
     fn anchor(&self) -> Option<&[f64]> {
         (!self.anchor.is_empty()).then_some(&self.anchor[..])
     }
 
+    /// The anchor coefficients after the last frame, if any.
+    fn after(&self) -> Option<&[f64]> {
+        (!self.after.is_empty()).then_some(&self.after[..])
+    }
+
+    /// The frozen neighbours of frame `t` through the smoothness term: 0, 1 or 2 of the
+    /// anchors (frame 0 may have the one before, the last frame the one after).
+    fn anchors_of(&self, t: usize) -> impl Iterator<Item = &[f64]> {
+        let before = self.anchor().filter(|_| t == 0);
+        let after = self.after().filter(|_| t + 1 == self.frames);
+        before.into_iter().chain(after)
+    }
+
     /// True when the smoothness term couples anything (two frames, or an anchor).
     fn smoothness_active(&self, beta: f64) -> bool {
-        beta > 0.0 && (self.frames > 1 || self.anchor().is_some())
+        beta > 0.0 && (self.frames > 1 || self.anchor().is_some() || self.after().is_some())
     }
 
     /// The smooth data part `1/2 sum_t |y_t - X_t c_t|^2`.
@@ -250,16 +276,20 @@ impl CoefficientProblem {
     }
 
     /// `alpha ||C||_1 + beta/2 sum_t |c_t - c_t+1|^2`, plus `beta/2 |c_0 - a|^2` with an
-    /// anchor `a`.
+    /// anchor `a` before and `beta/2 |c_F-1 - b|^2` with an anchor `b` after.
     pub fn penalty(&self, c: &[f64], alpha: f64, beta: f64) -> f64 {
         let l1: f64 = c.iter().map(|v| v.abs()).sum();
         let mut smooth = 0.0;
-        if let Some(a) = self.anchor() {
-            smooth += a
-                .iter()
-                .zip(&c[..self.k])
-                .map(|(a, b)| (a - b) * (a - b))
-                .sum::<f64>();
+        let k = self.k;
+        let last = self.frames.saturating_sub(1);
+        for (a, t) in [(self.anchor(), 0), (self.after(), last)] {
+            if let Some(a) = a {
+                smooth += a
+                    .iter()
+                    .zip(&c[t * k..(t + 1) * k])
+                    .map(|(a, b)| (a - b) * (a - b))
+                    .sum::<f64>();
+            }
         }
         for t in 1..self.frames {
             let (a, b) = (
@@ -315,9 +345,17 @@ impl CoefficientProblem {
                 *g -= b;
             }
         }
-        if let (Some(a), true) = (self.anchor(), beta > 0.0) {
-            for ((g, z), a) in g[..k].iter_mut().zip(&z[..k]).zip(a) {
-                *g += beta * (z - a);
+        if beta > 0.0 {
+            if let Some(a) = self.anchor() {
+                for ((g, z), a) in g[..k].iter_mut().zip(&z[..k]).zip(a) {
+                    *g += beta * (z - a);
+                }
+            }
+            if let (Some(b), true) = (self.after(), f > 0) {
+                let last = (f - 1) * k..f * k;
+                for ((g, z), b) in g[last.clone()].iter_mut().zip(&z[last]).zip(b) {
+                    *g += beta * (z - b);
+                }
             }
         }
         if beta > 0.0 && f > 1 {
