@@ -36,7 +36,7 @@ fn bench(c: &mut Criterion) {
             stamp_ns: seq as i64 * 33_333_333,
             height: 64,
             width: 64,
-            values: &frames[t],
+            values: (&frames[t]).into(),
         };
         // Wrap-around jumps the pose: restart the track there, as a real stream would.
         if t == 0 {

@@ -1,12 +1,18 @@
 //! The streaming update allocates nothing once warm: a counting global allocator over
 //! 1,000 frames of a shipped recording, after a warm-up.
 //!
-//! What is counted: every allocation and reallocation on the test's thread while a
-//! frame is pushed through the window (`WindowEstimator::push_into`: the frame copied
-//! into the window's ring, its initialisation, the local EM, the window EM every
-//! `window_every` frames) and its estimates emitted into reused buffers. Nothing is
-//! excluded. `POSESTREAM_ALLOC_TRACE=1` prints a backtrace of the first allocations,
-//! to find where they come from.
+//! What is counted: every allocation and reallocation on the test's thread
+//! - while a frame is pushed through the window (`WindowEstimator::push_into`: the
+//!   frame copied into the window's ring, its initialisation, the local EM, the window
+//!   EM in parts) and its estimates emitted into reused buffers;
+//! - while the estimator node handles a decoded `HeatMaps` message, f32 or u8 (the
+//!   checks against the limits and the dictionary's joints, the message's scores lent to
+//!   the window, the window's update) and writes its `Skeleton3D` messages over those
+//!   it was handed back (`EstimatorNode::recycle`).
+//!
+//! Not counted: decoding the message from the wire and encoding the skeletons (the
+//! transports' serialisation builds their buffers), and markers. `POSESTREAM_ALLOC_TRACE=1`
+//! prints a backtrace of the first allocations, to find where they come from.
 
 #![allow(unsafe_code, reason = "a global allocator is unsafe to implement")]
 
@@ -16,7 +22,8 @@ use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::{Cell, RefCell};
 
 use common::{recording, root};
-use posestream::msgs;
+use posestream::msgs::{self, HeatMapEncoding, Time};
+use posestream::nodes::EstimatorNode;
 use posestream::recording::read_topic;
 use posestream::streaming::{Estimates, FrameMaps, StreamSettings, WindowEstimator};
 use posestream::{Dictionary, Estimator, Params};
@@ -113,7 +120,7 @@ fn a_warm_window_update_allocates_nothing_over_1000_frames() {
             stamp_ns: s as i64 * 33_333_333,
             height: h,
             width: w,
-            values,
+            values: values.into(),
         };
         out.clear();
         window.push_into(&frame, out).expect("a good frame");
@@ -137,4 +144,70 @@ fn a_warm_window_update_allocates_nothing_over_1000_frames() {
     });
     assert_eq!(emitted, 2000, "two estimates per frame");
     assert_eq!(allocations, 0, "allocations over 1000 warm frames");
+}
+
+#[test]
+fn a_warm_estimator_node_allocates_nothing_over_1000_messages() {
+    let recorded: Vec<msgs::HeatMaps> =
+        read_topic(&recording("byebye.mcap"), "/posestream/heatmaps")
+            .expect("reads")
+            .into_iter()
+            .map(|(_, m)| m)
+            .collect();
+    for encoding in [HeatMapEncoding::Float32, HeatMapEncoding::Uint8] {
+        // The recording's frames in this encoding.
+        let mut messages: Vec<msgs::HeatMaps> = recorded
+            .iter()
+            .map(|m| {
+                let mut values = Vec::new();
+                m.values_into(&mut values).expect("values");
+                msgs::HeatMaps::from_values(
+                    m.header.clone(),
+                    m.sequence,
+                    m.joint_names.clone(),
+                    m.height,
+                    m.width,
+                    m.crop().expect("crop"),
+                    &values,
+                    encoding,
+                )
+            })
+            .collect();
+        let dict = Dictionary::load(root().join("config/dictionaries/default-k128.json"))
+            .expect("dictionary");
+        let estimator = Estimator::new(dict, Params::default()).expect("estimator");
+        let window = WindowEstimator::new(estimator, StreamSettings::default()).expect("window");
+        let mut node = EstimatorNode::new(window);
+        let mut out = Vec::new();
+        let frames = messages.len() as u64;
+        let mut handle = |s: u64, node: &mut EstimatorNode, out: &mut Vec<msgs::Skeleton3D>| {
+            let m = &mut messages[(s % frames) as usize];
+            m.sequence = s;
+            m.header.stamp = Time::from_nanos(s as i64 * 33_333_333);
+            node.handle(m, out).expect("a good message");
+        };
+        let warm = 2 * frames;
+        for s in 0..warm {
+            handle(s, &mut node, &mut out);
+            node.recycle(&mut out);
+        }
+        let mut emitted = 0;
+        let allocations = count(|| {
+            for s in warm..warm + 1000 {
+                handle(s, &mut node, &mut out);
+                emitted += out.len();
+                node.recycle(&mut out);
+            }
+        });
+        TRACES.with(|t| {
+            for trace in t.borrow_mut().drain(..) {
+                eprintln!("allocation at:\n{trace}");
+            }
+        });
+        assert_eq!(emitted, 2000, "{encoding:?}: two skeletons per message");
+        assert_eq!(
+            allocations, 0,
+            "{encoding:?}: allocations over 1000 warm messages"
+        );
+    }
 }

@@ -49,7 +49,7 @@ fn estimate_from(logits: &[f32]) {
         stamp_ns: 0,
         height: HEATMAP_SIZE,
         width: HEATMAP_SIZE,
-        values: &maps,
+        values: (&maps).into(),
     };
     window.push(&frame, &mut out).expect("estimates");
     assert_eq!(out.len(), 1);

@@ -196,7 +196,7 @@ fn malformed_frames_are_errors_that_leave_the_window_as_it_was() {
             stamp_ns: 0,
             height: h,
             width: maps.width,
-            values,
+            values: values.into(),
         };
         assert!(w.push(&frame, &mut out).is_err());
     }

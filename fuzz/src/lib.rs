@@ -83,10 +83,18 @@ fn dictionary_once() -> &'static Dictionary {
     })
 }
 
+/// The estimator over the shipped dictionary, set up once (its SVDs and init cache
+/// would otherwise dominate each run of the node's targets).
+fn estimator_once() -> &'static Estimator {
+    static ESTIMATOR: OnceLock<Estimator> = OnceLock::new();
+    ESTIMATOR.get_or_init(|| {
+        Estimator::new(dictionary_once().clone(), Params::default()).expect("estimator")
+    })
+}
+
 /// A fresh estimator node (no state carried from one input to the next).
 fn node() -> EstimatorNode {
-    let estimator =
-        Estimator::new(dictionary_once().clone(), Params::default()).expect("estimator");
+    let estimator = estimator_once().clone();
     let window = WindowEstimator::new(estimator, StreamSettings::default()).expect("window");
     EstimatorNode::new(window)
 }

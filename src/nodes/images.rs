@@ -9,7 +9,7 @@ use std::time::Duration;
 use super::config::{DetectorSource, ServiceConfig};
 use crate::detector::{DetectorStats, ImageDetector};
 use crate::images::{DecodedImages, FolderSource, ImageFrame, VideoSource};
-use crate::msgs::{CompressedImage, HeatMaps, Image};
+use crate::msgs::{CompressedImage, Header, HeatMapEncoding, HeatMaps, Image, Time};
 use crate::transport::mcap::McapSource;
 use crate::transport::ros2::Ros2;
 use crate::transport::{Received, Source, TransportError};
@@ -21,15 +21,23 @@ pub type SharedStats = Arc<Mutex<DetectorStats>>;
 pub struct ImageHeatMaps {
     frames: Box<dyn Source<ImageFrame>>,
     detector: ImageDetector,
+    joint_names: Vec<String>,
+    encoding: HeatMapEncoding,
     stats: SharedStats,
 }
 
 impl ImageHeatMaps {
-    /// `detector` on the frames of `frames`.
-    pub fn new(frames: Box<dyn Source<ImageFrame>>, detector: ImageDetector) -> Self {
+    /// `detector` on the frames of `frames`, its maps sent as `encoding`.
+    pub fn new(
+        frames: Box<dyn Source<ImageFrame>>,
+        detector: ImageDetector,
+        encoding: HeatMapEncoding,
+    ) -> Self {
         Self {
             frames,
+            joint_names: detector.joint_names().to_vec(),
             detector,
+            encoding,
             stats: SharedStats::default(),
         }
     }
@@ -47,7 +55,27 @@ impl Source<HeatMaps> for ImageHeatMaps {
             Received::Idle => return Ok(Received::Idle),
             Received::Closed => return Ok(Received::Closed),
         };
-        let result = self.detector.detect(&frame);
+        let result = self.detector.detect(&frame).map(|found| {
+            found.map(|d| {
+                let header = Header {
+                    stamp: Time::from_nanos(i64::try_from(frame.stamp_ns).unwrap_or(i64::MAX)),
+                    frame_id: frame.frame_id.clone(),
+                };
+                let size = d.size as u32;
+                let mut msg = HeatMaps::from_values(
+                    header,
+                    frame.sequence,
+                    self.joint_names.clone(),
+                    size,
+                    size,
+                    d.crop,
+                    d.maps,
+                    self.encoding,
+                );
+                msg.track_id = d.track_id;
+                msg
+            })
+        });
         if let Ok(mut stats) = self.stats.lock() {
             *stats = self.detector.stats();
         }

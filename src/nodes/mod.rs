@@ -22,7 +22,7 @@ use crate::camera::{CropBox, PixelMap};
 use crate::error::EstimateError;
 use crate::estimator::Estimator;
 use crate::limits::{LimitError, Limits};
-use crate::msgs::{self, DecodeError, Header, Skeleton3D, Time, Units};
+use crate::msgs::{self, DecodeError, Skeleton3D, Time, Units};
 use crate::skeleton::same_layout;
 use crate::streaming::{
     Estimates, FrameEstimate, FrameMaps, StreamCounters, TrackState, WindowEstimator,
@@ -164,7 +164,9 @@ pub struct EstimatorNode {
     frames: VecDeque<FrameInfo>,
     /// The window's estimates of the frame in hand (reused from frame to frame).
     estimates: Estimates,
-    values: Vec<f32>,
+    /// Skeleton messages handed back ([`EstimatorNode::recycle`]), written over by the
+    /// next ones.
+    spare: Vec<Skeleton3D>,
     refused: Refusals,
     /// Test builds (`--features fault-injection`): the sequence number whose handling
     /// panics, from `POSESTREAM_INJECT_PANIC_AT`.
@@ -183,7 +185,7 @@ impl EstimatorNode {
             track_id: 0,
             frames: VecDeque::new(),
             estimates: Estimates::default(),
-            values: Vec::new(),
+            spare: Vec::new(),
             refused: Refusals::default(),
             #[cfg(feature = "fault-injection")]
             panic_at: std::env::var("POSESTREAM_INJECT_PANIC_AT")
@@ -336,29 +338,13 @@ impl EstimatorNode {
             });
         }
         let crop: CropBox = msg.crop()?;
-        msg.values_into(&mut self.values)?;
-        // The scores are lent out while the window and the outputs change.
-        let values = std::mem::take(&mut self.values);
-        let result = self.push(msg, crop, &values, out);
-        self.values = values;
-        result
-    }
-
-    /// Checks the frame, ends the current track if a good frame of another one came,
-    /// and pushes the frame into the window.
-    fn push(
-        &mut self,
-        msg: &msgs::HeatMaps,
-        crop: CropBox,
-        values: &[f32],
-        out: &mut Vec<Skeleton3D>,
-    ) -> Result<(), NodeError> {
+        // The message's scores, borrowed: the window's ring is their one copy.
         let frame = FrameMaps {
             sequence: msg.sequence,
             stamp_ns: msg.header.stamp.nanos(),
             height: msg.height as usize,
             width: msg.width as usize,
-            values,
+            values: msg.scores()?,
         };
         let checked = self
             .window
@@ -383,16 +369,40 @@ impl EstimatorNode {
         let accepted_before = self.window.counters().frames;
         self.window
             .push_checked_into(&frame, checked, &mut self.estimates);
-        // Only frames the window accepted are remembered (not late ones).
+        // Only frames the window accepted are remembered (not late ones); the oldest
+        // one no estimate can need any more is written over.
         if self.window.counters().frames > accepted_before {
-            self.frames.push_back(FrameInfo {
+            let to_image = crop.pixel_map(msg.width as usize, msg.height as usize);
+            let oldest = if self.frames.len() >= self.frames_kept() {
+                self.frames.pop_front()
+            } else {
+                None
+            };
+            let mut info = oldest.unwrap_or(FrameInfo {
                 sequence: msg.sequence,
-                to_image: crop.pixel_map(msg.width as usize, msg.height as usize),
-                frame_id: msg.header.frame_id.clone(),
+                to_image,
+                frame_id: String::new(),
             });
+            info.sequence = msg.sequence;
+            info.to_image = to_image;
+            info.frame_id.clone_from(&msg.header.frame_id);
+            self.frames.push_back(info);
         }
         self.release(out);
         Ok(())
+    }
+
+    /// Frames remembered at most: those an estimate can still come for (the window and
+    /// the lag), and one more.
+    fn frames_kept(&self) -> usize {
+        let settings = self.window.settings();
+        settings.size + settings.lag + 1
+    }
+
+    /// Takes back skeleton messages the node handed out (after they were published):
+    /// the next ones are written over them, so that a warm node allocates no message.
+    pub fn recycle(&mut self, skeletons: &mut Vec<Skeleton3D>) {
+        self.spare.append(skeletons);
     }
 
     /// Frames the window has taken so far (not refused, late or without evidence).
@@ -421,16 +431,17 @@ impl EstimatorNode {
     /// Turns the window's estimates into messages; forgets frames no estimate can
     /// need any more. An estimate with non-finite values is counted, not published.
     fn release(&mut self, out: &mut Vec<Skeleton3D>) {
-        let settings = self.window.settings();
-        let keep = settings.size + settings.lag + 1;
+        let keep = self.frames_kept();
         for e in self.estimates.iter() {
             let Some(info) = self.frames.iter().rev().find(|f| f.sequence == e.sequence) else {
                 continue;
             };
-            let message = skeleton_message(e, info, &self.joint_names, self.track_id);
+            let mut message = self.spare.pop().unwrap_or_default();
+            write_skeleton(&mut message, e, info, &self.joint_names, self.track_id);
             if message.is_finite() {
                 out.push(message);
             } else {
+                self.spare.push(message);
                 let e = NodeError::NonFiniteOutput {
                     sequence: e.sequence,
                 };
@@ -443,42 +454,42 @@ impl EstimatorNode {
     }
 }
 
-/// The message of one estimate.
-fn skeleton_message(
+/// The message of one estimate, written over `m` (its buffers reused).
+fn write_skeleton(
+    m: &mut Skeleton3D,
     e: &FrameEstimate,
     info: &FrameInfo,
     joint_names: &[String],
     track_id: u32,
-) -> Skeleton3D {
+) {
     let map = info.to_image;
-    let to_image = |xy: &[f64]| -> Vec<f64> {
-        xy.chunks_exact(2)
-            .flat_map(|p| map.apply(p[0], p[1]))
-            .collect()
+    let to_image = |xy: &[f64], out: &mut Vec<f64>| {
+        out.clear();
+        out.extend(xy.chunks_exact(2).flat_map(|p| map.apply(p[0], p[1])));
     };
-    Skeleton3D {
-        header: Header {
-            stamp: Time::from_nanos(e.stamp_ns),
-            frame_id: info.frame_id.clone(),
-        },
-        sequence: e.sequence,
-        track_id,
-        joint_names: joint_names.to_vec(),
-        units: Units::Dictionary as u8,
-        positions: e.pose.clone(),
-        position_std: e.pose_std.clone(),
-        keypoints: to_image(&e.keypoints),
-        keypoint_std: e
-            .keypoint_std
-            .iter()
-            .map(|s| s * map.mean_scale())
-            .collect(),
-        projected: to_image(&e.projected),
-        lag: e.lag as u32,
-        state: match e.state {
-            TrackState::Initialising => msgs::SkeletonState::Initialising,
-            TrackState::Tracking => msgs::SkeletonState::Tracking,
-            TrackState::Lost => msgs::SkeletonState::Lost,
-        } as u8,
+    m.header.stamp = Time::from_nanos(e.stamp_ns);
+    m.header.frame_id.clone_from(&info.frame_id);
+    m.sequence = e.sequence;
+    m.track_id = track_id;
+    // Element by element, so that each name's buffer is reused.
+    m.joint_names.truncate(joint_names.len());
+    let reused = m.joint_names.len();
+    for (d, s) in m.joint_names.iter_mut().zip(joint_names) {
+        d.clone_from(s);
     }
+    m.joint_names.extend_from_slice(&joint_names[reused..]);
+    m.units = Units::Dictionary as u8;
+    m.positions.clone_from(&e.pose);
+    m.position_std.clone_from(&e.pose_std);
+    to_image(&e.keypoints, &mut m.keypoints);
+    m.keypoint_std.clear();
+    m.keypoint_std
+        .extend(e.keypoint_std.iter().map(|s| s * map.mean_scale()));
+    to_image(&e.projected, &mut m.projected);
+    m.lag = e.lag as u32;
+    m.state = match e.state {
+        TrackState::Initialising => msgs::SkeletonState::Initialising,
+        TrackState::Tracking => msgs::SkeletonState::Tracking,
+        TrackState::Lost => msgs::SkeletonState::Lost,
+    } as u8;
 }

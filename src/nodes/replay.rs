@@ -115,7 +115,9 @@ pub fn replay(
     let mut first_log: Option<u64> = None;
     let mut skeletons = Vec::new();
     let (mut frames, mut produced, mut truncated, mut input_error) = (0_u64, 0_u64, None, None);
+    // Records the node's skeletons and hands them back to it to be reused.
     let write = |recorder: &mut Option<Recorder>,
+                 node: &mut EstimatorNode,
                  skeletons: &mut Vec<Skeleton3D>,
                  log_time: u64|
      -> Result<u64, RecordingError> {
@@ -125,7 +127,7 @@ pub fn replay(
                 r.write(&topics.skeletons, log_time, s)?;
             }
         }
-        skeletons.clear();
+        node.recycle(skeletons);
         Ok(n)
     };
     let mut last_log = 0;
@@ -162,7 +164,7 @@ pub fn replay(
             // A refused message is counted and logged by the node.
             let _ = node.handle_encoded(&msg.data, &mut skeletons);
             latency.record(began.elapsed());
-            produced += write(&mut recorder, &mut skeletons, msg.log_time_ns)?;
+            produced += write(&mut recorder, &mut node, &mut skeletons, msg.log_time_ns)?;
         } else if msg.topic == topics.ground_truth && msg.schema == Skeleton3D::NAME {
             if let Some(r) = recorder.as_mut() {
                 r.write_encoded::<Skeleton3D>(&topics.ground_truth, msg.log_time_ns, &msg.data)?;
@@ -170,7 +172,7 @@ pub fn replay(
         }
     }
     node.finish(&mut skeletons);
-    produced += write(&mut recorder, &mut skeletons, last_log)?;
+    produced += write(&mut recorder, &mut node, &mut skeletons, last_log)?;
     if let Some(source) = input_error {
         if reader.messages_read() == 0 {
             // Nothing came before: there is nothing to keep.

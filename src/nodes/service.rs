@@ -175,6 +175,25 @@ impl<M> Publishers<M> {
         }
     }
 
+    /// Sends to every sink, the message given up to the last one (added last: the
+    /// in-memory channel moves it instead of copying it).
+    pub fn publish_owned(&mut self, message: M, stamp_ns: u64) {
+        self.sent += 1;
+        let Some(((last_name, last, last_logged), others)) = self.sinks.split_last_mut() else {
+            return;
+        };
+        for (name, sink, logged) in others {
+            if let Err(e) = sink.send(&message, stamp_ns) {
+                self.failed += 1;
+                Self::failure(name, logged, &e);
+            }
+        }
+        if let Err(e) = last.send_owned(message, stamp_ns) {
+            self.failed += 1;
+            Self::failure(last_name, last_logged, &e);
+        }
+    }
+
     /// Flushes every sink.
     pub fn flush(&mut self) {
         for (name, sink, logged) in &mut self.sinks {
@@ -276,15 +295,17 @@ impl EstimatorOutputs {
         })
     }
 
-    fn publish(&mut self, skeletons: &mut Vec<Skeleton3D>) {
-        for s in skeletons.drain(..) {
+    /// Publishes the node's skeletons and hands them back to it to be reused.
+    fn publish(&mut self, skeletons: &mut Vec<Skeleton3D>, node: &mut EstimatorNode) {
+        for s in skeletons.iter() {
             let stamp = u64::try_from(s.header.stamp.nanos()).unwrap_or(0);
-            self.skeletons.publish(&s, stamp);
+            self.skeletons.publish(s, stamp);
             if !self.markers.is_empty() {
                 self.markers
-                    .publish(&skeleton_markers(&s, &self.bones), stamp);
+                    .publish(&skeleton_markers(s, &self.bones), stamp);
             }
         }
+        node.recycle(skeletons);
     }
 }
 
@@ -332,7 +353,7 @@ pub fn run_estimator(
                 // A refused message is counted and logged by the node.
                 let _ = node.handle(&maps, &mut out);
                 latency.record(began.elapsed());
-                outputs.publish(&mut out);
+                outputs.publish(&mut out, node);
                 // Only frames the window took keep a track alive: a stream of refused
                 // frames does not hold an idle track open.
                 if node.frames_accepted() > accepted {
@@ -341,14 +362,14 @@ pub fn run_estimator(
                 }
                 if open_track && last_frame.elapsed() > idle_limit {
                     node.finish(&mut out);
-                    outputs.publish(&mut out);
+                    outputs.publish(&mut out, node);
                     open_track = false;
                 }
             }
             Ok(Received::Idle) => {
                 if open_track && last_frame.elapsed() > idle_limit {
                     node.finish(&mut out);
-                    outputs.publish(&mut out);
+                    outputs.publish(&mut out, node);
                     open_track = false;
                 }
             }
@@ -364,7 +385,7 @@ pub fn run_estimator(
         }
     }
     node.finish(&mut out);
-    outputs.publish(&mut out);
+    outputs.publish(&mut out, node);
     outputs.skeletons.flush();
     outputs.markers.flush();
     EstimatorReport {
@@ -418,7 +439,7 @@ pub fn run_detector(
                         break;
                     }
                 }
-                sinks.publish(&maps, stamp);
+                sinks.publish_owned(maps, stamp);
             }
             Ok(Received::Idle) => {}
             Ok(Received::Closed) => break,
@@ -532,7 +553,8 @@ pub fn detector_input(
     let detector = ImageDetector::load(&config.detector.images, &dictionary.skeleton().joints)
         .map_err(SetupError::Detector)?;
     let frames = image_frames(config, middleware.ros.as_mut())?;
-    let source = ImageHeatMaps::new(frames, detector);
+    let encoding = config.detector.images.encoding.message_encoding();
+    let source = ImageHeatMaps::new(frames, detector, encoding);
     Ok(DetectorInput {
         stats: Some(source.stats()),
         source: Box::new(source),
@@ -591,10 +613,11 @@ pub fn run_pipeline(
             .name("detector".into())
             .spawn_scoped(scope, move || {
                 let mut sinks = Publishers::default();
-                sinks.add("memory", Box::new(sink));
                 if let Some(r) = heatmaps_record {
                     sinks.add("mcap heat maps", Box::new(r));
                 }
+                // Last: the channel takes each frame by move.
+                sinks.add("memory", Box::new(sink));
                 // Dropping the sinks at the end closes the channel: the estimator ends.
                 run_detector(&mut source, &mut sinks, rate, stop)
             });

@@ -1,5 +1,6 @@
-//! The image detector: a camera frame in, the dictionary's heat maps (a
-//! [`HeatMaps`] message with its crop box) out, through a BlazePose landmark model.
+//! The image detector: a camera frame in, the dictionary's heat maps with their crop
+//! box and track id (a [`Detection`]; the node makes the `HeatMaps` message) out,
+//! through a BlazePose landmark model.
 //!
 //! Where it looks, per frame (MediaPipe's tracking, without the rotation):
 //! 1. the box that followed the previous frame's landmarks, while a person is tracked;
@@ -27,7 +28,7 @@ use crate::models::person::{INPUT_SIZE as PERSON_INPUT, PersonNetwork};
 use crate::models::{LandmarkModel, ModelFile};
 use posestream_math::camera::CropBox;
 use posestream_math::error::{OutOfDomain, check_real};
-use posestream_msgs::{Header, HeatMapEncoding, HeatMaps, Time};
+use posestream_msgs::HeatMapEncoding;
 use posestream_transport::ros2::check_topic_name;
 use posestream_transport::shm::FRAME_ID_BYTES;
 
@@ -237,7 +238,6 @@ pub struct ImageDetector {
     joint_names: Vec<String>,
     person_box: Option<CropBox>,
     threshold: f32,
-    encoding: HeatMapEncoding,
     tracked: Option<CropBox>,
     track_id: u32,
     input: Vec<f32>,
@@ -307,10 +307,6 @@ impl ImageDetector {
             joint_names: joint_names.to_vec(),
             person_box: settings.person_box()?,
             threshold: settings.presence_threshold,
-            encoding: match settings.encoding {
-                MapEncoding::Float32 => HeatMapEncoding::Float32,
-                MapEncoding::Uint8 => HeatMapEncoding::Uint8,
-            },
             tracked: None,
             track_id: 0,
             input: Vec::new(),
@@ -383,8 +379,9 @@ impl ImageDetector {
         Ok(placed.unwrap_or(region))
     }
 
-    /// The heat maps of `frame`, or `None` when no person is found in it.
-    pub fn detect(&mut self, frame: &ImageFrame) -> Result<Option<HeatMaps>, DetectorError> {
+    /// What the detector found in `frame` (the heat maps, lent until the next frame),
+    /// or `None` when no person is found in it. The node makes the message.
+    pub fn detect(&mut self, frame: &ImageFrame) -> Result<Option<Detection<'_>>, DetectorError> {
         self.stats.frames += 1;
         let mut look = match self.tracked {
             Some(b) => Some(self.look(frame, b)?),
@@ -417,21 +414,40 @@ impl ImageDetector {
             .apply(&look.logits, HEATMAP_SIZE, HEATMAP_SIZE, &mut self.maps)
             .map_err(|source| DetectorError::Maps(Box::new(source)))?;
         self.stats.detected += 1;
-        let stamp = i64::try_from(frame.stamp_ns).unwrap_or(i64::MAX);
-        let mut msg = HeatMaps::from_values(
-            Header {
-                stamp: Time::from_nanos(stamp),
-                frame_id: frame.frame_id.clone(),
-            },
-            frame.sequence,
-            self.joint_names.clone(),
-            HEATMAP_SIZE as u32,
-            HEATMAP_SIZE as u32,
-            look.crop,
-            &self.maps,
-            self.encoding,
-        );
-        msg.track_id = self.track_id;
-        Ok(Some(msg))
+        Ok(Some(Detection {
+            crop: look.crop,
+            maps: &self.maps,
+            size: HEATMAP_SIZE,
+            track_id: self.track_id,
+        }))
+    }
+
+    /// The joints of the maps (the dictionary's), in order.
+    pub fn joint_names(&self) -> &[String] {
+        &self.joint_names
+    }
+}
+
+/// What the detector found in one frame.
+#[derive(Debug, Clone, Copy)]
+pub struct Detection<'a> {
+    /// Where it looked: the crop box the maps cover, in image pixels.
+    pub crop: CropBox,
+    /// The heat maps, one per joint ([`ImageDetector::joint_names`]), each `size x size`,
+    /// row-major, joint-major.
+    pub maps: &'a [f32],
+    /// Rows (and columns) of each map.
+    pub size: usize,
+    /// The person: a new id each time the detector (re)acquires someone.
+    pub track_id: u32,
+}
+
+impl MapEncoding {
+    /// The message encoding of this setting.
+    pub fn message_encoding(self) -> HeatMapEncoding {
+        match self {
+            Self::Float32 => HeatMapEncoding::Float32,
+            Self::Uint8 => HeatMapEncoding::Uint8,
+        }
     }
 }

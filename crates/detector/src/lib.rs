@@ -14,4 +14,4 @@ pub mod mapping;
 pub mod models;
 pub mod render;
 
-pub use image::{DetectorError, DetectorStats, ImageDetector, ImageSettings};
+pub use image::{Detection, DetectorError, DetectorStats, ImageDetector, ImageSettings};

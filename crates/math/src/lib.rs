@@ -48,4 +48,4 @@ pub use estimator::{Estimate, Estimator, Keypoints, MetricEstimate, Report};
 pub use heatmaps::HeatMapSequence;
 pub use skeleton::Skeleton;
 pub use solver::{InitMethod, Params};
-pub use streaming::{Estimates, FrameEstimate, FrameMaps, StreamSettings, WindowEstimator};
+pub use streaming::{Estimates, FrameEstimate, FrameMaps, Scores, StreamSettings, WindowEstimator};

@@ -151,8 +151,67 @@ pub struct FrameMaps<'a> {
     pub height: usize,
     /// Map width (columns).
     pub width: usize,
-    /// p maps of `height x width`, row-major, joint-major.
-    pub values: &'a [f32],
+    /// p maps of `height x width`, row-major, joint-major: borrowed from the message
+    /// or sample that brought them (the window's ring is their one copy).
+    pub values: Scores<'a>,
+}
+
+/// A frame's scores as they came, borrowed: f32, or u8 with a scale (`q x scale`). The
+/// window dequantises them (and clips negatives) once, into its ring.
+#[derive(Debug, Clone, Copy)]
+pub enum Scores<'a> {
+    /// Scores as f32.
+    F32(&'a [f32]),
+    /// Scores quantised to u8: each is `q x scale`.
+    U8 {
+        /// The quantised scores.
+        values: &'a [u8],
+        /// The score of q = 1 (finite and positive, or the frame is refused).
+        scale: f32,
+    },
+}
+
+impl Scores<'_> {
+    /// How many scores.
+    pub fn len(&self) -> usize {
+        match self {
+            Self::F32(v) => v.len(),
+            Self::U8 { values, .. } => values.len(),
+        }
+    }
+
+    /// True without scores.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Writes the scores as f32 into `out` (as long as they are), negatives clipped to 0.
+    fn clipped_into(&self, out: &mut [f32]) {
+        match *self {
+            Self::F32(v) => {
+                for (d, v) in out.iter_mut().zip(v) {
+                    *d = v.max(0.0);
+                }
+            }
+            Self::U8 { values, scale } => {
+                for (d, &q) in out.iter_mut().zip(values) {
+                    *d = (f32::from(q) * scale).max(0.0);
+                }
+            }
+        }
+    }
+}
+
+impl<'a> From<&'a [f32]> for Scores<'a> {
+    fn from(v: &'a [f32]) -> Self {
+        Self::F32(v)
+    }
+}
+
+impl<'a> From<&'a Vec<f32>> for Scores<'a> {
+    fn from(v: &'a Vec<f32>) -> Self {
+        Self::F32(v)
+    }
 }
 
 impl<'a> FrameMaps<'a> {
@@ -164,7 +223,7 @@ impl<'a> FrameMaps<'a> {
             stamp_ns,
             height: maps.height,
             width: maps.width,
-            values: &maps.values[t * n..(t + 1) * n],
+            values: Scores::F32(&maps.values[t * n..(t + 1) * n]),
         }
     }
 }
@@ -347,15 +406,13 @@ impl MapRing {
         self.len -= 1;
     }
 
-    /// Appends a frame (negatives clipped) and its moments.
-    fn push_back(&mut self, values: &[f32]) {
+    /// Appends a frame (dequantised, negatives clipped) and its moments.
+    fn push_back(&mut self, values: &Scores<'_>) {
         let n = self.joints * self.height * self.width;
         let m = self.height * self.width;
         let slot = self.slot(self.len);
         let dst = &mut self.values[slot * n..(slot + 1) * n];
-        for (d, v) in dst.iter_mut().zip(values) {
-            *d = v.max(0.0);
-        }
+        values.clipped_into(dst);
         for j in 0..self.joints {
             self.moments[slot * self.joints + j] =
                 MapMoments::new(&dst[j * m..(j + 1) * m], self.width);
@@ -584,7 +641,13 @@ impl WindowEstimator {
     /// for j in 0..17 {
     ///     values[j * 256 + 16 * (4 + j % 8) + 5 + j % 6] = 1.0;
     /// }
-    /// let frame = FrameMaps { sequence: 0, stamp_ns: 0, height: 16, width: 16, values: &values };
+    /// let frame = FrameMaps {
+    ///     sequence: 0,
+    ///     stamp_ns: 0,
+    ///     height: 16,
+    ///     width: 16,
+    ///     values: (&values).into(),
+    /// };
     /// out.clear();
     /// window.push_into(&frame, &mut out)?;
     /// assert_eq!(out.len(), 1); // the newest frame at lag 0; lagged ones come later
@@ -761,14 +824,28 @@ impl WindowEstimator {
             )));
         }
         let mut evidence = false;
-        for (i, v) in frame.values.iter().enumerate() {
-            if !v.is_finite() {
-                return Err(EstimateError::NonFinite {
-                    frame: usize::try_from(frame.sequence).unwrap_or(usize::MAX),
-                    joint: i / n,
-                });
+        let non_finite = |i: usize| EstimateError::NonFinite {
+            frame: usize::try_from(frame.sequence).unwrap_or(usize::MAX),
+            joint: i / n,
+        };
+        match frame.values {
+            Scores::F32(values) => {
+                for (i, v) in values.iter().enumerate() {
+                    if !v.is_finite() {
+                        return Err(non_finite(i));
+                    }
+                    evidence |= *v > 0.0;
+                }
             }
-            evidence |= *v > 0.0;
+            Scores::U8 { values, scale } => {
+                if !(scale.is_finite() && scale > 0.0) {
+                    return Err(EstimateError::Parameter(format!(
+                        "frame {}: quantization scale {scale}",
+                        frame.sequence
+                    )));
+                }
+                evidence = values.iter().any(|&q| q > 0);
+            }
         }
         Ok(evidence)
     }
@@ -785,7 +862,7 @@ impl WindowEstimator {
             self.maps.pop_front();
             self.dropped += 1;
         }
-        self.maps.push_back(frame.values);
+        self.maps.push_back(&frame.values);
         let age = self.slots.last().map_or(0, |s| s.age + 1);
         if age == 0 {
             self.counters.tracks += 1;

@@ -3,6 +3,7 @@
 use super::{DecodeError, Header};
 use crate::ros_message;
 use posestream_math::camera::CropBox;
+use posestream_math::streaming::Scores;
 
 /// How the scores of a [`HeatMaps`] message are stored.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -115,6 +116,20 @@ impl HeatMaps {
 
     /// Checks the sizes and writes the scores as f32 into `out` (resized).
     pub fn values_into(&self, out: &mut Vec<f32>) -> Result<(), DecodeError> {
+        let scores = self.scores()?;
+        out.clear();
+        match scores {
+            Scores::F32(v) => out.extend_from_slice(v),
+            Scores::U8 { values, scale } => {
+                out.extend(values.iter().map(|&q| f32::from(q) * scale));
+            }
+        }
+        Ok(())
+    }
+
+    /// Checks the sizes (and a u8 frame's scale) and lends out the scores as they are
+    /// in the message, without copying them.
+    pub fn scores(&self) -> Result<Scores<'_>, DecodeError> {
         let n = (self.joint_names.len() as u64)
             .checked_mul(u64::from(self.height))
             .and_then(|n| n.checked_mul(u64::from(self.width)))
@@ -144,18 +159,19 @@ impl HeatMaps {
                 self.width
             )));
         }
-        out.clear();
-        match encoding {
-            HeatMapEncoding::Float32 => out.extend_from_slice(&self.values),
+        Ok(match encoding {
+            HeatMapEncoding::Float32 => Scores::F32(&self.values),
             HeatMapEncoding::Uint8 => {
                 let s = self.quantization_scale;
                 if !(s.is_finite() && s > 0.0) {
                     return Err(self.invalid(format!("quantization scale {s}")));
                 }
-                out.extend(self.quantized_values.iter().map(|&q| f32::from(q) * s));
+                Scores::U8 {
+                    values: &self.quantized_values,
+                    scale: s,
+                }
             }
-        }
-        Ok(())
+        })
     }
 
     fn invalid(&self, reason: String) -> DecodeError {

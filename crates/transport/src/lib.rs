@@ -109,6 +109,12 @@ pub enum TransportError {
 pub trait Sink<M>: Send {
     /// Sends one message, stamped `stamp_ns` (the log time in a recording).
     fn send(&mut self, message: &M, stamp_ns: u64) -> Result<(), TransportError>;
+
+    /// Sends one message the caller gives up: a sink that keeps messages (the in-memory
+    /// channel) takes it without copying; the others serialise it as [`Sink::send`].
+    fn send_owned(&mut self, message: M, stamp_ns: u64) -> Result<(), TransportError> {
+        self.send(&message, stamp_ns)
+    }
     /// Makes everything sent so far durable or delivered as far as the backend can
     /// (a recording flushes its chunk); sending may go on afterwards.
     fn flush(&mut self) -> Result<(), TransportError> {
@@ -127,6 +133,9 @@ pub trait Source<M>: Send {
 impl<M, S: Sink<M> + ?Sized> Sink<M> for Box<S> {
     fn send(&mut self, message: &M, stamp_ns: u64) -> Result<(), TransportError> {
         (**self).send(message, stamp_ns)
+    }
+    fn send_owned(&mut self, message: M, stamp_ns: u64) -> Result<(), TransportError> {
+        (**self).send_owned(message, stamp_ns)
     }
     fn flush(&mut self) -> Result<(), TransportError> {
         (**self).flush()

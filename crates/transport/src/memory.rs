@@ -1,5 +1,6 @@
 //! An in-process transport: a bounded channel. A full channel makes the sender wait
-//! (backpressure), as a reliable ROS 2 topic with a full history does.
+//! (backpressure), as a reliable ROS 2 topic with a full history does. A message sent
+//! with [`Sink::send_owned`] moves through it (no copy); [`Sink::send`] clones it.
 //!
 //! ```
 //! use std::time::Duration;
@@ -11,6 +12,12 @@
 //! sink.send(&skeleton, 1_000)?;
 //! match source.recv(Duration::from_millis(10))? {
 //!     Received::Message(m, stamp) => assert_eq!((m.sequence, stamp), (7, 1_000)),
+//!     other => panic!("expected the skeleton, got {other:?}"),
+//! }
+//! // Given up, a message moves through the channel without a copy.
+//! sink.send_owned(Skeleton3D { sequence: 8, ..Skeleton3D::default() }, 2_000)?;
+//! match source.recv(Duration::from_millis(10))? {
+//!     Received::Message(m, stamp) => assert_eq!((m.sequence, stamp), (8, 2_000)),
 //!     other => panic!("expected the skeleton, got {other:?}"),
 //! }
 //! drop(sink);
@@ -51,8 +58,12 @@ pub fn channel<M>(capacity: usize) -> (MemorySink<M>, MemorySource<M>) {
 
 impl<M: Clone + Send> Sink<M> for MemorySink<M> {
     fn send(&mut self, message: &M, stamp_ns: u64) -> Result<(), TransportError> {
+        self.send_owned(message.clone(), stamp_ns)
+    }
+
+    fn send_owned(&mut self, message: M, stamp_ns: u64) -> Result<(), TransportError> {
         self.sender
-            .send((message.clone(), stamp_ns))
+            .send((message, stamp_ns))
             .map_err(|_| TransportError::Send {
                 transport: "memory",
                 topic: "channel".into(),
