@@ -10,8 +10,13 @@
 //!   the window, the window's update) and writes its `Skeleton3D` messages over those
 //!   it was handed back (`EstimatorNode::recycle`).
 //!
-//! Not counted: decoding the message from the wire and encoding the skeletons (the
-//! transports' serialisation builds their buffers), and markers. `POSESTREAM_ALLOC_TRACE=1`
+//! - while an iceoryx2 sample is received and lent to the node (`FrameSource`: its
+//!   scores read in shared memory, its names unpacked into reused strings) and
+//!   handled as above.
+//!
+//! Not counted: decoding a message from the wire (ROS 2, recordings) and encoding the
+//! skeletons (the transports' serialisation builds their buffers), publishing the
+//! samples, and markers. `POSESTREAM_ALLOC_TRACE=1`
 //! prints a backtrace of the first allocations, to find where they come from.
 
 #![allow(unsafe_code, reason = "a global allocator is unsafe to implement")]
@@ -26,6 +31,8 @@ use posestream::msgs::{self, HeatMapEncoding, Time};
 use posestream::nodes::EstimatorNode;
 use posestream::recording::read_topic;
 use posestream::streaming::{Estimates, FrameMaps, StreamSettings, WindowEstimator};
+use posestream::transport::shm::Shm;
+use posestream::transport::{FrameSource, Received, Sink};
 use posestream::{Dictionary, Estimator, Params};
 
 struct Counting;
@@ -210,4 +217,57 @@ fn a_warm_estimator_node_allocates_nothing_over_1000_messages() {
             "{encoding:?}: allocations over 1000 warm messages"
         );
     }
+}
+
+#[test]
+fn iceoryx2_frames_reach_the_window_without_an_allocation() {
+    let messages: Vec<msgs::HeatMaps> =
+        read_topic(&recording("byebye.mcap"), "/posestream/heatmaps")
+            .expect("reads")
+            .into_iter()
+            .map(|(_, m)| m)
+            .collect();
+    let shm = Shm::new().expect("iceoryx2 node");
+    let name = format!("posestream/test/allocations-{}", std::process::id());
+    let limits = posestream::limits::Limits::default();
+    let mut source = shm.heatmaps_source(&name, &limits).expect("subscriber");
+    let mut sink = shm.heatmaps_sink(&name).expect("publisher");
+    let dict =
+        Dictionary::load(root().join("config/dictionaries/default-k128.json")).expect("dictionary");
+    let estimator = Estimator::new(dict, Params::default()).expect("estimator");
+    let window = WindowEstimator::new(estimator, StreamSettings::default()).expect("window");
+    let mut node = EstimatorNode::new(window);
+    let mut out = Vec::new();
+    let frames = messages.len() as u64;
+    let warm = 2 * frames;
+    let (mut allocations, mut emitted) = (0, 0);
+    for s in 0..warm + 1000 {
+        let mut m = messages[(s % frames) as usize].clone();
+        m.sequence = s;
+        m.header.stamp = Time::from_nanos(s as i64 * 33_333_333);
+        sink.send(&m, 0).expect("publish");
+        let mut receive = || {
+            let mut handle = |frame: &msgs::HeatMapsView<'_>, _| {
+                node.handle_view(frame, &mut out).expect("a good frame");
+            };
+            let got = source
+                .recv_frame(std::time::Duration::from_secs(5), &mut handle)
+                .expect("receive");
+            assert!(matches!(got, Received::Message(..)), "{got:?}");
+        };
+        if s < warm {
+            receive();
+        } else {
+            allocations += count(receive);
+            emitted += out.len();
+        }
+        node.recycle(&mut out);
+    }
+    TRACES.with(|t| {
+        for trace in t.borrow_mut().drain(..) {
+            eprintln!("allocation at:\n{trace}");
+        }
+    });
+    assert_eq!(emitted, 2000, "two skeletons per frame");
+    assert_eq!(allocations, 0, "allocations over 1000 warm frames");
 }

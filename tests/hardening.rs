@@ -452,8 +452,8 @@ fn refused_frames_do_not_keep_an_idle_track_alive() {
     use std::time::Duration;
 
     use posestream::nodes::service::{EstimatorOutputs, Middleware, run_estimator};
-    use posestream::transport::Sink;
     use posestream::transport::memory;
+    use posestream::transport::{Lend, Sink};
 
     let dir = tempfile::tempdir().expect("tempdir");
     let mut c = config();
@@ -467,7 +467,8 @@ fn refused_frames_do_not_keep_an_idle_track_alive() {
         .expect("configured");
     let mut outputs = EstimatorOutputs::open(&c, &mut middleware, Some(&recorder), node.bones())
         .expect("outputs");
-    let (mut sink, mut source) = memory::channel::<HeatMaps>(256);
+    let (mut sink, source) = memory::channel::<HeatMaps>(256);
+    let mut source = Lend(source);
     let all = frames("kick.mcap");
     let stop = AtomicBool::new(false);
     std::thread::scope(|scope| {

@@ -14,7 +14,7 @@ use posestream::transport::mcap::{McapSource, SharedRecorder};
 use posestream::transport::memory;
 use posestream::transport::ros2::{Ros2, RosSettings};
 use posestream::transport::shm::Shm;
-use posestream::transport::{Received, Sink, Source};
+use posestream::transport::{FrameSource, Received, Sink, Source};
 
 /// A skeleton whose every field depends on `seq`.
 fn skeleton(seq: u64) -> Skeleton3D {
@@ -234,6 +234,17 @@ fn iceoryx2_heat_maps_arrive_equal() {
         }
         other => panic!("{other:?}"),
     }
+    // Lent where it is (the scores read in shared memory): the same frame.
+    sink.send(&sent, 0).expect("send");
+    let mut lent = None;
+    let got = source
+        .recv_frame(Duration::from_secs(5), &mut |view, stamp| {
+            assert_eq!(view.values.len(), p * h * w);
+            lent = Some((view.to_message(), stamp));
+        })
+        .expect("recv");
+    assert_eq!(got, Received::Message((), 123_456_789));
+    assert_eq!(lent, Some((sent.clone(), 123_456_789)));
     // A message that does not fit the layout is refused at the sender.
     let mut too_many = sent.clone();
     too_many.joint_names = vec!["j".into(); 33];

@@ -19,7 +19,8 @@ use posestream::nodes::markers::skeleton_markers;
 use posestream::nodes::{EstimatorNode, ServiceConfig};
 use posestream::recording::RecordingReader;
 use posestream::transport::shm::{
-    FRAME_ID_BYTES, HeatMapsHeader, MAX_JOINTS, NAME_BYTES, SkeletonSample, heatmaps_from_sample,
+    FRAME_ID_BYTES, HeatMapsHeader, MAX_JOINTS, NAME_BYTES, SampleText, SkeletonSample,
+    heatmaps_from_sample, sample_view,
 };
 use posestream::{Dictionary, Estimator, Params, StreamSettings, WindowEstimator};
 
@@ -188,9 +189,17 @@ pub fn shm_sample(data: &[u8]) {
             .chunks_exact(4)
             .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
             .collect();
-        if let Ok(m) = heatmaps_from_sample(&h, &payload, &Limits::default()) {
+        let mut text = SampleText::default();
+        let limits = Limits::default();
+        if let Ok(view) = sample_view(&h, &payload, &limits, &mut text) {
+            // The copy and the lent frame are the same frame, bit for bit (NaN too).
+            let copy = heatmaps_from_sample(&h, &payload, &limits).expect("the same checks");
+            assert_eq!(
+                msgs::encode(&copy).ok(),
+                msgs::encode(&view.to_message()).ok()
+            );
             let mut node = node();
-            let _ = node.handle(&m, &mut Vec::new());
+            let _ = node.handle_view(&view, &mut Vec::new());
             assert_eq!(node.refused().of("panic"), 0, "a panic inside the node");
         }
     } else {

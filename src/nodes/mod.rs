@@ -273,6 +273,16 @@ impl EstimatorNode {
         msg: &msgs::HeatMaps,
         out: &mut Vec<Skeleton3D>,
     ) -> Result<(), NodeError> {
+        self.handle_view(&msg.view(), out)
+    }
+
+    /// [`EstimatorNode::handle`] of a frame borrowed from where it arrived (a message, an
+    /// iceoryx2 sample): its scores are read there and copied once, into the window.
+    pub fn handle_view(
+        &mut self,
+        msg: &msgs::HeatMapsView<'_>,
+        out: &mut Vec<Skeleton3D>,
+    ) -> Result<(), NodeError> {
         let result = self
             .isolated(out, |node, out| node.handle_inner(msg, out))
             .unwrap_or_else(|message| {
@@ -310,7 +320,7 @@ impl EstimatorNode {
 
     fn handle_inner(
         &mut self,
-        msg: &msgs::HeatMaps,
+        msg: &msgs::HeatMapsView<'_>,
         out: &mut Vec<Skeleton3D>,
     ) -> Result<(), NodeError> {
         #[cfg(feature = "fault-injection")]
@@ -330,10 +340,10 @@ impl EstimatorNode {
                 sequence: msg.sequence,
                 source,
             })?;
-        if !same_layout(&msg.joint_names, &self.joint_names) {
+        if !same_layout(msg.joint_names, &self.joint_names) {
             return Err(NodeError::Joints {
                 sequence: msg.sequence,
-                found: msg.joint_names.clone(),
+                found: msg.joint_names.to_vec(),
                 expected: self.joint_names.clone(),
             });
         }
@@ -341,7 +351,7 @@ impl EstimatorNode {
         // The message's scores, borrowed: the window's ring is their one copy.
         let frame = FrameMaps {
             sequence: msg.sequence,
-            stamp_ns: msg.header.stamp.nanos(),
+            stamp_ns: msg.stamp_ns,
             height: msg.height as usize,
             width: msg.width as usize,
             values: msg.scores()?,
@@ -385,7 +395,8 @@ impl EstimatorNode {
             });
             info.sequence = msg.sequence;
             info.to_image = to_image;
-            info.frame_id.clone_from(&msg.header.frame_id);
+            info.frame_id.clear();
+            info.frame_id.push_str(msg.frame_id);
             self.frames.push_back(info);
         }
         self.release(out);

@@ -28,7 +28,7 @@ use crate::transport::mcap::{McapSource, SharedRecorder};
 use crate::transport::memory;
 use crate::transport::ros2::Ros2;
 use crate::transport::shm::Shm;
-use crate::transport::{Message, Received, Sink, Source, TransportError};
+use crate::transport::{FrameSource, Lend, Message, Received, Sink, Source, TransportError};
 
 /// How long a source is asked to wait before the loop checks for a stop.
 const POLL: Duration = Duration::from_millis(100);
@@ -102,14 +102,17 @@ impl Middleware {
         self.shm.as_ref().ok_or_else(|| missing("iceoryx2"))
     }
 
-    /// The heat-map source of `transport`.
+    /// The heat-map source of `transport` (iceoryx2 lends its samples' scores where
+    /// they are; ROS 2 decodes each message and lends it).
     pub fn heatmaps_source(
         &mut self,
         config: &ServiceConfig,
         transport: Transport,
-    ) -> Result<Box<dyn Source<HeatMaps>>, TransportError> {
+    ) -> Result<Box<dyn FrameSource>, TransportError> {
         Ok(match transport {
-            Transport::Ros2 => Box::new(self.ros()?.source::<HeatMaps>(&config.topics.heatmaps)?),
+            Transport::Ros2 => Box::new(Lend(
+                self.ros()?.source::<HeatMaps>(&config.topics.heatmaps)?,
+            )),
             Transport::Iceoryx2 => Box::new(
                 self.shm()?
                     .heatmaps_source(&config.iceoryx2.heatmaps, &config.limits)?,
@@ -332,10 +335,11 @@ pub struct EstimatorReport {
 
 /// Heat maps from `source` through `node` to `outputs`, until the source closes or
 /// `stop` is set. A track with no frame for the window's `max_gap_seconds` is finished
-/// (its owed estimates are published).
+/// (its owed estimates are published). Each frame is handled where the source lends it
+/// (an iceoryx2 sample is not copied before the window).
 pub fn run_estimator(
     node: &mut EstimatorNode,
-    source: &mut dyn Source<HeatMaps>,
+    source: &mut dyn FrameSource,
     outputs: &mut EstimatorOutputs,
     stop: &AtomicBool,
 ) -> EstimatorReport {
@@ -345,14 +349,16 @@ pub fn run_estimator(
     let mut open_track = false;
     let mut input_error = None;
     while !stop.load(Ordering::Relaxed) {
-        match source.recv(POLL) {
-            Ok(Received::Message(maps, _)) => {
+        let accepted = node.frames_accepted();
+        let mut handle = |frame: &crate::msgs::HeatMapsView<'_>, _stamp: u64| {
+            let began = Instant::now();
+            // A refused message is counted and logged by the node.
+            let _ = node.handle_view(frame, &mut out);
+            latency.record(began.elapsed());
+        };
+        match source.recv_frame(POLL, &mut handle) {
+            Ok(Received::Message((), _)) => {
                 frames += 1;
-                let began = Instant::now();
-                let accepted = node.frames_accepted();
-                // A refused message is counted and logged by the node.
-                let _ = node.handle(&maps, &mut out);
-                latency.record(began.elapsed());
                 outputs.publish(&mut out, node);
                 // Only frames the window took keep a track alive: a stream of refused
                 // frames does not hold an idle track open.
@@ -604,7 +610,7 @@ pub fn run_pipeline(
         stats,
         rate,
     } = input;
-    let (sink, mut channel) = memory::channel::<HeatMaps>(4);
+    let (sink, channel) = memory::channel::<HeatMaps>(4);
     let heatmaps_record = recorder
         .as_ref()
         .map(|r| r.sink::<HeatMaps>(&config.topics.heatmaps));
@@ -621,6 +627,7 @@ pub fn run_pipeline(
                 // Dropping the sinks at the end closes the channel: the estimator ends.
                 run_detector(&mut source, &mut sinks, rate, stop)
             });
+        let mut channel = Lend(channel);
         let estimator = run_estimator(&mut node, &mut channel, &mut outputs, stop);
         // The estimator stops only when the channel closes or on `stop`; a detector
         // still blocked on a full channel then sees the receiver gone.

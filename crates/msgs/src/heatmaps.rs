@@ -1,6 +1,6 @@
 //! `posestream_msgs/HeatMaps`: one frame of per-joint heat maps.
 
-use super::{DecodeError, Header};
+use super::{DecodeError, Header, Time};
 use crate::ros_message;
 use posestream_math::camera::CropBox;
 use posestream_math::streaming::Scores;
@@ -108,10 +108,27 @@ impl HeatMaps {
         msg
     }
 
+    /// The message as a borrowed frame (what the estimator node reads).
+    pub fn view(&self) -> HeatMapsView<'_> {
+        HeatMapsView {
+            stamp_ns: self.header.stamp.nanos(),
+            frame_id: &self.header.frame_id,
+            sequence: self.sequence,
+            track_id: self.track_id,
+            joint_names: &self.joint_names,
+            height: self.height,
+            width: self.width,
+            crop: [self.crop_x, self.crop_y, self.crop_width, self.crop_height],
+            encoding: self.encoding,
+            values: &self.values,
+            quantized_values: &self.quantized_values,
+            quantization_scale: self.quantization_scale,
+        }
+    }
+
     /// The crop box.
     pub fn crop(&self) -> Result<CropBox, DecodeError> {
-        CropBox::new(self.crop_x, self.crop_y, self.crop_width, self.crop_height)
-            .map_err(|reason| self.invalid(reason))
+        self.view().crop()
     }
 
     /// Checks the sizes and writes the scores as f32 into `out` (resized).
@@ -130,6 +147,51 @@ impl HeatMaps {
     /// Checks the sizes (and a u8 frame's scale) and lends out the scores as they are
     /// in the message, without copying them.
     pub fn scores(&self) -> Result<Scores<'_>, DecodeError> {
+        self.view().scores()
+    }
+}
+
+/// One frame of heat maps, borrowed from where it arrived: a decoded [`HeatMaps`]
+/// message ([`HeatMaps::view`]) or a transport's buffer (an iceoryx2 sample), so that
+/// the estimator node reads the scores where they are. The fields are the message's,
+/// unchecked: [`HeatMapsView::crop`] and [`HeatMapsView::scores`] check them.
+#[derive(Debug, Clone, Copy)]
+pub struct HeatMapsView<'a> {
+    /// Capture time, nanoseconds since the epoch.
+    pub stamp_ns: i64,
+    /// Camera frame id.
+    pub frame_id: &'a str,
+    /// The detector's frame number.
+    pub sequence: u64,
+    /// The person tracked.
+    pub track_id: u32,
+    /// Joint of each map.
+    pub joint_names: &'a [String],
+    /// Map rows.
+    pub height: u32,
+    /// Map columns.
+    pub width: u32,
+    /// Crop box, image pixels: left, top, width, height.
+    pub crop: [f64; 4],
+    /// `ENCODING_FLOAT32` (0) or `ENCODING_UINT8` (1).
+    pub encoding: u8,
+    /// Scores (float32 encoding).
+    pub values: &'a [f32],
+    /// Quantised scores (uint8 encoding).
+    pub quantized_values: &'a [u8],
+    /// Score per quantisation step (uint8 encoding).
+    pub quantization_scale: f32,
+}
+
+impl<'a> HeatMapsView<'a> {
+    /// The crop box.
+    pub fn crop(&self) -> Result<CropBox, DecodeError> {
+        let [x, y, w, h] = self.crop;
+        CropBox::new(x, y, w, h).map_err(|reason| self.invalid(reason))
+    }
+
+    /// Checks the sizes (and a u8 frame's scale) and lends out the scores.
+    pub fn scores(&self) -> Result<Scores<'a>, DecodeError> {
         let n = (self.joint_names.len() as u64)
             .checked_mul(u64::from(self.height))
             .and_then(|n| n.checked_mul(u64::from(self.width)))
@@ -160,18 +222,41 @@ impl HeatMaps {
             )));
         }
         Ok(match encoding {
-            HeatMapEncoding::Float32 => Scores::F32(&self.values),
+            HeatMapEncoding::Float32 => Scores::F32(self.values),
             HeatMapEncoding::Uint8 => {
                 let s = self.quantization_scale;
                 if !(s.is_finite() && s > 0.0) {
                     return Err(self.invalid(format!("quantization scale {s}")));
                 }
                 Scores::U8 {
-                    values: &self.quantized_values,
+                    values: self.quantized_values,
                     scale: s,
                 }
             }
         })
+    }
+
+    /// The frame as an owned message (a copy).
+    pub fn to_message(&self) -> HeatMaps {
+        HeatMaps {
+            header: Header {
+                stamp: Time::from_nanos(self.stamp_ns),
+                frame_id: self.frame_id.to_owned(),
+            },
+            sequence: self.sequence,
+            track_id: self.track_id,
+            joint_names: self.joint_names.to_vec(),
+            height: self.height,
+            width: self.width,
+            crop_x: self.crop[0],
+            crop_y: self.crop[1],
+            crop_width: self.crop[2],
+            crop_height: self.crop[3],
+            encoding: self.encoding,
+            values: self.values.to_vec(),
+            quantized_values: self.quantized_values.to_vec(),
+            quantization_scale: self.quantization_scale,
+        }
     }
 
     fn invalid(&self, reason: String) -> DecodeError {

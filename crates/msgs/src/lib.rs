@@ -31,7 +31,7 @@ pub mod sensor;
 mod skeleton;
 pub mod visualization;
 
-pub use heatmaps::{HeatMapEncoding, HeatMaps};
+pub use heatmaps::{HeatMapEncoding, HeatMaps, HeatMapsView};
 pub use sensor::{CompressedImage, Image};
 pub use skeleton::{Skeleton3D, SkeletonState, Units};
 pub use visualization::{Marker, MarkerArray};

@@ -22,7 +22,7 @@ use std::time::Duration;
 use serde::Serialize;
 use serde::de::DeserializeOwned;
 
-use posestream_msgs::RosMessage;
+use posestream_msgs::{HeatMaps, HeatMapsView, RosMessage};
 
 /// A message any transport can carry.
 pub trait Message: RosMessage + Serialize + DeserializeOwned + Clone + Send + 'static {}
@@ -145,5 +145,53 @@ impl<M, S: Sink<M> + ?Sized> Sink<M> for Box<S> {
 impl<M, S: Source<M> + ?Sized> Source<M> for Box<S> {
     fn recv(&mut self, timeout: Duration) -> Result<Received<M>, TransportError> {
         (**self).recv(timeout)
+    }
+}
+
+/// Heat-map frames lent to the caller one at a time, instead of handed over as
+/// messages: a transport whose frames live in its own buffers (an iceoryx2 sample)
+/// lends them where they are, without a copy. Any [`Source`] of [`HeatMaps`] is one
+/// through [`Lend`] (each message lent as its [`HeatMaps::view`]).
+pub trait FrameSource: Send {
+    /// Waits up to `timeout` for the next frame and lends it to `take` with its stamp
+    /// (and returns `Received::Message((), stamp)`). Errors as [`Source::recv`]: after a
+    /// [`TransportError::Malformed`] or [`TransportError::BeyondLimits`] one the next
+    /// call goes on.
+    fn recv_frame(
+        &mut self,
+        timeout: Duration,
+        take: &mut dyn FnMut(&HeatMapsView<'_>, u64),
+    ) -> Result<Received<()>, TransportError>;
+}
+
+/// A [`Source`] of [`HeatMaps`] messages as a [`FrameSource`]: each message is lent as
+/// its view.
+#[derive(Debug)]
+pub struct Lend<S>(pub S);
+
+impl<S: Source<HeatMaps>> FrameSource for Lend<S> {
+    fn recv_frame(
+        &mut self,
+        timeout: Duration,
+        take: &mut dyn FnMut(&HeatMapsView<'_>, u64),
+    ) -> Result<Received<()>, TransportError> {
+        Ok(match self.0.recv(timeout)? {
+            Received::Message(m, stamp) => {
+                take(&m.view(), stamp);
+                Received::Message((), stamp)
+            }
+            Received::Idle => Received::Idle,
+            Received::Closed => Received::Closed,
+        })
+    }
+}
+
+impl<S: FrameSource + ?Sized> FrameSource for Box<S> {
+    fn recv_frame(
+        &mut self,
+        timeout: Duration,
+        take: &mut dyn FnMut(&HeatMapsView<'_>, u64),
+    ) -> Result<Received<()>, TransportError> {
+        (**self).recv_frame(timeout, take)
     }
 }

@@ -24,9 +24,9 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::{Received, Sink, Source, TransportError};
+use super::{FrameSource, Received, Sink, Source, TransportError};
 use posestream_msgs::limits::Limits;
-use posestream_msgs::{Header, HeatMapEncoding, HeatMaps, Skeleton3D, Time};
+use posestream_msgs::{Header, HeatMapEncoding, HeatMaps, HeatMapsView, Skeleton3D, Time};
 
 const TRANSPORT: &str = "iceoryx2";
 
@@ -212,6 +212,32 @@ fn pack_names(names: &[String]) -> Result<[[u8; NAME_BYTES]; MAX_JOINTS], String
         *o = pack(n, "joint name")?;
     }
     Ok(out)
+}
+
+/// [`unpack`] into `out`, reusing its buffer.
+fn unpack_into(bytes: &[u8], what: &str, out: &mut String) -> Result<(), String> {
+    let end = bytes.iter().position(|&b| b == 0).unwrap_or(bytes.len());
+    let text = std::str::from_utf8(&bytes[..end]).map_err(|_| format!("{what} is not UTF-8"))?;
+    out.clear();
+    out.push_str(text);
+    Ok(())
+}
+
+/// [`unpack_names`] into `out`, reusing its strings.
+fn unpack_names_into(
+    names: &[[u8; NAME_BYTES]],
+    joints: usize,
+    out: &mut Vec<String>,
+) -> Result<(), String> {
+    let names = names
+        .get(..joints)
+        .ok_or_else(|| format!("{joints} joints, at most {MAX_JOINTS}"))?;
+    out.truncate(joints);
+    out.resize_with(joints, String::new);
+    for (o, n) in out.iter_mut().zip(names) {
+        unpack_into(n, "joint name", o)?;
+    }
+    Ok(())
 }
 
 fn unpack_names(names: &[[u8; NAME_BYTES]], joints: usize) -> Result<Vec<String>, String> {
@@ -458,6 +484,7 @@ impl Shm {
             subscriber,
             name: name.to_string(),
             limits: limits.clone(),
+            text: SampleText::default(),
             _service: service,
         })
     }
@@ -570,12 +597,22 @@ impl Sink<HeatMaps> for ShmHeatMapsSink {
 }
 
 /// Takes [`HeatMaps`] (f32 encoding) from the heat-map service; samples beyond the
-/// [`Limits`] are refused before anything is copied.
+/// [`Limits`] are refused before anything is copied. As a [`FrameSource`] it lends each
+/// sample's scores where they are, in shared memory.
 pub struct ShmHeatMapsSource {
     subscriber: Subscriber<ipc_threadsafe::Service, [f32], HeatMapsHeader>,
     name: String,
     limits: Limits,
+    text: SampleText,
     _service: HeatMapsService,
+}
+
+/// The joint names and frame id of a sample, unpacked into buffers reused from sample
+/// to sample.
+#[derive(Debug, Default)]
+pub struct SampleText {
+    names: Vec<String>,
+    frame_id: String,
 }
 
 /// Why a shared-memory heat-map sample was not taken.
@@ -589,14 +626,26 @@ pub enum SampleError {
     Malformed(String),
 }
 
-/// The [`HeatMaps`] message of a shared-memory sample. The header's sizes are the
-/// publisher's claim: they are checked against `limits` (checked arithmetic) and
-/// against the payload's length before anything is copied.
+/// The [`HeatMaps`] message of a shared-memory sample (a copy of [`sample_view`]).
 pub fn heatmaps_from_sample(
     h: &HeatMapsHeader,
     payload: &[f32],
     limits: &Limits,
 ) -> Result<HeatMaps, SampleError> {
+    let mut text = SampleText::default();
+    Ok(sample_view(h, payload, limits, &mut text)?.to_message())
+}
+
+/// A shared-memory sample as a borrowed frame: the scores stay in the sample, the names
+/// are unpacked into `text`'s buffers (no allocation once they have held such names).
+/// The header's sizes are the publisher's claim: they are checked against `limits`
+/// (checked arithmetic) and against the payload's length first.
+pub fn sample_view<'a>(
+    h: &HeatMapsHeader,
+    payload: &'a [f32],
+    limits: &Limits,
+    text: &'a mut SampleText,
+) -> Result<HeatMapsView<'a>, SampleError> {
     let joints = h.joints as usize;
     if joints > MAX_JOINTS {
         return Err(SampleError::Malformed(format!(
@@ -613,41 +662,70 @@ pub fn heatmaps_from_sample(
             h.width
         )));
     }
-    let names = unpack_names(&h.joint_names, joints).map_err(SampleError::Malformed)?;
-    let frame_id = unpack(&h.frame_id, "frame id").map_err(SampleError::Malformed)?;
-    Ok(HeatMaps {
-        header: Header {
-            stamp: Time::from_nanos(h.stamp_ns),
-            frame_id,
-        },
+    unpack_names_into(&h.joint_names, joints, &mut text.names).map_err(SampleError::Malformed)?;
+    unpack_into(&h.frame_id, "frame id", &mut text.frame_id).map_err(SampleError::Malformed)?;
+    Ok(HeatMapsView {
+        stamp_ns: h.stamp_ns,
+        frame_id: &text.frame_id,
         sequence: h.sequence,
         track_id: h.track_id,
-        joint_names: names,
+        joint_names: &text.names,
         height: h.height,
         width: h.width,
-        crop_x: h.crop[0],
-        crop_y: h.crop[1],
-        crop_width: h.crop[2],
-        crop_height: h.crop[3],
+        crop: h.crop,
         encoding: HeatMapEncoding::Float32.code(),
-        values: payload.to_vec(),
-        ..HeatMaps::default()
+        values: payload,
+        quantized_values: &[],
+        quantization_scale: 0.0,
     })
+}
+
+impl FrameSource for ShmHeatMapsSource {
+    fn recv_frame(
+        &mut self,
+        timeout: Duration,
+        take: &mut dyn FnMut(&HeatMapsView<'_>, u64),
+    ) -> Result<Received<()>, TransportError> {
+        let (subscriber, limits, name) = (&self.subscriber, &self.limits, &self.name);
+        let text = &mut self.text;
+        let got = poll(timeout, || {
+            let Some(sample) = subscriber.receive().map_err(|e| error(name, broken, e))? else {
+                return Ok(None);
+            };
+            let h = sample.user_header();
+            let stamp = u64::try_from(h.stamp_ns).unwrap_or(0);
+            match sample_view(h, sample.payload(), limits, text) {
+                Ok(view) => {
+                    take(&view, stamp);
+                    Ok(Some(stamp))
+                }
+                Err(e @ SampleError::Limit(_)) => Err(error(name, beyond_limits, e)),
+                Err(e) => Err(error(name, malformed, e)),
+            }
+        })?;
+        Ok(match got {
+            Some(stamp) => Received::Message((), stamp),
+            None => Received::Idle,
+        })
+    }
 }
 
 impl Source<HeatMaps> for ShmHeatMapsSource {
     fn recv(&mut self, timeout: Duration) -> Result<Received<HeatMaps>, TransportError> {
-        let name = self.name.clone();
-        let (subscriber, limits) = (&self.subscriber, &self.limits);
+        let (subscriber, limits, name) = (&self.subscriber, &self.limits, &self.name);
+        let text = &mut self.text;
         let got = poll(timeout, || {
-            let Some(sample) = subscriber.receive().map_err(|e| error(&name, broken, e))? else {
+            let Some(sample) = subscriber.receive().map_err(|e| error(name, broken, e))? else {
                 return Ok(None);
             };
             let h = sample.user_header();
-            match heatmaps_from_sample(h, sample.payload(), limits) {
-                Ok(m) => Ok(Some((m, u64::try_from(h.stamp_ns).unwrap_or(0)))),
-                Err(e @ SampleError::Limit(_)) => Err(error(&name, beyond_limits, e)),
-                Err(e) => Err(error(&name, malformed, e)),
+            match sample_view(h, sample.payload(), limits, text) {
+                Ok(view) => Ok(Some((
+                    view.to_message(),
+                    u64::try_from(h.stamp_ns).unwrap_or(0),
+                ))),
+                Err(e @ SampleError::Limit(_)) => Err(error(name, beyond_limits, e)),
+                Err(e) => Err(error(name, malformed, e)),
             }
         })?;
         Ok(match got {
