@@ -4,10 +4,10 @@ use std::path::PathBuf;
 
 use clap::Args;
 use posestream::nodes::ServiceConfig;
-use posestream::nodes::service::{self, Middleware, run_detector};
+use posestream::nodes::service::{self, Wiring, run_detector};
 
 use super::CliError;
-use super::service::{SourceArgs, conclude, print, stop_flag};
+use super::service::{SourceArgs, print, stop_flag};
 
 /// Options of `detector`.
 #[derive(Debug, Args)]
@@ -29,10 +29,10 @@ pub fn run(args: &DetectorArgs) -> Result<(), CliError> {
     let mut config = ServiceConfig::load(&args.config)?;
     args.source.apply(&mut config);
     let stop = stop_flag();
-    let mut middleware = Middleware::open(&config, service::detector_transport(&config))?;
-    let input = service::detector_input(&config, &mut middleware)?;
-    let recorder = service::output_recording(&config)?;
-    let mut sinks = service::detector_outputs(&config, &mut middleware, recorder.as_ref())?;
+    let mut wiring = Wiring::open(&config, service::detector_transport(&config))?;
+    let input = wiring.detector_input(&config)?;
+    wiring.start_recording(&config)?;
+    let mut sinks = wiring.detector_outputs(&config)?;
     if sinks.is_empty() {
         return Err(CliError::Usage(
             "no outputs: enable ros2, iceoryx2 or record in [outputs]".into(),
@@ -46,7 +46,7 @@ pub fn run(args: &DetectorArgs) -> Result<(), CliError> {
     let mut report = run_detector(&mut source, &mut sinks, rate, &stop);
     report.images = service::DetectorInput::stats_now(&stats);
     drop(sinks);
-    let concluded = conclude(recorder, report.input_error.as_deref());
+    let concluded = wiring.conclude(report.input_error.as_deref());
     print(args.json, &report)?;
-    concluded
+    concluded.map(|_| ()).map_err(CliError::from)
 }

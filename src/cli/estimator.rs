@@ -4,11 +4,11 @@ use std::path::PathBuf;
 
 use clap::Args;
 use posestream::nodes::config::Transport;
-use posestream::nodes::service::{self, EstimatorOutputs, Middleware, run_estimator};
+use posestream::nodes::service::{Wiring, run_estimator};
 use posestream::nodes::{EstimatorNode, ServiceConfig};
 
 use super::CliError;
-use super::service::{conclude, print, stop_after, stop_flag};
+use super::service::{print, stop_after, stop_flag};
 
 /// Options of `estimator`.
 #[derive(Debug, Args)]
@@ -33,15 +33,14 @@ pub fn run(args: &EstimatorArgs) -> Result<(), CliError> {
     let stop = stop_flag();
     let input = args.input.unwrap_or(config.estimator.input);
     let mut node = EstimatorNode::from_service_config(&config)?;
-    let mut middleware = Middleware::open(&config, Some(input))?;
-    let recorder = service::output_recording(&config)?;
-    let mut outputs =
-        EstimatorOutputs::open(&config, &mut middleware, recorder.as_ref(), node.bones())?;
-    let mut source = middleware.heatmaps_source(&config, input)?;
+    let mut wiring = Wiring::open(&config, Some(input))?;
+    let mut source = wiring.heatmaps_source(&config, input)?;
+    wiring.start_recording(&config)?;
+    let mut outputs = wiring.estimator_outputs(&config, node.bones())?;
     stop_after(args.duration, &stop);
     let report = run_estimator(&mut node, &mut source, &mut outputs, &stop);
     drop(outputs);
-    let concluded = conclude(recorder, report.input_error.as_deref());
+    let concluded = wiring.conclude(report.input_error.as_deref());
     print(args.json, &report)?;
-    concluded
+    concluded.map(|_| ()).map_err(CliError::from)
 }

@@ -1,6 +1,6 @@
-//! What the service commands (`detector`, `estimator`, `run`, `record`) share: where
-//! the detector's frames come from, stopping on a signal, finishing the output
-//! recording, and printing reports. Each reads the service configuration (`--config`),
+//! What the service commands (`detector`, `estimator`, `run`, `record`) share beyond
+//! their wiring (`nodes::service::Wiring`): where the detector's frames come from,
+//! stopping on a signal, and printing reports. Each reads the service configuration (`--config`),
 //! stops cleanly on Ctrl-C (outputs finalised) and prints a report (`--json` for
 //! machines).
 
@@ -12,8 +12,7 @@ use std::time::Duration;
 use clap::Args;
 use posestream::nodes::ServiceConfig;
 use posestream::nodes::config::{DetectorSource, ReplayRate};
-use posestream::nodes::service::{self, ServiceError};
-use posestream::transport::mcap::SharedRecorder;
+use posestream::nodes::service;
 use serde::Serialize;
 
 use super::CliError;
@@ -180,33 +179,4 @@ impl SourceArgs {
             d.repeat = times;
         }
     }
-}
-
-/// Finishes the output recording, if any, after the service's loop ended: in place if
-/// the input held; if it broke, left under its temporary name, named in the one error
-/// (exit 1), so that a failed run replaces no existing output.
-pub(crate) fn conclude(
-    recorder: Option<SharedRecorder>,
-    input_error: Option<&str>,
-) -> Result<(), CliError> {
-    match (input_error, recorder) {
-        (None, Some(r)) => r.finish().map(|_| ())?,
-        (None, None) => {}
-        (Some(e), None) => {
-            return Err(ServiceError::Input {
-                reason: e.to_string(),
-                kept: None,
-            }
-            .into());
-        }
-        (Some(e), Some(r)) => {
-            let kept = r.finish_partial()?;
-            return Err(ServiceError::Input {
-                reason: e.to_string(),
-                kept: Some(kept),
-            }
-            .into());
-        }
-    }
-    Ok(())
 }

@@ -2,10 +2,10 @@
 //! math ([`crate::streaming`]). Nothing here solves anything.
 //!
 //! - [`EstimatorNode`]: heat-map messages in, [`Skeleton3D`] messages out;
-//! - [`replay`]: a recording's heat maps through the estimator node, skeletons to a
+//! - [`replay`]: a recording's heat maps through the estimator loop, skeletons to a
 //!   recording;
 //! - [`service`]: the detector, estimator, pipeline and recorder loops over any
-//!   transport ([`crate::transport`]);
+//!   transport ([`crate::transport`]), and their wiring from the configuration;
 //! - [`markers`]: skeletons as `visualization_msgs/MarkerArray`.
 
 pub mod config;

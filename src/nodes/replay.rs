@@ -15,13 +15,15 @@ use std::time::{Duration, Instant};
 use serde::Serialize;
 
 use super::config::{ReplayRate, ServiceConfig};
-use super::latency::{LatencyHistogram, LatencySummary};
-use super::service::pace;
+use super::latency::LatencySummary;
+use super::service::{EstimatorOutputs, Publishers, pace, run_estimator};
 use super::{EstimatorNode, Refusals, SetupError};
 use crate::files::{OutputIsInput, check_output};
-use crate::msgs::{RosMessage, Skeleton3D};
-use crate::recording::{Recorder, RecordingError, RecordingReader, write_rosbag2_metadata};
+use crate::msgs::{self, HeatMaps, HeatMapsView, RosMessage, Skeleton3D};
+use crate::recording::{RecordingError, RecordingReader, write_rosbag2_metadata};
 use crate::streaming::StreamCounters;
+use crate::transport::mcap::SharedRecorder;
+use crate::transport::{FrameSource, Received, TransportError};
 
 /// What a replay did.
 #[derive(Debug, Clone, Serialize)]
@@ -45,7 +47,7 @@ pub struct ReplayReport {
     pub seconds: f64,
     /// Heat-map frames per second of wall time.
     pub frames_per_second: f64,
-    /// Time the estimator node took per heat-map message (decode, window update,
+    /// Time the estimator node took per heat-map frame (checks, window update,
     /// skeleton messages).
     pub update: LatencySummary,
     /// The output recording, if any.
@@ -96,8 +98,10 @@ pub struct ReplayOptions {
     pub rate: ReplayRate,
 }
 
-/// Replays `input` through an estimator node set up from `config`. Stops early (and
-/// still finalises the output) when `stop` becomes true.
+/// Replays `input` through an estimator node set up from `config`: the estimator
+/// service's loop ([`run_estimator`]) over the recording's heat maps
+/// ([`RecordingFrames`]), the skeletons to the output recording. Stops early (and still
+/// finalises the output) when `stop` becomes true.
 pub fn replay(
     config: &ServiceConfig,
     input: &Path,
@@ -108,72 +112,44 @@ pub fn replay(
         check_output(out, &[input])?;
     }
     let mut node = EstimatorNode::from_service_config(config)?;
-    let mut reader = RecordingReader::open_with_limit(input, config.limits.max_record_bytes)?;
-    let mut recorder = options.record.as_ref().map(Recorder::create).transpose()?;
+    let reader = RecordingReader::open_with_limit(input, config.limits.max_record_bytes)?;
+    let recorder = options
+        .record
+        .as_ref()
+        .map(SharedRecorder::create)
+        .transpose()?;
     let topics = &config.topics;
-    let start = Instant::now();
-    let mut first_log: Option<u64> = None;
-    let mut skeletons = Vec::new();
-    let (mut frames, mut produced, mut truncated, mut input_error) = (0_u64, 0_u64, None, None);
-    // Records the node's skeletons and hands them back to it to be reused.
-    let write = |recorder: &mut Option<Recorder>,
-                 node: &mut EstimatorNode,
-                 skeletons: &mut Vec<Skeleton3D>,
-                 log_time: u64|
-     -> Result<u64, RecordingError> {
-        let n = skeletons.len() as u64;
-        if let Some(r) = recorder.as_mut() {
-            for s in skeletons.iter() {
-                r.write(&topics.skeletons, log_time, s)?;
-            }
-        }
-        node.recycle(skeletons);
-        Ok(n)
-    };
-    let mut last_log = 0;
-    let mut latency = LatencyHistogram::default();
-    while let Some(next) = reader.next_message() {
-        if stop.load(Ordering::Relaxed) {
-            break;
-        }
-        let msg = match next {
-            Ok(m) => m,
-            Err(e @ RecordingError::Truncated { .. }) => {
-                truncated = Some(e.to_string());
-                break;
-            }
-            Err(e) => {
-                input_error = Some(e);
-                break;
-            }
-        };
-        last_log = msg.log_time_ns;
-        if options.rate == ReplayRate::Recorded {
-            let first = *first_log.get_or_insert(msg.log_time_ns);
-            if !pace(
-                start,
-                Duration::from_nanos(msg.log_time_ns.saturating_sub(first)),
-                stop,
-            ) {
-                break;
-            }
-        }
-        if msg.topic == topics.heatmaps {
-            frames += 1;
-            let began = Instant::now();
-            // A refused message is counted and logged by the node.
-            let _ = node.handle_encoded(&msg.data, &mut skeletons);
-            latency.record(began.elapsed());
-            produced += write(&mut recorder, &mut node, &mut skeletons, msg.log_time_ns)?;
-        } else if msg.topic == topics.ground_truth && msg.schema == Skeleton3D::NAME {
-            if let Some(r) = recorder.as_mut() {
-                r.write_encoded::<Skeleton3D>(&topics.ground_truth, msg.log_time_ns, &msg.data)?;
-            }
-        }
+    let mut skeletons = Publishers::default();
+    if let Some(r) = &recorder {
+        skeletons.add(
+            format!("mcap {}", topics.skeletons),
+            Box::new(r.sink::<Skeleton3D>(&topics.skeletons)),
+        );
     }
-    node.finish(&mut skeletons);
-    produced += write(&mut recorder, &mut node, &mut skeletons, last_log)?;
-    if let Some(source) = input_error {
+    // Only skeletons: a replay records no markers.
+    let mut outputs =
+        EstimatorOutputs::new(skeletons, Publishers::default(), node.bones()).stamped_at_release();
+    let mut source = RecordingFrames {
+        reader,
+        heatmaps_topic: &topics.heatmaps,
+        ground_truth: recorder.as_ref().map(|r| (r, topics.ground_truth.as_str())),
+        pace: (options.rate == ReplayRate::Recorded).then(|| (Instant::now(), None)),
+        stop,
+        heatmaps: 0,
+        truncated: None,
+        error: None,
+    };
+    let start = Instant::now();
+    let report = run_estimator(&mut node, &mut source, &mut outputs, stop);
+    drop(outputs);
+    let RecordingFrames {
+        reader,
+        heatmaps: frames,
+        truncated,
+        error,
+        ..
+    } = source;
+    if let Some(source) = error {
         if reader.messages_read() == 0 {
             // Nothing came before: there is nothing to keep.
             if let Some(r) = recorder {
@@ -181,7 +157,7 @@ pub fn replay(
             }
             return Err(source.into());
         }
-        let kept = recorder.map(Recorder::finish_partial).transpose()?;
+        let kept = recorder.map(|r| r.finish_partial()).transpose()?;
         return Err(ReplayError::Input { source, kept });
     }
     if frames == 0 && !stop.load(Ordering::Relaxed) {
@@ -208,14 +184,91 @@ pub fn replay(
     Ok(ReplayReport {
         messages: reader.messages_read(),
         frames,
-        skeletons: produced,
-        malformed: node.malformed(),
-        refused: node.refused().clone(),
-        counters: node.counters(),
+        skeletons: report.skeletons,
+        malformed: report.malformed,
+        refused: report.refused,
+        counters: report.counters,
         truncated,
         seconds,
         frames_per_second: frames as f64 / seconds.max(1e-9),
-        update: latency.summary(),
+        update: report.update,
         output,
     })
+}
+
+/// A replay's input as a [`FrameSource`]: the heat maps of a recording, decoded and
+/// lent one by one, at the recorded pace or as fast as they are taken; the ground
+/// truth on the way is copied to the output. Where the file is cut short or corrupt is
+/// kept for the report.
+struct RecordingFrames<'a> {
+    reader: RecordingReader,
+    heatmaps_topic: &'a str,
+    /// The output recording and the ground-truth topic, when recording.
+    ground_truth: Option<(&'a SharedRecorder, &'a str)>,
+    /// When pacing: the start, and the first log time.
+    pace: Option<(Instant, Option<u64>)>,
+    stop: &'a AtomicBool,
+    /// Heat-map messages read (decodable or not).
+    heatmaps: u64,
+    truncated: Option<String>,
+    error: Option<RecordingError>,
+}
+
+impl FrameSource for RecordingFrames<'_> {
+    /// Never waits, but for the pace.
+    fn recv_frame(
+        &mut self,
+        _timeout: Duration,
+        take: &mut dyn FnMut(&HeatMapsView<'_>, u64),
+    ) -> Result<Received<()>, TransportError> {
+        while let Some(next) = self.reader.next_message() {
+            if self.stop.load(Ordering::Relaxed) {
+                break;
+            }
+            let msg = match next {
+                Ok(m) => m,
+                Err(e @ RecordingError::Truncated { .. }) => {
+                    self.truncated = Some(e.to_string());
+                    break;
+                }
+                Err(e) => {
+                    let broken = TransportError::Broken {
+                        transport: "mcap",
+                        topic: self.heatmaps_topic.to_string(),
+                        reason: e.to_string(),
+                    };
+                    self.error = Some(e);
+                    return Err(broken);
+                }
+            };
+            if let Some((start, first)) = &mut self.pace {
+                let first = *first.get_or_insert(msg.log_time_ns);
+                let due = Duration::from_nanos(msg.log_time_ns.saturating_sub(first));
+                if !pace(*start, due, self.stop) {
+                    break;
+                }
+            }
+            if msg.topic == self.heatmaps_topic {
+                self.heatmaps += 1;
+                return match msgs::decode::<HeatMaps>(&msg.data) {
+                    Ok(m) => {
+                        take(&m.view(), msg.log_time_ns);
+                        Ok(Received::Message((), msg.log_time_ns))
+                    }
+                    Err(e) => Err(TransportError::Malformed {
+                        transport: "mcap",
+                        topic: msg.topic,
+                        reason: e.to_string(),
+                    }),
+                };
+            }
+            if let Some((recorder, topic)) = self.ground_truth {
+                if msg.topic == topic && msg.schema == Skeleton3D::NAME {
+                    // A failed write is the recorder's: it reports it when finished.
+                    let _ = recorder.write_encoded::<Skeleton3D>(topic, msg.log_time_ns, &msg.data);
+                }
+            }
+        }
+        Ok(Received::Closed)
+    }
 }

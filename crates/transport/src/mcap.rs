@@ -71,6 +71,33 @@ impl SharedRecorder {
         self.take()?.finish_partial()
     }
 
+    /// Drops the recording and its temporary file (nothing worth keeping was written).
+    pub fn abandon(&self) {
+        if let Ok(r) = self.take() {
+            r.abandon();
+        }
+    }
+
+    /// Writes an encoded message of type `M` (CDR, as read from another recording) on
+    /// `topic`, without decoding it.
+    pub fn write_encoded<M: Message>(
+        &self,
+        topic: &str,
+        log_time_ns: u64,
+        data: &[u8],
+    ) -> Result<(), TransportError> {
+        let mut guard = self.lock();
+        let recorder = guard
+            .as_mut()
+            .ok_or_else(|| self.error(topic, "the recording is finished"))?;
+        if recorder.failed() {
+            return Err(self.closed(topic));
+        }
+        recorder
+            .write_encoded::<M>(topic, log_time_ns, data)
+            .map_err(|e| self.error(topic, e))
+    }
+
     fn take(&self) -> Result<Recorder, RecordingError> {
         self.lock().take().ok_or_else(|| RecordingError::Io {
             path: self.path.clone().into(),

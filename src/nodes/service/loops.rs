@@ -1,0 +1,330 @@
+//! The loops of the services: one per node ([`run_estimator`], [`run_detector`],
+//! [`run_recorder`]), both nodes in one process ([`run_pipeline`]), and the one pacing
+//! function they share ([`pace`]).
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use serde::Serialize;
+
+use super::ServiceError;
+use super::wiring::{DetectorInput, EstimatorOutputs, Publishers, Wiring, detector_transport};
+use crate::detector::DetectorStats;
+use crate::msgs::HeatMaps;
+use crate::nodes::config::{ReplayRate, ServiceConfig};
+use crate::nodes::latency::{LatencyHistogram, LatencySummary};
+use crate::nodes::{EstimatorNode, Refusals};
+use crate::recording::RecordingSummary;
+use crate::streaming::StreamCounters;
+use crate::transport::memory;
+use crate::transport::{FrameSource, Lend, Message, Received, Sink, Source, TransportError};
+
+/// How long a source is asked to wait before the loop checks for a stop.
+const POLL: Duration = Duration::from_millis(100);
+
+/// Waits until `due` after `start` (the pace of recorded stamps), waking at least every
+/// [`POLL`] to look at `stop`; false if stopped while waiting.
+pub fn pace(start: Instant, due: Duration, stop: &AtomicBool) -> bool {
+    while let Some(wait) = due.checked_sub(start.elapsed()) {
+        if stop.load(Ordering::Relaxed) {
+            return false;
+        }
+        std::thread::sleep(wait.min(POLL));
+    }
+    !stop.load(Ordering::Relaxed)
+}
+
+/// What the estimator service did.
+#[derive(Debug, Clone, Serialize)]
+pub struct EstimatorReport {
+    /// Heat-map messages received.
+    pub frames: u64,
+    /// Messages refused (undecodable, inconsistent, beyond the limits, unknown joints).
+    pub malformed: u64,
+    /// The refusals by kind.
+    pub refused: Refusals,
+    /// Skeleton messages published.
+    pub skeletons: u64,
+    /// Sends that failed.
+    pub failed_sends: u64,
+    /// The window's counters.
+    pub counters: StreamCounters,
+    /// Time per heat-map message in the estimator node.
+    pub update: LatencySummary,
+    /// Why the input ended early, if it did.
+    pub input_error: Option<String>,
+}
+
+/// Heat maps from `source` through `node` to `outputs`, until the source closes or
+/// `stop` is set. A track with no frame for the window's `max_gap_seconds` is finished
+/// (its owed estimates are published). Each frame is handled where the source lends it
+/// (an iceoryx2 sample is not copied before the window).
+pub fn run_estimator(
+    node: &mut EstimatorNode,
+    source: &mut dyn FrameSource,
+    outputs: &mut EstimatorOutputs,
+    stop: &AtomicBool,
+) -> EstimatorReport {
+    let idle_limit = Duration::from_secs_f64(node.settings().max_gap_seconds);
+    let (mut frames, mut latency, mut out) = (0, LatencyHistogram::default(), Vec::new());
+    let mut last_frame = Instant::now();
+    let mut open_track = false;
+    let mut input_error = None;
+    while !stop.load(Ordering::Relaxed) {
+        let accepted = node.frames_accepted();
+        let mut handle = |frame: &crate::msgs::HeatMapsView<'_>, _stamp: u64| {
+            let began = Instant::now();
+            // A refused message is counted and logged by the node.
+            let _ = node.handle_view(frame, &mut out);
+            latency.record(began.elapsed());
+        };
+        match source.recv_frame(POLL, &mut handle) {
+            Ok(Received::Message((), stamp)) => {
+                frames += 1;
+                outputs.frame_stamp(stamp);
+                outputs.publish(&mut out, node);
+                // Only frames the window took keep a track alive: a stream of refused
+                // frames does not hold an idle track open.
+                if node.frames_accepted() > accepted {
+                    last_frame = Instant::now();
+                    open_track = true;
+                }
+                if open_track && last_frame.elapsed() > idle_limit {
+                    node.finish(&mut out);
+                    outputs.publish(&mut out, node);
+                    open_track = false;
+                }
+            }
+            Ok(Received::Idle) => {
+                if open_track && last_frame.elapsed() > idle_limit {
+                    node.finish(&mut out);
+                    outputs.publish(&mut out, node);
+                    open_track = false;
+                }
+            }
+            Ok(Received::Closed) => break,
+            Err(e @ (TransportError::Malformed { .. } | TransportError::BeyondLimits { .. })) => {
+                node.count_refused(&e)
+            }
+            Err(e) => {
+                // Reported by the caller, from the report.
+                input_error = Some(e.to_string());
+                break;
+            }
+        }
+    }
+    node.finish(&mut out);
+    outputs.publish(&mut out, node);
+    outputs.skeletons.flush();
+    outputs.markers.flush();
+    EstimatorReport {
+        frames,
+        malformed: node.malformed(),
+        refused: node.refused().clone(),
+        skeletons: outputs.skeletons.sent,
+        failed_sends: outputs.skeletons.failed + outputs.markers.failed,
+        counters: node.counters(),
+        update: latency.summary(),
+        input_error,
+    }
+}
+
+/// What the detector service did.
+#[derive(Debug, Clone, Serialize)]
+pub struct DetectorReport {
+    /// Heat-map messages published.
+    pub published: u64,
+    /// Messages of the source that could not be read (skipped).
+    pub malformed: u64,
+    /// Sends that failed.
+    pub failed_sends: u64,
+    /// Why the source ended early, if it did.
+    pub input_error: Option<String>,
+    /// The image detector's counters (image sources only).
+    pub images: Option<DetectorStats>,
+}
+
+/// Heat maps from `source` to `sinks`, at the pace of their stamps
+/// ([`ReplayRate::Recorded`]) or as fast as the sinks take them, until the source
+/// closes or `stop` is set.
+pub fn run_detector(
+    source: &mut dyn Source<HeatMaps>,
+    sinks: &mut Publishers<HeatMaps>,
+    rate: ReplayRate,
+    stop: &AtomicBool,
+) -> DetectorReport {
+    let start = Instant::now();
+    let (mut first, mut refused, mut input_error) = (None, Refusals::default(), None);
+    while !stop.load(Ordering::Relaxed) {
+        match source.recv(POLL) {
+            Ok(Received::Message(maps, stamp)) => {
+                if rate == ReplayRate::Recorded {
+                    let first = *first.get_or_insert(stamp);
+                    if !pace(
+                        start,
+                        Duration::from_nanos(stamp.saturating_sub(first)),
+                        stop,
+                    ) {
+                        break;
+                    }
+                }
+                sinks.publish_owned(maps, stamp);
+            }
+            Ok(Received::Idle) => {}
+            Ok(Received::Closed) => break,
+            Err(e @ TransportError::Malformed { .. }) => refused.note("undecodable", &e),
+            Err(e @ TransportError::BeyondLimits { .. }) => refused.note("beyond-limits", &e),
+            Err(e) => {
+                // Reported by the caller, from the report.
+                input_error = Some(e.to_string());
+                break;
+            }
+        }
+    }
+    sinks.flush();
+    DetectorReport {
+        published: sinks.sent,
+        malformed: refused.total(),
+        failed_sends: sinks.failed,
+        input_error,
+        images: None,
+    }
+}
+
+/// What the pipeline did.
+#[derive(Debug, Clone, Serialize)]
+pub struct PipelineReport {
+    /// The detector's side.
+    pub detector: DetectorReport,
+    /// The estimator's side.
+    pub estimator: EstimatorReport,
+    /// Seconds of wall time.
+    pub seconds: f64,
+    /// The output recording, if any.
+    pub recording: Option<RecordingSummary>,
+    /// Why the output recording could not be finished, if it could not (the service
+    /// went on; what was written is in its `.partial` file).
+    pub recording_error: Option<String>,
+}
+
+/// Detector and estimator in one process: the detector (the configured source,
+/// [`detector_input`]) on its own thread feeds the estimator through a bounded channel
+/// (a slow estimator slows the detector down); results go to the configured outputs.
+/// When recording, the heat maps are recorded too, so that the recording holds the
+/// whole run (`posestream render` draws them).
+pub fn run_pipeline(
+    config: &ServiceConfig,
+    stop: &AtomicBool,
+) -> Result<PipelineReport, ServiceError> {
+    let start = Instant::now();
+    let mut node = EstimatorNode::from_service_config(config)?;
+    let mut wiring = Wiring::open(config, detector_transport(config))?;
+    let input = wiring.detector_input(config)?;
+    wiring.start_recording(config)?;
+    let mut outputs = wiring.estimator_outputs(config, node.bones())?;
+    let DetectorInput {
+        mut source,
+        stats,
+        rate,
+    } = input;
+    let (sink, channel) = memory::channel::<HeatMaps>(4);
+    let heatmaps_record = wiring
+        .recorder
+        .as_ref()
+        .map(|r| r.sink::<HeatMaps>(&config.topics.heatmaps));
+    let (detector, estimator) = std::thread::scope(|scope| {
+        let detector = std::thread::Builder::new()
+            .name("detector".into())
+            .spawn_scoped(scope, move || {
+                let mut sinks = Publishers::default();
+                if let Some(r) = heatmaps_record {
+                    sinks.add("mcap heat maps", Box::new(r));
+                }
+                // Last: the channel takes each frame by move.
+                sinks.add("memory", Box::new(sink));
+                // Dropping the sinks at the end closes the channel: the estimator ends.
+                run_detector(&mut source, &mut sinks, rate, stop)
+            });
+        let mut channel = Lend(channel);
+        let estimator = run_estimator(&mut node, &mut channel, &mut outputs, stop);
+        // The estimator stops only when the channel closes or on `stop`; a detector
+        // still blocked on a full channel then sees the receiver gone.
+        drop(channel);
+        let detector = detector.map(|h| h.join());
+        (detector, estimator)
+    });
+    let mut detector = match detector {
+        Ok(Ok(report)) => report,
+        _ => return Err(ServiceError::Thread("detector")),
+    };
+    detector.images = DetectorInput::stats_now(&stats);
+    drop(outputs);
+    // A recording that cannot be finished after a good run is reported, not an error:
+    // the service ran (what was written is in its `.partial` file).
+    let (recording, recording_error) = match wiring.conclude(detector.input_error.as_deref()) {
+        Ok(summary) => (summary, None),
+        Err(ServiceError::Recording(e)) if detector.input_error.is_none() => {
+            (None, Some(e.to_string()))
+        }
+        Err(e) => return Err(e),
+    };
+    Ok(PipelineReport {
+        detector,
+        estimator,
+        seconds: start.elapsed().as_secs_f64(),
+        recording,
+        recording_error,
+    })
+}
+
+/// One topic of a recorder: takes a message (waiting up to the given time) and writes
+/// it; true if one was recorded ([`record_step`]).
+pub type RecordStep = Box<dyn FnMut(Duration) -> Result<bool, TransportError> + Send>;
+
+/// Runs the recorder `steps` (topic name, step) round-robin until `stop`, `duration` or
+/// `max_messages`; returns the messages recorded per topic.
+pub fn run_recorder(
+    sources: &mut [(String, RecordStep)],
+    stop: &AtomicBool,
+    duration: Option<Duration>,
+    max_messages: Option<u64>,
+) -> Vec<(String, u64)> {
+    let start = Instant::now();
+    let mut counts = vec![0_u64; sources.len()];
+    let step = Duration::from_millis(10);
+    'outer: while !stop.load(Ordering::Relaxed) {
+        if duration.is_some_and(|d| start.elapsed() >= d) {
+            break;
+        }
+        for (i, (name, take)) in sources.iter_mut().enumerate() {
+            match take(step) {
+                Ok(true) => counts[i] += 1,
+                Ok(false) => {}
+                Err(e) => tracing::warn!("{name}: {e}"),
+            }
+            if max_messages.is_some_and(|m| counts.iter().sum::<u64>() >= m) {
+                break 'outer;
+            }
+        }
+    }
+    sources.iter().map(|(n, _)| n.clone()).zip(counts).collect()
+}
+
+/// A recorder step for one topic: takes a message of `source` (waiting up to the given
+/// time) and writes it to `sink`; true if one was recorded.
+pub fn record_step<M: Message>(
+    mut source: impl Source<M> + 'static,
+    mut sink: impl Sink<M> + 'static,
+) -> RecordStep {
+    Box::new(move |wait| match source.recv(wait)? {
+        Received::Message(m, stamp) => {
+            // DDS gives no log time of its own: use the reception time, as rosbag2 does.
+            let now = std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(stamp, |d| u64::try_from(d.as_nanos()).unwrap_or(stamp));
+            sink.send(&m, now)?;
+            Ok(true)
+        }
+        Received::Idle | Received::Closed => Ok(false),
+    })
+}

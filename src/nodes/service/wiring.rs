@@ -1,0 +1,481 @@
+//! The wiring of a service process from its configuration: the middleware it needs
+//! ([`Middleware`]), the output recording, the publishers of each node's results, the
+//! detector's input, and how the outputs are finished when the loop ends ([`Wiring`]).
+//! `run_pipeline` and the `detector` and `estimator` commands all wire themselves
+//! through [`Wiring`].
+
+use std::path::Path;
+use std::time::Duration;
+
+use super::ServiceError;
+use crate::detector::{DetectorStats, ImageDetector};
+use crate::msgs::{HeatMaps, MarkerArray, Skeleton3D};
+use crate::nodes::EstimatorNode;
+use crate::nodes::SetupError;
+use crate::nodes::config::{DetectorSource, ReplayRate, ServiceConfig, Transport};
+use crate::nodes::images::{ImageHeatMaps, SharedStats, image_frames};
+use crate::nodes::markers::skeleton_markers;
+use crate::recording::RecordingSummary;
+use crate::transport::mcap::{McapSource, SharedRecorder};
+use crate::transport::ros2::Ros2;
+use crate::transport::shm::Shm;
+use crate::transport::{FrameSource, Lend, Message, Received, Sink, Source, TransportError};
+
+/// The middleware of a process: a ROS 2 node and an iceoryx2 node, each only if used.
+#[derive(Default)]
+pub struct Middleware {
+    /// The ROS 2 participant and node.
+    pub ros: Option<Ros2>,
+    /// The iceoryx2 node.
+    pub shm: Option<Shm>,
+}
+
+impl Middleware {
+    /// Opens what `config` (plus `extra`, a transport a node reads from) needs.
+    pub fn open(config: &ServiceConfig, extra: Option<Transport>) -> Result<Self, ServiceError> {
+        let ros = config.outputs.ros2 || extra == Some(Transport::Ros2);
+        let shm = config.outputs.iceoryx2 || extra == Some(Transport::Iceoryx2);
+        Ok(Self {
+            ros: ros.then(|| Ros2::new(&config.ros)).transpose()?,
+            shm: shm.then(Shm::new).transpose()?,
+        })
+    }
+
+    fn ros(&mut self) -> Result<&mut Ros2, TransportError> {
+        self.ros.as_mut().ok_or_else(|| missing("ros2"))
+    }
+
+    fn shm(&self) -> Result<&Shm, TransportError> {
+        self.shm.as_ref().ok_or_else(|| missing("iceoryx2"))
+    }
+
+    /// The heat-map source of `transport` (iceoryx2 lends its samples' scores where
+    /// they are; ROS 2 decodes each message and lends it).
+    pub fn heatmaps_source(
+        &mut self,
+        config: &ServiceConfig,
+        transport: Transport,
+    ) -> Result<Box<dyn FrameSource>, TransportError> {
+        Ok(match transport {
+            Transport::Ros2 => Box::new(Lend(
+                self.ros()?.source::<HeatMaps>(&config.topics.heatmaps)?,
+            )),
+            Transport::Iceoryx2 => Box::new(
+                self.shm()?
+                    .heatmaps_source(&config.iceoryx2.heatmaps, &config.limits)?,
+            ),
+        })
+    }
+}
+
+fn missing(transport: &'static str) -> TransportError {
+    TransportError::Setup {
+        transport,
+        what: "the node".into(),
+        reason: "not opened (enable it in [outputs] or as the input)".into(),
+    }
+}
+
+/// Publishers of one message type on every configured output. A failed send is counted;
+/// the first failure of each sink is logged (a full disk under a recording fails every
+/// later write too), and the other sinks go on.
+pub struct Publishers<M> {
+    /// Each sink with its name and whether a failure of it was logged.
+    sinks: Vec<(String, Box<dyn Sink<M>>, bool)>,
+    /// Messages handed to every sink.
+    pub sent: u64,
+    /// Sends that failed (per sink).
+    pub failed: u64,
+}
+
+impl<M> Default for Publishers<M> {
+    fn default() -> Self {
+        Self {
+            sinks: Vec::new(),
+            sent: 0,
+            failed: 0,
+        }
+    }
+}
+
+impl<M> Publishers<M> {
+    /// Adds a sink, named for the logs.
+    pub fn add(&mut self, name: impl Into<String>, sink: Box<dyn Sink<M>>) {
+        self.sinks.push((name.into(), sink, false));
+    }
+
+    /// Sinks configured.
+    pub fn len(&self) -> usize {
+        self.sinks.len()
+    }
+
+    /// True without sinks.
+    pub fn is_empty(&self) -> bool {
+        self.sinks.is_empty()
+    }
+
+    /// Sends to every sink.
+    pub fn publish(&mut self, message: &M, stamp_ns: u64) {
+        self.sent += 1;
+        for (name, sink, logged) in &mut self.sinks {
+            if let Err(e) = sink.send(message, stamp_ns) {
+                self.failed += 1;
+                Self::failure(name, logged, &e);
+            }
+        }
+    }
+
+    /// Sends to every sink, the message given up to the last one (added last: the
+    /// in-memory channel moves it instead of copying it).
+    pub fn publish_owned(&mut self, message: M, stamp_ns: u64) {
+        self.sent += 1;
+        let Some(((last_name, last, last_logged), others)) = self.sinks.split_last_mut() else {
+            return;
+        };
+        for (name, sink, logged) in others {
+            if let Err(e) = sink.send(&message, stamp_ns) {
+                self.failed += 1;
+                Self::failure(name, logged, &e);
+            }
+        }
+        if let Err(e) = last.send_owned(message, stamp_ns) {
+            self.failed += 1;
+            Self::failure(last_name, last_logged, &e);
+        }
+    }
+
+    /// Flushes every sink.
+    pub fn flush(&mut self) {
+        for (name, sink, logged) in &mut self.sinks {
+            if let Err(e) = sink.flush() {
+                self.failed += 1;
+                Self::failure(name, logged, &e);
+            }
+        }
+    }
+
+    fn failure(name: &str, logged: &mut bool, e: &TransportError) {
+        // A sink closed by an earlier failure (reported then) is only counted.
+        if !*logged && !matches!(e, TransportError::Closed { .. }) {
+            *logged = true;
+            tracing::warn!("{name}: {e} (further failures of this output are counted, not logged)");
+        } else {
+            tracing::debug!("{name}: {e}");
+        }
+    }
+}
+
+/// The recording of `[outputs] record`, if configured (refused if it is one of the
+/// detector's inputs).
+pub fn output_recording(config: &ServiceConfig) -> Result<Option<SharedRecorder>, ServiceError> {
+    let path = &config.outputs.record;
+    if path.as_os_str().is_empty() {
+        return Ok(None);
+    }
+    crate::files::check_output(
+        path,
+        &[&config.detector.recording, &config.detector.images.path],
+    )?;
+    Ok(Some(SharedRecorder::create(path)?))
+}
+
+/// Publishers of `M` on `topic` / `service` for every configured output.
+fn publishers<M: Message>(
+    config: &ServiceConfig,
+    middleware: &mut Middleware,
+    recorder: Option<&SharedRecorder>,
+    topic: &str,
+    shm: Option<Result<Box<dyn Sink<M>>, TransportError>>,
+) -> Result<Publishers<M>, ServiceError> {
+    let mut out = Publishers::default();
+    if config.outputs.ros2 {
+        let ros = middleware.ros()?;
+        out.add(format!("ros2 {topic}"), Box::new(ros.sink::<M>(topic)?));
+    }
+    if let Some(sink) = shm {
+        out.add(format!("iceoryx2 {topic}"), sink?);
+    }
+    if let Some(r) = recorder {
+        out.add(format!("mcap {topic}"), Box::new(r.sink::<M>(topic)));
+    }
+    Ok(out)
+}
+
+/// Where the estimator's results go.
+pub struct EstimatorOutputs {
+    /// Skeletons.
+    pub skeletons: Publishers<Skeleton3D>,
+    /// Markers (empty when `[outputs] markers` is off).
+    pub markers: Publishers<MarkerArray>,
+    bones: Vec<(usize, usize)>,
+    /// Send each skeleton stamped with the time of the frame that released it (a
+    /// replay's log time) instead of its own frame's stamp.
+    stamp_at_release: bool,
+    /// The stamp of the frame handled last, with `stamp_at_release`.
+    released_at: u64,
+}
+
+impl EstimatorOutputs {
+    /// Outputs to these publishers (skeletons of a dictionary whose bones are `bones`;
+    /// no markers when `markers` is empty).
+    pub fn new(
+        skeletons: Publishers<Skeleton3D>,
+        markers: Publishers<MarkerArray>,
+        bones: Vec<(usize, usize)>,
+    ) -> Self {
+        Self {
+            skeletons,
+            markers,
+            bones,
+            stamp_at_release: false,
+            released_at: 0,
+        }
+    }
+
+    /// The same outputs, sending each skeleton stamped with the time of the frame that
+    /// released it (its source's stamp: a recording's log time), as a recorder of the
+    /// live topic would have logged it; the estimates still owed at the end, with the
+    /// last frame's. Without it, each skeleton goes with its own frame's stamp.
+    pub fn stamped_at_release(mut self) -> Self {
+        self.stamp_at_release = true;
+        self
+    }
+
+    /// The source's stamp of the frame being handled.
+    pub(super) fn frame_stamp(&mut self, stamp_ns: u64) {
+        self.released_at = stamp_ns;
+    }
+
+    /// The configured outputs of the estimator node (skeletons of a dictionary whose
+    /// bones are `bones`).
+    pub fn open(
+        config: &ServiceConfig,
+        middleware: &mut Middleware,
+        recorder: Option<&SharedRecorder>,
+        bones: Vec<(usize, usize)>,
+    ) -> Result<Self, ServiceError> {
+        let shm_sink = match (&middleware.shm, config.outputs.iceoryx2) {
+            (Some(shm), true) => Some(
+                shm.skeleton_sink(&config.iceoryx2.skeletons)
+                    .map(|s| Box::new(s) as Box<dyn Sink<Skeleton3D>>),
+            ),
+            _ => None,
+        };
+        let skeletons = publishers(
+            config,
+            middleware,
+            recorder,
+            &config.topics.skeletons,
+            shm_sink,
+        )?;
+        let markers = if config.outputs.markers {
+            publishers(config, middleware, recorder, &config.topics.markers, None)?
+        } else {
+            Publishers::default()
+        };
+        Ok(Self::new(skeletons, markers, bones))
+    }
+
+    /// Publishes the node's skeletons and hands them back to it to be reused.
+    pub(super) fn publish(&mut self, skeletons: &mut Vec<Skeleton3D>, node: &mut EstimatorNode) {
+        for s in skeletons.iter() {
+            let stamp = if self.stamp_at_release {
+                self.released_at
+            } else {
+                u64::try_from(s.header.stamp.nanos()).unwrap_or(0)
+            };
+            self.skeletons.publish(s, stamp);
+            if !self.markers.is_empty() {
+                self.markers
+                    .publish(&skeleton_markers(s, &self.bones), stamp);
+            }
+        }
+        node.recycle(skeletons);
+    }
+}
+
+/// The detector's configured heat-map publishers (`[outputs]`).
+pub fn detector_outputs(
+    config: &ServiceConfig,
+    middleware: &mut Middleware,
+    recorder: Option<&SharedRecorder>,
+) -> Result<Publishers<HeatMaps>, ServiceError> {
+    let shm_sink = match (&middleware.shm, config.outputs.iceoryx2) {
+        (Some(shm), true) => Some(
+            shm.heatmaps_sink(&config.iceoryx2.heatmaps)
+                .map(|s| Box::new(s) as Box<dyn Sink<HeatMaps>>),
+        ),
+        _ => None,
+    };
+    publishers(
+        config,
+        middleware,
+        recorder,
+        &config.topics.heatmaps,
+        shm_sink,
+    )
+}
+
+/// The replay source of the detector: the heat maps of a recording, played
+/// `detector.repeat` times.
+pub fn recording_source(
+    config: &ServiceConfig,
+    path: &Path,
+) -> Result<RecordedHeatMaps, TransportError> {
+    Ok(RecordedHeatMaps(
+        McapSource::open_with_limit(
+            path,
+            &config.topics.heatmaps,
+            config.limits.max_record_bytes,
+        )?
+        .repeat(config.detector.repeat),
+    ))
+}
+
+/// The heat maps of a recording, each pass of a repeated one a track of its own (its
+/// track ids offset by the pass), as a detector seeing the scene again would number it.
+pub struct RecordedHeatMaps(McapSource<HeatMaps>);
+
+impl Source<HeatMaps> for RecordedHeatMaps {
+    fn recv(&mut self, timeout: Duration) -> Result<Received<HeatMaps>, TransportError> {
+        Ok(match self.0.recv(timeout)? {
+            Received::Message(mut m, stamp) => {
+                m.track_id = m.track_id.wrapping_add(self.0.pass() as u32);
+                Received::Message(m, stamp)
+            }
+            other => other,
+        })
+    }
+}
+
+/// The detector node's input: heat maps from the configured source.
+pub struct DetectorInput {
+    /// The heat maps.
+    pub source: Box<dyn Source<HeatMaps>>,
+    /// The image detector's counters (image sources).
+    pub stats: Option<SharedStats>,
+    /// The pace: `detector.rate` for a recording of heat maps; image sources go as fast
+    /// as the model (a camera paces itself).
+    pub rate: ReplayRate,
+}
+
+impl DetectorInput {
+    /// The image detector's counters now.
+    pub fn stats_now(stats: &Option<SharedStats>) -> Option<DetectorStats> {
+        stats.as_ref().and_then(|s| s.lock().ok().map(|s| *s))
+    }
+}
+
+/// The detector's configured source (`detector.source`): the heat maps of
+/// `detector.recording`, or the image detector on the configured images (its model
+/// and mapping loaded, for the joints of `estimator.dictionary`).
+pub fn detector_input(
+    config: &ServiceConfig,
+    middleware: &mut Middleware,
+) -> Result<DetectorInput, ServiceError> {
+    if config.detector.source == DetectorSource::Recording {
+        return Ok(DetectorInput {
+            source: Box::new(recording_source(config, &config.detector.recording)?),
+            stats: None,
+            rate: config.detector.rate,
+        });
+    }
+    let dictionary =
+        crate::Dictionary::load(&config.estimator.dictionary).map_err(SetupError::Dictionary)?;
+    let detector = ImageDetector::load(&config.detector.images, &dictionary.skeleton().joints)
+        .map_err(SetupError::Detector)?;
+    let frames = image_frames(config, middleware.ros.as_mut())?;
+    let encoding = config.detector.images.encoding.message_encoding();
+    let source = ImageHeatMaps::new(frames, detector, encoding);
+    Ok(DetectorInput {
+        stats: Some(source.stats()),
+        source: Box::new(source),
+        rate: ReplayRate::Fast,
+    })
+}
+
+/// The transport the detector's source needs opened, beyond the outputs.
+pub fn detector_transport(config: &ServiceConfig) -> Option<Transport> {
+    (config.detector.source == DetectorSource::Ros2).then_some(Transport::Ros2)
+}
+
+/// What a service process is wired to: its middleware (ROS 2, iceoryx2, each only if
+/// used) and its output recording (`[outputs] record`). Each node's ends come from it;
+/// when the loop is over, [`Wiring::conclude`] finishes the recording.
+pub struct Wiring {
+    /// The middleware.
+    pub middleware: Middleware,
+    /// The output recording, once started ([`Wiring::start_recording`]).
+    pub recorder: Option<SharedRecorder>,
+}
+
+impl Wiring {
+    /// Opens the middleware `config` needs, plus `extra`: the transport a node reads
+    /// from.
+    pub fn open(config: &ServiceConfig, extra: Option<Transport>) -> Result<Self, ServiceError> {
+        Ok(Self {
+            middleware: Middleware::open(config, extra)?,
+            recorder: None,
+        })
+    }
+
+    /// Starts the output recording, if one is configured (after the inputs are set up,
+    /// so that a failed setup leaves no file behind).
+    pub fn start_recording(&mut self, config: &ServiceConfig) -> Result<(), ServiceError> {
+        self.recorder = output_recording(config)?;
+        Ok(())
+    }
+
+    /// The estimator node's publishers (skeletons of a dictionary whose bones are
+    /// `bones`).
+    pub fn estimator_outputs(
+        &mut self,
+        config: &ServiceConfig,
+        bones: Vec<(usize, usize)>,
+    ) -> Result<EstimatorOutputs, ServiceError> {
+        EstimatorOutputs::open(config, &mut self.middleware, self.recorder.as_ref(), bones)
+    }
+
+    /// The detector node's heat-map publishers.
+    pub fn detector_outputs(
+        &mut self,
+        config: &ServiceConfig,
+    ) -> Result<Publishers<HeatMaps>, ServiceError> {
+        detector_outputs(config, &mut self.middleware, self.recorder.as_ref())
+    }
+
+    /// The detector node's configured input.
+    pub fn detector_input(
+        &mut self,
+        config: &ServiceConfig,
+    ) -> Result<DetectorInput, ServiceError> {
+        detector_input(config, &mut self.middleware)
+    }
+
+    /// The estimator node's heat maps from `transport`.
+    pub fn heatmaps_source(
+        &mut self,
+        config: &ServiceConfig,
+        transport: Transport,
+    ) -> Result<Box<dyn FrameSource>, ServiceError> {
+        Ok(self.middleware.heatmaps_source(config, transport)?)
+    }
+
+    /// Finishes the output recording after the loop ended: in place if the input held
+    /// (its summary returned); if the input broke (`input_error`), left under its
+    /// temporary name, which the one error names, so that a failed run replaces no
+    /// existing output.
+    pub fn conclude(
+        self,
+        input_error: Option<&str>,
+    ) -> Result<Option<RecordingSummary>, ServiceError> {
+        match (input_error, self.recorder) {
+            (None, Some(r)) => Ok(Some(r.finish()?)),
+            (None, None) => Ok(None),
+            (Some(reason), recorder) => Err(ServiceError::Input {
+                reason: reason.to_string(),
+                kept: recorder.map(|r| r.finish_partial()).transpose()?,
+            }),
+        }
+    }
+}
