@@ -7,10 +7,13 @@
 Builds every target once (`cargo fuzz build`, stable toolchain with RUSTC_BOOTSTRAP=1,
 no sanitizer: the sanitizer runtimes are nightly-only), then runs each target (all of
 them by default) on its corpus in `fuzz/corpus/<target>` for at most N seconds of CPU
-time (default 60), or, with --quiet M, until it has added nothing to its corpus (no
-new coverage: libFuzzer's NEW) for M seconds of CPU time (at most N: --seconds caps
-each run also with --quiet). Both spans are the fuzzer's own CPU time, sampled every
-2 s, so a busy machine neither shortens a quiet spell nor a run.
+time (default 60), or, with --quiet M, until its coverage (libFuzzer's `cov`, the
+code edges reached) has not grown for M seconds of CPU time (at most N: --seconds caps
+each run also with --quiet). New corpus entries for new hit counts of edges already
+reached (libFuzzer's `ft` features) do not end a quiet spell; the line printed says
+when the last of those came too. Both spans are the fuzzer's own CPU time, sampled
+every 2 s, so a busy machine neither shortens a quiet spell nor a run. Every 5 minutes
+a line says how each running target stands.
 J targets run at once (default 1); each prints its line when it ends. New corpus entries are written back to the corpus
 folder (`--cmin` keeps it small); a failing input lands in
 `fuzz/artifacts/<target>/`: copy it to `fuzz/regressions/<target>/` once fixed, and
@@ -108,7 +111,15 @@ def run(binary, target, seconds, quiet):
     ]
     start = time.time()
     proc = subprocess.Popen(args, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True)
-    state = {"last_new_cpu": 0.0, "cpu": 0.0, "stats": {}, "failed": False, "log": []}
+    state = {
+        "last_new_cpu": 0.0,
+        "last_cov_cpu": 0.0,
+        "cov": None,
+        "cpu": 0.0,
+        "stats": {},
+        "failed": False,
+        "log": [],
+    }
     lock = threading.Lock()
 
     def read():
@@ -119,11 +130,17 @@ def run(binary, target, seconds, quiet):
                 if len(state["log"]) > 200:
                     state["log"].pop(0)
                 # The quiet spell starts once the corpus is loaded (INITED), then at
-                # every new corpus entry.
-                if re.search(r"\s(NEW|INITED)\s", line) and cpu is not None:
+                # every growth of the coverage; new corpus entries are noted too.
+                inited = re.search(r"\sINITED\s", line)
+                if (inited or re.search(r"\sNEW\s", line)) and cpu is not None:
                     state["last_new_cpu"] = cpu
                 m = re.search(r"#(\d+)\s+\S+\s+cov: (\d+).*corp: (\d+)", line)
                 if m:
+                    cov = int(m.group(2))
+                    grew = state["cov"] is not None and cov > state["cov"]
+                    if (inited or grew) and cpu is not None:
+                        state["last_cov_cpu"] = cpu
+                    state["cov"] = cov if state["cov"] is None else max(cov, state["cov"])
                     state["stats"].update(
                         execs=int(m.group(1)), cov=int(m.group(2)), corpus=int(m.group(3))
                     )
@@ -133,6 +150,7 @@ def run(binary, target, seconds, quiet):
     reader = threading.Thread(target=read, name=f"fuzz-{target}")
     reader.start()
     stopped = None
+    last_status = time.time()
     while proc.poll() is None:
         time.sleep(2)
         cpu = cpu_seconds(proc.pid)
@@ -140,7 +158,15 @@ def run(binary, target, seconds, quiet):
             continue
         with lock:
             state["cpu"] = cpu
-            if quiet is not None and cpu - state["last_new_cpu"] > quiet:
+            if time.time() - last_status >= 300:
+                last_status = time.time()
+                print(
+                    f"  {target}: cpu {cpu:.0f} s, cov {state['cov']}, no new coverage for "
+                    f"{cpu - state['last_cov_cpu']:.0f} CPU s, no new entry for "
+                    f"{cpu - state['last_new_cpu']:.0f}",
+                    flush=True,
+                )
+            if quiet is not None and cpu - state["last_cov_cpu"] > quiet:
                 stopped = "quiet"
             elif cpu > seconds:
                 stopped = "time cap"
@@ -151,7 +177,8 @@ def run(binary, target, seconds, quiet):
     stats = state["stats"]
     stats["cpu_s"] = round(state["cpu"], 1)
     stats["wall_s"] = round(time.time() - start, 1)
-    stats["quiet_s"] = round(stats["cpu_s"] - state["last_new_cpu"], 1)
+    stats["quiet_s"] = round(stats["cpu_s"] - state["last_cov_cpu"], 1)
+    stats["entry_s"] = round(stats["cpu_s"] - state["last_new_cpu"], 1)
     # libFuzzer exits with 72 when interrupted (our stop after a quiet spell or at the cap).
     failed = state["failed"] or not (returncode == 0 or stopped and returncode in (72, -2, -15))
     stats["stopped"] = stopped or "exited"
@@ -189,7 +216,8 @@ def main():
                 f"{target:14} {'FAILED' if failed else 'ok':6} cpu {stats.get('cpu_s')} s, "
                 f"wall {stats.get('wall_s')} s, {stats.get('execs', 0)} runs, "
                 f"cov {stats.get('cov', 0)}, corpus {stats.get('corpus', 0)}, "
-                f"last new corpus entry {stats.get('quiet_s')} CPU s before the end ({stats.get('stopped')})",
+                f"last new coverage {stats.get('quiet_s')} CPU s before the end, last new "
+                f"corpus entry {stats.get('entry_s')} ({stats.get('stopped')})",
                 flush=True,
             )
             if log:

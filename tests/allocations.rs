@@ -98,14 +98,26 @@ fn count(f: impl FnOnce()) -> u64 {
     COUNT.with(|c| c.get())
 }
 
+/// The heat maps of the shipped `byebye.mcap`.
+fn byebye() -> Vec<msgs::HeatMaps> {
+    read_topic(&recording("byebye.mcap"), "/posestream/heatmaps")
+        .expect("reads")
+        .into_iter()
+        .map(|(_, m)| m)
+        .collect()
+}
+
+/// A window over the shipped dictionary, with the default settings.
+fn window() -> WindowEstimator {
+    let dict =
+        Dictionary::load(root().join("config/dictionaries/default-k128.json")).expect("dictionary");
+    let estimator = Estimator::new(dict, Params::default()).expect("estimator");
+    WindowEstimator::new(estimator, StreamSettings::default()).expect("window")
+}
+
 #[test]
 fn a_warm_window_update_allocates_nothing_over_1000_frames() {
-    let messages: Vec<msgs::HeatMaps> =
-        read_topic(&recording("byebye.mcap"), "/posestream/heatmaps")
-            .expect("reads")
-            .into_iter()
-            .map(|(_, m)| m)
-            .collect();
+    let messages = byebye();
     let frames: Vec<Vec<f32>> = messages
         .iter()
         .map(|m| {
@@ -115,10 +127,7 @@ fn a_warm_window_update_allocates_nothing_over_1000_frames() {
         })
         .collect();
     let (h, w) = (messages[0].height as usize, messages[0].width as usize);
-    let dict =
-        Dictionary::load(root().join("config/dictionaries/default-k128.json")).expect("dictionary");
-    let estimator = Estimator::new(dict, Params::default()).expect("estimator");
-    let mut window = WindowEstimator::new(estimator, StreamSettings::default()).expect("window");
+    let mut window = window();
     let mut out = Estimates::default();
     let push = |s: u64, window: &mut WindowEstimator, out: &mut Estimates| {
         let values = &frames[s as usize % frames.len()];
@@ -155,12 +164,7 @@ fn a_warm_window_update_allocates_nothing_over_1000_frames() {
 
 #[test]
 fn a_warm_estimator_node_allocates_nothing_over_1000_messages() {
-    let recorded: Vec<msgs::HeatMaps> =
-        read_topic(&recording("byebye.mcap"), "/posestream/heatmaps")
-            .expect("reads")
-            .into_iter()
-            .map(|(_, m)| m)
-            .collect();
+    let recorded = byebye();
     for encoding in [HeatMapEncoding::Float32, HeatMapEncoding::Uint8] {
         // The recording's frames in this encoding.
         let mut messages: Vec<msgs::HeatMaps> = recorded
@@ -180,10 +184,7 @@ fn a_warm_estimator_node_allocates_nothing_over_1000_messages() {
                 )
             })
             .collect();
-        let dict = Dictionary::load(root().join("config/dictionaries/default-k128.json"))
-            .expect("dictionary");
-        let estimator = Estimator::new(dict, Params::default()).expect("estimator");
-        let window = WindowEstimator::new(estimator, StreamSettings::default()).expect("window");
+        let window = window();
         let mut node = EstimatorNode::new(window);
         let mut out = Vec::new();
         let frames = messages.len() as u64;
@@ -221,21 +222,13 @@ fn a_warm_estimator_node_allocates_nothing_over_1000_messages() {
 
 #[test]
 fn iceoryx2_frames_reach_the_window_without_an_allocation() {
-    let messages: Vec<msgs::HeatMaps> =
-        read_topic(&recording("byebye.mcap"), "/posestream/heatmaps")
-            .expect("reads")
-            .into_iter()
-            .map(|(_, m)| m)
-            .collect();
+    let messages = byebye();
     let shm = Shm::new().expect("iceoryx2 node");
     let name = format!("posestream/test/allocations-{}", std::process::id());
     let limits = posestream::limits::Limits::default();
     let mut source = shm.heatmaps_source(&name, &limits).expect("subscriber");
     let mut sink = shm.heatmaps_sink(&name).expect("publisher");
-    let dict =
-        Dictionary::load(root().join("config/dictionaries/default-k128.json")).expect("dictionary");
-    let estimator = Estimator::new(dict, Params::default()).expect("estimator");
-    let window = WindowEstimator::new(estimator, StreamSettings::default()).expect("window");
+    let window = window();
     let mut node = EstimatorNode::new(window);
     let mut out = Vec::new();
     let frames = messages.len() as u64;

@@ -165,6 +165,48 @@ fn a_full_disk_under_the_recorder_is_reported_once_and_the_service_goes_on() {
     assert_eq!(python_count(&partial[0]), n);
 }
 
+#[test]
+fn a_full_disk_under_a_replay_stops_it_at_the_first_failed_write() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().join("full.mcap");
+    // Its only output is the recording: at the first failed write the replay stops
+    // (at the recorded pace, a replay that went on would take the recording's 5 s).
+    let began = Instant::now();
+    let run = Command::new("prlimit")
+        .arg("--fsize=100000")
+        .arg(bin())
+        .current_dir(root())
+        .args([
+            "replay",
+            "recordings/kick.mcap",
+            "--rate",
+            "recorded",
+            "--record",
+        ])
+        .arg(&out)
+        .output()
+        .expect("runs");
+    let took = began.elapsed();
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert_eq!(run.status.code(), Some(1), "{stderr}");
+    assert!(
+        took < Duration::from_secs(4),
+        "stopped early: {took:?} {stderr}"
+    );
+    let last = stderr.lines().last().expect("an error line");
+    assert!(
+        last.starts_with("posestream: error: ") && last.contains("could not be finished"),
+        "{stderr}"
+    );
+    assert!(!stderr.contains("panic"), "{stderr}");
+    assert!(!out.exists());
+    let partial = partials(dir.path());
+    assert_eq!(partial.len(), 1, "{partial:?}");
+    assert!(last.contains(s(&partial[0])), "{stderr}");
+    let (n, _) = complete_messages(&partial[0]);
+    assert!(n > 0, "at least one complete chunk");
+}
+
 /// A configuration of processes talking over iceoryx2 services of their own.
 fn iceoryx2_config(dir: &Path, name: &str, record: &Path) -> PathBuf {
     let services = format!("posestream-faults-{}", std::process::id());

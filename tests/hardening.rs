@@ -521,6 +521,14 @@ fn configuration_values_outside_their_domain_are_one_error_naming_the_key() {
         ),
         ("[estimator.window]\nlag = 30\n", "estimator.window.lag"),
         (
+            "[estimator.window]\nwindow_parts = 0\n",
+            "estimator.window.window_parts",
+        ),
+        (
+            "[estimator.window]\nwindow_parts = 18446744073709551615\n",
+            "estimator.window.window_parts",
+        ),
+        (
             "[estimator.window]\nem_iterations = 100000\n",
             "estimator.window.em_iterations",
         ),

@@ -43,6 +43,15 @@ fn load(name: &str) -> (HeatMapSequence, Vec<f64>, Vec<msgs::HeatMaps>) {
     (maps, truth, messages)
 }
 
+/// Held by the tests that allocate much (whole recordings) and by the one that watches
+/// the process's resident memory, so that its figures are its own: tests of one file
+/// run on threads of one process.
+static MEMORY: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+fn memory_lock() -> std::sync::MutexGuard<'static, ()> {
+    MEMORY.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 fn estimator() -> Estimator {
     let dict =
         Dictionary::load(root().join("config/dictionaries/default-k128.json")).expect("dictionary");
@@ -51,6 +60,7 @@ fn estimator() -> Estimator {
 
 #[test]
 fn streaming_stays_within_5_percent_of_the_batch_em_at_lag_10_and_15_percent_at_lag_0() {
+    let _memory = memory_lock();
     let config = ServiceConfig::load(root().join("config/default.toml")).expect("config");
     assert_eq!(config.estimator.window.lag, 10);
     let p = 17;
@@ -117,6 +127,7 @@ fn small_window() -> WindowEstimator {
 
 #[test]
 fn gaps_late_frames_and_restarts_are_counted_and_every_frame_is_estimated_once() {
+    let _memory = memory_lock();
     let (maps, _, _) = load("byebye.mcap");
     let mut w = small_window();
     let mut out = Vec::new();
@@ -175,6 +186,7 @@ fn gaps_late_frames_and_restarts_are_counted_and_every_frame_is_estimated_once()
 
 #[test]
 fn malformed_frames_are_errors_that_leave_the_window_as_it_was() {
+    let _memory = memory_lock();
     let (maps, _, _) = load("byebye.mcap");
     let mut w = small_window();
     let mut out = Vec::new();
@@ -220,6 +232,7 @@ fn resident() -> usize {
 
 #[test]
 fn ten_thousand_frames_keep_memory_flat() {
+    let _memory = memory_lock();
     let (maps, _, _) = load("byebye.mcap");
     let mut w = small_window();
     let mut out = Vec::new();

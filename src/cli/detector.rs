@@ -46,6 +46,8 @@ pub fn run(args: &DetectorArgs) -> Result<(), CliError> {
     let mut report = run_detector(&mut source, &mut sinks, rate, &stop);
     report.images = service::DetectorInput::stats_now(&stats);
     drop(sinks);
+    // The input goes before the middleware under it.
+    drop(source);
     let concluded = wiring.conclude(report.input_error.as_deref());
     print(args.json, &report)?;
     concluded.map(|_| ()).map_err(CliError::from)

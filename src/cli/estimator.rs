@@ -39,7 +39,8 @@ pub fn run(args: &EstimatorArgs) -> Result<(), CliError> {
     let mut outputs = wiring.estimator_outputs(&config, node.bones())?;
     stop_after(args.duration, &stop);
     let report = run_estimator(&mut node, &mut source, &mut outputs, &stop);
-    drop(outputs);
+    // The input and outputs go before the middleware under them.
+    drop((source, outputs));
     let concluded = wiring.conclude(report.input_error.as_deref());
     print(args.json, &report)?;
     concluded.map(|_| ()).map_err(CliError::from)

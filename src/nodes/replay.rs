@@ -215,6 +215,11 @@ struct RecordingFrames<'a> {
 }
 
 impl FrameSource for RecordingFrames<'_> {
+    /// A recording's time is in its stamps.
+    fn live(&self) -> bool {
+        false
+    }
+
     /// Never waits, but for the pace.
     fn recv_frame(
         &mut self,
@@ -222,7 +227,10 @@ impl FrameSource for RecordingFrames<'_> {
         take: &mut dyn FnMut(&HeatMapsView<'_>, u64),
     ) -> Result<Received<()>, TransportError> {
         while let Some(next) = self.reader.next_message() {
-            if self.stop.load(Ordering::Relaxed) {
+            // A failed write (a full disk) ends the replay: its only output is the
+            // recording, whose finishing then reports it.
+            let failed = self.ground_truth.is_some_and(|(r, _)| r.failed());
+            if failed || self.stop.load(Ordering::Relaxed) {
                 break;
             }
             let msg = match next {
@@ -264,7 +272,8 @@ impl FrameSource for RecordingFrames<'_> {
             }
             if let Some((recorder, topic)) = self.ground_truth {
                 if msg.topic == topic && msg.schema == Skeleton3D::NAME {
-                    // A failed write is the recorder's: it reports it when finished.
+                    // A failed write marks the recording failed: the next message ends
+                    // the replay, and finishing the recording reports it.
                     let _ = recorder.write_encoded::<Skeleton3D>(topic, msg.log_time_ns, &msg.data);
                 }
             }

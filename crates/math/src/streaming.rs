@@ -14,8 +14,9 @@
 //!    ([`em::run_anchored`]);
 //! 4. runs [`StreamSettings::local_iterations`] EM iterations over the newest
 //!    [`StreamSettings::local_frames`] frames (anchored on the frame before them), which
-//!    is what makes the lag-0 estimate good, then [`StreamSettings::em_iterations`] over
-//!    the whole window;
+//!    is what makes the lag-0 estimate good, then, every
+//!    [`StreamSettings::window_every`] frames, [`StreamSettings::em_iterations`] over the
+//!    whole window, in [`StreamSettings::window_parts`] parts on consecutive frames;
 //! 5. emits the estimate of the newest frame (lag 0) and/or of the frame `lag` frames
 //!    back, which has seen `lag` more frames of evidence ([`StreamSettings::outputs`]).
 //!
@@ -69,8 +70,10 @@ pub struct StreamSettings {
     pub local_frames: usize,
     /// EM iterations over those newest frames per new frame at most (0: none).
     pub local_iterations: usize,
-    /// Run the EM over the whole window on every n-th frame only (1: every frame); the
-    /// frames between get only the EM over the newest frames. Spreads the window's cost.
+    /// Start the EM over the whole window on every n-th frame only (1: every frame); the
+    /// frames between get only the EM over the newest frames and the window EM's
+    /// remaining parts. A window EM starts only once the last one has ended: every
+    /// `max(window_every, window_parts)` frames.
     pub window_every: usize,
     /// The window's EM runs in this many parts, on consecutive frames, oldest part
     /// first: each part is the EM over its share of the window's frames between frozen

@@ -162,6 +162,13 @@ pub trait FrameSource: Send {
         timeout: Duration,
         take: &mut dyn FnMut(&HeatMapsView<'_>, u64),
     ) -> Result<Received<()>, TransportError>;
+
+    /// Whether the frames arrive live, so that a pause in wall time is a pause of the
+    /// camera (true by default). A replayed recording's time is in its stamps: the
+    /// estimator then ends an idle track by those alone.
+    fn live(&self) -> bool {
+        true
+    }
 }
 
 /// A [`Source`] of [`HeatMaps`] messages as a [`FrameSource`]: each message is lent as
@@ -193,5 +200,8 @@ impl<S: FrameSource + ?Sized> FrameSource for Box<S> {
         take: &mut dyn FnMut(&HeatMapsView<'_>, u64),
     ) -> Result<Received<()>, TransportError> {
         (**self).recv_frame(timeout, take)
+    }
+    fn live(&self) -> bool {
+        (**self).live()
     }
 }

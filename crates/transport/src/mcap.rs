@@ -71,6 +71,11 @@ impl SharedRecorder {
         self.take()?.finish_partial()
     }
 
+    /// True once a write failed (a full disk): the recording takes nothing more.
+    pub fn failed(&self) -> bool {
+        self.lock().as_ref().is_some_and(Recorder::failed)
+    }
+
     /// Drops the recording and its temporary file (nothing worth keeping was written).
     pub fn abandon(&self) {
         if let Ok(r) = self.take() {

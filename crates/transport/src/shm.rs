@@ -711,27 +711,19 @@ impl FrameSource for ShmHeatMapsSource {
 }
 
 impl Source<HeatMaps> for ShmHeatMapsSource {
+    /// [`FrameSource::recv_frame`], the lent frame copied into a message.
     fn recv(&mut self, timeout: Duration) -> Result<Received<HeatMaps>, TransportError> {
-        let (subscriber, limits, name) = (&self.subscriber, &self.limits, &self.name);
-        let text = &mut self.text;
-        let got = poll(timeout, || {
-            let Some(sample) = subscriber.receive().map_err(|e| error(name, broken, e))? else {
-                return Ok(None);
-            };
-            let h = sample.user_header();
-            match sample_view(h, sample.payload(), limits, text) {
-                Ok(view) => Ok(Some((
-                    view.to_message(),
-                    u64::try_from(h.stamp_ns).unwrap_or(0),
-                ))),
-                Err(e @ SampleError::Limit(_)) => Err(error(name, beyond_limits, e)),
-                Err(e) => Err(error(name, malformed, e)),
-            }
-        })?;
-        Ok(match got {
-            Some((m, stamp)) => Received::Message(m, stamp),
-            None => Received::Idle,
-        })
+        let mut message = None;
+        Ok(
+            match self.recv_frame(timeout, &mut |view, _| message = Some(view.to_message()))? {
+                Received::Message((), stamp) => match message {
+                    Some(m) => Received::Message(m, stamp),
+                    None => Received::Idle,
+                },
+                Received::Idle => Received::Idle,
+                Received::Closed => Received::Closed,
+            },
+        )
     }
 }
 

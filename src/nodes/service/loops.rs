@@ -65,7 +65,10 @@ pub fn run_estimator(
     outputs: &mut EstimatorOutputs,
     stop: &AtomicBool,
 ) -> EstimatorReport {
+    // A live source's idle track ends after the window's gap in wall time; a replayed
+    // recording's gaps are in its stamps, which the window checks itself.
     let idle_limit = Duration::from_secs_f64(node.settings().max_gap_seconds);
+    let live = source.live();
     let (mut frames, mut latency, mut out) = (0, LatencyHistogram::default(), Vec::new());
     let mut last_frame = Instant::now();
     let mut open_track = false;
@@ -89,14 +92,14 @@ pub fn run_estimator(
                     last_frame = Instant::now();
                     open_track = true;
                 }
-                if open_track && last_frame.elapsed() > idle_limit {
+                if live && open_track && last_frame.elapsed() > idle_limit {
                     node.finish(&mut out);
                     outputs.publish(&mut out, node);
                     open_track = false;
                 }
             }
             Ok(Received::Idle) => {
-                if open_track && last_frame.elapsed() > idle_limit {
+                if live && open_track && last_frame.elapsed() > idle_limit {
                     node.finish(&mut out);
                     outputs.publish(&mut out, node);
                     open_track = false;

@@ -176,7 +176,7 @@ pub fn solve_anchored(
     params: &Params,
     ws: &mut BcdWorkspace,
 ) -> BcdInfo {
-    solve_in(
+    solve_between(
         dict,
         basis_gram_max,
         obs,
@@ -185,7 +185,6 @@ pub fn solve_anchored(
         params,
         ws,
     )
-    .clone()
 }
 
 /// [`solve`] between frozen frames before the first and after the last (see
