@@ -448,11 +448,25 @@ fn a_map_size_change_starts_a_new_track_instead_of_wedging_it() {
 
 #[test]
 fn refused_frames_do_not_keep_an_idle_track_alive() {
+    refused_frames_and_an_idle_track(false);
+}
+
+#[test]
+fn refused_frames_do_not_keep_an_idle_track_alive_on_the_runtime() {
+    refused_frames_and_an_idle_track(true);
+}
+
+/// Frames of one person, then refused frames for longer than the idle time, then the
+/// same person again: two tracks, in the blocking loop or on the runtime.
+fn refused_frames_and_an_idle_track(on_runtime: bool) {
     use std::sync::atomic::AtomicBool;
     use std::time::Duration;
 
-    use posestream::nodes::service::{EstimatorOutputs, Middleware, run_estimator};
+    use posestream::nodes::service::{
+        EstimatorOutputs, Middleware, run_estimator, run_estimator_on_runtime,
+    };
     use posestream::transport::memory;
+    use posestream::transport::runtime::Blocking;
     use posestream::transport::{Lend, Sink};
 
     let dir = tempfile::tempdir().expect("tempdir");
@@ -468,7 +482,6 @@ fn refused_frames_do_not_keep_an_idle_track_alive() {
     let mut outputs = EstimatorOutputs::open(&c, &mut middleware, Some(&recorder), node.bones())
         .expect("outputs");
     let (mut sink, source) = memory::channel::<HeatMaps>(256);
-    let mut source = Lend(source);
     let all = frames("kick.mcap");
     let stop = AtomicBool::new(false);
     std::thread::scope(|scope| {
@@ -490,11 +503,21 @@ fn refused_frames_do_not_keep_an_idle_track_alive() {
             }
             drop(sink);
         });
-        let report = run_estimator(&mut node, &mut source, &mut outputs, &stop);
+        let report = if on_runtime {
+            let source = Blocking::spawn("test", source, 4).expect("thread");
+            run_estimator_on_runtime(&mut node, source, &mut outputs, &stop).expect("runs")
+        } else {
+            run_estimator(&mut node, &mut Lend(source), &mut outputs, &stop)
+        };
         assert_eq!(report.malformed, 30);
         assert_eq!(
             report.counters.tracks, 2,
             "the idle track ended while only refused frames arrived"
+        );
+        assert_eq!(report.frames, 70);
+        assert_eq!(
+            report.skeletons, 80,
+            "both tracks' skeletons, newest and lagged"
         );
     });
     drop(outputs);

@@ -12,7 +12,7 @@ use posestream::msgs::{MarkerArray, Skeleton3D};
 use posestream::nodes::config::{ReplayRate, Transport};
 use posestream::nodes::replay::{ReplayOptions, replay};
 use posestream::nodes::service::{
-    self, EstimatorOutputs, Middleware, run_detector, run_estimator, run_pipeline,
+    self, EstimatorOutputs, Middleware, run_detector, run_pipeline, serve_estimator,
 };
 use posestream::nodes::{EstimatorNode, ServiceConfig};
 use posestream::recording::read_topic;
@@ -96,9 +96,9 @@ fn spawn_estimator(
     let recorder = service::output_recording(&c).expect("recording");
     let mut outputs = EstimatorOutputs::open(&c, &mut middleware, recorder.as_ref(), node.bones())
         .expect("outputs");
-    let mut source = middleware.heatmaps_source(&c, input).expect("source");
+    let source = middleware.estimator_input(&c, input).expect("source");
     common::spawn("estimator", move || {
-        let report = run_estimator(&mut node, &mut source, &mut outputs, stop);
+        let report = serve_estimator(&mut node, source, &mut outputs, stop).expect("serves");
         drop(outputs);
         drop(middleware);
         if let Some(r) = recorder {
@@ -147,7 +147,7 @@ fn detector_and_estimator_nodes_talk_over_ros2() {
     let mut det = c.clone();
     det.outputs.ros2 = true;
     det.ros.node_name = "detector".into();
-    let (ros, mut sinks) = detector(&det);
+    let (ros, sinks) = detector(&det);
     let start = Instant::now();
     let ros2 = ros.ros.as_ref().expect("ros");
     while ros2.subscriptions(&c.topics.heatmaps) == 0 {
@@ -159,14 +159,22 @@ fn detector_and_estimator_nodes_talk_over_ros2() {
     }
     // Matching completes on both sides shortly after discovery.
     std::thread::sleep(Duration::from_millis(500));
-    let mut source = service::recording_source(&c, &recording("byebye.mcap")).expect("source");
-    let report = run_detector(
-        &mut source,
-        &mut sinks,
+    // Both nodes on their runtimes (the iceoryx2 test below runs the blocking loops).
+    let source = service::recording_source(&c, &recording("byebye.mcap")).expect("source");
+    let start = Instant::now();
+    let report = service::run_detector_on_runtime(
+        source,
+        sinks,
         ReplayRate::Recorded,
         &AtomicBool::new(false),
-    );
+    )
+    .expect("runs");
     assert_eq!(report.published, 121);
+    let paced = start.elapsed();
+    assert!(
+        paced > Duration::from_millis(3800),
+        "121 frames at 30/s take 4 s at the recorded pace, not {paced:?}"
+    );
     // More than max_gap_seconds without frames: the estimator ends the track itself.
     std::thread::sleep(Duration::from_millis(2000));
     STOP.store(true, Ordering::Relaxed);

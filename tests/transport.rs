@@ -13,8 +13,9 @@ use posestream::msgs::{Header, Skeleton3D, Time};
 use posestream::transport::mcap::{McapSource, SharedRecorder};
 use posestream::transport::memory;
 use posestream::transport::ros2::{Ros2, RosSettings};
+use posestream::transport::runtime::{AsyncSource, Blocking};
 use posestream::transport::shm::Shm;
-use posestream::transport::{FrameSource, Received, Sink, Source};
+use posestream::transport::{FrameSource, Received, Sink, Source, TransportError};
 
 /// A skeleton whose every field depends on `seq`.
 fn skeleton(seq: u64) -> Skeleton3D {
@@ -182,6 +183,131 @@ fn ros2_topic_passes_the_conformance_suite_on_loopback() {
         || unreachable!("live"),
         Some(&mut source),
     );
+}
+
+/// An awaited source ([`AsyncSource`]) driven as a blocking one, so that the
+/// conformance suite runs on it: each `recv` awaits the next message on a runtime of its
+/// own, for at most the timeout.
+struct Awaited<S>(S, tokio::runtime::Runtime);
+
+impl<S: AsyncSource<Skeleton3D>> Awaited<S> {
+    fn new(source: S) -> Self {
+        let runtime = tokio::runtime::Builder::new_current_thread()
+            .enable_time()
+            .build()
+            .expect("runtime");
+        Self(source, runtime)
+    }
+}
+
+impl<S: AsyncSource<Skeleton3D>> Source<Skeleton3D> for Awaited<S> {
+    fn recv(&mut self, timeout: Duration) -> Result<Received<Skeleton3D>, TransportError> {
+        let Self(source, runtime) = self;
+        runtime.block_on(async {
+            tokio::time::timeout(timeout, source.next())
+                .await
+                .unwrap_or(Ok(Received::Idle))
+        })
+    }
+}
+
+#[test]
+fn awaited_sources_pass_the_conformance_suite() {
+    // A blocking source on a thread of its own, handing over to the runtime.
+    let (mut sink, source) = memory::channel(16);
+    let mut awaited = Awaited::new(Blocking::spawn("memory", source, 4).expect("thread"));
+    conformance(
+        "awaited memory",
+        &mut sink,
+        || unreachable!("live"),
+        Some(&mut awaited),
+    );
+    drop(sink);
+    assert_eq!(
+        awaited.recv(Duration::from_secs(1)).expect("recv"),
+        Received::Closed,
+        "the channel closed: so does the awaited source"
+    );
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("skeletons.mcap");
+    let recorder = SharedRecorder::create(&path).expect("recorder");
+    let mut sink = recorder.sink::<Skeleton3D>("/posestream/skeletons");
+    conformance(
+        "awaited mcap",
+        &mut sink,
+        || {
+            recorder.finish().expect("finish");
+            let source = McapSource::<Skeleton3D>::open(&path, "/posestream/skeletons");
+            Box::new(Awaited::new(
+                Blocking::spawn("mcap", source.expect("open"), 4).expect("thread"),
+            ))
+        },
+        None,
+    );
+    // A ROS 2 subscription, awaited natively (ros2-client's async API).
+    let d = domain(3);
+    let mut publisher = loopback(d, "awaited_pub");
+    let mut subscriber = loopback(d, "awaited_sub");
+    let mut source = Awaited::new(
+        subscriber
+            .source::<Skeleton3D>("/posestream/skeletons")
+            .expect("subscription"),
+    );
+    let mut sink = publisher
+        .sink::<Skeleton3D>("/posestream/skeletons")
+        .expect("publisher");
+    connect(&mut sink, &mut source, d);
+    conformance(
+        "awaited ros2",
+        &mut sink,
+        || unreachable!("live"),
+        Some(&mut source),
+    );
+}
+
+/// A source that refuses its first message, then has one, then breaks.
+struct Refusing(u32);
+
+impl Source<Skeleton3D> for Refusing {
+    fn recv(&mut self, _: Duration) -> Result<Received<Skeleton3D>, TransportError> {
+        self.0 += 1;
+        let topic = "test".to_string();
+        match self.0 {
+            1 => Err(TransportError::Malformed {
+                transport: "test",
+                topic,
+                reason: "refused".into(),
+            }),
+            2 => Ok(Received::Idle),
+            3 => Ok(Received::Message(skeleton(3), 3)),
+            4 => Err(TransportError::Broken {
+                transport: "test",
+                topic,
+                reason: "cut".into(),
+            }),
+            n => panic!("asked again ({n}) after the source broke"),
+        }
+    }
+}
+
+#[test]
+fn a_blocking_source_awaited_goes_on_after_a_refusal_and_ends_where_it_breaks() {
+    let mut source = Awaited::new(Blocking::spawn("refusing", Refusing(0), 1).expect("thread"));
+    let wait = Duration::from_secs(5);
+    assert!(matches!(
+        source.recv(wait),
+        Err(TransportError::Malformed { .. })
+    ));
+    assert_eq!(
+        source.recv(wait).expect("recv"),
+        Received::Message(skeleton(3), 3)
+    );
+    assert!(matches!(
+        source.recv(wait),
+        Err(TransportError::Broken { .. })
+    ));
+    // The thread ended there (asked again, the source would panic): closed.
+    assert_eq!(source.recv(wait).expect("recv"), Received::Closed);
 }
 
 /// An iceoryx2 service name of our own per test process and test.

@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use clap::Args;
 use posestream::nodes::ServiceConfig;
-use posestream::nodes::service::{self, Wiring, run_detector};
+use posestream::nodes::service::{self, Wiring, run_detector_on_runtime};
 
 use super::CliError;
 use super::service::{SourceArgs, print, stop_flag};
@@ -32,22 +32,20 @@ pub fn run(args: &DetectorArgs) -> Result<(), CliError> {
     let mut wiring = Wiring::open(&config, service::detector_transport(&config))?;
     let input = wiring.detector_input(&config)?;
     wiring.start_recording(&config)?;
-    let mut sinks = wiring.detector_outputs(&config)?;
+    let sinks = wiring.detector_outputs(&config)?;
     if sinks.is_empty() {
         return Err(CliError::Usage(
             "no outputs: enable ros2, iceoryx2 or record in [outputs]".into(),
         ));
     }
     let service::DetectorInput {
-        mut source,
+        source,
         stats,
         rate,
     } = input;
-    let mut report = run_detector(&mut source, &mut sinks, rate, &stop);
+    // The source and the sinks are dropped in the loop: before the middleware under them.
+    let mut report = run_detector_on_runtime(source, sinks, rate, &stop)?;
     report.images = service::DetectorInput::stats_now(&stats);
-    drop(sinks);
-    // The input goes before the middleware under it.
-    drop(source);
     let concluded = wiring.conclude(report.input_error.as_deref());
     print(args.json, &report)?;
     concluded.map(|_| ()).map_err(CliError::from)

@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use clap::Args;
 use posestream::nodes::config::Transport;
-use posestream::nodes::service::{Wiring, run_estimator};
+use posestream::nodes::service::{Wiring, serve_estimator};
 use posestream::nodes::{EstimatorNode, ServiceConfig};
 
 use super::CliError;
@@ -34,13 +34,13 @@ pub fn run(args: &EstimatorArgs) -> Result<(), CliError> {
     let input = args.input.unwrap_or(config.estimator.input);
     let mut node = EstimatorNode::from_service_config(&config)?;
     let mut wiring = Wiring::open(&config, Some(input))?;
-    let mut source = wiring.heatmaps_source(&config, input)?;
+    let source = wiring.estimator_input(&config, input)?;
     wiring.start_recording(&config)?;
     let mut outputs = wiring.estimator_outputs(&config, node.bones())?;
     stop_after(args.duration, &stop);
-    let report = run_estimator(&mut node, &mut source, &mut outputs, &stop);
-    // The input and outputs go before the middleware under them.
-    drop((source, outputs));
+    // The input is dropped in the loop, the outputs here: before the middleware under them.
+    let report = serve_estimator(&mut node, source, &mut outputs, &stop)?;
+    drop(outputs);
     let concluded = wiring.conclude(report.input_error.as_deref());
     print(args.json, &report)?;
     concluded.map(|_| ()).map_err(CliError::from)

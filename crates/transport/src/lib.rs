@@ -10,11 +10,14 @@
 //! - [`ros2`]: a ROS 2 topic over DDS (`ros2-client`, no ROS installation needed);
 //! - [`shm`]: iceoryx2 shared memory.
 //!
+//! [`runtime`] has the same sources awaited on a tokio runtime ([`runtime::AsyncSource`]).
+//!
 //! Messages are the ROS 2 types of [`posestream_msgs`], whatever the transport.
 
 pub mod mcap;
 pub mod memory;
 pub mod ros2;
+pub mod runtime;
 pub mod shm;
 
 use std::time::Duration;

@@ -23,6 +23,7 @@ use ros2_client::{
 };
 use serde::{Deserialize, Serialize};
 
+use super::runtime::AsyncSource;
 use super::{Message, Received, Sink, Source, TransportError};
 use posestream_math::error::{OutOfDomain, check_range};
 
@@ -339,6 +340,22 @@ pub struct Ros2Sink<M: Message> {
     topic: String,
 }
 
+impl<M: Message> Ros2Sink<M> {
+    /// Publishes on a runtime: where [`Sink::send`] blocks the thread while a reliable
+    /// history is full (up to 100 ms, then fails), this waits for room without blocking
+    /// the runtime.
+    pub async fn send_async(&self, message: &M) -> Result<(), TransportError> {
+        self.publisher
+            .async_publish(message.clone())
+            .await
+            .map_err(|e| TransportError::Send {
+                transport: TRANSPORT,
+                topic: self.topic.clone(),
+                reason: e.to_string(),
+            })
+    }
+}
+
 impl<M: Message> Sink<M> for Ros2Sink<M> {
     /// Publishes (the stamp travels in the message's header; DDS adds its own).
     fn send(&mut self, message: &M, _stamp_ns: u64) -> Result<(), TransportError> {
@@ -367,20 +384,9 @@ impl<M: Message> Source<M> for Ros2Source<M> {
         let deadline = std::time::Instant::now() + timeout;
         loop {
             match self.subscription.take() {
-                Ok(Some((m, info))) => {
-                    let stamp = info
-                        .source_timestamp()
-                        .map_or(0, |t| u64::try_from(t.to_nanos()).unwrap_or(0));
-                    return Ok(Received::Message(m, stamp));
-                }
+                Ok(Some(taken)) => return Ok(self.stamped(taken)),
                 Ok(None) => {}
-                Err(e) => {
-                    return Err(TransportError::Malformed {
-                        transport: TRANSPORT,
-                        topic: self.topic.clone(),
-                        reason: e.to_string(),
-                    });
-                }
+                Err(e) => return Err(self.malformed(e)),
             }
             let left = deadline.saturating_duration_since(std::time::Instant::now());
             if left.is_zero() {
@@ -399,6 +405,35 @@ impl<M: Message> Source<M> for Ros2Source<M> {
                     });
                 }
             }
+        }
+    }
+}
+
+impl<M: Message> Ros2Source<M> {
+    fn stamped(&self, taken: (M, ros2_client::MessageInfo)) -> Received<M> {
+        let (m, info) = taken;
+        let stamp = info
+            .source_timestamp()
+            .map_or(0, |t| u64::try_from(t.to_nanos()).unwrap_or(0));
+        Received::Message(m, stamp)
+    }
+
+    fn malformed(&self, e: impl std::fmt::Display) -> TransportError {
+        TransportError::Malformed {
+            transport: TRANSPORT,
+            topic: self.topic.clone(),
+            reason: e.to_string(),
+        }
+    }
+}
+
+impl<M: Message + Sync> AsyncSource<M> for Ros2Source<M> {
+    /// Waits for a sample on the runtime (`ros2-client`'s `async_take`); stamped as by
+    /// [`Source::recv`].
+    async fn next(&mut self) -> Result<Received<M>, TransportError> {
+        match self.subscription.async_take().await {
+            Ok(taken) => Ok(self.stamped(taken)),
+            Err(e) => Err(self.malformed(e)),
         }
     }
 }

@@ -8,6 +8,7 @@ use std::time::{Duration, Instant};
 use serde::Serialize;
 
 use super::ServiceError;
+use super::runtime::{DetectorSide, run_estimator_on_runtime};
 use super::wiring::{DetectorInput, EstimatorOutputs, Publishers, Wiring, detector_transport};
 use crate::detector::DetectorStats;
 use crate::msgs::HeatMaps;
@@ -16,22 +17,25 @@ use crate::nodes::latency::{LatencyHistogram, LatencySummary};
 use crate::nodes::{EstimatorNode, Refusals};
 use crate::recording::RecordingSummary;
 use crate::streaming::StreamCounters;
-use crate::transport::memory;
-use crate::transport::{FrameSource, Lend, Message, Received, Sink, Source, TransportError};
+use crate::transport::{FrameSource, Message, Received, Sink, Source, TransportError};
 
 /// How long a source is asked to wait before the loop checks for a stop.
-const POLL: Duration = Duration::from_millis(100);
+pub(super) const POLL: Duration = Duration::from_millis(100);
 
 /// Waits until `due` after `start` (the pace of recorded stamps), waking at least every
 /// [`POLL`] to look at `stop`; false if stopped while waiting.
 pub fn pace(start: Instant, due: Duration, stop: &AtomicBool) -> bool {
-    while let Some(wait) = due.checked_sub(start.elapsed()) {
-        if stop.load(Ordering::Relaxed) {
-            return false;
-        }
-        std::thread::sleep(wait.min(POLL));
+    while let Some(wait) = due_wait(start, due, stop) {
+        std::thread::sleep(wait);
     }
     !stop.load(Ordering::Relaxed)
+}
+
+/// How long to sleep next when waiting until `due` after `start` (at most [`POLL`], so
+/// that `stop` is looked at); `None` once due or stopped.
+pub(super) fn due_wait(start: Instant, due: Duration, stop: &AtomicBool) -> Option<Duration> {
+    let wait = due.checked_sub(start.elapsed())?;
+    (!stop.load(Ordering::Relaxed)).then(|| wait.min(POLL))
 }
 
 /// What the estimator service did.
@@ -210,11 +214,12 @@ pub struct PipelineReport {
     pub recording_error: Option<String>,
 }
 
-/// Detector and estimator in one process: the detector (the configured source,
-/// [`detector_input`]) on its own thread feeds the estimator through a bounded channel
-/// (a slow estimator slows the detector down); results go to the configured outputs.
-/// When recording, the heat maps are recorded too, so that the recording holds the
-/// whole run (`posestream render` draws them).
+/// Detector and estimator in one process, on a tokio runtime: the detector's source
+/// (the configured one, [`detector_input`]) on a thread of its own, paced on the
+/// runtime, feeds the estimator's solver thread through a bounded channel (a slow
+/// estimator slows the detector down: [`DetectorSide`], [`run_estimator_on_runtime`]);
+/// results go to the configured outputs. When recording, the heat maps are recorded
+/// too, so that the recording holds the whole run (`posestream render` draws them).
 pub fn run_pipeline(
     config: &ServiceConfig,
     stop: &AtomicBool,
@@ -226,40 +231,20 @@ pub fn run_pipeline(
     wiring.start_recording(config)?;
     let mut outputs = wiring.estimator_outputs(config, node.bones())?;
     let DetectorInput {
-        mut source,
+        source,
         stats,
         rate,
     } = input;
-    let (sink, channel) = memory::channel::<HeatMaps>(4);
-    let heatmaps_record = wiring
-        .recorder
-        .as_ref()
-        .map(|r| r.sink::<HeatMaps>(&config.topics.heatmaps));
-    let (detector, estimator) = std::thread::scope(|scope| {
-        let detector = std::thread::Builder::new()
-            .name("detector".into())
-            .spawn_scoped(scope, move || {
-                let mut sinks = Publishers::default();
-                if let Some(r) = heatmaps_record {
-                    sinks.add("mcap heat maps", Box::new(r));
-                }
-                // Last: the channel takes each frame by move.
-                sinks.add("memory", Box::new(sink));
-                // Dropping the sinks at the end closes the channel: the estimator ends.
-                run_detector(&mut source, &mut sinks, rate, stop)
-            });
-        let mut channel = Lend(channel);
-        let estimator = run_estimator(&mut node, &mut channel, &mut outputs, stop);
-        // The estimator stops only when the channel closes or on `stop`; a detector
-        // still blocked on a full channel then sees the receiver gone.
-        drop(channel);
-        let detector = detector.map(|h| h.join());
-        (detector, estimator)
-    });
-    let mut detector = match detector {
-        Ok(Ok(report)) => report,
-        _ => return Err(ServiceError::Thread("detector")),
-    };
+    let mut heatmaps = Publishers::default();
+    if let Some(r) = &wiring.recorder {
+        heatmaps.add(
+            "mcap heat maps",
+            Box::new(r.sink::<HeatMaps>(&config.topics.heatmaps)),
+        );
+    }
+    let mut detector = DetectorSide::spawn(source, heatmaps, rate, stop)?;
+    let estimator = run_estimator_on_runtime(&mut node, &mut detector, &mut outputs, stop)?;
+    let mut detector = detector.conclude();
     detector.images = DetectorInput::stats_now(&stats);
     drop(outputs);
     // A recording that cannot be finished after a good run is reported, not an error:

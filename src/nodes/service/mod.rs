@@ -1,12 +1,15 @@
 //! The nodes as services: the loops that move messages between sources, the
-//! [`EstimatorNode`](super::EstimatorNode) and sinks ([`loops`]), and the wiring that
-//! builds those ends from the configuration ([`wiring`]). What backend each end is
+//! [`EstimatorNode`](super::EstimatorNode) and sinks (blocking, [`loops`]; with their
+//! I/O on a tokio runtime, [`runtime`]), and the wiring that builds those ends from the
+//! configuration ([`wiring`]). What backend each end is
 //! comes from the configuration; the loops do not know.
 
 pub mod loops;
+pub mod runtime;
 pub mod wiring;
 
 pub use loops::*;
+pub use runtime::*;
 pub use wiring::*;
 
 use crate::nodes::SetupError;
@@ -25,6 +28,9 @@ pub enum ServiceError {
     /// The output recording could not be written.
     #[error(transparent)]
     Recording(#[from] RecordingError),
+    /// The node's I/O runtime could not start.
+    #[error("cannot start the I/O runtime: {0}")]
+    Runtime(std::io::Error),
     /// A thread of the pipeline panicked.
     #[error("the {0} thread stopped unexpectedly")]
     Thread(&'static str),

@@ -17,9 +17,9 @@ use crate::nodes::images::{ImageHeatMaps, SharedStats, image_frames};
 use crate::nodes::markers::skeleton_markers;
 use crate::recording::RecordingSummary;
 use crate::transport::mcap::{McapSource, SharedRecorder};
-use crate::transport::ros2::Ros2;
+use crate::transport::ros2::{Ros2, Ros2Sink, Ros2Source};
 use crate::transport::shm::Shm;
-use crate::transport::{FrameSource, Lend, Message, Received, Sink, Source, TransportError};
+use crate::transport::{FrameSource, Message, Received, Sink, Source, TransportError};
 
 /// The middleware of a process: a ROS 2 node and an iceoryx2 node, each only if used.
 #[derive(Default)]
@@ -49,23 +49,33 @@ impl Middleware {
         self.shm.as_ref().ok_or_else(|| missing("iceoryx2"))
     }
 
-    /// The heat-map source of `transport` (iceoryx2 lends its samples' scores where
-    /// they are; ROS 2 decodes each message and lends it).
-    pub fn heatmaps_source(
+    /// The estimator's heat maps from `transport`: a ROS 2 subscription awaited on a
+    /// runtime; iceoryx2 samples lent where they are, their scores read in shared
+    /// memory by a blocking loop (README, "Where the I/O runs").
+    pub fn estimator_input(
         &mut self,
         config: &ServiceConfig,
         transport: Transport,
-    ) -> Result<Box<dyn FrameSource>, TransportError> {
+    ) -> Result<EstimatorInput, TransportError> {
         Ok(match transport {
-            Transport::Ros2 => Box::new(Lend(
+            Transport::Ros2 => EstimatorInput::Awaited(Box::new(
                 self.ros()?.source::<HeatMaps>(&config.topics.heatmaps)?,
             )),
-            Transport::Iceoryx2 => Box::new(
+            Transport::Iceoryx2 => EstimatorInput::Lent(Box::new(
                 self.shm()?
                     .heatmaps_source(&config.iceoryx2.heatmaps, &config.limits)?,
-            ),
+            )),
         })
     }
+}
+
+/// Where the estimator node's heat maps come from, and so how its loop waits
+/// ([`serve_estimator`](super::serve_estimator)).
+pub enum EstimatorInput {
+    /// Messages awaited on a tokio runtime ([`run_estimator_on_runtime`](super::run_estimator_on_runtime)).
+    Awaited(Box<Ros2Source<HeatMaps>>),
+    /// Frames lent by a blocking source ([`run_estimator`](super::run_estimator)).
+    Lent(Box<dyn FrameSource>),
 }
 
 fn missing(transport: &'static str) -> TransportError {
@@ -79,16 +89,31 @@ fn missing(transport: &'static str) -> TransportError {
 /// Publishers of one message type on every configured output. A failed send is counted;
 /// the first failure of each sink is logged (a full disk under a recording fails every
 /// later write too), and the other sinks go on.
-pub struct Publishers<M> {
+pub struct Publishers<M: Message> {
     /// Each sink with its name and whether a failure of it was logged.
-    sinks: Vec<(String, Box<dyn Sink<M>>, bool)>,
+    sinks: Vec<(String, Output<M>, bool)>,
     /// Messages handed to every sink.
     pub sent: u64,
     /// Sends that failed (per sink).
     pub failed: u64,
 }
 
-impl<M> Default for Publishers<M> {
+/// One sink of [`Publishers`]: ROS 2 apart, for its async publishing.
+enum Output<M: Message> {
+    Ros2(Box<Ros2Sink<M>>),
+    Other(Box<dyn Sink<M>>),
+}
+
+impl<M: Message> Output<M> {
+    fn sink(&mut self) -> &mut dyn Sink<M> {
+        match self {
+            Output::Ros2(s) => s.as_mut(),
+            Output::Other(s) => s.as_mut(),
+        }
+    }
+}
+
+impl<M: Message> Default for Publishers<M> {
     fn default() -> Self {
         Self {
             sinks: Vec::new(),
@@ -98,10 +123,17 @@ impl<M> Default for Publishers<M> {
     }
 }
 
-impl<M> Publishers<M> {
+impl<M: Message> Publishers<M> {
     /// Adds a sink, named for the logs.
     pub fn add(&mut self, name: impl Into<String>, sink: Box<dyn Sink<M>>) {
-        self.sinks.push((name.into(), sink, false));
+        self.sinks.push((name.into(), Output::Other(sink), false));
+    }
+
+    /// Adds a ROS 2 publisher, named for the logs ([`Publishers::publish_async`] awaits
+    /// room in its history instead of blocking).
+    pub fn add_ros2(&mut self, name: impl Into<String>, sink: Ros2Sink<M>) {
+        self.sinks
+            .push((name.into(), Output::Ros2(Box::new(sink)), false));
     }
 
     /// Sinks configured.
@@ -118,7 +150,23 @@ impl<M> Publishers<M> {
     pub fn publish(&mut self, message: &M, stamp_ns: u64) {
         self.sent += 1;
         for (name, sink, logged) in &mut self.sinks {
-            if let Err(e) = sink.send(message, stamp_ns) {
+            if let Err(e) = sink.sink().send(message, stamp_ns) {
+                self.failed += 1;
+                Self::failure(name, logged, &e);
+            }
+        }
+    }
+
+    /// Sends to every sink on a runtime: as [`Publishers::publish`], a ROS 2 publisher
+    /// awaited instead of blocking while its reliable history is full.
+    pub async fn publish_async(&mut self, message: &M, stamp_ns: u64) {
+        self.sent += 1;
+        for (name, sink, logged) in &mut self.sinks {
+            let sent = match sink {
+                Output::Ros2(s) => s.send_async(message).await,
+                Output::Other(s) => s.send(message, stamp_ns),
+            };
+            if let Err(e) = sent {
                 self.failed += 1;
                 Self::failure(name, logged, &e);
             }
@@ -133,12 +181,12 @@ impl<M> Publishers<M> {
             return;
         };
         for (name, sink, logged) in others {
-            if let Err(e) = sink.send(&message, stamp_ns) {
+            if let Err(e) = sink.sink().send(&message, stamp_ns) {
                 self.failed += 1;
                 Self::failure(name, logged, &e);
             }
         }
-        if let Err(e) = last.send_owned(message, stamp_ns) {
+        if let Err(e) = last.sink().send_owned(message, stamp_ns) {
             self.failed += 1;
             Self::failure(last_name, last_logged, &e);
         }
@@ -147,7 +195,7 @@ impl<M> Publishers<M> {
     /// Flushes every sink.
     pub fn flush(&mut self) {
         for (name, sink, logged) in &mut self.sinks {
-            if let Err(e) = sink.flush() {
+            if let Err(e) = sink.sink().flush() {
                 self.failed += 1;
                 Self::failure(name, logged, &e);
             }
@@ -190,7 +238,7 @@ fn publishers<M: Message>(
     let mut out = Publishers::default();
     if config.outputs.ros2 {
         let ros = middleware.ros()?;
-        out.add(format!("ros2 {topic}"), Box::new(ros.sink::<M>(topic)?));
+        out.add_ros2(format!("ros2 {topic}"), ros.sink::<M>(topic)?);
     }
     if let Some(sink) = shm {
         out.add(format!("iceoryx2 {topic}"), sink?);
@@ -279,11 +327,7 @@ impl EstimatorOutputs {
     /// Publishes the node's skeletons and hands them back to it to be reused.
     pub(super) fn publish(&mut self, skeletons: &mut Vec<Skeleton3D>, node: &mut EstimatorNode) {
         for s in skeletons.iter() {
-            let stamp = if self.stamp_at_release {
-                self.released_at
-            } else {
-                u64::try_from(s.header.stamp.nanos()).unwrap_or(0)
-            };
+            let stamp = self.stamp(s);
             self.skeletons.publish(s, stamp);
             if !self.markers.is_empty() {
                 self.markers
@@ -291,6 +335,27 @@ impl EstimatorOutputs {
             }
         }
         node.recycle(skeletons);
+    }
+
+    /// Publishes skeletons on a runtime ([`Publishers::publish_async`]).
+    pub(super) async fn publish_async(&mut self, skeletons: &[Skeleton3D]) {
+        for s in skeletons {
+            let stamp = self.stamp(s);
+            self.skeletons.publish_async(s, stamp).await;
+            if !self.markers.is_empty() {
+                let markers = skeleton_markers(s, &self.bones);
+                self.markers.publish_async(&markers, stamp).await;
+            }
+        }
+    }
+
+    /// The stamp `skeleton` is sent with.
+    fn stamp(&self, skeleton: &Skeleton3D) -> u64 {
+        if self.stamp_at_release {
+            self.released_at
+        } else {
+            u64::try_from(skeleton.header.stamp.nanos()).unwrap_or(0)
+        }
     }
 }
 
@@ -452,13 +517,13 @@ impl Wiring {
         detector_input(config, &mut self.middleware)
     }
 
-    /// The estimator node's heat maps from `transport`.
-    pub fn heatmaps_source(
+    /// The estimator node's heat maps from `transport` ([`Middleware::estimator_input`]).
+    pub fn estimator_input(
         &mut self,
         config: &ServiceConfig,
         transport: Transport,
-    ) -> Result<Box<dyn FrameSource>, ServiceError> {
-        Ok(self.middleware.heatmaps_source(config, transport)?)
+    ) -> Result<EstimatorInput, ServiceError> {
+        Ok(self.middleware.estimator_input(config, transport)?)
     }
 
     /// Finishes the output recording after the loop ended: in place if the input held
