@@ -672,3 +672,47 @@ fn a_hand_made_data_frag_cannot_make_the_estimator_allocate() {
     // At most two matched samples of 30 MiB are held (the reader's 64 MiB bound).
     assert!(peak < 200 * 1024, "peak {} MB", peak / 1024);
 }
+
+/// A setup that fails after the output recording was started (here: the iceoryx2
+/// skeleton service's name is taken by a service of heat maps) leaves no file behind:
+/// neither the output nor its `.partial`.
+#[test]
+fn a_setup_that_fails_after_the_recording_started_leaves_no_file() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let name = format!("posestream-test/{}/taken", std::process::id());
+    let shm = posestream::transport::shm::Shm::new().expect("iceoryx2");
+    let _taken = shm.heatmaps_sink(&name).expect("a heat-map service");
+    let out = dir.path().join("out.mcap");
+    let extra = format!(
+        "[outputs]\nros2 = false\niceoryx2 = true\nrecord = {:?}\n[iceoryx2]\nskeletons = {name:?}\nheatmaps = \"{name}-in\"\n",
+        s(&out)
+    );
+    let config = config_file(dir.path(), "taken.toml", &extra);
+    let run = Command::new(bin())
+        .args([
+            "estimator",
+            "--input",
+            "iceoryx2",
+            "--duration",
+            "1",
+            "--config",
+        ])
+        .arg(&config)
+        .output()
+        .expect("runs");
+    assert!(
+        !run.status.success(),
+        "the skeleton service cannot be set up"
+    );
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        stderr.contains(&name),
+        "one error naming the service: {stderr}"
+    );
+    let left: Vec<_> = std::fs::read_dir(dir.path())
+        .expect("list")
+        .map(|e| e.expect("entry").file_name())
+        .filter(|n| n.to_string_lossy().starts_with("out.mcap"))
+        .collect();
+    assert!(left.is_empty(), "files left behind: {left:?}");
+}

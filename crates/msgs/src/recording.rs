@@ -161,6 +161,11 @@ impl Recorder {
         self.failed.is_some()
     }
 
+    /// Messages written so far, over every topic.
+    pub fn messages(&self) -> u64 {
+        self.counts.values().map(|(_, n)| n).sum()
+    }
+
     /// Closes a chunk and flushes it to the file at least this often (default 1 s;
     /// `None`: only when a chunk is full). Bounds what a killed recorder loses.
     pub fn set_flush_interval(&mut self, every: Option<Duration>) {

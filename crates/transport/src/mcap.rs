@@ -76,6 +76,11 @@ impl SharedRecorder {
         self.lock().as_ref().is_some_and(Recorder::failed)
     }
 
+    /// Messages written so far (0 once finished).
+    pub fn messages(&self) -> u64 {
+        self.lock().as_ref().map_or(0, Recorder::messages)
+    }
+
     /// Drops the recording and its temporary file (nothing worth keeping was written).
     pub fn abandon(&self) {
         if let Ok(r) = self.take() {

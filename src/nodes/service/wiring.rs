@@ -464,6 +464,28 @@ pub fn detector_transport(config: &ServiceConfig) -> Option<Transport> {
     (config.detector.source == DetectorSource::Ros2).then_some(Transport::Ros2)
 }
 
+/// A wiring dropped without [`Wiring::conclude`] (a setup that failed after the
+/// recording started, a thread that died): a recording with nothing in it is removed;
+/// one with messages is kept under its temporary name, which a warning names.
+impl Drop for Wiring {
+    fn drop(&mut self) {
+        let Some(recorder) = self.recorder.take() else {
+            return;
+        };
+        if recorder.messages() == 0 {
+            recorder.abandon();
+            return;
+        }
+        match recorder.finish_partial() {
+            Ok(kept) => tracing::warn!(
+                "the run ended early: what was recorded is in {}",
+                kept.display()
+            ),
+            Err(e) => tracing::warn!("the run ended early: {e}"),
+        }
+    }
+}
+
 /// What a service process is wired to: its middleware (ROS 2, iceoryx2, each only if
 /// used) and its output recording (`[outputs] record`). Each node's ends come from it;
 /// when the loop is over, [`Wiring::conclude`] finishes the recording.
@@ -484,8 +506,8 @@ impl Wiring {
         })
     }
 
-    /// Starts the output recording, if one is configured (after the inputs are set up,
-    /// so that a failed setup leaves no file behind).
+    /// Starts the output recording, if one is configured (after the inputs are set up;
+    /// a setup that fails later drops the wiring, which removes the empty recording).
     pub fn start_recording(&mut self, config: &ServiceConfig) -> Result<(), ServiceError> {
         self.recorder = output_recording(config)?;
         Ok(())
@@ -531,10 +553,10 @@ impl Wiring {
     /// temporary name, which the one error names, so that a failed run replaces no
     /// existing output.
     pub fn conclude(
-        self,
+        mut self,
         input_error: Option<&str>,
     ) -> Result<Option<RecordingSummary>, ServiceError> {
-        match (input_error, self.recorder) {
+        match (input_error, self.recorder.take()) {
             (None, Some(r)) => Ok(Some(r.finish()?)),
             (None, None) => Ok(None),
             (Some(reason), recorder) => Err(ServiceError::Input {
