@@ -69,8 +69,16 @@ impl ImageFrame {
 
 /// Decodes an image file's bytes (PNG, JPEG or GIF, the format read from the bytes) to
 /// 8-bit RGB. Its size is read from its header first and checked against `limits`
-/// ([`Limits::image`]); the decoder itself is held to the same budget.
+/// ([`Limits::image`]); the decoder itself is held to the same budget. A panic in a
+/// decoder (the image crate's) is an undecodable image, not the end of the service:
+/// zune-jpeg overflows on a crafted JPEG's DC coefficient, a panic where overflow is
+/// checked (`fuzz/regressions/sensor_image`).
 pub fn decode_bytes(bytes: &[u8], limits: &Limits) -> Result<image::RgbImage, String> {
+    posestream_math::error::contain_panics(|| decode_within(bytes, limits))
+        .map_err(|panic| format!("the image decoder failed: {panic}"))?
+}
+
+fn decode_within(bytes: &[u8], limits: &Limits) -> Result<image::RgbImage, String> {
     let reader = || {
         image::ImageReader::new(std::io::Cursor::new(bytes))
             .with_guessed_format()
