@@ -310,6 +310,38 @@ fn a_blocking_source_awaited_goes_on_after_a_refusal_and_ends_where_it_breaks() 
     assert_eq!(source.recv(wait).expect("recv"), Received::Closed);
 }
 
+/// A source that has one message, then panics.
+struct Panicking(u32);
+
+impl Source<Skeleton3D> for Panicking {
+    fn recv(&mut self, _: Duration) -> Result<Received<Skeleton3D>, TransportError> {
+        self.0 += 1;
+        match self.0 {
+            1 => Ok(Received::Message(skeleton(1), 1)),
+            _ => panic!("the source's own bug"),
+        }
+    }
+}
+
+#[test]
+fn a_blocking_source_whose_thread_panics_is_broken_not_closed() {
+    let mut source = Awaited::new(Blocking::spawn("panicking", Panicking(0), 1).expect("thread"));
+    let wait = Duration::from_secs(5);
+    assert_eq!(
+        source.recv(wait).expect("recv"),
+        Received::Message(skeleton(1), 1)
+    );
+    // A panic is not the end of the input: whoever reads on must not take the
+    // recording as complete.
+    match source.recv(wait) {
+        Err(TransportError::Broken { reason, .. }) => {
+            assert!(reason.contains("the source's own bug"), "{reason}");
+        }
+        other => panic!("expected a broken source, got {other:?}"),
+    }
+    assert_eq!(source.recv(wait).expect("recv"), Received::Closed);
+}
+
 /// An iceoryx2 service name of our own per test process and test.
 fn service(name: &str) -> String {
     format!("posestream-test/{}/{name}", std::process::id())
@@ -411,6 +443,88 @@ fn cyclonedds_python_client_decodes_our_ros2_skeletons() {
     let decoded = client.collect_while_publishing(sink, Duration::from_millis(50));
     drop(ros);
     decoded.iter().for_each(assert_is_our_skeleton);
+}
+
+/// A matched reliable reader that stops acknowledging (its process stopped) fills the
+/// writer's reliable window. An awaited publish then fails after the 100 ms the
+/// blocking send waits, as that one does. (RustDDS's own async wait looks at its limit
+/// only when something wakes it, about every 3 s here: 3 s per publish, for as long as
+/// the reader stays matched, held a node's output, its solver and its stop.)
+#[test]
+fn an_awaited_publish_gives_up_on_a_reader_that_stopped_acknowledging() {
+    let d = domain(4);
+    let topic = "/posestream/stalled";
+    let mut client = PythonSubscriber::start(
+        "ros2_skeleton_subscriber.py",
+        &[&d.to_string(), topic, "1000000", "60"],
+        "cyclonedds",
+    );
+    let mut ros = loopback(d, "stalled_pub");
+    let mut sink = ros.sink::<Skeleton3D>(topic).expect("publisher");
+    // Publish until the client has one: matched both ways.
+    let matched = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let publishing = {
+        let matched = matched.clone();
+        common::spawn("publisher", move || {
+            let mut seq = 0;
+            while !matched.load(std::sync::atomic::Ordering::Relaxed) && seq < 600 {
+                let _ = sink.send(&skeleton(seq), 0);
+                seq += 1;
+                std::thread::sleep(Duration::from_millis(50));
+            }
+            sink
+        })
+    };
+    let first = client.lines.next();
+    matched.store(true, std::sync::atomic::Ordering::Relaxed);
+    let sink = publishing.join().expect("publisher");
+    assert!(matches!(first, Some(Ok(_))), "the client received nothing");
+    let stopped = Command::new("kill")
+        .args(["-STOP", &client.child.id().to_string()])
+        .status()
+        .expect("kill");
+    assert!(stopped.success());
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_time()
+        .build()
+        .expect("runtime");
+    // RustDDS lets 8192 samples go unacknowledged (its reliable window, not the
+    // history depth); past them a publish waits for room. Well within the reader's
+    // lease (10 s): publish until 10 publishes have failed. The outer limit, 2 s, is
+    // also what wakes RustDDS's wait: without a limit of our own, a publish ends only
+    // there.
+    let (mut failed, mut longest) = (0, Duration::ZERO);
+    for seq in 1000..20_000 {
+        let began = Instant::now();
+        let sent = runtime.block_on(async {
+            tokio::time::timeout(Duration::from_secs(2), sink.send_async(&skeleton(seq))).await
+        });
+        match sent {
+            Ok(Ok(())) => {}
+            Ok(Err(TransportError::Send { .. })) => {
+                failed += 1;
+                longest = longest.max(began.elapsed());
+            }
+            Ok(Err(e)) => panic!("unexpected error {e}"),
+            Err(_) => {
+                let _ = client.child.kill();
+                panic!("publish {seq} still waiting after 2 s for a reader that stopped");
+            }
+        }
+        if failed == 10 {
+            break;
+        }
+    }
+    let _ = client.child.kill();
+    let _ = client.child.wait();
+    assert!(
+        failed > 0,
+        "the window never filled: the test proves nothing"
+    );
+    assert!(
+        longest < Duration::from_millis(500),
+        "a publish to a full window took {longest:?} to fail (the limit is 100 ms)"
+    );
 }
 
 /// A Python client printing `ready`, then one JSON line per message it decoded.

@@ -29,6 +29,9 @@ use posestream_math::error::{OutOfDomain, check_range};
 
 const TRANSPORT: &str = "ros2";
 
+/// How long a publish waits for room in a full reliable history before it fails.
+const FULL_WAIT: Duration = Duration::from_millis(100);
+
 /// `[ros]` in the configuration.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -160,7 +163,7 @@ impl QosSettings {
             });
         match self.reliability {
             ReliabilityKind::Reliable => profile.reliability(Reliability::Reliable {
-                when_full: WhenFull::Wait(Duration::from_millis(100)),
+                when_full: WhenFull::Wait(FULL_WAIT),
             }),
             ReliabilityKind::BestEffort => profile.reliability(Reliability::BestEffort),
         }
@@ -342,17 +345,23 @@ pub struct Ros2Sink<M: Message> {
 
 impl<M: Message> Ros2Sink<M> {
     /// Publishes on a runtime: where [`Sink::send`] blocks the thread while a reliable
-    /// history is full (up to 100 ms, then fails), this waits for room without blocking
-    /// the runtime.
+    /// history is full (up to 100 ms, then fails), this waits for room as long without
+    /// blocking the runtime, then fails the same way. (RustDDS's own async wait looks
+    /// at its time limit only when woken, and a matched reader that stops
+    /// acknowledging never wakes it: the limit is kept here.)
     pub async fn send_async(&self, message: &M) -> Result<(), TransportError> {
-        self.publisher
-            .async_publish(message.clone())
-            .await
-            .map_err(|e| TransportError::Send {
-                transport: TRANSPORT,
-                topic: self.topic.clone(),
-                reason: e.to_string(),
-            })
+        let failed = |reason: String| TransportError::Send {
+            transport: TRANSPORT,
+            topic: self.topic.clone(),
+            reason,
+        };
+        match tokio::time::timeout(FULL_WAIT, self.publisher.async_publish(message.clone())).await {
+            Ok(sent) => sent.map_err(|e| failed(e.to_string())),
+            Err(_) => Err(failed(format!(
+                "the reliable history stayed full for {} ms",
+                FULL_WAIT.as_millis()
+            ))),
+        }
     }
 }
 

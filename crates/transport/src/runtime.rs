@@ -8,9 +8,12 @@
 //!   whose waits are blocking calls) becomes one through [`Blocking`]: it runs on a
 //!   named thread of its own and hands its messages over a bounded channel.
 //!
-//! Sinks need no async side: the ROS 2 one publishes without waiting
-//! ([`Ros2Sink::send_async`](crate::ros2::Ros2Sink::send_async) waits for room in a
-//! reliable history instead of blocking), the others write to memory.
+//! Of the sinks only the ROS 2 one has an async side
+//! ([`Ros2Sink::send_async`](crate::ros2::Ros2Sink::send_async): while a reliable
+//! history is full it waits for room without blocking the runtime, as long as the
+//! blocking send would, then fails). The others are called as they are: the in-memory
+//! channel and iceoryx2 write to memory, an MCAP recording writes its file (a chunk at
+//! a time) on the runtime's thread.
 //!
 //! ```
 //! use posestream_msgs::Skeleton3D;
@@ -47,9 +50,15 @@ const POLL: Duration = Duration::from_millis(100);
 /// Where messages of type `M` come from, awaited on a runtime.
 pub trait AsyncSource<M>: Send {
     /// The next message, or [`Received::Closed`] once nothing more will come (never
-    /// [`Received::Idle`]: a caller that wants a timeout races this with a timer).
-    /// Errors as [`Source::recv`]: after a [`TransportError::Malformed`] or
-    /// [`TransportError::BeyondLimits`] one, the next call goes on.
+    /// [`Received::Idle`]). Errors as [`Source::recv`]: after a
+    /// [`TransportError::Malformed`] or [`TransportError::BeyondLimits`] one, the next
+    /// call goes on.
+    ///
+    /// Not every source's `next` is cancel-safe: [`Blocking`]'s and the ROS 2 one's
+    /// are (a message is either returned or still there for the next call), but an
+    /// implementation may do work after taking a message (a detector paces and
+    /// publishes it), and dropping its future then loses that message. Race it with a
+    /// timer only where losing one is acceptable (at a stop).
     fn next(&mut self) -> impl Future<Output = Result<Received<M>, TransportError>> + Send;
 }
 
@@ -64,11 +73,13 @@ impl<M, S: AsyncSource<M> + ?Sized> AsyncSource<M> for &mut S {
 /// messages wait; then the thread waits, as the source's own sender would). The thread
 /// ends when the source closes or breaks, or when this is dropped: the drop waits for
 /// it (at most one wait of the source, 100 ms, and the message it is taking), so that
-/// the source is gone before what it was opened from.
+/// the source is gone before what it was opened from. A panic on that thread is a
+/// [`TransportError::Broken`] source, never a clean end.
 #[derive(Debug)]
 pub struct Blocking<M> {
     receiver: mpsc::Receiver<Result<Received<M>, TransportError>>,
     thread: Option<std::thread::JoinHandle<()>>,
+    name: String,
 }
 
 impl<M> Drop for Blocking<M> {
@@ -115,14 +126,30 @@ impl<M: Send + 'static> Blocking<M> {
         Ok(Self {
             receiver,
             thread: Some(thread),
+            name: name.to_string(),
         })
     }
 }
 
 impl<M: Send> AsyncSource<M> for Blocking<M> {
     async fn next(&mut self) -> Result<Received<M>, TransportError> {
-        // The thread gone without a word (it ends after Closed or a broken source,
-        // whose error came first) is the end of the source.
-        self.receiver.recv().await.unwrap_or(Ok(Received::Closed))
+        if let Some(got) = self.receiver.recv().await {
+            return got;
+        }
+        // The thread is gone: after Closed or a broken source (whose word came
+        // first), or in a panic, which is said once; then the source is closed. The
+        // sender is dropped as the thread ends, so the join waits no longer than its
+        // unwinding.
+        match self.thread.take().map(std::thread::JoinHandle::join) {
+            Some(Err(payload)) => Err(TransportError::Broken {
+                transport: "runtime",
+                topic: format!("posestream-{}", self.name),
+                reason: format!(
+                    "the source's thread panicked: {}",
+                    posestream_math::error::panic_text(payload.as_ref())
+                ),
+            }),
+            _ => Ok(Received::Closed),
+        }
     }
 }

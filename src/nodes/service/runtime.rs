@@ -52,20 +52,30 @@ enum Work {
     Tick,
 }
 
-/// Returns once `stop` is set, looking every [`POLL`]; meanwhile offers each look to
-/// `ticks` (the solver's idle timer), if given: a full channel gives the solver work
-/// enough, and a stop is never kept waiting behind it.
-async fn ticking(stop: &AtomicBool, ticks: Option<&mpsc::Sender<Work>>) {
+/// An interval of [`POLL`] whose late ticks are not made up for.
+fn every_poll() -> tokio::time::Interval {
     let mut tick = tokio::time::interval(POLL);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    tick
+}
+
+/// Returns once `stop` is set, looking every [`POLL`].
+async fn stopped(stop: &AtomicBool) {
+    let mut tick = every_poll();
+    while !stop.load(Ordering::Relaxed) {
+        tick.tick().await;
+    }
+}
+
+/// Offers the solver a [`Work::Tick`] (its idle timer) every [`POLL`]: a full channel
+/// gives it work enough. Returns once the solver is gone (it panicked), so that a
+/// quiet input does not hide that.
+async fn ticking(ticks: &mpsc::Sender<Work>) {
+    let mut tick = every_poll();
     loop {
         tick.tick().await;
-        if stop.load(Ordering::Relaxed) {
+        if let Err(mpsc::error::TrySendError::Closed(_)) = ticks.try_send(Work::Tick) {
             return;
-        }
-        if let Some(ticks) = ticks {
-            // Full or gone (the solver died: the reading ends on its next send).
-            let _ = ticks.try_send(Work::Tick);
         }
     }
 }
@@ -106,11 +116,19 @@ pub fn run_estimator_on_runtime(
             .map_err(|_| ServiceError::Thread("solver"))?;
         let input = async move {
             let ticks = work.clone();
-            // Never cancelled but by a stop: a source's `next` may be in the middle of
-            // a message (pacing it, recording it).
             let reading = async {
+                // A stop ends the wait for the next message (a source in the middle of
+                // one, pacing or publishing it, is cut off there: see
+                // `AsyncSource::next`); a message already taken still goes to the
+                // solver.
+                let stopping = stopped(stop);
+                tokio::pin!(stopping);
                 loop {
-                    let next = match source.next().await {
+                    let got = tokio::select! {
+                        got = source.next() => got,
+                        () = &mut stopping => return None,
+                    };
+                    let next = match got {
                         Ok(Received::Message(maps, stamp)) => Work::Frame(maps, stamp),
                         Ok(Received::Idle) => continue,
                         Ok(Received::Closed) => return None,
@@ -129,7 +147,8 @@ pub fn run_estimator_on_runtime(
             };
             tokio::select! {
                 input_error = reading => input_error,
-                () = ticking(stop, Some(&ticks)) => None,
+                // The solver gone: the join below says why.
+                () = ticking(&ticks) => None,
             }
             // Dropping the senders ends the solver: it finishes the track, closes `done`.
         };
@@ -351,7 +370,7 @@ pub fn run_detector_on_runtime(
         let reading = async { while let Ok(Received::Message(..)) = side.next().await {} };
         tokio::select! {
             () = reading => {}
-            () = ticking(stop, None) => {}
+            () = stopped(stop) => {}
         }
     });
     Ok(side.conclude())
@@ -363,4 +382,31 @@ fn runtime() -> Result<tokio::runtime::Runtime, ServiceError> {
         .enable_time()
         .build()
         .map_err(ServiceError::Runtime)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_idle_timer_ends_when_the_solver_is_gone() {
+        let (ticks, solver) = mpsc::channel::<Work>(1);
+        drop(solver);
+        let ended = runtime()
+            .expect("runtime")
+            .block_on(async { tokio::time::timeout(POLL * 10, ticking(&ticks)).await });
+        assert!(
+            ended.is_ok(),
+            "the timer ticks on for a solver that is gone"
+        );
+    }
+
+    #[test]
+    fn the_wait_for_a_stop_ends_once_it_is_set() {
+        let stop = AtomicBool::new(true);
+        let ended = runtime()
+            .expect("runtime")
+            .block_on(async { tokio::time::timeout(POLL * 10, stopped(&stop)).await });
+        assert!(ended.is_ok());
+    }
 }
