@@ -358,7 +358,8 @@ impl<M: Message> Ros2Sink<M> {
         match tokio::time::timeout(FULL_WAIT, self.publisher.async_publish(message.clone())).await {
             Ok(sent) => sent.map_err(|e| failed(e.to_string())),
             Err(_) => Err(failed(format!(
-                "the reliable history stayed full for {} ms",
+                "no room for the message in {} ms (readers behind on acknowledgements, or \
+                 the network on sending)",
                 FULL_WAIT.as_millis()
             ))),
         }

@@ -138,8 +138,8 @@ impl<M: Send> AsyncSource<M> for Blocking<M> {
         }
         // The thread is gone: after Closed or a broken source (whose word came
         // first), or in a panic, which is said once; then the source is closed. The
-        // sender is dropped as the thread ends, so the join waits no longer than its
-        // unwinding.
+        // sender is dropped as the thread leaves its loop, so the join waits only for
+        // the rest of its end: the source's own drop (a camera's, a detector's).
         match self.thread.take().map(std::thread::JoinHandle::join) {
             Some(Err(payload)) => Err(TransportError::Broken {
                 transport: "runtime",

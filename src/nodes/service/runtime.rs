@@ -125,8 +125,10 @@ pub fn run_estimator_on_runtime(
                 tokio::pin!(stopping);
                 loop {
                     let got = tokio::select! {
-                        got = source.next() => got,
+                        // A source that always has a message does not delay a stop.
+                        biased;
                         () = &mut stopping => return None,
+                        got = source.next() => got,
                     };
                     let next = match got {
                         Ok(Received::Message(maps, stamp)) => Work::Frame(maps, stamp),
