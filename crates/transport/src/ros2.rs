@@ -344,20 +344,24 @@ pub struct Ros2Sink<M: Message> {
 }
 
 impl<M: Message> Ros2Sink<M> {
+    /// A failed send on this topic.
+    fn failed(&self, reason: String) -> TransportError {
+        TransportError::Send {
+            transport: TRANSPORT,
+            topic: self.topic.clone(),
+            reason,
+        }
+    }
+
     /// Publishes on a runtime: where [`Sink::send`] blocks the thread while a reliable
     /// history is full (up to 100 ms, then fails), this waits for room as long without
     /// blocking the runtime, then fails the same way. (RustDDS's own async wait looks
     /// at its time limit only when woken, and a matched reader that stops
     /// acknowledging never wakes it: the limit is kept here.)
     pub async fn send_async(&self, message: &M) -> Result<(), TransportError> {
-        let failed = |reason: String| TransportError::Send {
-            transport: TRANSPORT,
-            topic: self.topic.clone(),
-            reason,
-        };
         match tokio::time::timeout(FULL_WAIT, self.publisher.async_publish(message.clone())).await {
-            Ok(sent) => sent.map_err(|e| failed(e.to_string())),
-            Err(_) => Err(failed(format!(
+            Ok(sent) => sent.map_err(|e| self.failed(e.to_string())),
+            Err(_) => Err(self.failed(format!(
                 "no room for the message in {} ms (readers behind on acknowledgements, or \
                  the network on sending)",
                 FULL_WAIT.as_millis()
@@ -371,11 +375,7 @@ impl<M: Message> Sink<M> for Ros2Sink<M> {
     fn send(&mut self, message: &M, _stamp_ns: u64) -> Result<(), TransportError> {
         self.publisher
             .publish(message.clone())
-            .map_err(|e| TransportError::Send {
-                transport: TRANSPORT,
-                topic: self.topic.clone(),
-                reason: e.to_string(),
-            })
+            .map_err(|e| self.failed(e.to_string()))
     }
 }
 

@@ -79,7 +79,6 @@ impl<M, S: AsyncSource<M> + ?Sized> AsyncSource<M> for &mut S {
 pub struct Blocking<M> {
     receiver: mpsc::Receiver<Result<Received<M>, TransportError>>,
     thread: Option<std::thread::JoinHandle<()>>,
-    name: String,
 }
 
 impl<M> Drop for Blocking<M> {
@@ -126,7 +125,6 @@ impl<M: Send + 'static> Blocking<M> {
         Ok(Self {
             receiver,
             thread: Some(thread),
-            name: name.to_string(),
         })
     }
 }
@@ -140,16 +138,24 @@ impl<M: Send> AsyncSource<M> for Blocking<M> {
         // first), or in a panic, which is said once; then the source is closed. The
         // sender is dropped as the thread leaves its loop, so the join waits only for
         // the rest of its end: the source's own drop (a camera's, a detector's).
-        match self.thread.take().map(std::thread::JoinHandle::join) {
-            Some(Err(payload)) => Err(TransportError::Broken {
+        let Some(thread) = self.thread.take() else {
+            return Ok(Received::Closed);
+        };
+        let name = thread
+            .thread()
+            .name()
+            .unwrap_or("posestream-source")
+            .to_string();
+        match thread.join() {
+            Err(payload) => Err(TransportError::Broken {
                 transport: "runtime",
-                topic: format!("posestream-{}", self.name),
+                topic: name,
                 reason: format!(
                     "the source's thread panicked: {}",
                     posestream_math::error::panic_text(payload.as_ref())
                 ),
             }),
-            _ => Ok(Received::Closed),
+            Ok(()) => Ok(Received::Closed),
         }
     }
 }
