@@ -267,3 +267,42 @@ fn bad_inputs_give_one_error_line_and_no_panic() {
         );
     }
 }
+
+/// `--duration` of the service commands: a value that is not a finite number of seconds
+/// in its domain is refused by the argument parser (exit 2, naming the option), before
+/// anything starts. `1e30` panicked (`record`: exit 101 and a `.partial` left; `estimator`:
+/// its timer thread died and it ran on until a signal), `nan` and `inf` meant "forever".
+#[test]
+fn a_duration_out_of_its_domain_is_refused_before_anything_starts() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().join("out.mcap");
+    for value in ["1e30", "nan", "inf", "1e10"] {
+        for args in [
+            vec!["estimator", "--duration", value],
+            vec!["record", "--duration", value, out.to_str().expect("utf-8")],
+        ] {
+            let mut child = Command::new(env!("CARGO_BIN_EXE_posestream"))
+                .args(&args)
+                .current_dir(common::root())
+                .stdout(std::process::Stdio::null())
+                .stderr(std::process::Stdio::piped())
+                .spawn()
+                .expect("posestream");
+            let until = std::time::Instant::now() + std::time::Duration::from_secs(10);
+            while child.try_wait().expect("wait").is_none() && std::time::Instant::now() < until {
+                std::thread::sleep(std::time::Duration::from_millis(50));
+            }
+            let _ = child.kill();
+            let output = child.wait_with_output().expect("output");
+            let stderr = String::from_utf8_lossy(&output.stderr);
+            assert_eq!(output.status.code(), Some(2), "{args:?}: {stderr}");
+            assert!(stderr.contains("--duration"), "{args:?}: {stderr}");
+            assert!(!stderr.contains("panicked"), "{args:?}: {stderr}");
+        }
+    }
+    assert_eq!(
+        std::fs::read_dir(dir.path()).expect("dir").count(),
+        0,
+        "files left"
+    );
+}

@@ -1,6 +1,7 @@
 //! `posestream estimator`: the estimator node as a service.
 
 use std::path::PathBuf;
+use std::time::Duration;
 
 use clap::Args;
 use posestream::nodes::config::Transport;
@@ -19,9 +20,9 @@ pub struct EstimatorArgs {
     /// Where to read heat maps (overrides `estimator.input`).
     #[arg(long, value_enum)]
     pub input: Option<Transport>,
-    /// Stop after this many seconds (default: until Ctrl-C).
-    #[arg(long)]
-    pub duration: Option<f64>,
+    /// Stop after this many seconds, 0 to 1e9 (default: until Ctrl-C).
+    #[arg(long, value_parser = super::service::seconds)]
+    pub duration: Option<Duration>,
     /// Print the report as JSON.
     #[arg(long)]
     pub json: bool,

@@ -26,9 +26,9 @@ pub struct RecordArgs {
     /// Topics to record.
     #[arg(long, value_enum, value_delimiter = ',', default_values = ["skeletons", "markers"])]
     pub topics: Vec<RecordTopic>,
-    /// Stop after this many seconds (default: until Ctrl-C).
-    #[arg(long)]
-    pub duration: Option<f64>,
+    /// Stop after this many seconds, 0 to 1e9 (default: until Ctrl-C).
+    #[arg(long, value_parser = super::service::seconds)]
+    pub duration: Option<Duration>,
     /// Stop after this many messages.
     #[arg(long)]
     pub count: Option<u64>,
@@ -91,11 +91,7 @@ pub fn run(args: &RecordArgs) -> Result<(), CliError> {
         };
         steps.push(step);
     }
-    let duration = args
-        .duration
-        .filter(|d| d.is_finite() && *d >= 0.0)
-        .map(Duration::from_secs_f64);
-    let messages = service::run_recorder(&mut steps, &stop, duration, args.count);
+    let messages = service::run_recorder(&mut steps, &stop, args.duration, args.count);
     drop(steps);
     let summary = recorder.finish()?;
     if args.rosbag2 {

@@ -27,14 +27,29 @@ pub(crate) fn stop_flag() -> Arc<AtomicBool> {
     stop
 }
 
-/// Sets `stop` after `seconds`, if given.
-pub(crate) fn stop_after(seconds: Option<f64>, stop: &Arc<AtomicBool>) {
-    if let Some(s) = seconds.filter(|s| s.is_finite() && *s >= 0.0) {
+/// The most `--duration` may say: 1e9 s, about 31 years.
+const MAX_SECONDS: f64 = 1e9;
+
+/// `--duration`'s parser: a finite number of seconds from 0 to [`MAX_SECONDS`]; anything
+/// else (NaN, infinite, negative, beyond) is refused with the domain, before the command
+/// starts.
+pub(crate) fn seconds(text: &str) -> Result<Duration, String> {
+    let domain = || format!("expected seconds from 0 to {MAX_SECONDS:e}");
+    let value: f64 = text.parse().map_err(|_| domain())?;
+    if !(0.0..=MAX_SECONDS).contains(&value) {
+        return Err(domain());
+    }
+    Ok(Duration::from_secs_f64(value))
+}
+
+/// Sets `stop` after `duration`, if given.
+pub(crate) fn stop_after(duration: Option<Duration>, stop: &Arc<AtomicBool>) {
+    if let Some(duration) = duration {
         let stop = stop.clone();
         let _ = std::thread::Builder::new()
             .name("timer".into())
             .spawn(move || {
-                std::thread::sleep(Duration::from_secs_f64(s));
+                std::thread::sleep(duration);
                 stop.store(true, Ordering::Relaxed);
             });
     }
