@@ -31,7 +31,7 @@ fn skeleton(seq: u64) -> Skeleton3D {
         sequence: seq,
         joint_names: (0..p).map(|j| format!("joint{j}")).collect(),
         positions: vec![0.5; 3 * p],
-        position_std: vec![0.01; p],
+        position_std: vec![0.01; 3 * p],
         keypoints: vec![100.0; 2 * p],
         keypoint_std: vec![1.0; p],
         projected: vec![100.0; 2 * p],

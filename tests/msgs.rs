@@ -23,6 +23,10 @@ fn every_msg_file_declares_exactly_the_fields_of_its_rust_type() {
         parse_definition(Skeleton3D::DEFINITION),
         fields_of::<Skeleton3D>()
     );
+    assert_eq!(
+        parse_definition(msgs::Skeleton3DArray::DEFINITION),
+        fields_of::<msgs::Skeleton3DArray>()
+    );
     assert_eq!(parse_definition(Header::DEFINITION), fields_of::<Header>());
     assert_eq!(parse_definition(Time::DEFINITION), fields_of::<Time>());
     use posestream::msgs::visualization as v;
@@ -48,6 +52,14 @@ fn every_msg_file_declares_exactly_the_fields_of_its_rust_type() {
         fields_of::<sensor::Image>()
     );
     assert_eq!(
+        parse_definition(sensor::CameraInfo::DEFINITION),
+        fields_of::<sensor::CameraInfo>()
+    );
+    assert_eq!(
+        parse_definition(sensor::RegionOfInterest::DEFINITION),
+        fields_of::<sensor::RegionOfInterest>()
+    );
+    assert_eq!(
         parse_definition(v::MeshFile::DEFINITION),
         fields_of::<v::MeshFile>()
     );
@@ -56,6 +68,10 @@ fn every_msg_file_declares_exactly_the_fields_of_its_rust_type() {
     for (file, text) in [
         ("msgs/msg/HeatMaps.msg", HeatMaps::DEFINITION),
         ("msgs/msg/Skeleton3D.msg", Skeleton3D::DEFINITION),
+        (
+            "msgs/msg/Skeleton3DArray.msg",
+            msgs::Skeleton3DArray::DEFINITION,
+        ),
     ] {
         let cmake = std::fs::read_to_string(root.join("msgs/CMakeLists.txt")).expect("cmake");
         assert!(cmake.contains(file.trim_start_matches("msgs/")), "{file}");

@@ -189,7 +189,15 @@ fn a_killed_recorder_leaves_every_complete_chunk_readable() {
     for m in reader.by_ref() {
         match m {
             Ok(m) => {
-                msgs::decode::<Skeleton3D>(&m.data).expect("complete message");
+                match m.schema.as_str() {
+                    "posestream_msgs/msg/Skeleton3D" => {
+                        msgs::decode::<Skeleton3D>(&m.data).expect("complete message");
+                    }
+                    "posestream_msgs/msg/Skeleton3DArray" => {
+                        msgs::decode::<msgs::Skeleton3DArray>(&m.data).expect("complete message");
+                    }
+                    other => panic!("{other} on {}", m.topic),
+                }
                 n += 1;
             }
             Err(e) => ended = Some(e),

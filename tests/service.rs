@@ -303,7 +303,7 @@ fn a_malformed_ros_domain_id_is_one_clear_error() {
 }
 
 #[test]
-fn a_new_track_id_ends_the_old_track_with_its_owed_estimates() {
+fn a_new_track_id_after_a_loss_ends_the_old_track_with_its_owed_estimates() {
     let c = config();
     let mut node = EstimatorNode::from_config(&c.estimator).expect("node");
     let maps: Vec<posestream::msgs::HeatMaps> =
@@ -311,7 +311,7 @@ fn a_new_track_id_ends_the_old_track_with_its_owed_estimates() {
             .expect("reads")
             .into_iter()
             .map(|(_, m)| m)
-            .take(30)
+            .take(60)
             .collect();
     let lag = c.estimator.window.lag as u32;
     let mut out = Vec::new();
@@ -322,8 +322,9 @@ fn a_new_track_id_ends_the_old_track_with_its_owed_estimates() {
     // refined one.
     assert_eq!(out.len(), 20 + 10);
     out.clear();
-    // The detector found someone else: track 1 (the same sequence numbers go on).
-    let mut next = maps[20].clone();
+    // The detector lost the person and found someone (track 1) 31 frames later, more
+    // than the window's max_gap_seconds (1 s) after track 0's last frame.
+    let mut next = maps[51].clone();
     next.track_id = 1;
     node.handle(&next, &mut out).expect("frame");
     let (old, new): (Vec<_>, Vec<_>) = out.iter().partition(|s| s.track_id == 0);
@@ -339,9 +340,10 @@ fn a_new_track_id_ends_the_old_track_with_its_owed_estimates() {
     );
     assert!(old.iter().all(|s| s.lag < lag && s.sequence < 20));
     assert_eq!(new.len(), 1);
-    assert_eq!((new[0].sequence, new[0].lag), (20, 0));
+    assert_eq!((new[0].sequence, new[0].lag), (51, 0));
     assert_eq!(
         new[0].state,
         posestream::msgs::SkeletonState::Initialising as u8
     );
+    assert_eq!(node.tracks(), 1);
 }

@@ -31,7 +31,7 @@ fn skeleton(seq: u64) -> Skeleton3D {
         joint_names: (0..p).map(|j| format!("joint{j}")).collect(),
         units: 1,
         positions: (0..3 * p).map(|i| f + i as f64 * 0.25).collect(),
-        position_std: (0..p).map(|i| 0.01 * (i as f64 + f)).collect(),
+        position_std: (0..3 * p).map(|i| 0.01 * (i as f64 + f)).collect(),
         keypoints: (0..2 * p).map(|i| 100.0 + f + i as f64).collect(),
         keypoint_std: (0..p).map(|i| 1.5 + i as f64).collect(),
         projected: (0..2 * p).map(|i| 101.0 + f - i as f64).collect(),

@@ -5,11 +5,12 @@ use std::path::PathBuf;
 
 use clap::Args;
 use posestream::mocap::{Bvh, SkeletonMapping};
+use posestream::msgs::sensor::CameraInfo;
 use posestream::msgs::{self, Header, HeatMapEncoding, Skeleton3D, SkeletonState, Time, Units};
 use posestream::nodes::config::Topics;
 use posestream::npy;
 use posestream::recording::Recorder;
-use posestream::synth::{self, CameraSpec, ErrorModel, Projection, heatmaps};
+use posestream::synth::{self, CameraSpec, ErrorModel, Placement, Projection, heatmaps};
 
 use super::CliError;
 
@@ -111,23 +112,30 @@ impl ErrorArgs {
 #[derive(Debug, Args)]
 #[command(allow_negative_numbers = true)]
 pub struct SynthArgs {
-    /// The motion (BVH).
-    #[arg(long)]
-    pub bvh: PathBuf,
+    /// The motion (BVH). Repeated: several people in one scene, seen by the camera the
+    /// first one places (each later one placed by a `--place`).
+    #[arg(long, required = true, num_args = 1)]
+    pub bvh: Vec<PathBuf>,
+    /// Where the second, third, ... person starts and goes, relative to the first's
+    /// start as it first faces: `ahead,left[,turn[,ahead_speed,left_speed]]` (metres,
+    /// degrees counter-clockwise, metres per second). One per `--bvh` after the first.
+    #[arg(long, value_parser = placement)]
+    pub place: Vec<Placement>,
     /// Skeleton mapping of the BVH (config/skeletons/*.toml).
     #[arg(long)]
     pub mapping: PathBuf,
-    /// Output folder.
+    /// Output folder (several people: a folder `person-<i>` each).
     #[arg(long)]
     pub out: PathBuf,
     /// First frame.
     #[arg(long, default_value_t = 0)]
     pub start: usize,
-    /// Frames (0 = to the end).
+    /// Frames (0 = to the end; several people: to the end of the shortest take).
     #[arg(long, default_value_t = 0)]
     pub frames: usize,
     /// Also write an MCAP recording (rosbag2-compatible) of the heat maps on
-    /// `/posestream/heatmaps` and the ground truth on `/posestream/ground_truth`.
+    /// `/posestream/heatmaps`, the ground truth on `/posestream/ground_truth` (track id
+    /// = person) and a pinhole camera's `sensor_msgs/CameraInfo` on `/camera/camera_info`.
     #[arg(long)]
     pub mcap: Option<PathBuf>,
     /// Heat maps in the recording as u8 with a scale (4x smaller) instead of f32.
@@ -142,6 +150,46 @@ pub struct SynthArgs {
     pub errors: ErrorArgs,
 }
 
+/// `--place`: `ahead,left[,turn[,ahead_speed,left_speed]]`, every number finite.
+fn placement(text: &str) -> Result<Placement, String> {
+    let v: Vec<f64> = text
+        .split(',')
+        .map(|x| x.trim().parse::<f64>().map_err(|e| format!("{x:?}: {e}")))
+        .collect::<Result<_, _>>()?;
+    if v.iter().any(|x| !x.is_finite() || x.abs() > 1e4) {
+        return Err("every number must be finite, at most 1e4 in size".into());
+    }
+    match v[..] {
+        [ahead, left] => Ok(Placement {
+            ahead,
+            left,
+            turn_deg: 0.0,
+            velocity: [0.0; 2],
+        }),
+        [ahead, left, turn_deg] => Ok(Placement {
+            ahead,
+            left,
+            turn_deg,
+            velocity: [0.0; 2],
+        }),
+        [ahead, left, turn_deg, va, vl] => Ok(Placement {
+            ahead,
+            left,
+            turn_deg,
+            velocity: [va, vl],
+        }),
+        _ => Err("expected ahead,left[,turn[,ahead_speed,left_speed]]".into()),
+    }
+}
+
+/// One person of the scene, seen by the camera.
+struct Person {
+    view: synth::View,
+    frame_time: f64,
+    boxes: Vec<posestream::CropBox>,
+    rendered: heatmaps::RenderedMaps,
+}
+
 /// Runs `synth`.
 pub fn run(args: &SynthArgs) -> Result<(), CliError> {
     if !(args.margin.is_finite() && args.margin >= 1.0) {
@@ -150,31 +198,101 @@ pub fn run(args: &SynthArgs) -> Result<(), CliError> {
             args.margin
         )));
     }
+    if args.place.len() + 1 != args.bvh.len() {
+        return Err(CliError::Usage(format!(
+            "{} --bvh need {} --place (one per person after the first), got {}",
+            args.bvh.len(),
+            args.bvh.len() - 1,
+            args.place.len()
+        )));
+    }
     let cam = args.camera.spec();
     cam.validate().map_err(CliError::Usage)?;
     let model = args.errors.model();
     model.validate().map_err(CliError::Usage)?;
     let mapping = SkeletonMapping::load(&args.mapping)?;
-    let bvh = Bvh::load(&args.bvh)?;
-    let seq = mapping.apply(&bvh, &args.bvh.display().to_string())?;
     let len = if args.frames == 0 {
         usize::MAX
     } else {
         args.frames
     };
-    let seq = seq.frames_from(args.start, len).ok_or_else(|| {
-        CliError::Usage(format!(
-            "--start {} is past the last frame ({} frames)",
-            args.start, seq.frames
-        ))
-    })?;
+    let mut takes = Vec::new();
+    for path in &args.bvh {
+        let bvh = Bvh::load(path)?;
+        let seq = mapping.apply(&bvh, &path.display().to_string())?;
+        let seq = seq.frames_from(args.start, len).ok_or_else(|| {
+            CliError::Usage(format!(
+                "--start {} is past the last frame of {} ({} frames)",
+                args.start,
+                path.display(),
+                seq.frames
+            ))
+        })?;
+        takes.push(seq);
+    }
+    let frames = takes.iter().map(|s| s.frames).min().unwrap_or(0);
+    for t in &mut takes {
+        *t = t.frames_from(0, frames).expect("every take has frames");
+    }
     let skel = &mapping.layout;
-    let view = synth::view(&seq, skel, &cam).map_err(CliError::Failed)?;
-    let boxes = synth::crop_boxes(&view.image_2d, view.joints, args.margin);
-    let rendered = heatmaps::render(&view.image_2d, &boxes, skel, &model)?;
+    let first = takes[0].clone();
+    let mut people = Vec::new();
+    for (i, take) in takes.iter().enumerate() {
+        let placed = match i {
+            0 => first.clone(),
+            _ => synth::place(&first, take, skel, &args.place[i - 1]).map_err(CliError::Failed)?,
+        };
+        let view = synth::view_from(&first, &placed, skel, &cam).map_err(CliError::Failed)?;
+        let boxes = synth::crop_boxes(&view.image_2d, view.joints, args.margin);
+        // Each person's detector errors drawn apart.
+        let model = ErrorModel {
+            seed: model.seed.wrapping_add(i as u64),
+            ..model.clone()
+        };
+        let rendered = heatmaps::render(&view.image_2d, &boxes, skel, &model)?;
+        people.push(Person {
+            view,
+            frame_time: take.frame_time,
+            boxes,
+            rendered,
+        });
+    }
+    for (i, person) in people.iter().enumerate() {
+        let dir = if people.len() == 1 {
+            args.out.clone()
+        } else {
+            args.out.join(format!("person-{i}"))
+        };
+        write_npy(args, &dir, person, &model, &cam, &mapping.name, skel)?;
+    }
+    if let Some(path) = &args.mcap {
+        write_recording(args, path, &people, &cam, skel)?;
+    }
+    for (i, person) in people.iter().enumerate() {
+        let e = &person.rendered.episodes;
+        println!(
+            "person {i}: {} frames of {} joints (swapped {}, occluded {}, missing {} joint-frames)",
+            person.view.frames, person.view.joints, e.swapped, e.occluded, e.missing
+        );
+    }
+    println!("-> {}", args.out.display());
+    Ok(())
+}
+
+/// A person's NPY files, `meta.json` and (pinhole) `intrinsics.json` in `dir`.
+fn write_npy(
+    args: &SynthArgs,
+    dir: &std::path::Path,
+    person: &Person,
+    model: &ErrorModel,
+    cam: &CameraSpec,
+    mapping: &str,
+    skel: &posestream::Skeleton,
+) -> Result<(), CliError> {
+    let (view, boxes, rendered) = (&person.view, &person.boxes, &person.rendered);
     let (f, p) = (view.frames, view.joints);
-    std::fs::create_dir_all(&args.out).map_err(|e| CliError::create(&args.out, e))?;
-    let out = |name: &str| args.out.join(name);
+    std::fs::create_dir_all(dir).map_err(|e| CliError::create(dir, e))?;
+    let out = |name: &str| dir.join(name);
     npy::write(&out("gt_3d.npy"), &[f, p, 3], &view.camera_3d)?;
     npy::write(&out("keypoints.npy"), &[f, p, 2], &view.image_2d)?;
     let flat: Vec<f64> = boxes
@@ -186,13 +304,15 @@ pub fn run(args: &SynthArgs) -> Result<(), CliError> {
     npy::write(&out("heatmaps.npy"), &[f, p, h, w], &rendered.maps.values)?;
     npy::write(&out("gt_2d_heatmap.npy"), &[f, p, 2], &rendered.truth)?;
     let k = cam.intrinsics();
+    let sources: Vec<String> = args.bvh.iter().map(|b| b.display().to_string()).collect();
     let meta = serde_json::json!({
-        "source": args.bvh.display().to_string(),
-        "mapping": mapping.name,
+        "source": if sources.len() == 1 { serde_json::json!(sources[0]) } else { serde_json::json!(sources) },
+        "placements": args.place,
+        "mapping": mapping,
         "joints": skel.joints,
         "frames": f,
         "start": args.start,
-        "frame_time": seq.frame_time,
+        "frame_time": person.frame_time,
         "camera": cam,
         "error_model": model,
         "episodes": rendered.episodes,
@@ -212,38 +332,73 @@ pub fn run(args: &SynthArgs) -> Result<(), CliError> {
             &serde_json::json!({"fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy}),
         )?;
     }
-    if let Some(path) = &args.mcap {
-        let topics = Topics::default();
-        let mut rec = Recorder::create(path)?;
-        let n = p * h * w;
-        let encoding = if args.quantize {
-            HeatMapEncoding::Uint8
-        } else {
-            HeatMapEncoding::Float32
+    Ok(())
+}
+
+/// The recording: per image, the camera's calibration (pinhole), then each person's
+/// heat maps and truth (track id = person).
+fn write_recording(
+    args: &SynthArgs,
+    path: &std::path::Path,
+    people: &[Person],
+    cam: &CameraSpec,
+    skel: &posestream::Skeleton,
+) -> Result<(), CliError> {
+    let topics = Topics::default();
+    let mut rec = Recorder::create(path)?;
+    let [h, w] = args.errors.model().size;
+    let p = skel.len();
+    let n = p * h * w;
+    let encoding = if args.quantize {
+        HeatMapEncoding::Uint8
+    } else {
+        HeatMapEncoding::Float32
+    };
+    let k = cam.intrinsics();
+    let frames = people[0].view.frames;
+    let frame_time = people[0].frame_time;
+    for t in 0..frames {
+        let stamp_ns = (t as f64 * frame_time * 1e9).round() as i64;
+        let header = Header {
+            stamp: Time::from_nanos(stamp_ns),
+            frame_id: "camera".into(),
         };
-        for t in 0..f {
-            let stamp_ns = (t as f64 * seq.frame_time * 1e9).round() as i64;
-            let header = Header {
-                stamp: Time::from_nanos(stamp_ns),
-                frame_id: "camera".into(),
+        if cam.projection == Projection::Pinhole {
+            // The calibration with every image, as a camera driver publishes it.
+            let info = CameraInfo {
+                header: header.clone(),
+                width: cam.image_size[0].round() as u32,
+                height: cam.image_size[1].round() as u32,
+                k: [k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0],
+                r: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+                p: [
+                    k.fx, 0.0, k.cx, 0.0, 0.0, k.fy, k.cy, 0.0, 0.0, 0.0, 1.0, 0.0,
+                ],
+                ..CameraInfo::default()
             };
-            let maps = msgs::HeatMaps::from_values(
+            rec.write(&topics.camera_info, stamp_ns as u64, &info)?;
+        }
+        for (i, person) in people.iter().enumerate() {
+            let view = &person.view;
+            let mut maps = msgs::HeatMaps::from_values(
                 header.clone(),
                 t as u64,
                 skel.joints.clone(),
                 h as u32,
                 w as u32,
-                boxes[t],
-                &rendered.maps.values[t * n..(t + 1) * n],
+                person.boxes[t],
+                &person.rendered.maps.values[t * n..(t + 1) * n],
                 encoding,
             );
+            maps.track_id = i as u32;
             let truth = Skeleton3D {
-                header,
+                header: header.clone(),
                 sequence: t as u64,
+                track_id: i as u32,
                 joint_names: skel.joints.clone(),
                 units: Units::Metres as u8,
                 positions: view.camera_3d[3 * p * t..3 * p * (t + 1)].to_vec(),
-                position_std: vec![0.0; p],
+                position_std: vec![0.0; 3 * p],
                 keypoints: view.image_2d[2 * p * t..2 * p * (t + 1)].to_vec(),
                 keypoint_std: vec![0.0; p],
                 projected: view.image_2d[2 * p * t..2 * p * (t + 1)].to_vec(),
@@ -253,15 +408,8 @@ pub fn run(args: &SynthArgs) -> Result<(), CliError> {
             rec.write(&topics.heatmaps, stamp_ns as u64, &maps)?;
             rec.write(&topics.ground_truth, stamp_ns as u64, &truth)?;
         }
-        rec.finish()?;
-        println!("recording -> {}", path.display());
     }
-    println!(
-        "{f} frames of {p} joints -> {} (swapped {}, occluded {}, missing {} joint-frames)",
-        args.out.display(),
-        rendered.episodes.swapped,
-        rendered.episodes.occluded,
-        rendered.episodes.missing
-    );
+    rec.finish()?;
+    println!("recording -> {}", path.display());
     Ok(())
 }

@@ -107,6 +107,10 @@ pub struct OutputsConfig {
     /// Also publish skeletons as `visualization_msgs/MarkerArray` on `topics.markers`
     /// (ROS 2 and recordings).
     pub markers: bool,
+    /// Also publish the skeletons of each image together as
+    /// `posestream_msgs/Skeleton3DArray` on `topics.skeleton_arrays` (ROS 2 and
+    /// recordings).
+    pub arrays: bool,
     /// Also record everything published to this MCAP file (empty: no recording).
     pub record: PathBuf,
 }
@@ -117,6 +121,7 @@ impl Default for OutputsConfig {
             ros2: true,
             iceoryx2: false,
             markers: true,
+            arrays: true,
             record: PathBuf::new(),
         }
     }
@@ -147,8 +152,11 @@ impl ServiceConfig {
         crate::error::check_range("repeat", self.detector.repeat, 0, 1_000_000)
             .map_err(|x| x.within("detector"))?;
         let e = &self.estimator;
+        crate::error::check_range("max_tracks", e.max_tracks, 1, 64)
+            .map_err(|x| x.within("estimator"))?;
         e.params.check().map_err(|x| x.within("estimator.params"))?;
         e.window.check().map_err(|x| x.within("estimator.window"))?;
+        e.metric.check().map_err(|x| x.within("estimator.metric"))?;
         self.detector
             .images
             .check()
@@ -157,8 +165,10 @@ impl ServiceConfig {
         for (key, topic) in [
             ("heatmaps", &t.heatmaps),
             ("skeletons", &t.skeletons),
+            ("skeleton_arrays", &t.skeleton_arrays),
             ("markers", &t.markers),
             ("ground_truth", &t.ground_truth),
+            ("camera_info", &t.camera_info),
         ] {
             check_topic_name(key, topic).map_err(|x| x.within("topics"))?;
         }
@@ -181,6 +191,11 @@ pub struct EstimatorConfig {
     pub window: StreamSettings,
     /// Where `posestream estimator` reads heat maps.
     pub input: Transport,
+    /// Tracks (people) estimated at once, each in a window of its own; a frame of one
+    /// more is refused and counted.
+    pub max_tracks: usize,
+    /// Metres in the camera frame (`[estimator.metric]`), when the camera is known.
+    pub metric: crate::metric::MetricSettings,
 }
 
 impl Default for EstimatorConfig {
@@ -190,6 +205,8 @@ impl Default for EstimatorConfig {
             params: Params::default(),
             window: StreamSettings::default(),
             input: Transport::Ros2,
+            max_tracks: super::DEFAULT_MAX_TRACKS,
+            metric: crate::metric::MetricSettings::default(),
         }
     }
 }
@@ -202,10 +219,15 @@ pub struct Topics {
     pub heatmaps: String,
     /// Skeletons from the estimator.
     pub skeletons: String,
+    /// The skeletons of each image together.
+    pub skeleton_arrays: String,
     /// The skeletons as markers for RViz2 and Foxglove.
     pub markers: String,
     /// Ground-truth skeletons in synthetic recordings.
     pub ground_truth: String,
+    /// The camera's calibration (`sensor_msgs/CameraInfo`) beside the heat maps: the
+    /// estimator's metric step takes it (ROS 2 input, recordings).
+    pub camera_info: String,
 }
 
 impl Default for Topics {
@@ -213,8 +235,10 @@ impl Default for Topics {
         Self {
             heatmaps: "/posestream/heatmaps".into(),
             skeletons: "/posestream/skeletons".into(),
+            skeleton_arrays: "/posestream/skeleton_arrays".into(),
             markers: "/posestream/markers".into(),
             ground_truth: "/posestream/ground_truth".into(),
+            camera_info: "/camera/camera_info".into(),
         }
     }
 }

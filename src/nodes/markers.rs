@@ -1,11 +1,13 @@
-//! Skeletons as `visualization_msgs/MarkerArray`, so RViz2 and Foxglove draw them: one
-//! `LINE_LIST` of the bones and one `SPHERE_LIST` of the joints per skeleton, in the
+//! Skeletons as `visualization_msgs/MarkerArray`, so RViz2 and Foxglove draw them: per
+//! skeleton a `LINE_LIST` of the bones, a `SPHERE_LIST` of the joints and a
+//! `TEXT_VIEW_FACING` label with the track id above the highest joint, in the
 //! skeleton's frame and units, namespace `posestream/lag<L>` (the newest and the refined
-//! estimate side by side), id from the track.
+//! estimate side by side), ids and colour from the track (each person a hue of their
+//! own; the newest estimate lighter than the refined one; a lost track grey).
 
 use crate::msgs::visualization::{
     ADD, ColorRGBA, Duration, LINE_LIST, Marker, MarkerArray, Point, Pose, Quaternion, SPHERE_LIST,
-    Vector3,
+    TEXT_VIEW_FACING, Vector3,
 };
 use crate::msgs::{Skeleton3D, SkeletonState};
 
@@ -27,8 +29,8 @@ pub fn skeleton_markers(skeleton: &Skeleton3D, bones: &[(usize, usize)]) -> Mark
     let extent = bounding_diagonal(&joints).max(f64::MIN_POSITIVE);
     let color = match (skeleton.state(), skeleton.lag) {
         (Some(SkeletonState::Lost), _) => rgba(0.6, 0.6, 0.6),
-        (_, 0) => rgba(1.0, 0.55, 0.0),
-        _ => rgba(0.1, 0.75, 0.25),
+        (_, 0) => track_color(skeleton.track_id, 0.75),
+        _ => track_color(skeleton.track_id, 0.5),
     };
     let base = Marker {
         header: skeleton.header.clone(),
@@ -48,12 +50,38 @@ pub fn skeleton_markers(skeleton: &Skeleton3D, bones: &[(usize, usize)]) -> Mark
         },
         ..Marker::default()
     };
-    // Two markers per track: ids 2t and 2t + 1 (track ids past 2^30 wrap around).
-    let id = (skeleton.track_id % (1 << 30)) as i32;
+    // Three markers per track: ids 3t, 3t + 1 and 3t + 2 (track ids past 2^29 wrap
+    // around).
+    let id = (skeleton.track_id % (1 << 29)) as i32;
     let line = 0.015 * extent;
     let sphere = 0.035 * extent;
+    // The label: above the highest joint (image up is -y in the camera frame).
+    let top = joints
+        .iter()
+        .min_by(|a, b| a.y.total_cmp(&b.y))
+        .map(|p| Point {
+            x: p.x,
+            y: p.y - 0.08 * extent,
+            z: p.z,
+        })
+        .unwrap_or_default();
+    let label = Marker {
+        id: 3 * id + 2,
+        r#type: TEXT_VIEW_FACING,
+        pose: Pose {
+            position: top,
+            ..base.pose.clone()
+        },
+        scale: Vector3 {
+            x: 0.0,
+            y: 0.0,
+            z: 0.06 * extent,
+        },
+        text: format!("{}", skeleton.track_id),
+        ..base.clone()
+    };
     let bones_marker = Marker {
-        id: 2 * id,
+        id: 3 * id,
         r#type: LINE_LIST,
         scale: Vector3 {
             x: line,
@@ -68,7 +96,7 @@ pub fn skeleton_markers(skeleton: &Skeleton3D, bones: &[(usize, usize)]) -> Mark
         ..base.clone()
     };
     let joints_marker = Marker {
-        id: 2 * id + 1,
+        id: 3 * id + 1,
         r#type: SPHERE_LIST,
         scale: Vector3 {
             x: sphere,
@@ -79,12 +107,32 @@ pub fn skeleton_markers(skeleton: &Skeleton3D, bones: &[(usize, usize)]) -> Mark
         ..base
     };
     MarkerArray {
-        markers: vec![bones_marker, joints_marker],
+        markers: vec![bones_marker, joints_marker, label],
     }
 }
 
 fn rgba(r: f32, g: f32, b: f32) -> ColorRGBA {
     ColorRGBA { r, g, b, a: 1.0 }
+}
+
+/// The colour of a track: hues a golden angle apart, so that consecutive ids differ
+/// most; `lightness` in (0, 1) (fully saturated at 0.5).
+fn track_color(track_id: u32, lightness: f32) -> ColorRGBA {
+    const GOLDEN: f64 = 0.618_033_988_749_895;
+    let hue = (f64::from(track_id) * GOLDEN).fract() as f32 * 6.0;
+    // HSL to RGB, saturation 1.
+    let chroma = 1.0 - (2.0 * lightness - 1.0).abs();
+    let x = chroma * (1.0 - (hue % 2.0 - 1.0).abs());
+    let (r, g, b) = match hue as u32 {
+        0 => (chroma, x, 0.0),
+        1 => (x, chroma, 0.0),
+        2 => (0.0, chroma, x),
+        3 => (0.0, x, chroma),
+        4 => (x, 0.0, chroma),
+        _ => (chroma, 0.0, x),
+    };
+    let m = lightness - chroma / 2.0;
+    rgba(r + m, g + m, b + m)
 }
 
 fn bounding_diagonal(points: &[Point]) -> f64 {
@@ -117,20 +165,44 @@ mod tests {
             ..Skeleton3D::default()
         };
         let m = skeleton_markers(&s, &[(0, 1), (1, 2), (5, 0)]);
-        assert_eq!(m.markers.len(), 2);
-        let (bones, joints) = (&m.markers[0], &m.markers[1]);
-        assert_eq!((bones.r#type, bones.id), (LINE_LIST, 6));
+        assert_eq!(m.markers.len(), 3);
+        let (bones, joints, label) = (&m.markers[0], &m.markers[1], &m.markers[2]);
+        assert_eq!((bones.r#type, bones.id), (LINE_LIST, 9));
         assert_eq!(
             bones.points.len(),
             4,
             "the bone to a joint that is not there is left out"
         );
-        assert_eq!((joints.r#type, joints.id), (SPHERE_LIST, 7));
+        assert_eq!((joints.r#type, joints.id), (SPHERE_LIST, 10));
+        assert_eq!((label.r#type, label.id), (TEXT_VIEW_FACING, 11));
+        assert_eq!(label.text, "3");
+        // Above the highest joint (y = 0), in the track's colour.
+        assert!(label.pose.position.y < 0.0);
+        assert_eq!(label.color, bones.color);
         assert_eq!(joints.points.len(), 3);
         assert_eq!(joints.ns, "posestream/lag10");
         assert!(joints.scale.x > 0.0 && bones.scale.x > 0.0);
         let bytes = msgs::encode(&m).expect("encode");
         assert_eq!(msgs::decode::<MarkerArray>(&bytes).expect("decode"), m);
+        // Each person a colour of their own; the newest estimate lighter; lost grey.
+        let colour = |track_id, lag, state: SkeletonState| {
+            let s = Skeleton3D {
+                track_id,
+                lag,
+                state: state as u8,
+                ..s.clone()
+            };
+            skeleton_markers(&s, &[]).markers[0].color.clone()
+        };
+        let tracking = SkeletonState::Tracking;
+        for (a, b) in [(0, 1), (1, 2), (0, 2), (3, 4), (7, 8)] {
+            let (ca, cb) = (colour(a, 10, tracking), colour(b, 10, tracking));
+            let distance = (ca.r - cb.r).abs() + (ca.g - cb.g).abs() + (ca.b - cb.b).abs();
+            assert!(distance > 0.3, "tracks {a} and {b}: {ca:?} {cb:?}");
+        }
+        assert_ne!(colour(3, 0, tracking), colour(3, 10, tracking));
+        let grey = colour(3, 10, SkeletonState::Lost);
+        assert_eq!((grey.r, grey.g), (grey.g, grey.b));
         let def = MarkerArray::full_definition();
         for nested in [
             "MSG: visualization_msgs/Marker\n",

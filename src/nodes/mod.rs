@@ -6,8 +6,10 @@
 //!   recording;
 //! - [`service`]: the detector, estimator, pipeline and recorder loops over any
 //!   transport ([`crate::transport`]), and their wiring from the configuration;
-//! - [`markers`]: skeletons as `visualization_msgs/MarkerArray`.
+//! - [`markers`]: skeletons as `visualization_msgs/MarkerArray`;
+//! - [`arrays`]: the skeletons of one image together (`Skeleton3DArray`).
 
+pub mod arrays;
 pub mod config;
 pub mod images;
 pub mod latency;
@@ -18,10 +20,11 @@ pub mod service;
 use std::collections::{BTreeMap, VecDeque};
 use std::panic::AssertUnwindSafe;
 
-use crate::camera::{CropBox, PixelMap};
+use crate::camera::{CropBox, Intrinsics, PixelMap};
 use crate::error::EstimateError;
 use crate::estimator::Estimator;
 use crate::limits::{LimitError, Limits};
+use crate::metric::{MetricPose, MetricSettings, MetricStep};
 use crate::msgs::{self, DecodeError, Skeleton3D, Time, Units};
 use crate::skeleton::same_layout;
 use crate::streaming::{
@@ -78,6 +81,27 @@ pub enum NodeError {
         /// The frame the estimate describes.
         sequence: u64,
     },
+    /// A `sensor_msgs/CameraInfo` the metric step cannot use (zero, negative or
+    /// non-finite focal lengths, no image size, an image beyond the limits): refused;
+    /// the camera known before stays.
+    #[error("camera info: {reason}; refused")]
+    CameraInfo {
+        /// What is wrong with it.
+        reason: String,
+    },
+    /// A frame of a new track while `max_tracks` tracks are running (none idle): refused.
+    #[error(
+        "frame {sequence}: track {track_id} would be track {} of at most {max_tracks} (estimator.max_tracks); refused",
+        max_tracks + 1
+    )]
+    TooManyTracks {
+        /// The frame.
+        sequence: u64,
+        /// Its track.
+        track_id: u32,
+        /// The bound.
+        max_tracks: usize,
+    },
 }
 
 impl NodeError {
@@ -95,6 +119,8 @@ impl NodeError {
             Self::Estimate { .. } => "inconsistent",
             Self::Panic { .. } => "panic",
             Self::NonFiniteOutput { .. } => "non-finite-output",
+            Self::TooManyTracks { .. } => "too-many-tracks",
+            Self::CameraInfo { .. } => "camera-info",
         }
     }
 }
@@ -118,6 +144,8 @@ pub enum SetupError {
 struct FrameInfo {
     sequence: u64,
     to_image: PixelMap,
+    /// The heat maps' size (columns, rows).
+    map_size: (f64, f64),
     frame_id: String,
 }
 
@@ -151,17 +179,49 @@ impl Refusals {
     }
 }
 
-/// Heat-map messages in, skeleton messages out, through a [`WindowEstimator`].
+/// One person's track in the estimator node: its window and what the node remembers of
+/// its frames until their last estimates are out.
+struct Track {
+    id: u32,
+    window: WindowEstimator,
+    frames: VecDeque<FrameInfo>,
+    /// Capture time of the newest frame the window took.
+    last_stamp_ns: i64,
+}
+
+/// Heat-map messages in, skeleton messages out, through one [`WindowEstimator`] per
+/// track.
+///
+/// Each heat-map message names its person (`track_id`); each track has a window of its
+/// own, so people in one image never reset each other's windows. At most `max_tracks`
+/// run at once: a frame of one more is refused and counted (`too-many-tracks`). A track
+/// ends, its owed estimates published with state `lost`, when a frame of another track
+/// arrives more than the window's `max_gap_seconds` (in capture time) from its newest
+/// frame, when its own frames jump (the window's rules), or at the end of the stream
+/// ([`EstimatorNode::finish`]). An ended track's window is reset and kept for the next
+/// track (one at most; the others are freed).
 ///
 /// Every message is handled behind a boundary: a bad one is refused and counted by kind
 /// ([`Refusals`]); should handling it panic (a bug), the panic is caught, the track reset
 /// and the node goes on.
 pub struct EstimatorNode {
-    window: WindowEstimator,
+    /// Checks frames before a track takes them, and makes new tracks' windows; it never
+    /// holds a track itself.
+    template: WindowEstimator,
     joint_names: Vec<String>,
     limits: Limits,
-    track_id: u32,
-    frames: VecDeque<FrameInfo>,
+    max_tracks: usize,
+    tracks: Vec<Track>,
+    /// Metres, when the camera is known (`[estimator.metric] intrinsics`, or a
+    /// `CameraInfo`).
+    metric: Option<Metric>,
+    metric_settings: MetricSettings,
+    /// An ended track's window, reset, for the next track.
+    spare_window: Option<WindowEstimator>,
+    /// The counters of the ended tracks' windows, and of frames no track took.
+    ended: StreamCounters,
+    /// The track being handled (for the boundary: the one a panic resets).
+    current: Option<usize>,
     /// The window's estimates of the frame in hand (reused from frame to frame).
     estimates: Estimates,
     /// Skeleton messages handed back ([`EstimatorNode::recycle`]), written over by the
@@ -174,16 +234,39 @@ pub struct EstimatorNode {
     panic_at: Option<u64>,
 }
 
+/// The metric step of a node whose camera is known.
+struct Metric {
+    step: MetricStep,
+    camera: Intrinsics,
+    /// The images' size (columns, rows), when a `CameraInfo` gave it: a crop box whose
+    /// centre is outside is not of these images.
+    size: Option<(f64, f64)>,
+    /// The frame in hand, in metres (reused).
+    pose: MetricPose,
+    /// Estimates the step failed on (published in dictionary units).
+    failures: u64,
+}
+
+/// Tracks an estimator node runs at once unless configured otherwise
+/// (`[estimator] max_tracks`).
+pub const DEFAULT_MAX_TRACKS: usize = 8;
+
 impl EstimatorNode {
-    /// A node over `window`, with the default [`Limits`].
+    /// A node whose tracks run `window`'s estimator and settings, with the default
+    /// [`Limits`] and at most [`DEFAULT_MAX_TRACKS`] tracks.
     pub fn new(window: WindowEstimator) -> Self {
         let joint_names = window.dictionary().skeleton().joints.clone();
         Self {
-            window,
+            template: window,
             joint_names,
             limits: Limits::default(),
-            track_id: 0,
-            frames: VecDeque::new(),
+            max_tracks: DEFAULT_MAX_TRACKS,
+            tracks: Vec::new(),
+            metric: None,
+            metric_settings: MetricSettings::default(),
+            spare_window: None,
+            ended: StreamCounters::default(),
+            current: None,
             estimates: Estimates::default(),
             spare: Vec::new(),
             refused: Refusals::default(),
@@ -199,7 +282,87 @@ impl EstimatorNode {
         let dict = crate::Dictionary::load(&config.dictionary)?;
         let estimator = Estimator::new(dict, config.params.clone())?;
         let window = WindowEstimator::new(estimator, config.window.clone())?;
-        Ok(Self::new(window))
+        Self::new(window)
+            .with_max_tracks(config.max_tracks)
+            .with_metric(&config.metric)
+    }
+
+    /// The same node, publishing metres in the camera frame when `settings` name the
+    /// camera's intrinsics (dictionary units otherwise).
+    pub fn with_metric(mut self, settings: &MetricSettings) -> Result<Self, SetupError> {
+        // Checked here, so that a camera given later cannot fail on them.
+        MetricStep::new(self.template.estimator(), settings.clone())?;
+        self.metric_settings = settings.clone();
+        self.metric = None;
+        if let Some(camera) = settings.camera() {
+            self.set_camera(camera, None)?;
+        }
+        Ok(self)
+    }
+
+    fn set_camera(
+        &mut self,
+        camera: Intrinsics,
+        size: Option<(f64, f64)>,
+    ) -> Result<(), EstimateError> {
+        match &mut self.metric {
+            Some(m) => {
+                m.camera = camera;
+                m.size = size;
+            }
+            None => {
+                self.metric = Some(Metric {
+                    step: MetricStep::new(self.template.estimator(), self.metric_settings.clone())?,
+                    camera,
+                    size,
+                    pose: MetricPose::default(),
+                    failures: 0,
+                })
+            }
+        }
+        Ok(())
+    }
+
+    /// Takes the camera's calibration (`sensor_msgs/CameraInfo`, the intrinsics `k` of
+    /// the images the crop boxes are in): from now on skeletons are in metres, with
+    /// these intrinsics in place of any configured ones. A calibration the step cannot
+    /// use is refused and counted (`camera-info`); the camera known before stays.
+    pub fn camera_info(&mut self, info: &msgs::sensor::CameraInfo) -> Result<(), NodeError> {
+        let result = self.camera_info_inner(info);
+        if let Err(e) = &result {
+            self.refused.note(e.kind(), e);
+        }
+        result
+    }
+
+    fn camera_info_inner(&mut self, info: &msgs::sensor::CameraInfo) -> Result<(), NodeError> {
+        let k = &info.k;
+        let refuse = |reason: String| NodeError::CameraInfo { reason };
+        let camera = Intrinsics::new(k[0], k[4], k[2], k[5]).map_err(refuse)?;
+        if info.width == 0 || info.height == 0 {
+            return Err(refuse(format!(
+                "image size {} x {}",
+                info.width, info.height
+            )));
+        }
+        self.limits
+            .image(u64::from(info.width), u64::from(info.height))
+            .map_err(|e| refuse(e.to_string()))?;
+        let size = Some((f64::from(info.width), f64::from(info.height)));
+        if let Some(m) = &self.metric
+            && m.camera == camera
+            && m.size == size
+        {
+            return Ok(());
+        }
+        self.set_camera(camera, size)
+            .map_err(|e| refuse(e.to_string()))
+    }
+
+    /// Estimates the metric step failed on (a pose without size, a non-finite result):
+    /// published in dictionary units.
+    pub fn metric_failures(&self) -> u64 {
+        self.metric.as_ref().map_or(0, |m| m.failures)
     }
 
     /// The node of a service configuration: `[estimator]` under `[limits]`.
@@ -213,9 +376,25 @@ impl EstimatorNode {
         self
     }
 
-    /// The window's counters.
+    /// The same node, running at most `max_tracks` tracks at once (at least one).
+    pub fn with_max_tracks(mut self, max_tracks: usize) -> Self {
+        self.max_tracks = max_tracks.max(1);
+        self
+    }
+
+    /// The windows' counters, summed over every track so far.
     pub fn counters(&self) -> StreamCounters {
-        self.window.counters()
+        let mut sum = self.ended;
+        sum += self.template.counters();
+        for track in &self.tracks {
+            sum += track.window.counters();
+        }
+        sum
+    }
+
+    /// Tracks running now.
+    pub fn tracks(&self) -> usize {
+        self.tracks.len()
     }
 
     /// Messages refused (undecodable, inconsistent, beyond the limits, with unknown
@@ -241,12 +420,12 @@ impl EstimatorNode {
 
     /// The window's settings.
     pub fn settings(&self) -> &crate::streaming::StreamSettings {
-        self.window.settings()
+        self.template.settings()
     }
 
     /// The bones of the skeletons (joint index pairs), for drawing.
     pub fn bones(&self) -> Vec<(usize, usize)> {
-        self.window.dictionary().skeleton().bones().collect()
+        self.template.dictionary().skeleton().bones().collect()
     }
 
     /// Handles one encoded heat-map message; a bad one is counted and returned as an
@@ -298,22 +477,29 @@ impl EstimatorNode {
     }
 
     /// Runs `f` behind the node's boundary: should it panic (a bug), the messages it
-    /// added to `out` are dropped, the window is replaced by a fresh one (its state may be
-    /// inconsistent) and the panic's message is returned.
+    /// added to `out` are dropped, the track it was handling (every track, if it was not
+    /// handling one) is dropped, since its state may be inconsistent, and the panic's
+    /// message is returned.
     fn isolated<T>(
         &mut self,
         out: &mut Vec<Skeleton3D>,
         f: impl FnOnce(&mut Self, &mut Vec<Skeleton3D>) -> T,
     ) -> Result<T, String> {
         let before = out.len();
+        self.current = None;
         let caught = std::panic::catch_unwind(AssertUnwindSafe(|| f(self, out)));
+        let current = self.current.take();
         caught.map_err(|payload| {
             out.truncate(before);
-            self.frames.clear();
-            match self.window.fresh() {
-                Ok(window) => self.window = window,
-                Err(_) => self.window.reset(),
+            let dropped: Vec<Track> = match current {
+                Some(i) if i < self.tracks.len() => vec![self.tracks.swap_remove(i)],
+                _ => self.tracks.drain(..).collect(),
+            };
+            for mut track in dropped {
+                self.ended += track.window.take_counters();
             }
+            // The spare window may be the one that failed; a new one is made when needed.
+            self.spare_window = None;
             crate::error::panic_text(payload.as_ref())
         })
     }
@@ -357,57 +543,138 @@ impl EstimatorNode {
             values: msg.scores()?,
         };
         let checked = self
-            .window
+            .template
             .check_frame(&frame)
             .map_err(|source| NodeError::Estimate {
                 sequence: msg.sequence,
                 source,
             })?;
-        // Another person (the detector lost its track and found one again): the old
-        // track ends here, its owed estimates first. Only a well-formed frame with
-        // evidence can end a track.
-        if checked.has_evidence() && msg.track_id != self.track_id {
-            if !self.window.is_empty() {
-                self.estimates.clear();
-                self.window.finish_into(&mut self.estimates);
-                self.release(out);
-                self.frames.clear();
-            }
-            self.track_id = msg.track_id;
+        // Only a well-formed frame with evidence ends other tracks or starts one.
+        if checked.has_evidence() {
+            self.end_stale(msg.track_id, msg.stamp_ns, out);
         }
+        let index = match self.tracks.iter().position(|t| t.id == msg.track_id) {
+            Some(i) => i,
+            None if !checked.has_evidence() => {
+                // Nothing seen of a person not tracked: counted as the window would.
+                self.ended.empty += 1;
+                return Ok(());
+            }
+            None if self.tracks.len() >= self.max_tracks => {
+                return Err(NodeError::TooManyTracks {
+                    sequence: msg.sequence,
+                    track_id: msg.track_id,
+                    max_tracks: self.max_tracks,
+                });
+            }
+            None => self.start_track(msg.track_id)?,
+        };
+        self.current = Some(index);
+        let track = &mut self.tracks[index];
         self.estimates.clear();
-        let accepted_before = self.window.counters().frames;
-        self.window
+        let accepted_before = track.window.counters().frames;
+        track
+            .window
             .push_checked_into(&frame, checked, &mut self.estimates);
         // Only frames the window accepted are remembered (not late ones); the oldest
         // one no estimate can need any more is written over.
-        if self.window.counters().frames > accepted_before {
+        if track.window.counters().frames > accepted_before {
+            track.last_stamp_ns = msg.stamp_ns;
             let to_image = crop.pixel_map(msg.width as usize, msg.height as usize);
-            let oldest = if self.frames.len() >= self.frames_kept() {
-                self.frames.pop_front()
+            let oldest = if track.frames.len() >= frames_kept(&track.window) {
+                track.frames.pop_front()
             } else {
                 None
             };
+            let map_size = (f64::from(msg.width), f64::from(msg.height));
             let mut info = oldest.unwrap_or(FrameInfo {
                 sequence: msg.sequence,
                 to_image,
+                map_size,
                 frame_id: String::new(),
             });
             info.sequence = msg.sequence;
             info.to_image = to_image;
+            info.map_size = map_size;
             info.frame_id.clear();
             info.frame_id.push_str(msg.frame_id);
-            self.frames.push_back(info);
+            track.frames.push_back(info);
         }
-        self.release(out);
+        release(
+            track,
+            &self.estimates,
+            &self.joint_names,
+            self.metric.as_mut(),
+            &mut self.spare,
+            &mut self.refused,
+            out,
+        );
         Ok(())
     }
 
-    /// Frames remembered at most: those an estimate can still come for (the window and
-    /// the lag), and one more.
-    fn frames_kept(&self) -> usize {
-        let settings = self.window.settings();
-        settings.size + settings.lag + 1
+    /// A new track for `id`, on the spare window or a new one; its index.
+    fn start_track(&mut self, id: u32) -> Result<usize, NodeError> {
+        let window = match self.spare_window.take() {
+            Some(window) => window,
+            None => {
+                let mut window = self
+                    .template
+                    .fresh()
+                    .map_err(|source| NodeError::Estimate {
+                        sequence: 0,
+                        source,
+                    })?;
+                // The template's counts stay the template's.
+                window.take_counters();
+                window
+            }
+        };
+        self.tracks.push(Track {
+            id,
+            window,
+            frames: VecDeque::new(),
+            last_stamp_ns: 0,
+        });
+        Ok(self.tracks.len() - 1)
+    }
+
+    /// Ends every track other than `id` whose newest frame is more than the window's
+    /// `max_gap_seconds` from `stamp_ns` (either way: a person who left, or a track from
+    /// a clock that jumped).
+    fn end_stale(&mut self, id: u32, stamp_ns: i64, out: &mut Vec<Skeleton3D>) {
+        let gap = self.template.settings().max_gap_seconds;
+        let mut i = 0;
+        while i < self.tracks.len() {
+            let t = &self.tracks[i];
+            if t.id != id && t.last_stamp_ns.abs_diff(stamp_ns) as f64 * 1e-9 > gap {
+                self.end_track(i, out);
+            } else {
+                i += 1;
+            }
+        }
+    }
+
+    /// Ends track `i`: its owed estimates to `out`, its window kept as the spare.
+    fn end_track(&mut self, i: usize, out: &mut Vec<Skeleton3D>) {
+        self.current = Some(i);
+        let track = &mut self.tracks[i];
+        self.estimates.clear();
+        track.window.finish_into(&mut self.estimates);
+        release(
+            track,
+            &self.estimates,
+            &self.joint_names,
+            self.metric.as_mut(),
+            &mut self.spare,
+            &mut self.refused,
+            out,
+        );
+        let mut track = self.tracks.remove(i);
+        self.current = None;
+        self.ended += track.window.take_counters();
+        if self.spare_window.is_none() {
+            self.spare_window = Some(track.window);
+        }
     }
 
     /// Takes back skeleton messages the node handed out (after they were published):
@@ -416,62 +683,114 @@ impl EstimatorNode {
         self.spare.append(skeletons);
     }
 
-    /// Frames the window has taken so far (not refused, late or without evidence).
+    /// Frames the windows have taken so far (not refused, late or without evidence).
     pub fn frames_accepted(&self) -> u64 {
-        self.window.counters().frames
+        self.counters().frames
     }
 
-    /// Ends the stream: the estimates still owed. Behind the same boundary as
-    /// [`EstimatorNode::handle`]: a panic is counted and logged, and the track dropped.
+    /// Ends the stream: every track ends, with the estimates still owed. Behind the same
+    /// boundary as [`EstimatorNode::handle`]: a panic is counted and logged, and the
+    /// track dropped.
     pub fn finish(&mut self, out: &mut Vec<Skeleton3D>) {
-        let finished = self.isolated(out, |node, out| {
-            node.estimates.clear();
-            node.window.finish_into(&mut node.estimates);
-            node.release(out);
-            node.frames.clear();
-        });
-        if let Err(message) = finished {
-            let e = NodeError::Panic {
-                during: "ending a track".into(),
-                message,
-            };
-            self.refused.note(e.kind(), &e);
-        }
-    }
-
-    /// Turns the window's estimates into messages; forgets frames no estimate can
-    /// need any more. An estimate with non-finite values is counted, not published.
-    fn release(&mut self, out: &mut Vec<Skeleton3D>) {
-        let keep = self.frames_kept();
-        for e in self.estimates.iter() {
-            let Some(info) = self.frames.iter().rev().find(|f| f.sequence == e.sequence) else {
-                continue;
-            };
-            let mut message = self.spare.pop().unwrap_or_default();
-            write_skeleton(&mut message, e, info, &self.joint_names, self.track_id);
-            if message.is_finite() {
-                out.push(message);
-            } else {
-                self.spare.push(message);
-                let e = NodeError::NonFiniteOutput {
-                    sequence: e.sequence,
+        while !self.tracks.is_empty() {
+            let finished = self.isolated(out, |node, out| node.end_track(0, out));
+            if let Err(message) = finished {
+                let e = NodeError::Panic {
+                    during: "ending a track".into(),
+                    message,
                 };
                 self.refused.note(e.kind(), &e);
             }
         }
-        while self.frames.len() > keep {
-            self.frames.pop_front();
-        }
     }
 }
 
-/// The message of one estimate, written over `m` (its buffers reused).
+/// Frames a track remembers at most: those an estimate can still come for (the window
+/// and the lag), and one more.
+fn frames_kept(window: &WindowEstimator) -> usize {
+    let settings = window.settings();
+    settings.size + settings.lag + 1
+}
+
+/// Turns a track's estimates into messages (written over `spare` ones); forgets frames
+/// no estimate can need any more. An estimate with non-finite values is counted, not
+/// published.
+#[allow(
+    clippy::too_many_arguments,
+    reason = "disjoint borrows of the node's fields, so that a track is borrowed beside them"
+)]
+fn release(
+    track: &mut Track,
+    estimates: &Estimates,
+    joint_names: &[String],
+    mut metric: Option<&mut Metric>,
+    spare: &mut Vec<Skeleton3D>,
+    refused: &mut Refusals,
+    out: &mut Vec<Skeleton3D>,
+) {
+    let keep = frames_kept(&track.window);
+    for e in estimates.iter() {
+        let Some(info) = track.frames.iter().rev().find(|f| f.sequence == e.sequence) else {
+            continue;
+        };
+        let metres = match metric.as_deref_mut() {
+            Some(m) => match metric_pose(m, e, info) {
+                Ok(()) => Some(&m.pose),
+                Err(error) => {
+                    m.failures += 1;
+                    tracing::debug!(
+                        "frame {}: no metric pose ({error}); published in dictionary units",
+                        e.sequence
+                    );
+                    None
+                }
+            },
+            None => None,
+        };
+        let mut message = spare.pop().unwrap_or_default();
+        write_skeleton(&mut message, e, info, joint_names, track.id, metres);
+        if message.is_finite() {
+            out.push(message);
+        } else {
+            spare.push(message);
+            let e = NodeError::NonFiniteOutput {
+                sequence: e.sequence,
+            };
+            refused.note(e.kind(), &e);
+        }
+    }
+    while track.frames.len() > keep {
+        track.frames.pop_front();
+    }
+}
+
+/// The metric pose of estimate `e` into `m.pose`: refused when the frame's crop box is
+/// not in the camera's images (its centre outside them).
+fn metric_pose(m: &mut Metric, e: &FrameEstimate, info: &FrameInfo) -> Result<(), String> {
+    if let Some((width, height)) = m.size {
+        let [x, y] = info.to_image.apply(0.0, 0.0);
+        let [x1, y1] = info.to_image.apply(info.map_size.0, info.map_size.1);
+        let (cx, cy) = (0.5 * (x + x1), 0.5 * (y + y1));
+        if !(0.0..=width).contains(&cx) || !(0.0..=height).contains(&cy) {
+            return Err(format!(
+                "the crop box's centre ({cx:.0}, {cy:.0}) is outside the camera's {width} x {height} images"
+            ));
+        }
+    }
+    m.step
+        .adjust(e, &info.to_image, &m.camera, &mut m.pose)
+        .map_err(|e| e.to_string())
+}
+
+/// The message of one estimate, written over `m` (its buffers reused): in metres when
+/// `metres` is the estimate's metric pose, in dictionary units otherwise.
 fn write_skeleton(
     m: &mut Skeleton3D,
     e: &FrameEstimate,
     info: &FrameInfo,
     joint_names: &[String],
     track_id: u32,
+    metres: Option<&MetricPose>,
 ) {
     let map = info.to_image;
     let to_image = |xy: &[f64], out: &mut Vec<f64>| {
@@ -489,14 +808,26 @@ fn write_skeleton(
         d.clone_from(s);
     }
     m.joint_names.extend_from_slice(&joint_names[reused..]);
-    m.units = Units::Dictionary as u8;
-    m.positions.clone_from(&e.pose);
-    m.position_std.clone_from(&e.pose_std);
-    to_image(&e.keypoints, &mut m.keypoints);
-    m.keypoint_std.clear();
-    m.keypoint_std
-        .extend(e.keypoint_std.iter().map(|s| s * map.mean_scale()));
-    to_image(&e.projected, &mut m.projected);
+    if let Some(metres) = metres {
+        m.units = Units::Metres as u8;
+        m.positions.clone_from(&metres.positions);
+        m.position_std.clone_from(&metres.position_std);
+        m.keypoints.clone_from(&metres.keypoints);
+        m.keypoint_std.clone_from(&metres.keypoint_std);
+        m.projected.clone_from(&metres.projected);
+    } else {
+        m.units = Units::Dictionary as u8;
+        m.positions.clone_from(&e.pose);
+        // The same spread on every axis.
+        m.position_std.clear();
+        m.position_std
+            .extend(e.pose_std.iter().flat_map(|&s| [s, s, s]));
+        to_image(&e.keypoints, &mut m.keypoints);
+        m.keypoint_std.clear();
+        m.keypoint_std
+            .extend(e.keypoint_std.iter().map(|s| s * map.mean_scale()));
+        to_image(&e.projected, &mut m.projected);
+    }
     m.lag = e.lag as u32;
     m.state = match e.state {
         TrackState::Initialising => msgs::SkeletonState::Initialising,

@@ -19,7 +19,8 @@ use super::latency::LatencySummary;
 use super::service::{EstimatorOutputs, Publishers, pace, run_estimator};
 use super::{EstimatorNode, Refusals, SetupError};
 use crate::files::{OutputIsInput, check_output};
-use crate::msgs::{self, HeatMaps, HeatMapsView, RosMessage, Skeleton3D};
+use crate::msgs::sensor::CameraInfo;
+use crate::msgs::{self, HeatMaps, HeatMapsView, RosMessage, Skeleton3D, Skeleton3DArray};
 use crate::recording::{RecordingError, RecordingReader, write_rosbag2_metadata};
 use crate::streaming::StreamCounters;
 use crate::transport::mcap::SharedRecorder;
@@ -41,6 +42,8 @@ pub struct ReplayReport {
     pub refused: Refusals,
     /// The window's counters (late, missing, resets, tracks).
     pub counters: StreamCounters,
+    /// Estimates the metric step failed on (published in dictionary units).
+    pub metric_failures: u64,
     /// Where the input was cut short, if it was (every message before was replayed).
     pub truncated: Option<String>,
     /// Seconds of wall time.
@@ -126,13 +129,24 @@ pub fn replay(
             Box::new(r.sink::<Skeleton3D>(&topics.skeletons)),
         );
     }
-    // Only skeletons: a replay records no markers.
-    let mut outputs =
-        EstimatorOutputs::new(skeletons, Publishers::default(), node.bones()).stamped_at_release();
+    // Skeletons, and each image's together (`[outputs] arrays`): a replay records no
+    // markers.
+    let mut arrays = Publishers::default();
+    if let (Some(r), true) = (&recorder, config.outputs.arrays) {
+        arrays.add(
+            format!("mcap {}", topics.skeleton_arrays),
+            Box::new(r.sink::<Skeleton3DArray>(&topics.skeleton_arrays)),
+        );
+    }
+    let mut outputs = EstimatorOutputs::new(skeletons, Publishers::default(), node.bones())
+        .with_arrays(arrays)
+        .stamped_at_release();
     let mut source = RecordingFrames {
         reader,
         heatmaps_topic: &topics.heatmaps,
         ground_truth: recorder.as_ref().map(|r| (r, topics.ground_truth.as_str())),
+        camera_topic: &topics.camera_info,
+        camera: None,
         pace: (options.rate == ReplayRate::Recorded).then(|| (Instant::now(), None)),
         stop,
         heatmaps: 0,
@@ -188,6 +202,7 @@ pub fn replay(
         malformed: report.malformed,
         refused: report.refused,
         counters: report.counters,
+        metric_failures: report.metric_failures,
         truncated,
         seconds,
         frames_per_second: frames as f64 / seconds.max(1e-9),
@@ -205,6 +220,9 @@ struct RecordingFrames<'a> {
     heatmaps_topic: &'a str,
     /// The output recording and the ground-truth topic, when recording.
     ground_truth: Option<(&'a SharedRecorder, &'a str)>,
+    /// The camera-info topic, and the calibration read last (not yet taken).
+    camera_topic: &'a str,
+    camera: Option<CameraInfo>,
     /// When pacing: the start, and the first log time.
     pace: Option<(Instant, Option<u64>)>,
     stop: &'a AtomicBool,
@@ -218,6 +236,10 @@ impl FrameSource for RecordingFrames<'_> {
     /// A recording's time is in its stamps.
     fn live(&self) -> bool {
         false
+    }
+
+    fn camera_info(&mut self) -> Option<CameraInfo> {
+        self.camera.take()
     }
 
     /// Never waits, but for the pace.
@@ -262,6 +284,28 @@ impl FrameSource for RecordingFrames<'_> {
                     Ok(m) => {
                         take(&m.view(), msg.log_time_ns);
                         Ok(Received::Message((), msg.log_time_ns))
+                    }
+                    Err(e) => Err(TransportError::Malformed {
+                        transport: "mcap",
+                        topic: msg.topic,
+                        reason: e.to_string(),
+                    }),
+                };
+            }
+            if msg.topic == self.camera_topic && msg.schema == CameraInfo::NAME {
+                // Recorded as it came (the output holds the calibration it was made
+                // with), then handed to the estimator before the frames after it.
+                if let Some((recorder, _)) = self.ground_truth {
+                    let _ = recorder.write_encoded::<CameraInfo>(
+                        self.camera_topic,
+                        msg.log_time_ns,
+                        &msg.data,
+                    );
+                }
+                return match msgs::decode::<CameraInfo>(&msg.data) {
+                    Ok(info) => {
+                        self.camera = Some(info);
+                        Ok(Received::Idle)
                     }
                     Err(e) => Err(TransportError::Malformed {
                         transport: "mcap",

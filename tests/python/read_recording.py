@@ -15,7 +15,15 @@ def read_mcap(path, allow_truncated):
 
     factory = DecoderFactory()
     schemas, channels, decoders = {}, {}, {}
-    out = {"topics": {}, "schemas": {}, "skeletons": [], "heatmaps": [], "markers": [], "error": None}
+    out = {
+        "topics": {},
+        "schemas": {},
+        "skeletons": [],
+        "heatmaps": [],
+        "markers": [],
+        "arrays": [],
+        "error": None,
+    }
 
     def handle(msg):
         channel = channels[msg.channel_id]
@@ -59,6 +67,28 @@ def read_mcap(path, allow_truncated):
                     for m in decoded.markers
                 ]
             )
+        if schema.name == "posestream_msgs/msg/Skeleton3DArray":
+            out["arrays"].append(
+                {
+                    "sequence": decoded.sequence,
+                    "lag": decoded.lag,
+                    "stamp": [decoded.header.stamp.sec, decoded.header.stamp.nanosec],
+                    "tracks": [s.track_id for s in decoded.skeletons],
+                    "sequences": [s.sequence for s in decoded.skeletons],
+                    "first_positions": list(decoded.skeletons[0].positions)
+                    if decoded.skeletons
+                    else [],
+                }
+            )
+        if schema.name == "sensor_msgs/msg/CameraInfo" and "camera_info" not in out:
+            out["camera_info"] = {
+                "width": decoded.width,
+                "height": decoded.height,
+                "k": [float(v) for v in decoded.k],
+                "p": [float(v) for v in decoded.p],
+                "binning_x": decoded.binning_x,
+                "roi_width": decoded.roi.width,
+            }
         if schema.name == "posestream_msgs/msg/HeatMaps" and len(out["heatmaps"]) < 3:
             out["heatmaps"].append(
                 {

@@ -32,7 +32,7 @@ class SkeletonSample(ctypes.Structure):
         ("frame_id", ctypes.c_char * FRAME_ID_BYTES),
         ("joint_names", (ctypes.c_char * NAME_BYTES) * MAX_JOINTS),
         ("positions", ctypes.c_double * (3 * MAX_JOINTS)),
-        ("position_std", ctypes.c_double * MAX_JOINTS),
+        ("position_std", ctypes.c_double * (3 * MAX_JOINTS)),
         ("keypoints", ctypes.c_double * (2 * MAX_JOINTS)),
         ("keypoint_std", ctypes.c_double * MAX_JOINTS),
         ("projected", ctypes.c_double * (2 * MAX_JOINTS)),
@@ -43,7 +43,7 @@ class SkeletonSample(ctypes.Structure):
         return "posestream::SkeletonSample"
 
 
-assert ctypes.sizeof(SkeletonSample) == 3168, ctypes.sizeof(SkeletonSample)
+assert ctypes.sizeof(SkeletonSample) == 3680, ctypes.sizeof(SkeletonSample)
 
 service_name, count, timeout = sys.argv[1], int(sys.argv[2]), float(sys.argv[3])
 iox2.set_log_level_from_env_or(iox2.LogLevel.Warn)
@@ -79,7 +79,7 @@ while got < count and time.time() < deadline:
                 "frame_id": s.frame_id.decode(),
                 "joint_names": [s.joint_names[j].value.decode() for j in range(p)],
                 "positions": list(s.positions[: 3 * p]),
-                "position_std": list(s.position_std[:p]),
+                "position_std": list(s.position_std[: 3 * p]),
                 "keypoints": list(s.keypoints[: 2 * p]),
                 "keypoint_std": list(s.keypoint_std[:p]),
                 "projected": list(s.projected[: 2 * p]),

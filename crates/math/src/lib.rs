@@ -36,6 +36,7 @@ pub mod error;
 pub mod estimator;
 pub mod geometry;
 pub mod heatmaps;
+pub mod metric;
 pub mod metrics;
 pub mod skeleton;
 pub mod solver;

@@ -280,6 +280,11 @@ pub struct FrameEstimate {
     pub keypoint_std: Vec<f64>,
     /// The model's reprojection (heat-map pixels): `[x, y]` per joint.
     pub projected: Vec<f64>,
+    /// The frame's weak-perspective fit (normalised units), for a metric step after the
+    /// window ([`crate::metric::MetricStep`]).
+    pub fit: FrameFit,
+    /// Heat-map pixels per normalised unit of `fit`.
+    pub pixels_per_unit: f64,
 }
 
 impl Default for FrameEstimate {
@@ -294,6 +299,8 @@ impl Default for FrameEstimate {
             keypoints: Vec::new(),
             keypoint_std: Vec::new(),
             projected: Vec::new(),
+            fit: FrameFit::zero(0),
+            pixels_per_unit: 0.0,
         }
     }
 }
@@ -357,6 +364,19 @@ pub struct StreamCounters {
     pub resets: u64,
     /// Tracks started.
     pub tracks: u64,
+}
+
+impl std::ops::AddAssign for StreamCounters {
+    /// Adds another window's counts (a node with several tracks reports their sum).
+    fn add_assign(&mut self, other: Self) {
+        self.frames += other.frames;
+        self.late += other.late;
+        self.malformed += other.malformed;
+        self.empty += other.empty;
+        self.missing += other.missing;
+        self.resets += other.resets;
+        self.tracks += other.tracks;
+    }
 }
 
 /// One frame in the window.
@@ -590,9 +610,20 @@ impl WindowEstimator {
         self.estimator.dictionary()
     }
 
+    /// The estimator (dictionary and parameters) the window runs.
+    pub fn estimator(&self) -> &Estimator {
+        &self.estimator
+    }
+
     /// What the window has done so far.
     pub fn counters(&self) -> StreamCounters {
         self.counters
+    }
+
+    /// What the window has done so far, after which its counters start again from
+    /// zero (a window reused for another track reports only what it did for that one).
+    pub fn take_counters(&mut self) -> StreamCounters {
+        std::mem::take(&mut self.counters)
     }
 
     /// Frames in the window now.
@@ -1033,6 +1064,10 @@ impl WindowEstimator {
         }
         e.keypoints.clear();
         e.keypoints.extend(self.one.xy.iter().map(|v| v * scale));
+        e.fit.coefficients.clone_from(&fit.coefficients);
+        e.fit.rotation = fit.rotation;
+        e.fit.translation = fit.translation;
+        e.pixels_per_unit = scale;
         let slot = &self.slots[t];
         e.sequence = slot.sequence;
         e.stamp_ns = slot.stamp_ns;

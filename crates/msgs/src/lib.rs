@@ -33,7 +33,7 @@ pub mod visualization;
 
 pub use heatmaps::{HeatMapEncoding, HeatMaps, HeatMapsView};
 pub use sensor::{CompressedImage, Image};
-pub use skeleton::{Skeleton3D, SkeletonState, Units};
+pub use skeleton::{Skeleton3D, Skeleton3DArray, SkeletonState, Units};
 pub use visualization::{Marker, MarkerArray};
 
 use byteorder::LittleEndian;
@@ -71,6 +71,16 @@ primitive! {
 impl<T: RosType> RosType for Vec<T> {
     fn ros_type() -> String {
         format!("{}[]", T::ros_type())
+    }
+    fn dependencies(out: &mut Vec<(&'static str, &'static str)>) {
+        T::dependencies(out);
+    }
+}
+
+/// A fixed-size array (`float64[9]`): in CDR its elements without a length.
+impl<T: RosType, const N: usize> RosType for [T; N] {
+    fn ros_type() -> String {
+        format!("{}[{N}]", T::ros_type())
     }
     fn dependencies(out: &mut Vec<(&'static str, &'static str)>) {
         T::dependencies(out);

@@ -1,6 +1,7 @@
-//! `sensor_msgs/Image` and `sensor_msgs/CompressedImage`, mirrored field for field from
-//! ROS 2 Jazzy's `sensor_msgs` (comments and constants left out): the camera frames the
-//! image detector reads from a ROS 2 topic or a recording.
+//! `sensor_msgs/Image`, `sensor_msgs/CompressedImage` and `sensor_msgs/CameraInfo`,
+//! mirrored field for field from ROS 2 Jazzy's `sensor_msgs` (comments and constants
+//! left out; the same in Humble): the camera frames the image detector reads from a ROS 2
+//! topic or a recording, and the camera's calibration the estimator's metric step uses.
 
 use super::Header;
 use crate::ros_message;
@@ -39,4 +40,51 @@ ros_message! {
     /// The compressed bytes.
     #[serde(with = "serde_bytes")]
     data: Vec<u8>,
+}
+
+ros_message! {
+    /// `sensor_msgs/RegionOfInterest`: a part of an image.
+    RegionOfInterest = "sensor_msgs/msg/RegionOfInterest", "sensor_msgs/RegionOfInterest",
+        "uint32 x_offset\nuint32 y_offset\nuint32 height\nuint32 width\nbool do_rectify\n";
+    /// Leftmost column.
+    x_offset: u32,
+    /// Topmost row.
+    y_offset: u32,
+    /// Rows.
+    height: u32,
+    /// Columns.
+    width: u32,
+    /// True if a rectified image of the region is wanted.
+    do_rectify: bool,
+}
+
+ros_message! {
+    /// `sensor_msgs/CameraInfo`: a camera's calibration (`image_pipeline`'s convention:
+    /// `k` is the row-major 3 x 3 intrinsic matrix of the raw images, pixels).
+    CameraInfo = "sensor_msgs/msg/CameraInfo", "sensor_msgs/CameraInfo",
+        "std_msgs/Header header\nuint32 height\nuint32 width\nstring distortion_model\n\
+         float64[] d\nfloat64[9] k\nfloat64[9] r\nfloat64[12] p\nuint32 binning_x\n\
+         uint32 binning_y\nsensor_msgs/RegionOfInterest roi\n";
+    /// Capture time and camera frame id.
+    header: Header,
+    /// Rows of the images.
+    height: u32,
+    /// Columns of the images.
+    width: u32,
+    /// `plumb_bob`, `rational_polynomial`, ... (empty: none).
+    distortion_model: String,
+    /// Distortion coefficients.
+    d: Vec<f64>,
+    /// Intrinsics `[fx, 0, cx, 0, fy, cy, 0, 0, 1]`.
+    k: [f64; 9],
+    /// Rectification rotation.
+    r: [f64; 9],
+    /// Projection matrix of the rectified images, 3 x 4.
+    p: [f64; 12],
+    /// Horizontal binning.
+    binning_x: u32,
+    /// Vertical binning.
+    binning_y: u32,
+    /// Region of interest.
+    roi: RegionOfInterest,
 }

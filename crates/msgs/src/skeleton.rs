@@ -39,7 +39,7 @@ ros_message! {
     units: u8,
     /// `[x, y, z]` per joint.
     positions: Vec<f64>,
-    /// Standard deviation per joint.
+    /// Standard deviation per joint and axis, `[x, y, z]` per joint.
     position_std: Vec<f64>,
     /// Expected 2D joints `[u, v]`, image pixels.
     keypoints: Vec<f64>,
@@ -51,6 +51,21 @@ ros_message! {
     lag: u32,
     /// `STATE_INITIALISING` (0), `STATE_TRACKING` (1) or `STATE_LOST` (2).
     state: u8,
+}
+
+ros_message! {
+    /// The skeletons of every person in one image at one lag
+    /// (`msgs/msg/Skeleton3DArray.msg`).
+    Skeleton3DArray = "posestream_msgs/msg/Skeleton3DArray", "posestream_msgs/Skeleton3DArray",
+        include_str!("../../../msgs/msg/Skeleton3DArray.msg");
+    /// Stamp of the image described and the camera frame id.
+    header: Header,
+    /// Sequence number of the image described.
+    sequence: u64,
+    /// Frames after the image seen before these estimates were made.
+    lag: u32,
+    /// One skeleton per person.
+    skeletons: Vec<Skeleton3D>,
 }
 
 impl Skeleton3D {

@@ -156,5 +156,7 @@ ros_message! {
 pub const LINE_LIST: i32 = 5;
 /// `Marker::type` of a list of spheres.
 pub const SPHERE_LIST: i32 = 7;
+/// `Marker::type` of a text that always faces the viewer.
+pub const TEXT_VIEW_FACING: i32 = 9;
 /// `Marker::action` that adds or replaces.
 pub const ADD: i32 = 0;

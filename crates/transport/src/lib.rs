@@ -172,6 +172,14 @@ pub trait FrameSource: Send {
     fn live(&self) -> bool {
         true
     }
+
+    /// The camera's calibration, if one came since the last call. A source that carries
+    /// one beside the frames (a recording's camera-info topic) returns
+    /// `Received::Idle` from [`FrameSource::recv_frame`] when it read one, so that the
+    /// caller takes it before the frames after it.
+    fn camera_info(&mut self) -> Option<posestream_msgs::sensor::CameraInfo> {
+        None
+    }
 }
 
 /// A [`Source`] of [`HeatMaps`] messages as a [`FrameSource`]: each message is lent as

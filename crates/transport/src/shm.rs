@@ -102,8 +102,8 @@ pub struct SkeletonSample {
     pub joint_names: [[u8; NAME_BYTES]; MAX_JOINTS],
     /// `[x, y, z]` per joint.
     pub positions: [f64; 3 * MAX_JOINTS],
-    /// Standard deviation per joint.
-    pub position_std: [f64; MAX_JOINTS],
+    /// Standard deviation per joint and axis, `[x, y, z]` per joint.
+    pub position_std: [f64; 3 * MAX_JOINTS],
     /// Expected 2D joints `[u, v]`, image pixels.
     pub keypoints: [f64; 2 * MAX_JOINTS],
     /// Standard deviation per 2D joint.
@@ -282,13 +282,13 @@ impl SkeletonSample {
             frame_id: pack(&m.header.frame_id, "frame id")?,
             joint_names: pack_names(&m.joint_names)?,
             positions: [0.0; 3 * MAX_JOINTS],
-            position_std: [0.0; MAX_JOINTS],
+            position_std: [0.0; 3 * MAX_JOINTS],
             keypoints: [0.0; 2 * MAX_JOINTS],
             keypoint_std: [0.0; MAX_JOINTS],
             projected: [0.0; 2 * MAX_JOINTS],
         };
         put(&mut s.positions, &m.positions, p, 3, "positions")?;
-        put(&mut s.position_std, &m.position_std, p, 1, "position_std")?;
+        put(&mut s.position_std, &m.position_std, p, 3, "position_std")?;
         put(&mut s.keypoints, &m.keypoints, p, 2, "keypoints")?;
         put(&mut s.keypoint_std, &m.keypoint_std, p, 1, "keypoint_std")?;
         put(&mut s.projected, &m.projected, p, 2, "projected")?;
@@ -311,7 +311,7 @@ impl SkeletonSample {
             joint_names: unpack_names(&self.joint_names, p)?,
             units: self.units,
             positions: self.positions[..3 * p].to_vec(),
-            position_std: self.position_std[..p].to_vec(),
+            position_std: self.position_std[..3 * p].to_vec(),
             keypoints: self.keypoints[..2 * p].to_vec(),
             keypoint_std: self.keypoint_std[..p].to_vec(),
             projected: self.projected[..2 * p].to_vec(),
@@ -737,7 +737,7 @@ mod tests {
         use std::mem::{align_of, offset_of, size_of};
         assert_eq!(
             (size_of::<SkeletonSample>(), align_of::<SkeletonSample>()),
-            (3168, 8)
+            (3680, 8)
         );
         let s = [
             offset_of!(SkeletonSample, stamp_ns),
@@ -759,7 +759,7 @@ mod tests {
         assert_eq!(
             s,
             [
-                0, 8, 16, 20, 24, 28, 29, 30, 32, 96, 864, 1632, 1888, 2400, 2656
+                0, 8, 16, 20, 24, 28, 29, 30, 32, 96, 864, 1632, 2400, 2912, 3168
             ]
         );
         assert_eq!(
@@ -780,9 +780,10 @@ mod tests {
         assert_eq!(h, [0, 8, 16, 20, 24, 28, 32, 64, 128]);
         let doc = include_str!("../../../msgs/SHARED_MEMORY.md");
         for line in [
-            "| 2656 | `projected`",
+            "| 3168 | `projected`",
+            "| 1632 | `position_std`",
             "| 128 | `joint_names`",
-            "3,168 bytes",
+            "3,680 bytes",
             "896 bytes",
         ] {
             assert!(doc.contains(line), "{line}");
@@ -798,7 +799,7 @@ mod tests {
         assert!(SkeletonSample::from_message(&m).is_err());
         m.joint_names = vec!["x".repeat(NAME_BYTES + 1)];
         m.positions = vec![0.0; 3];
-        m.position_std = vec![0.0];
+        m.position_std = vec![0.0; 3];
         m.keypoints = vec![0.0; 2];
         m.keypoint_std = vec![0.0];
         m.projected = vec![0.0; 2];

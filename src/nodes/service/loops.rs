@@ -53,6 +53,8 @@ pub struct EstimatorReport {
     pub failed_sends: u64,
     /// The window's counters.
     pub counters: StreamCounters,
+    /// Estimates the metric step failed on (published in dictionary units).
+    pub metric_failures: u64,
     /// Time per heat-map message in the estimator node.
     pub update: LatencySummary,
     /// Why the input ended early, if it did.
@@ -79,7 +81,9 @@ pub fn run_estimator(
     let mut input_error = None;
     while !stop.load(Ordering::Relaxed) {
         let accepted = node.frames_accepted();
+        let mut image = None;
         let mut handle = |frame: &crate::msgs::HeatMapsView<'_>, _stamp: u64| {
+            image = Some(frame.stamp_ns);
             let began = Instant::now();
             // A refused message is counted and logged by the node.
             let _ = node.handle_view(frame, &mut out);
@@ -89,7 +93,7 @@ pub fn run_estimator(
             Ok(Received::Message((), stamp)) => {
                 frames += 1;
                 outputs.frame_stamp(stamp);
-                outputs.publish(&mut out, node);
+                outputs.publish(image, &mut out, node);
                 // Only frames the window took keep a track alive: a stream of refused
                 // frames does not hold an idle track open.
                 if node.frames_accepted() > accepted {
@@ -98,14 +102,21 @@ pub fn run_estimator(
                 }
                 if live && open_track && last_frame.elapsed() > idle_limit {
                     node.finish(&mut out);
-                    outputs.publish(&mut out, node);
+                    outputs.publish(None, &mut out, node);
                     open_track = false;
                 }
             }
             Ok(Received::Idle) => {
+                if let Some(info) = source.camera_info() {
+                    // Counted and logged by the node if refused.
+                    let _ = node.camera_info(&info);
+                    continue;
+                }
+                // A quiet input: the image handled last is complete.
+                outputs.flush_arrays();
                 if live && open_track && last_frame.elapsed() > idle_limit {
                     node.finish(&mut out);
-                    outputs.publish(&mut out, node);
+                    outputs.publish(None, &mut out, node);
                     open_track = false;
                 }
             }
@@ -121,9 +132,11 @@ pub fn run_estimator(
         }
     }
     node.finish(&mut out);
-    outputs.publish(&mut out, node);
+    outputs.flush_arrays();
+    outputs.publish(None, &mut out, node);
     outputs.skeletons.flush();
     outputs.markers.flush();
+    outputs.arrays.flush();
     EstimatorReport {
         frames,
         malformed: node.malformed(),
@@ -131,6 +144,7 @@ pub fn run_estimator(
         skeletons: outputs.skeletons.sent,
         failed_sends: outputs.skeletons.failed + outputs.markers.failed,
         counters: node.counters(),
+        metric_failures: node.metric_failures(),
         update: latency.summary(),
         input_error,
     }

@@ -32,12 +32,13 @@ use super::{
     DetectorReport, EstimatorInput, EstimatorOutputs, EstimatorReport, POLL, Publishers,
     ServiceError, due_wait,
 };
+use crate::msgs::sensor::CameraInfo;
 use crate::msgs::{HeatMaps, Skeleton3D};
 use crate::nodes::config::ReplayRate;
 use crate::nodes::latency::LatencyHistogram;
 use crate::nodes::{EstimatorNode, Refusals};
 use crate::transport::runtime::{AsyncSource, Blocking};
-use crate::transport::{Received, TransportError};
+use crate::transport::{Received, Source, TransportError};
 
 /// Frames (or batches of skeletons) waiting between the runtime and the solver at most.
 const CHANNEL: usize = 4;
@@ -84,6 +85,9 @@ async fn ticking(ticks: &mpsc::Sender<Work>) {
 struct Batch {
     skeletons: Vec<Skeleton3D>,
     released_at: u64,
+    /// Capture time of the image whose heat maps released them (`None`: released by no
+    /// message, as at the end).
+    image: Option<i64>,
 }
 
 /// What the solver thread counted.
@@ -100,7 +104,20 @@ struct Solved {
 /// [`run_estimator`]: super::run_estimator
 pub fn run_estimator_on_runtime(
     node: &mut EstimatorNode,
+    source: impl AsyncSource<HeatMaps>,
+    outputs: &mut EstimatorOutputs,
+    stop: &AtomicBool,
+) -> Result<EstimatorReport, ServiceError> {
+    run_estimator_with_camera(node, source, None, outputs, stop)
+}
+
+/// [`run_estimator_on_runtime`], the node also taking the camera's calibration from
+/// `camera` (the solver thread looks for a new one before each frame; a camera-info
+/// message is rare, and small).
+pub fn run_estimator_with_camera(
+    node: &mut EstimatorNode,
     mut source: impl AsyncSource<HeatMaps>,
+    camera: Option<Box<dyn Source<CameraInfo>>>,
     outputs: &mut EstimatorOutputs,
     stop: &AtomicBool,
 ) -> Result<EstimatorReport, ServiceError> {
@@ -112,7 +129,7 @@ pub fn run_estimator_on_runtime(
         let node = &mut *node;
         let solver = std::thread::Builder::new()
             .name("solver".into())
-            .spawn_scoped(scope, move || solve(node, work_rx, done, spent_rx))
+            .spawn_scoped(scope, move || solve(node, camera, work_rx, done, spent_rx))
             .map_err(|_| ServiceError::Thread("solver"))?;
         let input = async move {
             let ticks = work.clone();
@@ -155,14 +172,25 @@ pub fn run_estimator_on_runtime(
             // Dropping the senders ends the solver: it finishes the track, closes `done`.
         };
         let output = async {
-            while let Some(batch) = done_rx.recv().await {
+            loop {
+                let batch = match tokio::time::timeout(POLL, done_rx.recv()).await {
+                    Ok(Some(batch)) => batch,
+                    Ok(None) => break,
+                    // Nothing for a while: the image handled last is complete.
+                    Err(_) => {
+                        outputs.flush_arrays_async().await;
+                        continue;
+                    }
+                };
                 outputs.frame_stamp(batch.released_at);
-                outputs.publish_async(&batch.skeletons).await;
+                outputs.publish_async(batch.image, &batch.skeletons).await;
                 // Back to the node, to be written over (the solver may be gone).
                 let _ = spent.send(batch.skeletons);
             }
+            outputs.flush_arrays_async().await;
             outputs.skeletons.flush();
             outputs.markers.flush();
+            outputs.arrays.flush();
         };
         let (input_error, ()) = runtime.block_on(async { tokio::join!(input, output) });
         let solved = solver.join().map_err(|_| ServiceError::Thread("solver"))?;
@@ -175,6 +203,7 @@ pub fn run_estimator_on_runtime(
         skeletons: outputs.skeletons.sent,
         failed_sends: outputs.skeletons.failed + outputs.markers.failed,
         counters: node.counters(),
+        metric_failures: node.metric_failures(),
         update: solved.latency.summary(),
         input_error,
     })
@@ -184,6 +213,7 @@ pub fn run_estimator_on_runtime(
 /// until `work` closes; then the track's last estimates.
 fn solve(
     node: &mut EstimatorNode,
+    mut camera: Option<Box<dyn Source<CameraInfo>>>,
     mut work: mpsc::Receiver<Work>,
     done: mpsc::Sender<Batch>,
     spent: std::sync::mpsc::Receiver<Vec<Skeleton3D>>,
@@ -197,6 +227,7 @@ fn solve(
     let mut vectors: Vec<Vec<Skeleton3D>> = Vec::new();
     let mut out = Vec::new();
     let (mut last_frame, mut open_track, mut released_at) = (Instant::now(), false, 0);
+    let mut image = None;
     while let Some(next) = work.blocking_recv() {
         while let Ok(mut skeletons) = spent.try_recv() {
             node.recycle(&mut skeletons);
@@ -204,8 +235,14 @@ fn solve(
         }
         match next {
             Work::Frame(maps, stamp) => {
+                if let Some(source) = &mut camera
+                    && !take_camera_info(node, source.as_mut())
+                {
+                    camera = None;
+                }
                 solved.frames += 1;
                 released_at = stamp;
+                image = Some(maps.header.stamp.nanos());
                 let accepted = node.frames_accepted();
                 let began = Instant::now();
                 // A refused message is counted and logged by the node.
@@ -218,7 +255,7 @@ fn solve(
                 }
             }
             Work::Refused(e) => node.count_refused(&e),
-            Work::Tick => {}
+            Work::Tick => image = None,
         }
         if open_track && last_frame.elapsed() > idle_limit {
             node.finish(&mut out);
@@ -231,6 +268,7 @@ fn solve(
                 .blocking_send(Batch {
                     skeletons,
                     released_at,
+                    image,
                 })
                 .is_err()
             {
@@ -244,9 +282,32 @@ fn solve(
         let _ = done.blocking_send(Batch {
             skeletons: out,
             released_at,
+            image: None,
         });
     }
     solved
+}
+
+/// Hands `node` every camera-info message waiting in `source` (refusals counted);
+/// false when the source is closed or broken (it is not read again).
+fn take_camera_info(node: &mut EstimatorNode, source: &mut dyn Source<CameraInfo>) -> bool {
+    loop {
+        match source.recv(Duration::ZERO) {
+            Ok(Received::Message(info, _)) => {
+                // Counted and logged by the node if refused.
+                let _ = node.camera_info(&info);
+            }
+            Ok(Received::Idle) => return true,
+            Ok(Received::Closed) => return false,
+            Err(e @ (TransportError::Malformed { .. } | TransportError::BeyondLimits { .. })) => {
+                node.count_refused(&e)
+            }
+            Err(e) => {
+                tracing::warn!("camera info: {e}; no more is read");
+                return false;
+            }
+        }
+    }
 }
 
 /// The estimator node over its configured input ([`EstimatorInput`]): on the runtime
@@ -260,9 +321,10 @@ pub fn serve_estimator(
     stop: &AtomicBool,
 ) -> Result<EstimatorReport, ServiceError> {
     match input {
-        EstimatorInput::Awaited(mut source) => {
-            run_estimator_on_runtime(node, &mut *source, outputs, stop)
-        }
+        EstimatorInput::Awaited {
+            mut heatmaps,
+            camera,
+        } => run_estimator_with_camera(node, &mut *heatmaps, camera, outputs, stop),
         EstimatorInput::Lent(mut source) => {
             Ok(super::run_estimator(node, &mut source, outputs, stop))
         }

@@ -9,9 +9,11 @@ use std::time::Duration;
 
 use super::ServiceError;
 use crate::detector::{DetectorStats, ImageDetector};
-use crate::msgs::{HeatMaps, MarkerArray, Skeleton3D};
+use crate::msgs::sensor::CameraInfo;
+use crate::msgs::{HeatMaps, MarkerArray, Skeleton3D, Skeleton3DArray};
 use crate::nodes::EstimatorNode;
 use crate::nodes::SetupError;
+use crate::nodes::arrays::ImageArrays;
 use crate::nodes::config::{DetectorSource, ReplayRate, ServiceConfig, Transport};
 use crate::nodes::images::{ImageHeatMaps, SharedStats, image_frames};
 use crate::nodes::markers::skeleton_markers;
@@ -58,9 +60,16 @@ impl Middleware {
         transport: Transport,
     ) -> Result<EstimatorInput, TransportError> {
         Ok(match transport {
-            Transport::Ros2 => EstimatorInput::Awaited(Box::new(
-                self.ros()?.source::<HeatMaps>(&config.topics.heatmaps)?,
-            )),
+            Transport::Ros2 => {
+                let ros = self.ros()?;
+                let heatmaps = Box::new(ros.source::<HeatMaps>(&config.topics.heatmaps)?);
+                let camera: Box<dyn Source<CameraInfo>> =
+                    Box::new(ros.source::<CameraInfo>(&config.topics.camera_info)?);
+                EstimatorInput::Awaited {
+                    heatmaps,
+                    camera: Some(camera),
+                }
+            }
             Transport::Iceoryx2 => EstimatorInput::Lent(Box::new(
                 self.shm()?
                     .heatmaps_source(&config.iceoryx2.heatmaps, &config.limits)?,
@@ -72,8 +81,14 @@ impl Middleware {
 /// Where the estimator node's heat maps come from, and so how its loop waits
 /// ([`serve_estimator`](super::serve_estimator)).
 pub enum EstimatorInput {
-    /// Messages awaited on a tokio runtime ([`run_estimator_on_runtime`](super::run_estimator_on_runtime)).
-    Awaited(Box<Ros2Source<HeatMaps>>),
+    /// Messages awaited on a tokio runtime ([`run_estimator_on_runtime`](super::run_estimator_on_runtime)),
+    /// and the camera's calibration beside them, if it is read.
+    Awaited {
+        /// The heat maps.
+        heatmaps: Box<Ros2Source<HeatMaps>>,
+        /// `sensor_msgs/CameraInfo` (`topics.camera_info`).
+        camera: Option<Box<dyn Source<CameraInfo>>>,
+    },
     /// Frames lent by a blocking source ([`run_estimator`](super::run_estimator)).
     Lent(Box<dyn FrameSource>),
 }
@@ -255,6 +270,12 @@ pub struct EstimatorOutputs {
     pub skeletons: Publishers<Skeleton3D>,
     /// Markers (empty when `[outputs] markers` is off).
     pub markers: Publishers<MarkerArray>,
+    /// The skeletons of each image together (empty when `[outputs] arrays` is off).
+    pub arrays: Publishers<Skeleton3DArray>,
+    /// Groups the skeletons into arrays, when there are array publishers.
+    grouping: ImageArrays,
+    /// Arrays ready to be sent (reused).
+    ready: Vec<Skeleton3DArray>,
     bones: Vec<(usize, usize)>,
     /// Send each skeleton stamped with the time of the frame that released it (a
     /// replay's log time) instead of its own frame's stamp.
@@ -274,10 +295,20 @@ impl EstimatorOutputs {
         Self {
             skeletons,
             markers,
+            arrays: Publishers::default(),
+            grouping: ImageArrays::default(),
+            ready: Vec::new(),
             bones,
             stamp_at_release: false,
             released_at: 0,
         }
+    }
+
+    /// The same outputs, also sending the skeletons of each image together to `arrays`
+    /// ([`ImageArrays`]).
+    pub fn with_arrays(mut self, arrays: Publishers<Skeleton3DArray>) -> Self {
+        self.arrays = arrays;
+        self
     }
 
     /// The same outputs, sending each skeleton stamped with the time of the frame that
@@ -321,11 +352,34 @@ impl EstimatorOutputs {
         } else {
             Publishers::default()
         };
-        Ok(Self::new(skeletons, markers, bones))
+        let arrays = if config.outputs.arrays {
+            publishers(
+                config,
+                middleware,
+                recorder,
+                &config.topics.skeleton_arrays,
+                None,
+            )?
+        } else {
+            Publishers::default()
+        };
+        Ok(Self::new(skeletons, markers, bones).with_arrays(arrays))
     }
 
-    /// Publishes the node's skeletons and hands them back to it to be reused.
-    pub(super) fn publish(&mut self, skeletons: &mut Vec<Skeleton3D>, node: &mut EstimatorNode) {
+    /// Publishes the node's skeletons, released by a heat-map message of the image
+    /// captured at `image_ns` (`None`: by none, as when a track ends at the end of the
+    /// stream), and hands them back to it to be reused. The previous image's arrays go
+    /// first when this is another image.
+    pub(super) fn publish(
+        &mut self,
+        image_ns: Option<i64>,
+        skeletons: &mut Vec<Skeleton3D>,
+        node: &mut EstimatorNode,
+    ) {
+        if !self.arrays.is_empty() && (image_ns.is_some() || !skeletons.is_empty()) {
+            self.grouping.add(image_ns, skeletons, &mut self.ready);
+            self.send_arrays();
+        }
         for s in skeletons.iter() {
             let stamp = self.stamp(s);
             self.skeletons.publish(s, stamp);
@@ -337,8 +391,57 @@ impl EstimatorOutputs {
         node.recycle(skeletons);
     }
 
-    /// Publishes skeletons on a runtime ([`Publishers::publish_async`]).
-    pub(super) async fn publish_async(&mut self, skeletons: &[Skeleton3D]) {
+    /// Sends the arrays of an image that may not be complete yet (the input went quiet,
+    /// or ends).
+    pub(super) fn flush_arrays(&mut self) {
+        if self.grouping.is_pending() {
+            self.grouping.flush(&mut self.ready);
+            self.send_arrays();
+        }
+    }
+
+    /// [`EstimatorOutputs::flush_arrays`] on a runtime.
+    pub(super) async fn flush_arrays_async(&mut self) {
+        if self.grouping.is_pending() {
+            self.grouping.flush(&mut self.ready);
+            self.send_arrays_async().await;
+        }
+    }
+
+    fn send_arrays(&mut self) {
+        for a in &self.ready {
+            let stamp = self.array_stamp(a);
+            self.arrays.publish(a, stamp);
+        }
+        self.grouping.recycle(&mut self.ready);
+    }
+
+    async fn send_arrays_async(&mut self) {
+        let ready = std::mem::take(&mut self.ready);
+        for a in &ready {
+            let stamp = self.array_stamp(a);
+            self.arrays.publish_async(a, stamp).await;
+        }
+        self.ready = ready;
+        self.grouping.recycle(&mut self.ready);
+    }
+
+    /// The stamp an array is sent with (as its skeletons' are).
+    fn array_stamp(&self, array: &Skeleton3DArray) -> u64 {
+        if self.stamp_at_release {
+            self.released_at
+        } else {
+            u64::try_from(array.header.stamp.nanos()).unwrap_or(0)
+        }
+    }
+
+    /// Publishes skeletons on a runtime ([`Publishers::publish_async`]), as
+    /// [`EstimatorOutputs::publish`] does.
+    pub(super) async fn publish_async(&mut self, image_ns: Option<i64>, skeletons: &[Skeleton3D]) {
+        if !self.arrays.is_empty() && (image_ns.is_some() || !skeletons.is_empty()) {
+            self.grouping.add(image_ns, skeletons, &mut self.ready);
+            self.send_arrays_async().await;
+        }
         for s in skeletons {
             let stamp = self.stamp(s);
             self.skeletons.publish_async(s, stamp).await;

@@ -119,15 +119,28 @@ pub struct View {
 
 /// Projects a mapped sequence through the camera.
 pub fn view(seq: &MappedSequence, skeleton: &Skeleton, cam: &CameraSpec) -> Result<View, String> {
+    view_from(seq, seq, skeleton, cam)
+}
+
+/// Projects `seq` through the camera that `cam` places relative to `anchor` (another
+/// person of the same scene, whose frames it must have): everyone in a scene is seen by
+/// the camera of its first person.
+pub fn view_from(
+    anchor: &MappedSequence,
+    seq: &MappedSequence,
+    skeleton: &Skeleton,
+    cam: &CameraSpec,
+) -> Result<View, String> {
     cam.validate()?;
     let p = seq.joints;
-    if p != skeleton.len() || seq.frames == 0 {
+    if p != skeleton.len() || seq.frames == 0 || anchor.joints != p || anchor.frames < seq.frames {
         return Err("the sequence does not match the layout or has no frames".into());
     }
     let root = skeleton.root();
-    let root_at = |t: usize| Vector3::from_column_slice(&seq.positions[3 * (t * p + root)..][..3]);
+    let root_at =
+        |t: usize| Vector3::from_column_slice(&anchor.positions[3 * (t * p + root)..][..3]);
     let front = skeleton
-        .facing(&seq.positions[..3 * p])
+        .facing(&anchor.positions[..3 * p])
         .ok_or("the layout has no left/right torso joints to tell where the body faces")?;
     let left = Vector3::z().cross(&front);
     let first_root = root_at(0);
@@ -172,6 +185,73 @@ pub fn view(seq: &MappedSequence, skeleton: &Skeleton, cam: &CameraSpec) -> Resu
         frames: seq.frames,
         camera_3d,
         image_2d,
+    })
+}
+
+/// Where another person of a scene starts and how they move, relative to the first
+/// person's start: in the first person's horizontal frame as it first faces (`ahead`
+/// along its facing direction, `left` to its left), metres.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Placement {
+    /// Start, metres ahead of the first person's root.
+    pub ahead: f64,
+    /// Start, metres to the first person's left.
+    pub left: f64,
+    /// Facing, degrees counter-clockwise from the first person's facing.
+    pub turn_deg: f64,
+    /// A walk on top of the take's own motion, metres per second: `[ahead, left]`.
+    pub velocity: [f64; 2],
+}
+
+/// `person` moved into the scene of `first`: turned and placed by `placement`, its own
+/// motion kept (heights too), plus the placement's walk. Both must have the same frame
+/// time; the result has `person`'s frames.
+pub fn place(
+    first: &MappedSequence,
+    person: &MappedSequence,
+    skeleton: &Skeleton,
+    placement: &Placement,
+) -> Result<MappedSequence, String> {
+    let p = skeleton.len();
+    if first.joints != p || person.joints != p || first.frames == 0 || person.frames == 0 {
+        return Err("the sequences do not match the layout or have no frames".into());
+    }
+    if (first.frame_time - person.frame_time).abs() > 1e-9 {
+        return Err(format!(
+            "frame times differ: {} s and {} s",
+            first.frame_time, person.frame_time
+        ));
+    }
+    let facing = |seq: &MappedSequence| {
+        skeleton
+            .facing(&seq.positions[..3 * p])
+            .ok_or("the layout has no left/right torso joints to tell where the body faces")
+    };
+    let (front, own) = (facing(first)?, facing(person)?);
+    let left = Vector3::z().cross(&front);
+    let root = skeleton.root();
+    let root0 = |seq: &MappedSequence| Vector3::from_column_slice(&seq.positions[3 * root..][..3]);
+    let (anchor, start) = (root0(first), root0(person));
+    // The yaw that turns the person's facing onto the first's, then `turn_deg` more.
+    let yaw = front.y.atan2(front.x) - own.y.atan2(own.x) + placement.turn_deg.to_radians();
+    let turn = nalgebra::Rotation3::from_axis_angle(&Vector3::z_axis(), yaw);
+    let at = anchor + front * placement.ahead + left * placement.left;
+    let walk = front * placement.velocity[0] + left * placement.velocity[1];
+    let mut positions = Vec::with_capacity(person.positions.len());
+    for t in 0..person.frames {
+        let shift = Vector3::new(at.x, at.y, 0.0) + walk * (t as f64 * person.frame_time);
+        for j in 0..p {
+            let w = Vector3::from_column_slice(&person.positions[3 * (t * p + j)..][..3]);
+            let local = Vector3::new(w.x - start.x, w.y - start.y, w.z);
+            let q = turn * local + shift;
+            positions.extend([q.x, q.y, q.z]);
+        }
+    }
+    Ok(MappedSequence {
+        joints: p,
+        frames: person.frames,
+        frame_time: person.frame_time,
+        positions,
     })
 }
 

@@ -1,0 +1,261 @@
+//! Several people at once in the estimator node: a window per track, tracks that end
+//! when their person leaves, a bound on how many run at once.
+
+mod common;
+
+use common::{recording, root};
+use posestream::msgs::{HeatMaps, Skeleton3D, SkeletonState};
+use posestream::nodes::{EstimatorNode, ServiceConfig};
+use posestream::recording::read_topic;
+
+fn config() -> ServiceConfig {
+    let mut c = ServiceConfig::load(root().join("config/default.toml")).expect("config");
+    c.estimator.dictionary = root().join(&c.estimator.dictionary);
+    c.outputs.ros2 = false;
+    c
+}
+
+fn node() -> EstimatorNode {
+    EstimatorNode::from_config(&config().estimator).expect("node")
+}
+
+fn frames(name: &str) -> Vec<HeatMaps> {
+    read_topic(&recording(name), "/posestream/heatmaps")
+        .expect("reads")
+        .into_iter()
+        .map(|(_, m)| m)
+        .collect()
+}
+
+/// Two people in the same images: byebye's frames as track `a`, kick's as track `b`
+/// with byebye's sequence numbers and capture times, `n` images.
+fn two_people(a: u32, b: u32, n: usize) -> (Vec<HeatMaps>, Vec<HeatMaps>) {
+    let first = frames("byebye.mcap");
+    let second = frames("kick.mcap");
+    assert!(first.len() >= n && second.len() >= n);
+    let mut one = Vec::new();
+    let mut two = Vec::new();
+    for (x, y) in first.into_iter().zip(second).take(n) {
+        let mut x = x;
+        let mut y = y;
+        x.track_id = a;
+        y.track_id = b;
+        y.sequence = x.sequence;
+        y.header.stamp = x.header.stamp.clone();
+        one.push(x);
+        two.push(y);
+    }
+    (one, two)
+}
+
+/// What a node alone with `frames` publishes.
+fn alone(frames: &[HeatMaps]) -> Vec<Skeleton3D> {
+    let mut node = node();
+    let mut out = Vec::new();
+    for m in frames {
+        node.handle(m, &mut out).expect("frame");
+    }
+    node.finish(&mut out);
+    out
+}
+
+fn of_track(out: &[Skeleton3D], id: u32) -> Vec<Skeleton3D> {
+    out.iter().filter(|s| s.track_id == id).cloned().collect()
+}
+
+fn summary(out: &[Skeleton3D]) -> Vec<(u32, u64, u32, u8)> {
+    out.iter()
+        .map(|s| (s.track_id, s.sequence, s.lag, s.state))
+        .collect()
+}
+
+#[test]
+fn two_people_in_the_same_images_never_reset_each_others_windows() {
+    // Track ids at both ends of their range: a detector's numbering that wrapped.
+    let (a, b) = (u32::MAX, 0);
+    let (one, two) = two_people(a, b, 80);
+    let mut node = node();
+    let mut out = Vec::new();
+    for (x, y) in one.iter().zip(&two) {
+        node.handle(x, &mut out).expect("first person");
+        node.handle(y, &mut out).expect("second person");
+        assert_eq!(node.tracks(), 2);
+    }
+    node.finish(&mut out);
+    // Each person's skeletons are exactly those of a node that saw only them.
+    let (want_a, want_b) = (alone(&one), alone(&two));
+    assert_eq!(want_a.len(), 80 + 80, "{:?}", summary(&want_a));
+    assert_eq!(of_track(&out, a), want_a, "{:?}", summary(&out));
+    assert_eq!(of_track(&out, b), want_b);
+    let c = node.counters();
+    assert_eq!((c.tracks, c.resets, c.frames), (2, 0, 160), "{c:?}");
+    assert_eq!(node.malformed(), 0);
+}
+
+#[test]
+fn a_person_who_leaves_ends_with_their_owed_estimates_and_the_other_goes_on() {
+    let (one, two) = two_people(1, 2, 90);
+    let lag = config().estimator.window.lag as u32;
+    let mut node = node();
+    let mut out = Vec::new();
+    let mut ended_at = None;
+    for (i, (x, y)) in one.iter().zip(&two).enumerate() {
+        node.handle(x, &mut out).expect("first person");
+        // The second person leaves after 20 images.
+        if i < 20 {
+            node.handle(y, &mut out).expect("second person");
+        }
+        if ended_at.is_none() && out.iter().any(|s| s.state == SkeletonState::Lost as u8) {
+            ended_at = Some(i);
+        }
+    }
+    node.finish(&mut out);
+    // Their track ended once the first person's images were more than the window's
+    // `max_gap_seconds` (1 s, 30 frames) past their last one, with the refined
+    // estimates still owed (frames 10..20, lag < L, state lost).
+    let ended_at = ended_at.expect("the track ended");
+    let stamp = |m: &HeatMaps| m.header.stamp.nanos();
+    let gone = (stamp(&one[ended_at]) - stamp(&two[19])) as f64 * 1e-9;
+    let before = (stamp(&one[ended_at - 1]) - stamp(&two[19])) as f64 * 1e-9;
+    assert!(gone > 1.0 && before <= 1.0, "{gone} s, {before} s");
+    let left = of_track(&out, 2);
+    let lost: Vec<_> = left
+        .iter()
+        .filter(|s| s.state == SkeletonState::Lost as u8)
+        .collect();
+    assert_eq!(lost.len(), lag as usize, "{:?}", summary(&left));
+    assert!(
+        lost.iter()
+            .all(|s| s.lag < lag && (10..20).contains(&s.sequence))
+    );
+    // Nothing of theirs was lost or changed, and the first person never noticed.
+    assert_eq!(left, alone(&two[..20]));
+    assert_eq!(of_track(&out, 1), alone(&one));
+    assert_eq!(node.counters().tracks, 2);
+}
+
+#[test]
+fn more_people_than_max_tracks_are_refused_and_counted() {
+    let (one, two) = two_people(1, 2, 40);
+    let (_, three) = two_people(1, 3, 40);
+    let mut node = node().with_max_tracks(2);
+    let mut out = Vec::new();
+    for ((x, y), z) in one.iter().zip(&two).zip(&three) {
+        node.handle(x, &mut out).expect("first person");
+        node.handle(y, &mut out).expect("second person");
+        let e = node
+            .handle(z, &mut out)
+            .expect_err("a third is one too many");
+        assert!(e.to_string().contains("at most 2"), "{e}");
+        assert_eq!(node.tracks(), 2);
+    }
+    node.finish(&mut out);
+    assert_eq!(node.refused().of("too-many-tracks"), 40);
+    assert_eq!(of_track(&out, 1), alone(&one));
+    assert_eq!(of_track(&out, 2), alone(&two));
+    assert!(of_track(&out, 3).is_empty());
+}
+
+#[test]
+fn a_track_id_seen_again_after_its_track_ended_is_a_new_track() {
+    // One person, lost for 2 s (no frame), then found again under the same id: the old
+    // track ends with its owed estimates, a new one starts.
+    let mut frames = frames("byebye.mcap");
+    frames.truncate(60);
+    for m in &mut frames[30..] {
+        m.header.stamp = posestream::msgs::Time::from_nanos(m.header.stamp.nanos() + 2_000_000_000);
+    }
+    let mut node = node();
+    let mut out = Vec::new();
+    for m in &frames {
+        node.handle(m, &mut out).expect("frame");
+    }
+    node.finish(&mut out);
+    let c = node.counters();
+    assert_eq!((c.tracks, c.resets), (2, 1), "{c:?}");
+    let lost = out
+        .iter()
+        .filter(|s| s.state == SkeletonState::Lost as u8)
+        .count();
+    assert_eq!(lost, 20, "{:?}", summary(&out));
+}
+
+/// A recording of `people` (each one's heat maps, image by image), as a detector
+/// publishing one message per person would have made it.
+fn recording_of(path: &std::path::Path, people: &[&[HeatMaps]]) {
+    let mut rec = posestream::recording::Recorder::create(path).expect("create");
+    for i in 0..people[0].len() {
+        for person in people {
+            let m = &person[i];
+            let t = m.header.stamp.nanos() as u64;
+            rec.write(&config().topics.heatmaps, t, m).expect("write");
+        }
+    }
+    rec.finish().expect("finish");
+}
+
+#[test]
+fn each_image_s_people_are_recorded_together_and_independent_clients_read_them() {
+    use posestream::msgs::Skeleton3DArray;
+    use posestream::nodes::config::ReplayRate;
+    use posestream::nodes::replay::{ReplayOptions, replay};
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (input, output) = (dir.path().join("two.mcap"), dir.path().join("out.mcap"));
+    let (one, two) = two_people(4, 9, 80);
+    recording_of(&input, &[&one, &two]);
+    let options = ReplayOptions {
+        record: Some(output.clone()),
+        rosbag2: false,
+        rate: ReplayRate::Fast,
+    };
+    let stop = std::sync::atomic::AtomicBool::new(false);
+    let report = replay(&config(), &input, &options, &stop).expect("replay");
+    assert_eq!((report.counters.tracks, report.counters.resets), (2, 0));
+    let skeletons: Vec<Skeleton3D> = read_topic(&output, "/posestream/skeletons")
+        .expect("skeletons")
+        .into_iter()
+        .map(|(_, s)| s)
+        .collect();
+    assert_eq!(of_track(&skeletons, 4), alone(&one));
+    assert_eq!(of_track(&skeletons, 9), alone(&two));
+    let arrays: Vec<Skeleton3DArray> = read_topic(&output, "/posestream/skeleton_arrays")
+        .expect("arrays")
+        .into_iter()
+        .map(|(_, a)| a)
+        .collect();
+    // One array per image and lag: 80 newest, 70 refined while tracking, 10 owed at
+    // the end; each holds both people, with the image's stamp, sequence and lag.
+    assert_eq!(arrays.len(), 80 + 70 + 10);
+    let mut seen = Vec::new();
+    for a in &arrays {
+        let tracks: Vec<u32> = a.skeletons.iter().map(|s| s.track_id).collect();
+        assert_eq!(tracks, [4, 9], "image {} lag {}", a.sequence, a.lag);
+        for s in &a.skeletons {
+            assert_eq!((s.sequence, s.lag), (a.sequence, a.lag));
+            assert_eq!(s.header, a.header);
+            seen.push(s.clone());
+        }
+    }
+    // Every skeleton is in exactly one array.
+    let key = |s: &Skeleton3D| (s.track_id, s.sequence, s.lag);
+    let mut want = skeletons.clone();
+    want.sort_by_key(key);
+    seen.sort_by_key(key);
+    assert_eq!(seen, want);
+    // Python's mcap-ros2-support decodes the arrays from the recording's own schema.
+    let py = common::python_client("read_recording.py", &[output.to_str().expect("utf-8")]);
+    assert_eq!(
+        py["schemas"]["/posestream/skeleton_arrays"],
+        "posestream_msgs/msg/Skeleton3DArray"
+    );
+    let decoded = py["arrays"].as_array().expect("arrays");
+    assert_eq!(decoded.len(), arrays.len());
+    for (d, a) in decoded.iter().zip(&arrays) {
+        assert_eq!(d["sequence"], a.sequence);
+        assert_eq!(d["lag"], a.lag);
+        assert_eq!(d["tracks"], serde_json::json!([4, 9]));
+        let positions: Vec<f64> =
+            serde_json::from_value(d["first_positions"].clone()).expect("f64");
+        assert_eq!(positions, a.skeletons[0].positions);
+    }
+}
