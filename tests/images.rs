@@ -157,6 +157,25 @@ fn a_folder_of_real_photos_becomes_skeletons_in_mcap_and_a_picture() {
         "head at ({x}, {y})"
     );
     assert!(astronaut.positions.iter().all(|v| v.is_finite()));
+    // No calibration in a folder: each image's camera is assumed, 60 degrees across,
+    // centred, and the skeletons are in metres under it, in front of the camera.
+    let infos = read_all::<posestream::msgs::sensor::CameraInfo>(&out, "/camera/camera_info");
+    assert_eq!(infos.len(), 3, "one per image size");
+    let portrait = &infos[0];
+    assert_eq!((portrait.width, portrait.height), (512, 512));
+    let focal = 256.0 / 30f64.to_radians().tan();
+    assert!((portrait.k[0] - focal).abs() < 1e-9 && portrait.k[4] == portrait.k[0]);
+    assert_eq!((portrait.k[2], portrait.k[5]), (255.5, 255.5));
+    let metric: Vec<_> = skeletons
+        .iter()
+        .filter(|k| k.units == posestream::msgs::Units::Metres as u8)
+        .collect();
+    assert_eq!(metric.len(), skeletons.len(), "every skeleton in metres");
+    assert!(
+        metric.iter().all(|k| (0.3..30.0).contains(&k.positions[2])),
+        "{:?}",
+        metric.iter().map(|k| k.positions[2]).collect::<Vec<_>>()
+    );
     // Pictures: one frame as PNG (image scaled to 200 high, plus a 200 x 200 view) and
     // all of them as a GIF.
     let png = dir.path().join("astronaut.png");
@@ -208,6 +227,16 @@ fn a_real_video_is_tracked_and_its_skeletons_recorded() {
     // Every frame with heat maps gets its skeletons (newest and refined).
     let skeletons = read_all::<Skeleton3D>(&out, "/posestream/skeletons");
     assert_eq!(skeletons.len() as u64, 2 * detected, "{report}");
+    // One assumed calibration for the video's frames (all 640 x 272); metres.
+    let infos = read_all::<posestream::msgs::sensor::CameraInfo>(&out, "/camera/camera_info");
+    assert_eq!(infos.len(), 1);
+    assert_eq!((infos[0].width, infos[0].height), (640, 272));
+    assert_eq!(report["estimator"]["metric_failures"], 0, "{report}");
+    assert!(
+        skeletons
+            .iter()
+            .all(|k| k.units == posestream::msgs::Units::Metres as u8)
+    );
     let png = dir.path().join("bike.png");
     let seq = maps[maps.len() / 2].sequence.to_string();
     posestream(&[

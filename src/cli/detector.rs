@@ -42,9 +42,17 @@ pub fn run(args: &DetectorArgs) -> Result<(), CliError> {
         source,
         stats,
         rate,
+        camera,
     } = input;
+    // Images from files: their assumed calibration goes out beside the heat maps.
+    if let Some(tap) = &camera {
+        tap.publish_to(wiring.camera_outputs(&config)?);
+    }
     // The source and the sinks are dropped in the loop: before the middleware under them.
     let mut report = run_detector_on_runtime(source, sinks, rate, &stop)?;
+    if let Some(tap) = &camera {
+        tap.close();
+    }
     report.images = service::DetectorInput::stats_now(&stats);
     let concluded = wiring.conclude(report.input_error.as_deref());
     print(args.json, &report)?;

@@ -6,6 +6,7 @@
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
+use super::camera::{CameraTap, assumed_camera_info};
 use super::config::{DetectorSource, ServiceConfig};
 use crate::detector::{DetectorStats, ImageDetector};
 use crate::images::{DecodedImages, FolderSource, ImageFrame, VideoSource};
@@ -20,6 +21,8 @@ pub type SharedStats = Arc<Mutex<DetectorStats>>;
 /// Heat maps computed from the frames of an image source.
 pub struct ImageHeatMaps {
     frames: Box<dyn Source<ImageFrame>>,
+    /// The field of view assumed for the images, and where their calibration goes.
+    camera: Option<(f64, CameraTap)>,
     detector: ImageDetector,
     joint_names: Vec<String>,
     encoding: HeatMapEncoding,
@@ -35,11 +38,19 @@ impl ImageHeatMaps {
     ) -> Self {
         Self {
             frames,
+            camera: None,
             joint_names: detector.joint_names().to_vec(),
             detector,
             encoding,
             stats: SharedStats::default(),
         }
+    }
+
+    /// The same source, giving each image the calibration of a camera with horizontal
+    /// field of view `fov_deg` (degrees): written to `tap` before its heat maps.
+    pub fn with_assumed_camera(mut self, fov_deg: f64, tap: CameraTap) -> Self {
+        self.camera = Some((fov_deg, tap));
+        self
     }
 
     /// A handle on the detector's counters.
@@ -55,6 +66,9 @@ impl Source<HeatMaps> for ImageHeatMaps {
             Received::Idle => return Ok(Received::Idle),
             Received::Closed => return Ok(Received::Closed),
         };
+        if let Some((fov, tap)) = &self.camera {
+            tap.image(assumed_camera_info(&frame, *fov), stamp);
+        }
         let result = self.detector.detect(&frame).map(|found| {
             found.map(|d| {
                 let header = Header {

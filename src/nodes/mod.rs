@@ -7,9 +7,11 @@
 //! - [`service`]: the detector, estimator, pipeline and recorder loops over any
 //!   transport ([`crate::transport`]), and their wiring from the configuration;
 //! - [`markers`]: skeletons as `visualization_msgs/MarkerArray`;
-//! - [`arrays`]: the skeletons of one image together (`Skeleton3DArray`).
+//! - [`arrays`]: the skeletons of one image together (`Skeleton3DArray`);
+//! - [`camera`]: the calibration assumed for images without one (`CameraInfo`).
 
 pub mod arrays;
+pub mod camera;
 pub mod config;
 pub mod images;
 pub mod latency;
@@ -765,15 +767,18 @@ fn release(
 }
 
 /// The metric pose of estimate `e` into `m.pose`: refused when the frame's crop box is
-/// not in the camera's images (its centre outside them).
+/// not in the camera's images (it does not overlap them; a crop may reach past an
+/// image's edge, as BlazePose's body circle does).
 fn metric_pose(m: &mut Metric, e: &FrameEstimate, info: &FrameInfo) -> Result<(), String> {
     if let Some((width, height)) = m.size {
-        let [x, y] = info.to_image.apply(0.0, 0.0);
-        let [x1, y1] = info.to_image.apply(info.map_size.0, info.map_size.1);
-        let (cx, cy) = (0.5 * (x + x1), 0.5 * (y + y1));
-        if !(0.0..=width).contains(&cx) || !(0.0..=height).contains(&cy) {
+        let [x0, y0] = info.to_image.apply(-0.5, -0.5);
+        let [x1, y1] = info
+            .to_image
+            .apply(info.map_size.0 - 0.5, info.map_size.1 - 0.5);
+        let overlaps = |a0: f64, a1: f64, n: f64| a0.min(a1) < n && a0.max(a1) > 0.0;
+        if !(overlaps(x0, x1, width) && overlaps(y0, y1, height)) {
             return Err(format!(
-                "the crop box's centre ({cx:.0}, {cy:.0}) is outside the camera's {width} x {height} images"
+                "the crop box ({x0:.0}, {y0:.0}) - ({x1:.0}, {y1:.0}) is outside the camera's {width} x {height} images"
             ));
         }
     }

@@ -70,6 +70,10 @@ pub struct ImageSettings {
     pub detection_threshold: f32,
     /// How the heat maps are sent: `float32`, or `uint8` (4 x smaller).
     pub encoding: MapEncoding,
+    /// The horizontal field of view, degrees, assumed for images from files (folders,
+    /// videos), which carry no calibration: their `sensor_msgs/CameraInfo` is that of a
+    /// pinhole camera centred on the image; 0: none (skeletons in dictionary units).
+    pub field_of_view: f64,
 }
 
 /// [`HeatMapEncoding`] as configured.
@@ -97,6 +101,7 @@ impl Default for ImageSettings {
             person_detector: true,
             detection_threshold: 0.5,
             encoding: MapEncoding::Float32,
+            field_of_view: 60.0,
         }
     }
 }
@@ -114,6 +119,9 @@ impl ImageSettings {
     /// Checks every value is in its domain; the error names the key
     /// (`[detector.images]` in the service configuration).
     pub fn check(&self) -> Result<(), OutOfDomain> {
+        if self.field_of_view != 0.0 {
+            check_real("field_of_view", self.field_of_view, 1.0, 170.0, false)?;
+        }
         check_real("fps", self.fps, 0.0, 1000.0, true)?;
         check_real(
             "presence_threshold",

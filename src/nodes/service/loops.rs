@@ -8,10 +8,11 @@ use std::time::{Duration, Instant};
 use serde::Serialize;
 
 use super::ServiceError;
-use super::runtime::{DetectorSide, run_estimator_on_runtime};
+use super::runtime::{DetectorSide, run_estimator_with_camera};
 use super::wiring::{DetectorInput, EstimatorOutputs, Publishers, Wiring, detector_transport};
 use crate::detector::DetectorStats;
 use crate::msgs::HeatMaps;
+use crate::nodes::camera::CameraTap;
 use crate::nodes::config::{ReplayRate, ServiceConfig};
 use crate::nodes::latency::{LatencyHistogram, LatencySummary};
 use crate::nodes::{EstimatorNode, Refusals};
@@ -231,7 +232,7 @@ pub struct PipelineReport {
 /// Detector and estimator in one process, on a tokio runtime: the detector's source
 /// (the configured one, [`detector_input`]) on a thread of its own, paced on the
 /// runtime, feeds the estimator's solver thread through a bounded channel (a slow
-/// estimator slows the detector down: [`DetectorSide`], [`run_estimator_on_runtime`]);
+/// estimator slows the detector down: [`DetectorSide`], [`run_estimator_with_camera`]);
 /// results go to the configured outputs. When recording, the heat maps are recorded
 /// too, so that the recording holds the whole run (`posestream render` draws them).
 pub fn run_pipeline(
@@ -248,7 +249,13 @@ pub fn run_pipeline(
         source,
         stats,
         rate,
+        camera,
     } = input;
+    // The calibration assumed for images from files: published and recorded, and read
+    // by the estimator before the heat maps of its first image.
+    if let Some(tap) = &camera {
+        tap.publish_to(wiring.camera_outputs(config)?);
+    }
     let mut heatmaps = Publishers::default();
     if let Some(r) = &wiring.recorder {
         heatmaps.add(
@@ -257,7 +264,16 @@ pub fn run_pipeline(
         );
     }
     let mut detector = DetectorSide::spawn(source, heatmaps, rate, stop)?;
-    let estimator = run_estimator_on_runtime(&mut node, &mut detector, &mut outputs, stop)?;
+    let estimator = run_estimator_with_camera(
+        &mut node,
+        &mut detector,
+        camera.as_ref().map(CameraTap::reader),
+        &mut outputs,
+        stop,
+    )?;
+    if let Some(tap) = &camera {
+        tap.close();
+    }
     let mut detector = detector.conclude();
     detector.images = DetectorInput::stats_now(&stats);
     drop(outputs);

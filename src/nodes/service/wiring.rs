@@ -14,6 +14,7 @@ use crate::msgs::{HeatMaps, MarkerArray, Skeleton3D, Skeleton3DArray};
 use crate::nodes::EstimatorNode;
 use crate::nodes::SetupError;
 use crate::nodes::arrays::ImageArrays;
+use crate::nodes::camera::CameraTap;
 use crate::nodes::config::{DetectorSource, ReplayRate, ServiceConfig, Transport};
 use crate::nodes::images::{ImageHeatMaps, SharedStats, image_frames};
 use crate::nodes::markers::skeleton_markers;
@@ -525,6 +526,9 @@ pub struct DetectorInput {
     /// The pace: `detector.rate` for a recording of heat maps; image sources go as fast
     /// as the model (a camera paces itself).
     pub rate: ReplayRate,
+    /// The calibration assumed for images from files (`detector.images.field_of_view`),
+    /// for the outputs ([`Wiring::camera_outputs`]) and an estimator in the process.
+    pub camera: Option<CameraTap>,
 }
 
 impl DetectorInput {
@@ -546,6 +550,7 @@ pub fn detector_input(
             source: Box::new(recording_source(config, &config.detector.recording)?),
             stats: None,
             rate: config.detector.rate,
+            camera: None,
         });
     }
     let dictionary =
@@ -554,11 +559,22 @@ pub fn detector_input(
         .map_err(SetupError::Detector)?;
     let frames = image_frames(config, middleware.ros.as_mut())?;
     let encoding = config.detector.images.encoding.message_encoding();
-    let source = ImageHeatMaps::new(frames, detector, encoding);
+    let mut source = ImageHeatMaps::new(frames, detector, encoding);
+    // Files carry no calibration: a camera is assumed (a real one has its own).
+    let fov = config.detector.images.field_of_view;
+    let from_files = matches!(
+        config.detector.source,
+        DetectorSource::Images | DetectorSource::Video
+    );
+    let camera = (from_files && fov > 0.0).then(CameraTap::default);
+    if let Some(tap) = &camera {
+        source = source.with_assumed_camera(fov, tap.clone());
+    }
     Ok(DetectorInput {
         stats: Some(source.stats()),
         source: Box::new(source),
         rate: ReplayRate::Fast,
+        camera,
     })
 }
 
@@ -640,6 +656,21 @@ impl Wiring {
         config: &ServiceConfig,
     ) -> Result<DetectorInput, ServiceError> {
         detector_input(config, &mut self.middleware)
+    }
+
+    /// The configured publishers of the camera's calibration (`topics.camera_info`: ROS 2
+    /// and the output recording).
+    pub fn camera_outputs(
+        &mut self,
+        config: &ServiceConfig,
+    ) -> Result<Publishers<CameraInfo>, ServiceError> {
+        publishers(
+            config,
+            &mut self.middleware,
+            self.recorder.as_ref(),
+            &config.topics.camera_info,
+            None,
+        )
     }
 
     /// The estimator node's heat maps from `transport` ([`Middleware::estimator_input`]).
