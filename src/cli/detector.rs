@@ -43,6 +43,8 @@ pub fn run(args: &DetectorArgs) -> Result<(), CliError> {
         stats,
         rate,
         camera,
+        // The latency to skeletons is measured where the estimator runs too (`run`).
+        clock: _,
     } = input;
     // Images from files: their assumed calibration goes out beside the heat maps.
     if let Some(tap) = &camera {

@@ -114,11 +114,18 @@ impl Summary for service::DetectorReport {
 impl Summary for service::PipelineReport {
     fn summary(&self) -> String {
         let mut text = format!(
-            "detector: {}\nestimator: {}\n{:.2} s",
+            "detector: {}\nestimator: {}\n{:.2} s, {:.1} frames/s",
             self.detector.summary(),
             self.estimator.summary(),
-            self.seconds
+            self.seconds,
+            self.frames_per_second
         );
+        if let Some(l) = &self.latency {
+            text.push_str(&format!(
+                "\nlatency, image to newest skeleton: median {:.1} ms, p99 {:.1} ms",
+                l.median_ms, l.p99_ms
+            ));
+        }
         if let Some(r) = &self.recording {
             text.push_str(&format!("\nrecorded -> {}", r.path.display()));
         }

@@ -8,6 +8,7 @@ use std::time::Duration;
 
 use super::camera::{CameraTap, assumed_camera_info};
 use super::config::{DetectorSource, ServiceConfig};
+use super::latency::FrameClock;
 use crate::detector::{DetectorStats, ImageDetector};
 use crate::images::{DecodedImages, FolderSource, ImageFrame, VideoSource};
 use crate::msgs::{CompressedImage, Header, HeatMapEncoding, HeatMaps, Image, Time};
@@ -23,6 +24,8 @@ pub struct ImageHeatMaps {
     frames: Box<dyn Source<ImageFrame>>,
     /// The field of view assumed for the images, and where their calibration goes.
     camera: Option<(f64, CameraTap)>,
+    /// Notes when each image came in (latency to its skeletons).
+    clock: Option<FrameClock>,
     detector: ImageDetector,
     joint_names: Vec<String>,
     encoding: HeatMapEncoding,
@@ -39,6 +42,7 @@ impl ImageHeatMaps {
         Self {
             frames,
             camera: None,
+            clock: None,
             joint_names: detector.joint_names().to_vec(),
             detector,
             encoding,
@@ -50,6 +54,12 @@ impl ImageHeatMaps {
     /// field of view `fov_deg` (degrees): written to `tap` before its heat maps.
     pub fn with_assumed_camera(mut self, fov_deg: f64, tap: CameraTap) -> Self {
         self.camera = Some((fov_deg, tap));
+        self
+    }
+
+    /// The same source, noting on `clock` when each decoded image comes in.
+    pub fn with_clock(mut self, clock: FrameClock) -> Self {
+        self.clock = Some(clock);
         self
     }
 
@@ -66,6 +76,9 @@ impl Source<HeatMaps> for ImageHeatMaps {
             Received::Idle => return Ok(Received::Idle),
             Received::Closed => return Ok(Received::Closed),
         };
+        if let Some(clock) = &self.clock {
+            clock.image_in(i64::try_from(frame.stamp_ns).unwrap_or(i64::MAX));
+        }
         if let Some((fov, tap)) = &self.camera {
             tap.image(assumed_camera_info(&frame, *fov), stamp);
         }

@@ -1,6 +1,6 @@
 //! Per-frame latency in a fixed-size histogram: percentiles over any number of frames in
-//! bounded memory (10 µs bins up to 100 ms; slower frames land in the last bin and
-//! `max` keeps their exact value).
+//! bounded memory (10 µs bins up to 100 ms, or [`LatencyHistogram::coarse`]: 100 µs bins
+//! up to 1 s; slower frames land in the last bin and `max` keeps their exact value).
 
 use std::time::Duration;
 
@@ -12,6 +12,7 @@ const BINS: usize = 10_000;
 /// A histogram of durations.
 #[derive(Debug, Clone)]
 pub struct LatencyHistogram {
+    bin_ns: u64,
     bins: Vec<u32>,
     count: u64,
     total_ns: u128,
@@ -21,6 +22,7 @@ pub struct LatencyHistogram {
 impl Default for LatencyHistogram {
     fn default() -> Self {
         Self {
+            bin_ns: BIN_NS,
             bins: vec![0; BINS],
             count: 0,
             total_ns: 0,
@@ -46,10 +48,20 @@ pub struct LatencySummary {
 }
 
 impl LatencyHistogram {
+    /// A histogram of 100 µs bins up to 1 s (an image's way through the whole pipeline).
+    pub fn coarse() -> Self {
+        Self {
+            bin_ns: 10 * BIN_NS,
+            ..Self::default()
+        }
+    }
+
     /// Records one duration.
     pub fn record(&mut self, d: Duration) {
         let ns = u64::try_from(d.as_nanos()).unwrap_or(u64::MAX);
-        let bin = usize::try_from(ns / BIN_NS).unwrap_or(BINS).min(BINS - 1);
+        let bin = usize::try_from(ns / self.bin_ns)
+            .unwrap_or(BINS)
+            .min(BINS - 1);
         self.bins[bin] = self.bins[bin].saturating_add(1);
         self.count += 1;
         self.total_ns += u128::from(ns);
@@ -63,7 +75,7 @@ impl LatencyHistogram {
         for (i, &n) in self.bins.iter().enumerate() {
             seen += u64::from(n);
             if seen >= rank {
-                let edge = (i as u64 + 1) * BIN_NS;
+                let edge = (i as u64 + 1) * self.bin_ns;
                 return edge.min(self.max_ns) as f64 * 1e-6;
             }
         }
@@ -107,5 +119,69 @@ mod tests {
             (s.mean_ms - (5050.0 + 3000.0) / 101.0).abs() < 1e-9,
             "{s:?}"
         );
+    }
+}
+
+/// When each image came in, for the latency from an image to its newest skeletons
+/// (`posestream run`): the image side notes each image's capture time as it takes the
+/// decoded image ([`FrameClock::image_in`]); the output side, publishing a newest
+/// (lag 0) skeleton of that capture time, records the time since
+/// ([`FrameClock::skeleton_out`]). Cloned handles share it; it remembers the last
+/// [`FrameClock::REMEMBERED`] images.
+#[derive(Debug, Clone, Default)]
+pub struct FrameClock(std::sync::Arc<std::sync::Mutex<ClockInner>>);
+
+#[derive(Debug)]
+struct ClockInner {
+    taken: std::collections::VecDeque<(i64, std::time::Instant)>,
+    latency: LatencyHistogram,
+}
+
+impl Default for ClockInner {
+    fn default() -> Self {
+        Self {
+            taken: std::collections::VecDeque::with_capacity(FrameClock::REMEMBERED),
+            latency: LatencyHistogram::coarse(),
+        }
+    }
+}
+
+impl FrameClock {
+    /// Images remembered at most.
+    pub const REMEMBERED: usize = 64;
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, ClockInner> {
+        self.0
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+
+    /// The image captured at `stamp_ns` came in now.
+    pub fn image_in(&self, stamp_ns: i64) {
+        let mut inner = self.lock();
+        if inner.taken.len() == Self::REMEMBERED {
+            inner.taken.pop_front();
+        }
+        inner.taken.push_back((stamp_ns, std::time::Instant::now()));
+    }
+
+    /// A newest skeleton of the image captured at `stamp_ns` goes out now: its latency
+    /// is recorded (one per person).
+    pub fn skeleton_out(&self, stamp_ns: i64) {
+        let mut inner = self.lock();
+        let taken = inner
+            .taken
+            .iter()
+            .rev()
+            .find(|(s, _)| *s == stamp_ns)
+            .map(|(_, t)| *t);
+        if let Some(t) = taken {
+            inner.latency.record(t.elapsed());
+        }
+    }
+
+    /// The latencies so far.
+    pub fn summary(&self) -> LatencySummary {
+        self.lock().latency.summary()
     }
 }

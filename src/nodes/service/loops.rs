@@ -222,6 +222,11 @@ pub struct PipelineReport {
     pub estimator: EstimatorReport,
     /// Seconds of wall time.
     pub seconds: f64,
+    /// Frames the detector took per second of wall time.
+    pub frames_per_second: f64,
+    /// Image sources: from a decoded image to each of its newest (lag 0) skeletons
+    /// published, one per person.
+    pub latency: Option<LatencySummary>,
     /// The output recording, if any.
     pub recording: Option<RecordingSummary>,
     /// Why the output recording could not be finished, if it could not (the service
@@ -244,13 +249,15 @@ pub fn run_pipeline(
     let mut wiring = Wiring::open(config, detector_transport(config))?;
     let input = wiring.detector_input(config)?;
     wiring.start_recording(config)?;
-    let mut outputs = wiring.estimator_outputs(config, node.bones())?;
+    let outputs = wiring.estimator_outputs(config, node.bones())?;
     let DetectorInput {
         source,
         stats,
         rate,
         camera,
+        clock,
     } = input;
+    let mut outputs = outputs.with_clock(clock.clone());
     // The calibration assumed for images from files: published and recorded, and read
     // by the estimator before the heat maps of its first image.
     if let Some(tap) = &camera {
@@ -286,10 +293,14 @@ pub fn run_pipeline(
         }
         Err(e) => return Err(e),
     };
+    let seconds = start.elapsed().as_secs_f64();
+    let frames = detector.images.map_or(estimator.frames, |s| s.frames);
     Ok(PipelineReport {
         detector,
         estimator,
-        seconds: start.elapsed().as_secs_f64(),
+        seconds,
+        frames_per_second: frames as f64 / seconds.max(f64::MIN_POSITIVE),
+        latency: clock.map(|c| c.summary()),
         recording,
         recording_error,
     })

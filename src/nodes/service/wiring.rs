@@ -10,13 +10,14 @@ use std::time::Duration;
 use super::ServiceError;
 use crate::detector::{DetectorStats, ImageDetector};
 use crate::msgs::sensor::CameraInfo;
-use crate::msgs::{HeatMaps, MarkerArray, Skeleton3D, Skeleton3DArray};
+use crate::msgs::{HeatMaps, MarkerArray, Skeleton3D, Skeleton3DArray, SkeletonState};
 use crate::nodes::EstimatorNode;
 use crate::nodes::SetupError;
 use crate::nodes::arrays::ImageArrays;
 use crate::nodes::camera::CameraTap;
 use crate::nodes::config::{DetectorSource, ReplayRate, ServiceConfig, Transport};
 use crate::nodes::images::{ImageHeatMaps, SharedStats, image_frames};
+use crate::nodes::latency::FrameClock;
 use crate::nodes::markers::skeleton_markers;
 use crate::recording::RecordingSummary;
 use crate::transport::mcap::{McapSource, SharedRecorder};
@@ -277,6 +278,8 @@ pub struct EstimatorOutputs {
     grouping: ImageArrays,
     /// Arrays ready to be sent (reused).
     ready: Vec<Skeleton3DArray>,
+    /// Notes when each newest skeleton goes out (latency from its image).
+    clock: Option<FrameClock>,
     bones: Vec<(usize, usize)>,
     /// Send each skeleton stamped with the time of the frame that released it (a
     /// replay's log time) instead of its own frame's stamp.
@@ -299,10 +302,17 @@ impl EstimatorOutputs {
             arrays: Publishers::default(),
             grouping: ImageArrays::default(),
             ready: Vec::new(),
+            clock: None,
             bones,
             stamp_at_release: false,
             released_at: 0,
         }
+    }
+
+    /// The same outputs, noting on `clock` when each newest (lag 0) skeleton went out.
+    pub fn with_clock(mut self, clock: Option<FrameClock>) -> Self {
+        self.clock = clock;
+        self
     }
 
     /// The same outputs, also sending the skeletons of each image together to `arrays`
@@ -388,6 +398,12 @@ impl EstimatorOutputs {
                 self.markers
                     .publish(&skeleton_markers(s, &self.bones), stamp);
             }
+            if let Some(clock) = &self.clock
+                && s.lag == 0
+                && s.state != SkeletonState::Lost as u8
+            {
+                clock.skeleton_out(s.header.stamp.nanos());
+            }
         }
         node.recycle(skeletons);
     }
@@ -449,6 +465,12 @@ impl EstimatorOutputs {
             if !self.markers.is_empty() {
                 let markers = skeleton_markers(s, &self.bones);
                 self.markers.publish_async(&markers, stamp).await;
+            }
+            if let Some(clock) = &self.clock
+                && s.lag == 0
+                && s.state != SkeletonState::Lost as u8
+            {
+                clock.skeleton_out(s.header.stamp.nanos());
             }
         }
     }
@@ -529,6 +551,8 @@ pub struct DetectorInput {
     /// The calibration assumed for images from files (`detector.images.field_of_view`),
     /// for the outputs ([`Wiring::camera_outputs`]) and an estimator in the process.
     pub camera: Option<CameraTap>,
+    /// When each image came in (image sources), for the latency to its skeletons.
+    pub clock: Option<FrameClock>,
 }
 
 impl DetectorInput {
@@ -551,6 +575,7 @@ pub fn detector_input(
             stats: None,
             rate: config.detector.rate,
             camera: None,
+            clock: None,
         });
     }
     let dictionary =
@@ -570,11 +595,14 @@ pub fn detector_input(
     if let Some(tap) = &camera {
         source = source.with_assumed_camera(fov, tap.clone());
     }
+    let clock = FrameClock::default();
+    let source = source.with_clock(clock.clone());
     Ok(DetectorInput {
         stats: Some(source.stats()),
         source: Box::new(source),
         rate: ReplayRate::Fast,
         camera,
+        clock: Some(clock),
     })
 }
 
