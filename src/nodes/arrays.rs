@@ -4,8 +4,9 @@
 //!
 //! The heat maps of one image come as one message per person, so the node cannot know
 //! that an image's last person has been handled until something else happens: the first
-//! message of the next image (another capture time), a quiet input (the loops' idle
-//! tick), or the end of the stream. An image's arrays go out then: one frame after its
+//! message of the next image (another capture time or frame number), a quiet input (the
+//! loops' idle tick), or the end of the stream. An image is its capture time and frame
+//! number together, so frames stamped alike cannot pile up into one image. An image's arrays go out then: one frame after its
 //! skeletons at a steady camera rate. Each skeleton also goes out alone at once, as
 //! before.
 
@@ -15,21 +16,21 @@ use crate::msgs::{Header, Skeleton3D, Skeleton3DArray};
 /// docs. Arrays are written over those handed back ([`ImageArrays::recycle`]).
 #[derive(Debug, Default)]
 pub struct ImageArrays {
-    /// Capture time of the image whose messages are being handled.
-    image: Option<i64>,
+    /// The image whose messages are being handled: capture time and frame number.
+    image: Option<(i64, u64)>,
     /// Its arrays so far, in the order their first skeleton came.
     pending: Vec<Skeleton3DArray>,
     spare: Vec<Skeleton3DArray>,
 }
 
 impl ImageArrays {
-    /// Takes the skeletons that handling a heat-map message of the image captured at
-    /// `image_ns` released (`None`: released by no message, as at the end of a stream);
-    /// when that is another image than the last one, that image's arrays are moved to
-    /// `ready` first.
+    /// Takes the skeletons that handling a heat-map message of `image` (its capture time
+    /// and frame number) released (`None`: released by no message, as at the end of a
+    /// stream); when that is another image than the last one, that image's arrays are
+    /// moved to `ready` first.
     pub fn add(
         &mut self,
-        image_ns: Option<i64>,
+        image_ns: Option<(i64, u64)>,
         skeletons: &[Skeleton3D],
         ready: &mut Vec<Skeleton3DArray>,
     ) {
@@ -113,24 +114,43 @@ mod tests {
     }
 
     #[test]
+    fn frames_stamped_alike_do_not_pile_up() {
+        // A detector (or a peer) that stamps every frame alike: each message is still
+        // its own image (its own sequence number), so nothing accumulates.
+        let mut arrays = ImageArrays::default();
+        let mut ready = Vec::new();
+        for sequence in 0..1000 {
+            let mut s = skeleton(1, sequence, 0);
+            s.header.stamp = Time::from_nanos(5);
+            arrays.add(Some((5, sequence)), &[s], &mut ready);
+            assert!(
+                arrays.pending.len() <= 1,
+                "{} pending",
+                arrays.pending.len()
+            );
+        }
+        assert_eq!(ready.len(), 999);
+    }
+
+    #[test]
     fn an_image_s_arrays_go_out_when_the_next_image_begins() {
         let mut arrays = ImageArrays::default();
         let mut ready = Vec::new();
         // Image 20: person 1 (its newest estimate and the refined one of image 10), then
         // person 2.
         arrays.add(
-            Some(20_000),
+            Some((20_000, 20)),
             &[skeleton(1, 10, 10), skeleton(1, 20, 0)],
             &mut ready,
         );
         arrays.add(
-            Some(20_000),
+            Some((20_000, 20)),
             &[skeleton(2, 10, 10), skeleton(2, 20, 0)],
             &mut ready,
         );
         assert!(ready.is_empty() && arrays.is_pending());
         // Image 21 begins: image 20's arrays are complete.
-        arrays.add(Some(21_000), &[skeleton(1, 21, 0)], &mut ready);
+        arrays.add(Some((21_000, 21)), &[skeleton(1, 21, 0)], &mut ready);
         assert_eq!(shape(&ready), [(10, 10, vec![1, 2]), (20, 0, vec![1, 2])]);
         assert_eq!(ready[1].header.stamp, Time::from_nanos(20_000));
         assert_eq!(ready[1].header.frame_id, "camera");

@@ -84,7 +84,7 @@ pub fn run_estimator(
         let accepted = node.frames_accepted();
         let mut image = None;
         let mut handle = |frame: &crate::msgs::HeatMapsView<'_>, _stamp: u64| {
-            image = Some(frame.stamp_ns);
+            image = Some((frame.stamp_ns, frame.sequence));
             let began = Instant::now();
             // A refused message is counted and logged by the node.
             let _ = node.handle_view(frame, &mut out);

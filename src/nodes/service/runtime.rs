@@ -85,9 +85,9 @@ async fn ticking(ticks: &mpsc::Sender<Work>) {
 struct Batch {
     skeletons: Vec<Skeleton3D>,
     released_at: u64,
-    /// Capture time of the image whose heat maps released them (`None`: released by no
-    /// message, as at the end).
-    image: Option<i64>,
+    /// Capture time and frame number of the image whose heat maps released them
+    /// (`None`: released by no message, as at the end).
+    image: Option<(i64, u64)>,
 }
 
 /// What the solver thread counted.
@@ -242,7 +242,7 @@ fn solve(
                 }
                 solved.frames += 1;
                 released_at = stamp;
-                image = Some(maps.header.stamp.nanos());
+                image = Some((maps.header.stamp.nanos(), maps.sequence));
                 let accepted = node.frames_accepted();
                 let began = Instant::now();
                 // A refused message is counted and logged by the node.

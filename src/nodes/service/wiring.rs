@@ -377,13 +377,13 @@ impl EstimatorOutputs {
         Ok(Self::new(skeletons, markers, bones).with_arrays(arrays))
     }
 
-    /// Publishes the node's skeletons, released by a heat-map message of the image
-    /// captured at `image_ns` (`None`: by none, as when a track ends at the end of the
-    /// stream), and hands them back to it to be reused. The previous image's arrays go
-    /// first when this is another image.
+    /// Publishes the node's skeletons, released by a heat-map message of `image_ns` (its
+    /// capture time and frame number; `None`: by none, as when a track ends at the end
+    /// of the stream), and hands them back to it to be reused. The previous image's
+    /// arrays go first when this is another image.
     pub(super) fn publish(
         &mut self,
-        image_ns: Option<i64>,
+        image_ns: Option<(i64, u64)>,
         skeletons: &mut Vec<Skeleton3D>,
         node: &mut EstimatorNode,
     ) {
@@ -454,7 +454,11 @@ impl EstimatorOutputs {
 
     /// Publishes skeletons on a runtime ([`Publishers::publish_async`]), as
     /// [`EstimatorOutputs::publish`] does.
-    pub(super) async fn publish_async(&mut self, image_ns: Option<i64>, skeletons: &[Skeleton3D]) {
+    pub(super) async fn publish_async(
+        &mut self,
+        image_ns: Option<(i64, u64)>,
+        skeletons: &[Skeleton3D],
+    ) {
         if !self.arrays.is_empty() && (image_ns.is_some() || !skeletons.is_empty()) {
             self.grouping.add(image_ns, skeletons, &mut self.ready);
             self.send_arrays_async().await;
