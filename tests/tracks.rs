@@ -259,3 +259,48 @@ fn each_image_s_people_are_recorded_together_and_independent_clients_read_them()
         assert_eq!(positions, a.skeletons[0].positions);
     }
 }
+
+#[test]
+fn a_person_found_again_and_again_never_fills_the_tracks() {
+    // A single-person detector that loses and finds its person on every second frame
+    // takes a new id each time: 20 ids within 1.3 s. The tracks it leaves behind end
+    // when the node needs their room; no frame is refused.
+    let mut frames = frames("byebye.mcap");
+    frames.truncate(40);
+    for (i, m) in frames.iter_mut().enumerate() {
+        m.track_id = (i / 2) as u32;
+    }
+    let mut node = node();
+    let mut out = Vec::new();
+    for m in &frames {
+        node.handle(m, &mut out).expect("no frame refused");
+        assert!(node.tracks() <= 8);
+    }
+    node.finish(&mut out);
+    assert_eq!(node.malformed(), 0);
+    assert_eq!(node.counters().tracks, 20);
+    assert_eq!(node.counters().frames, 40);
+}
+
+#[test]
+fn a_late_duplicate_from_another_time_ends_no_one() {
+    // A frame of person 1 sent again, long after and stamped 5 s away: late for its
+    // track (dropped, counted), it must not end person 2's track.
+    let (one, two) = two_people(1, 2, 60);
+    let mut node = node();
+    let mut out = Vec::new();
+    for (i, (x, y)) in one.iter().zip(&two).enumerate() {
+        node.handle(x, &mut out).expect("first person");
+        node.handle(y, &mut out).expect("second person");
+        if i == 30 {
+            let mut again = one[20].clone();
+            again.header.stamp =
+                posestream::msgs::Time::from_nanos(again.header.stamp.nanos() + 5_000_000_000);
+            node.handle(&again, &mut out).expect("counted as late");
+        }
+    }
+    node.finish(&mut out);
+    let c = node.counters();
+    assert_eq!((c.tracks, c.late), (2, 1), "{c:?}");
+    assert_eq!(of_track(&out, 2), alone(&two));
+}

@@ -185,6 +185,8 @@ fn placement(text: &str) -> Result<Placement, String> {
 /// One person of the scene, seen by the camera.
 struct Person {
     view: synth::View,
+    /// Its error model (its own seed).
+    model: ErrorModel,
     frame_time: f64,
     boxes: Vec<posestream::CropBox>,
     rendered: heatmaps::RenderedMaps,
@@ -252,6 +254,7 @@ pub fn run(args: &SynthArgs) -> Result<(), CliError> {
         let rendered = heatmaps::render(&view.image_2d, &boxes, skel, &model)?;
         people.push(Person {
             view,
+            model,
             frame_time: take.frame_time,
             boxes,
             rendered,
@@ -263,7 +266,7 @@ pub fn run(args: &SynthArgs) -> Result<(), CliError> {
         } else {
             args.out.join(format!("person-{i}"))
         };
-        write_npy(args, &dir, person, &model, &cam, &mapping.name, skel)?;
+        write_npy(args, &dir, person, &cam, &mapping.name, skel)?;
     }
     if let Some(path) = &args.mcap {
         write_recording(args, path, &people, &cam, skel)?;
@@ -284,12 +287,12 @@ fn write_npy(
     args: &SynthArgs,
     dir: &std::path::Path,
     person: &Person,
-    model: &ErrorModel,
     cam: &CameraSpec,
     mapping: &str,
     skel: &posestream::Skeleton,
 ) -> Result<(), CliError> {
-    let (view, boxes, rendered) = (&person.view, &person.boxes, &person.rendered);
+    let (view, boxes, rendered, model) =
+        (&person.view, &person.boxes, &person.rendered, &person.model);
     let (f, p) = (view.frames, view.joints);
     std::fs::create_dir_all(dir).map_err(|e| CliError::create(dir, e))?;
     let out = |name: &str| dir.join(name);

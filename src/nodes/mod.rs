@@ -91,7 +91,8 @@ pub enum NodeError {
         /// What is wrong with it.
         reason: String,
     },
-    /// A frame of a new track while `max_tracks` tracks are running (none idle): refused.
+    /// A frame of a new track while `max_tracks` tracks run, each with a frame of the
+    /// same image: refused.
     #[error(
         "frame {sequence}: track {track_id} would be track {} of at most {max_tracks} (estimator.max_tracks); refused",
         max_tracks + 1
@@ -189,6 +190,10 @@ struct Track {
     frames: VecDeque<FrameInfo>,
     /// Capture time of the newest frame the window took.
     last_stamp_ns: i64,
+    /// Its frame number.
+    last_sequence: u64,
+    /// When it took it, in frames the node took (the least recent one makes room).
+    last_taken: u64,
 }
 
 /// Heat-map messages in, skeleton messages out, through one [`WindowEstimator`] per
@@ -196,11 +201,12 @@ struct Track {
 ///
 /// Each heat-map message names its person (`track_id`); each track has a window of its
 /// own, so people in one image never reset each other's windows. At most `max_tracks`
-/// run at once: a frame of one more is refused and counted (`too-many-tracks`). A track
-/// ends, its owed estimates published with state `lost`, when a frame of another track
-/// arrives more than the window's `max_gap_seconds` (in capture time) from its newest
-/// frame, when its own frames jump (the window's rules), or at the end of the stream
-/// ([`EstimatorNode::finish`]). An ended track's window is reset and kept for the next
+/// run at once: a new person's frame ends the track seen least recently if that one is
+/// not in the same image (frame number), else it is refused and counted
+/// (`too-many-tracks`). A track also ends, its owed estimates published with state
+/// `lost`, when another track takes a frame more than the window's `max_gap_seconds`
+/// (in capture time) from its newest one, when its own frames jump (the window's
+/// rules), or at the end of the stream ([`EstimatorNode::finish`]). An ended track's window is reset and kept for the next
 /// track (one at most; the others are freed).
 ///
 /// Every message is handled behind a boundary: a bad one is refused and counted by kind
@@ -224,6 +230,8 @@ pub struct EstimatorNode {
     ended: StreamCounters,
     /// The track being handled (for the boundary: the one a panic resets).
     current: Option<usize>,
+    /// Frames the tracks took, in all (orders them by recency).
+    taken: u64,
     /// The window's estimates of the frame in hand (reused from frame to frame).
     estimates: Estimates,
     /// Skeleton messages handed back ([`EstimatorNode::recycle`]), written over by the
@@ -269,6 +277,7 @@ impl EstimatorNode {
             spare_window: None,
             ended: StreamCounters::default(),
             current: None,
+            taken: 0,
             estimates: Estimates::default(),
             spare: Vec::new(),
             refused: Refusals::default(),
@@ -551,10 +560,8 @@ impl EstimatorNode {
                 sequence: msg.sequence,
                 source,
             })?;
-        // Only a well-formed frame with evidence ends other tracks or starts one.
-        if checked.has_evidence() {
-            self.end_stale(msg.track_id, msg.stamp_ns, out);
-        }
+        // Only a well-formed frame with evidence starts a track (or, once taken, ends
+        // others: below).
         let index = match self.tracks.iter().position(|t| t.id == msg.track_id) {
             Some(i) => i,
             None if !checked.has_evidence() => {
@@ -562,14 +569,27 @@ impl EstimatorNode {
                 self.ended.empty += 1;
                 return Ok(());
             }
-            None if self.tracks.len() >= self.max_tracks => {
-                return Err(NodeError::TooManyTracks {
-                    sequence: msg.sequence,
-                    track_id: msg.track_id,
-                    max_tracks: self.max_tracks,
-                });
+            None => {
+                if self.tracks.len() >= self.max_tracks {
+                    // Room is made by the track seen least recently, if it is not in
+                    // this image (a single-person detector's earlier ids, a person
+                    // who left); people of this image are never pushed out.
+                    let oldest = (0..self.tracks.len())
+                        .filter(|&i| self.tracks[i].last_sequence != msg.sequence)
+                        .min_by_key(|&i| self.tracks[i].last_taken);
+                    match oldest {
+                        Some(i) => self.end_track(i, out),
+                        None => {
+                            return Err(NodeError::TooManyTracks {
+                                sequence: msg.sequence,
+                                track_id: msg.track_id,
+                                max_tracks: self.max_tracks,
+                            });
+                        }
+                    }
+                }
+                self.start_track(msg.track_id)?
             }
-            None => self.start_track(msg.track_id)?,
         };
         self.current = Some(index);
         let track = &mut self.tracks[index];
@@ -580,8 +600,12 @@ impl EstimatorNode {
             .push_checked_into(&frame, checked, &mut self.estimates);
         // Only frames the window accepted are remembered (not late ones); the oldest
         // one no estimate can need any more is written over.
-        if track.window.counters().frames > accepted_before {
+        let taken = track.window.counters().frames > accepted_before;
+        if taken {
+            self.taken += 1;
             track.last_stamp_ns = msg.stamp_ns;
+            track.last_sequence = msg.sequence;
+            track.last_taken = self.taken;
             let to_image = crop.pixel_map(msg.width as usize, msg.height as usize);
             let oldest = if track.frames.len() >= frames_kept(&track.window) {
                 track.frames.pop_front()
@@ -611,6 +635,12 @@ impl EstimatorNode {
             &mut self.refused,
             out,
         );
+        // A frame its track took ends the tracks left behind in time (a late one, or
+        // one refused, ends none).
+        if taken {
+            self.current = None;
+            self.end_stale(msg.track_id, msg.stamp_ns, out);
+        }
         Ok(())
     }
 
@@ -636,6 +666,8 @@ impl EstimatorNode {
             window,
             frames: VecDeque::new(),
             last_stamp_ns: 0,
+            last_sequence: 0,
+            last_taken: 0,
         });
         Ok(self.tracks.len() - 1)
     }
