@@ -64,6 +64,15 @@ pub fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
+/// The messages of `topic` in the recording at `path`, without their log times.
+pub fn messages<M: posestream::msgs::RosMessage>(path: &std::path::Path, topic: &str) -> Vec<M> {
+    posestream::recording::read_topic(path, topic)
+        .unwrap_or_else(|e| panic!("{}: {topic}: {e}", path.display()))
+        .into_iter()
+        .map(|(_, m)| m)
+        .collect()
+}
+
 /// A shipped recording.
 pub fn recording(name: &str) -> PathBuf {
     root().join("recordings").join(name)

@@ -575,6 +575,79 @@ fn configuration_values_outside_their_domain_are_one_error_naming_the_key() {
             "[estimator.params]\nmax_apg_steps = 100000000000\n",
             "estimator.params.max_apg_steps",
         ),
+        ("[estimator]\nmax_tracks = 0\n", "estimator.max_tracks"),
+        (
+            "[estimator]\nmax_tracks = 1000000000\n",
+            "estimator.max_tracks",
+        ),
+        (
+            "[estimator.metric]\nintrinsics = [1000.0, 1000.0, inf, 500.0]\n",
+            "estimator.metric.intrinsics",
+        ),
+        (
+            "[estimator.metric]\nintrinsics = [1e300, 1e300, 500.0, 500.0]\n",
+            "estimator.metric.intrinsics",
+        ),
+        (
+            "[estimator.metric]\nintrinsics = [1000.0, 1000.0, 1e300, 500.0]\n",
+            "estimator.metric.intrinsics",
+        ),
+        (
+            "[topics]\nskeleton_arrays = \"/posestream/skeletons\"\n",
+            "topics.skeleton_arrays",
+        ),
+        (
+            "[topics]\ncamera_info = \"/posestream/heatmaps\"\n",
+            "topics.camera_info",
+        ),
+        (
+            "[estimator.metric]\nmean_limb_length = nan\n",
+            "estimator.metric.mean_limb_length",
+        ),
+        (
+            "[estimator.metric]\nmean_limb_length = 1e300\n",
+            "estimator.metric.mean_limb_length",
+        ),
+        (
+            "[estimator.metric]\nscale_std = 2.0\n",
+            "estimator.metric.scale_std",
+        ),
+        (
+            "[estimator.metric]\nalpha = inf\n",
+            "estimator.metric.alpha",
+        ),
+        (
+            "[estimator.metric]\nmax_iterations = 0\n",
+            "estimator.metric.max_iterations",
+        ),
+        (
+            "[estimator.metric]\napg_steps = 18446744073709551615\n",
+            "estimator.metric.apg_steps",
+        ),
+        (
+            "[estimator.metric]\ntolerance = 0.0\n",
+            "estimator.metric.tolerance",
+        ),
+        (
+            "[detector.images]\nfield_of_view = nan\n",
+            "detector.images.field_of_view",
+        ),
+        (
+            "[detector.images]\nfield_of_view = 180.0\n",
+            "detector.images.field_of_view",
+        ),
+        (
+            "[detector.images]\nfield_of_view = -60.0\n",
+            "detector.images.field_of_view",
+        ),
+        (
+            "[topics]\nskeleton_arrays = \"\"\n",
+            "topics.skeleton_arrays",
+        ),
+        (
+            "[topics]\ncamera_info = \"camera info\"\n",
+            "topics.camera_info",
+        ),
         ("[ros]\ndomain_id = 500\n", "ros.domain_id"),
         ("[ros.qos]\ndepth = 0\n", "ros.qos.depth"),
         ("[ros.qos]\ndepth = 100000000\n", "ros.qos.depth"),

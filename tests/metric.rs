@@ -62,11 +62,7 @@ fn replayed(config: &ServiceConfig, input: &Path, output: &Path) -> Vec<Skeleton
     };
     let stop = std::sync::atomic::AtomicBool::new(false);
     replay(config, input, &options, &stop).expect("replay");
-    read_topic(output, "/posestream/skeletons")
-        .expect("skeletons")
-        .into_iter()
-        .map(|(_, s)| s)
-        .collect()
+    common::messages(output, "/posestream/skeletons")
 }
 
 /// Errors of the refined (lag 10) metric skeletons against the truth.
@@ -138,11 +134,7 @@ fn errors_of(skeletons: &[Skeleton3D], truth: &[Skeleton3D], track: u32) -> Erro
 fn with_the_camera_known_skeletons_are_metres_where_the_person_stands() {
     let dir = tempfile::tempdir().expect("tempdir");
     let input = synthetic(dir.path());
-    let truth: Vec<Skeleton3D> = read_topic(&input, "/posestream/ground_truth")
-        .expect("truth")
-        .into_iter()
-        .map(|(_, s)| s)
-        .collect();
+    let truth: Vec<Skeleton3D> = common::messages(&input, "/posestream/ground_truth");
     // The camera from the recording's sensor_msgs/CameraInfo (synth writes one per
     // image), no intrinsics configured.
     let mut c = config();
@@ -253,11 +245,7 @@ fn camera_info(fx: f64, fy: f64, width: u32, height: u32) -> CameraInfo {
 fn a_camera_info_that_cannot_be_used_is_refused_counted_and_the_known_camera_stays() {
     let dir = tempfile::tempdir().expect("tempdir");
     let input = synthetic(dir.path());
-    let frames: Vec<HeatMaps> = read_topic(&input, "/posestream/heatmaps")
-        .expect("heat maps")
-        .into_iter()
-        .map(|(_, m)| m)
-        .collect();
+    let frames: Vec<HeatMaps> = common::messages(&input, "/posestream/heatmaps");
     let mut node = EstimatorNode::from_config(&config().estimator).expect("node");
     let mut out = Vec::new();
     node.camera_info(&camera_info(1000.0, 1000.0, 1000, 1000))
@@ -269,6 +257,9 @@ fn a_camera_info_that_cannot_be_used_is_refused_counted_and_the_known_camera_sta
         camera_info(1000.0, f64::INFINITY, 1000, 1000),
         camera_info(1000.0, 1000.0, 0, 1000),
         camera_info(1000.0, 1000.0, 100_000, 100_000),
+        // Finite, but no camera: metres computed with them would be nonsense.
+        camera_info(1e300, 1e300, 1000, 1000),
+        camera_info(1e-300, 1e-300, 1000, 1000),
     ];
     for (i, m) in frames.iter().take(40).enumerate() {
         if let Some(info) = bad.get(i) {
@@ -302,10 +293,8 @@ fn the_estimator_takes_the_camera_from_a_ros2_camera_info_topic() {
     static STOP: AtomicBool = AtomicBool::new(false);
     let dir = tempfile::tempdir().expect("tempdir");
     let input = synthetic(dir.path());
-    let frames: Vec<HeatMaps> = read_topic(&input, "/posestream/heatmaps")
-        .expect("heat maps")
+    let frames: Vec<HeatMaps> = common::messages(&input, "/posestream/heatmaps")
         .into_iter()
-        .map(|(_, m)| m)
         .take(60)
         .collect();
     let mut c = config();
@@ -354,11 +343,7 @@ fn the_estimator_takes_the_camera_from_a_ros2_camera_info_topic() {
     STOP.store(true, Ordering::Relaxed);
     let report = estimator.join().expect("estimator");
     assert_eq!(report.malformed, 0, "{report:?}");
-    let skeletons: Vec<Skeleton3D> = read_topic(&c.outputs.record, "/posestream/skeletons")
-        .expect("skeletons")
-        .into_iter()
-        .map(|(_, s)| s)
-        .collect();
+    let skeletons: Vec<Skeleton3D> = common::messages(&c.outputs.record, "/posestream/skeletons");
     let metres = skeletons
         .iter()
         .filter(|s| s.units == Units::Metres as u8)
@@ -390,11 +375,7 @@ fn two_people_crossing_a_room_are_two_tracks_in_metres_that_never_mix() {
             "--static-camera",
         ],
     );
-    let truth: Vec<Skeleton3D> = read_topic(&input, "/posestream/ground_truth")
-        .expect("truth")
-        .into_iter()
-        .map(|(_, s)| s)
-        .collect();
+    let truth: Vec<Skeleton3D> = common::messages(&input, "/posestream/ground_truth");
     let mut c = config();
     c.estimator.metric.mean_limb_length = 0.2235;
     let output = dir.path().join("out.mcap");
@@ -412,11 +393,7 @@ fn two_people_crossing_a_room_are_two_tracks_in_metres_that_never_mix() {
         "{report:?}"
     );
     assert_eq!(report.malformed + report.metric_failures, 0, "{report:?}");
-    let skeletons: Vec<Skeleton3D> = read_topic(&output, "/posestream/skeletons")
-        .expect("skeletons")
-        .into_iter()
-        .map(|(_, s)| s)
-        .collect();
+    let skeletons: Vec<Skeleton3D> = common::messages(&output, "/posestream/skeletons");
     // Each person's skeletons are those of a replay of that person alone.
     let maps = read_topic::<HeatMaps>(&input, "/posestream/heatmaps").expect("maps");
     let infos = read_topic::<CameraInfo>(&input, "/camera/camera_info").expect("info");
@@ -447,5 +424,52 @@ fn two_people_crossing_a_room_are_two_tracks_in_metres_that_never_mix() {
         assert_eq!(e.frames, 111, "{e:?}");
         assert!(e.mpjpe < 0.45 && e.root < 0.40 && e.depth < 0.08, "{e:?}");
         assert!(e.root_aligned < 0.16 && e.within[1] > 0.9, "{e:?}");
+    }
+}
+
+#[test]
+fn a_recording_s_broken_camera_info_is_refused_and_counted_and_the_replay_goes_on() {
+    // A camera-info channel whose messages are cut short or empty, and one of another
+    // type: each message refused and counted; the heat maps go on in dictionary units.
+    let dir = tempfile::tempdir().expect("tempdir");
+    let good = posestream::msgs::encode(&camera_info(1000.0, 1000.0, 1000, 1000)).expect("encode");
+    let maps =
+        common::messages::<HeatMaps>(&common::recording("byebye.mcap"), "/posestream/heatmaps");
+    for other_type in [false, true] {
+        let input = dir.path().join(format!("broken-camera-{other_type}.mcap"));
+        let mut rec = posestream::recording::Recorder::create(&input).expect("create");
+        for (i, m) in maps.iter().enumerate() {
+            let t = m.header.stamp.nanos() as u64;
+            if other_type {
+                // A whole, good calibration under another type's schema (a recording's
+                // channel has one schema).
+                rec.write_encoded::<Skeleton3D>("/camera/camera_info", t, &good)
+                    .expect("write");
+            } else {
+                let bytes: &[u8] = match i % 3 {
+                    0 => &good[..good.len() / 2],
+                    1 => &[],
+                    _ => &good[..8],
+                };
+                rec.write_encoded::<CameraInfo>("/camera/camera_info", t, bytes)
+                    .expect("write");
+            }
+            rec.write("/posestream/heatmaps", t, m).expect("write");
+        }
+        rec.finish().expect("finish");
+        let options = ReplayOptions {
+            record: None,
+            rosbag2: false,
+            rate: ReplayRate::Fast,
+        };
+        let stop = std::sync::atomic::AtomicBool::new(false);
+        let report = replay(&config(), &input, &options, &stop).expect("replay");
+        assert_eq!(report.frames, maps.len() as u64, "{report:?}");
+        assert_eq!(
+            report.refused.of("undecodable"),
+            maps.len() as u64,
+            "{report:?}"
+        );
+        assert_eq!(report.counters.frames, maps.len() as u64, "{report:?}");
     }
 }

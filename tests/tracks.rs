@@ -6,7 +6,6 @@ mod common;
 use common::{recording, root};
 use posestream::msgs::{HeatMaps, Skeleton3D, SkeletonState};
 use posestream::nodes::{EstimatorNode, ServiceConfig};
-use posestream::recording::read_topic;
 
 fn config() -> ServiceConfig {
     let mut c = ServiceConfig::load(root().join("config/default.toml")).expect("config");
@@ -20,11 +19,7 @@ fn node() -> EstimatorNode {
 }
 
 fn frames(name: &str) -> Vec<HeatMaps> {
-    read_topic(&recording(name), "/posestream/heatmaps")
-        .expect("reads")
-        .into_iter()
-        .map(|(_, m)| m)
-        .collect()
+    common::messages(&recording(name), "/posestream/heatmaps")
 }
 
 /// Two people in the same images: byebye's frames as track `a`, kick's as track `b`
@@ -211,18 +206,10 @@ fn each_image_s_people_are_recorded_together_and_independent_clients_read_them()
     let stop = std::sync::atomic::AtomicBool::new(false);
     let report = replay(&config(), &input, &options, &stop).expect("replay");
     assert_eq!((report.counters.tracks, report.counters.resets), (2, 0));
-    let skeletons: Vec<Skeleton3D> = read_topic(&output, "/posestream/skeletons")
-        .expect("skeletons")
-        .into_iter()
-        .map(|(_, s)| s)
-        .collect();
+    let skeletons: Vec<Skeleton3D> = common::messages(&output, "/posestream/skeletons");
     assert_eq!(of_track(&skeletons, 4), alone(&one));
     assert_eq!(of_track(&skeletons, 9), alone(&two));
-    let arrays: Vec<Skeleton3DArray> = read_topic(&output, "/posestream/skeleton_arrays")
-        .expect("arrays")
-        .into_iter()
-        .map(|(_, a)| a)
-        .collect();
+    let arrays: Vec<Skeleton3DArray> = common::messages(&output, "/posestream/skeleton_arrays");
     // One array per image and lag: 80 newest, 70 refined while tracking, 10 owed at
     // the end; each holds both people, with the image's stamp, sequence and lag.
     assert_eq!(arrays.len(), 80 + 70 + 10);

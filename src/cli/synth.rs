@@ -244,7 +244,15 @@ pub fn run(args: &SynthArgs) -> Result<(), CliError> {
             0 => first.clone(),
             _ => synth::place(&first, take, skel, &args.place[i - 1]).map_err(CliError::Failed)?,
         };
-        let view = synth::view_from(&first, &placed, skel, &cam).map_err(CliError::Failed)?;
+        let view = synth::view_from(&first, &placed, skel, &cam).map_err(|e| match i {
+            0 => CliError::Failed(e),
+            // A later person: say which, and that its --place put it there.
+            _ => CliError::Failed(format!(
+                "person {i} ({}, --place {:?}): {e}",
+                args.bvh[i].display(),
+                args.place[i - 1]
+            )),
+        })?;
         let boxes = synth::crop_boxes(&view.image_2d, view.joints, args.margin);
         // Each person's detector errors drawn apart.
         let model = ErrorModel {

@@ -162,15 +162,26 @@ impl ServiceConfig {
             .check()
             .map_err(|x| x.within("detector.images"))?;
         let t = &self.topics;
-        for (key, topic) in [
+        let topics = [
             ("heatmaps", &t.heatmaps),
             ("skeletons", &t.skeletons),
             ("skeleton_arrays", &t.skeleton_arrays),
             ("markers", &t.markers),
             ("ground_truth", &t.ground_truth),
             ("camera_info", &t.camera_info),
-        ] {
+        ];
+        for (i, (key, topic)) in topics.iter().enumerate() {
             check_topic_name(key, topic).map_err(|x| x.within("topics"))?;
+            // Each carries its own type: two on one topic would mix them (a recording's
+            // channel, a DDS topic).
+            if let Some((other, _)) = topics[..i].iter().find(|(_, t)| t == topic) {
+                return Err(crate::error::OutOfDomain::new(
+                    key,
+                    format!("a topic of its own, not topics.{other}'s"),
+                    topic,
+                )
+                .within("topics"));
+            }
         }
         self.ros.check().map_err(|x| x.within("ros"))?;
         self.iceoryx2.check().map_err(|x| x.within("iceoryx2"))?;

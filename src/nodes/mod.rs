@@ -626,15 +626,7 @@ impl EstimatorNode {
             info.frame_id.push_str(msg.frame_id);
             track.frames.push_back(info);
         }
-        release(
-            track,
-            &self.estimates,
-            &self.joint_names,
-            self.metric.as_mut(),
-            &mut self.spare,
-            &mut self.refused,
-            out,
-        );
+        self.release(index, out);
         // A frame its track took ends the tracks left behind in time (a late one, or
         // one refused, ends none).
         if taken {
@@ -688,21 +680,35 @@ impl EstimatorNode {
         }
     }
 
+    /// Turns the estimates in hand of track `i` into messages ([`release`]).
+    fn release(&mut self, i: usize, out: &mut Vec<Skeleton3D>) {
+        let Self {
+            tracks,
+            estimates,
+            joint_names,
+            metric,
+            spare,
+            refused,
+            ..
+        } = self;
+        release(
+            &mut tracks[i],
+            estimates,
+            joint_names,
+            metric.as_mut(),
+            spare,
+            refused,
+            out,
+        );
+    }
+
     /// Ends track `i`: its owed estimates to `out`, its window kept as the spare.
     fn end_track(&mut self, i: usize, out: &mut Vec<Skeleton3D>) {
         self.current = Some(i);
         let track = &mut self.tracks[i];
         self.estimates.clear();
         track.window.finish_into(&mut self.estimates);
-        release(
-            track,
-            &self.estimates,
-            &self.joint_names,
-            self.metric.as_mut(),
-            &mut self.spare,
-            &mut self.refused,
-            out,
-        );
+        self.release(i, out);
         let mut track = self.tracks.remove(i);
         self.current = None;
         self.ended += track.window.take_counters();

@@ -292,7 +292,15 @@ impl FrameSource for RecordingFrames<'_> {
                     }),
                 };
             }
-            if msg.topic == self.camera_topic && msg.schema == CameraInfo::NAME {
+            if msg.topic == self.camera_topic && msg.schema != CameraInfo::NAME {
+                // Not a calibration where one is expected: refused and counted.
+                return Err(TransportError::Malformed {
+                    transport: "mcap",
+                    topic: msg.topic,
+                    reason: format!("schema {:?}, expected {}", msg.schema, CameraInfo::NAME),
+                });
+            }
+            if msg.topic == self.camera_topic {
                 // Recorded as it came (the output holds the calibration it was made
                 // with), then handed to the estimator before the frames after it.
                 if let Some((recorder, _)) = self.ground_truth {

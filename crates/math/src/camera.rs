@@ -56,13 +56,25 @@ struct MatrixIntrinsics {
 }
 
 impl Intrinsics {
-    /// Checks the values: finite, positive focal lengths.
+    /// Checks the values: finite, focal lengths in `[1, 1e7]` pixels and a principal
+    /// point within 1e7 pixels of the origin (as crop boxes are): beyond them no camera
+    /// is described, and metres computed with them would be nonsense.
     pub fn new(fx: f64, fy: f64, cx: f64, cy: f64) -> Result<Self, String> {
         if ![fx, fy, cx, cy].iter().all(|v| v.is_finite()) {
             return Err("intrinsics must be finite".into());
         }
         if fx <= 0.0 || fy <= 0.0 {
             return Err(format!("focal lengths must be positive (fx {fx}, fy {fy})"));
+        }
+        if !(1.0..=1e7).contains(&fx) || !(1.0..=1e7).contains(&fy) {
+            return Err(format!(
+                "focal lengths must be 1 to 1e7 pixels (fx {fx}, fy {fy})"
+            ));
+        }
+        if cx.abs() > 1e7 || cy.abs() > 1e7 {
+            return Err(format!(
+                "the principal point must be within 1e7 pixels (cx {cx}, cy {cy})"
+            ));
         }
         Ok(Self { fx, fy, cx, cy })
     }

@@ -35,7 +35,10 @@ use crate::solver::perspective::{
 };
 use crate::streaming::FrameEstimate;
 
-/// Settings of the metric step (`[estimator.metric]`).
+/// Settings of the metric step (`[estimator.metric]`). The perspective adjustment's
+/// keys are listed here again rather than flattened from [`PerspectiveParams`]: serde
+/// cannot refuse unknown keys of a flattened struct ([`MetricSettings::perspective`]
+/// gives them back).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct MetricSettings {
