@@ -473,3 +473,115 @@ fn a_recording_s_broken_camera_info_is_refused_and_counted_and_the_replay_goes_o
         assert_eq!(report.counters.frames, maps.len() as u64, "{report:?}");
     }
 }
+
+#[test]
+fn the_tracker_follows_both_people_through_their_crossing_without_an_id_switch() {
+    // The crossing scene above, its heat maps stripped of their ids and each image's
+    // people in a changing order: posestream's tracker (the image detector's) gives
+    // the ids from the crop boxes alone.
+    use posestream::detector::tracker::{Assignment, Observation, Tracker, TrackingSettings};
+    use std::collections::{BTreeMap, BTreeSet};
+
+    let dir = tempfile::tempdir().expect("tempdir");
+    let byebye = common::shared().join("data/mocap/bandai-namco-1/dataset-1_byebye_normal_001.bvh");
+    let input = synthetic_scene(
+        dir.path(),
+        &[
+            "--bvh",
+            byebye.to_str().expect("utf-8"),
+            "--place=-1.0,2.0,0,0,-0.4",
+            "--static-camera",
+        ],
+    );
+    let truth: Vec<Skeleton3D> = common::messages(&input, "/posestream/ground_truth");
+    let maps = read_topic::<HeatMaps>(&input, "/posestream/heatmaps").expect("maps");
+    let infos = read_topic::<CameraInfo>(&input, "/camera/camera_info").expect("info");
+    let mut images: BTreeMap<u64, Vec<HeatMaps>> = BTreeMap::new();
+    for (t, m) in maps {
+        images.entry(t).or_default().push(m);
+    }
+    let mut tracker = Tracker::new(TrackingSettings::default(), 0.5);
+    let relabelled = dir.path().join("tracked.mcap");
+    let mut rec = posestream::recording::Recorder::create(&relabelled).expect("create");
+    // Which tracker ids each true person got, and the closest the two boxes came.
+    let mut given: BTreeMap<u32, BTreeSet<u32>> = BTreeMap::new();
+    let mut closest = 0.0_f64;
+    for (n, (t, people)) in images.iter_mut().enumerate() {
+        if n % 2 == 1 {
+            people.reverse();
+        }
+        let truth_ids: Vec<u32> = people.iter().map(|m| m.track_id).collect();
+        let observations: Vec<Observation> = people
+            .iter_mut()
+            .map(|m| {
+                m.track_id = 0;
+                Observation {
+                    region: m.crop().expect("crop"),
+                    score: 1.0,
+                }
+            })
+            .collect();
+        if let [a, b] = observations.as_slice() {
+            closest = closest.max(posestream::detector::tracker::iou(&a.region, &b.region));
+        }
+        tracker.begin();
+        for (o, a) in observations.iter().zip(tracker.associate(&observations)) {
+            match a {
+                Assignment::Track(id) => tracker.seen(id, o.region),
+                Assignment::Birth => {
+                    tracker.born(o.region);
+                }
+                Assignment::Ignored => {}
+            }
+        }
+        for (id, region) in tracker.end() {
+            let k = observations
+                .iter()
+                .position(|o| o.region == region)
+                .expect("a reported track is an observation");
+            given.entry(truth_ids[k]).or_default().insert(id);
+            let mut m = people[k].clone();
+            m.track_id = id;
+            for (u, info) in &infos {
+                if u == t {
+                    rec.write("/camera/camera_info", *t, info).expect("write");
+                }
+            }
+            rec.write("/posestream/heatmaps", *t, &m).expect("write");
+        }
+    }
+    rec.finish().expect("finish");
+    eprintln!("ids: {given:?}; the boxes overlapped by IoU {closest:.2} at most");
+    // Both people found, one id each for the whole take, different ones.
+    assert_eq!(given.len(), 2, "{given:?}");
+    assert!(
+        given.values().all(|ids| ids.len() == 1),
+        "an id switch: {given:?}"
+    );
+    let ids: Vec<u32> = given.values().map(|s| *s.first().expect("id")).collect();
+    assert_ne!(ids[0], ids[1]);
+    assert!(closest > 0.3, "the boxes cross: {closest}");
+    assert_eq!(tracker.stats().births, 2, "{:?}", tracker.stats());
+    // The estimator on the tracker's ids: the same errors as on the true ids.
+    let mut c = config();
+    c.estimator.metric.mean_limb_length = 0.2235;
+    let skeletons = replayed(&c, &relabelled, &dir.path().join("out.mcap"));
+    let to_truth: BTreeMap<u32, u32> = given
+        .iter()
+        .map(|(truth, ids)| (*ids.first().expect("id"), *truth))
+        .collect();
+    let skeletons: Vec<Skeleton3D> = skeletons
+        .into_iter()
+        .map(|mut s| {
+            s.track_id = to_truth[&s.track_id];
+            s
+        })
+        .collect();
+    for track in [0, 1] {
+        let e = errors_of(&skeletons, &truth, track);
+        eprintln!("track {track}: {e:?}");
+        assert_eq!(e.frames, 111, "{e:?}");
+        assert!(e.mpjpe < 0.45 && e.root < 0.40 && e.depth < 0.08, "{e:?}");
+        assert!(e.root_aligned < 0.16 && e.within[1] > 0.9, "{e:?}");
+    }
+}

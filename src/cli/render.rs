@@ -13,7 +13,7 @@ use posestream::nodes::ServiceConfig;
 use posestream::nodes::config::DetectorSource;
 use posestream::nodes::images::image_frames;
 use posestream::recording::read_topic;
-use posestream::render::{RenderSettings, render_frame};
+use posestream::render::{Person, RenderSettings, render_frame};
 use posestream::transport::{Received, Source, TransportError};
 
 use super::CliError;
@@ -82,8 +82,8 @@ pub fn run(args: &RenderArgs) -> Result<(), CliError> {
     };
     let dictionary = posestream::Dictionary::load(&config.estimator.dictionary)?;
     let bones: Vec<(usize, usize)> = dictionary.skeleton().bones().collect();
-    // Per frame, the estimate to draw: the most refined one unless --newest.
-    let mut skeletons: BTreeMap<u64, Skeleton3D> = BTreeMap::new();
+    // Per frame and person, the estimate to draw: the most refined one unless --newest.
+    let mut skeletons: BTreeMap<u64, BTreeMap<u32, Skeleton3D>> = BTreeMap::new();
     let recorded = read_topic::<Skeleton3D>(&args.recording, &config.topics.skeletons);
     for (_, s) in recorded? {
         let in_range =
@@ -91,13 +91,14 @@ pub fn run(args: &RenderArgs) -> Result<(), CliError> {
         if gif && !in_range {
             continue;
         }
-        let keep = match skeletons.get(&s.sequence) {
+        let people = skeletons.entry(s.sequence).or_default();
+        let keep = match people.get(&s.track_id) {
             None => true,
             Some(old) if args.newest => s.lag < old.lag,
             Some(old) => s.lag > old.lag,
         };
         if keep {
-            skeletons.insert(s.sequence, s);
+            people.insert(s.track_id, s);
         }
     }
     if skeletons.is_empty() {
@@ -107,9 +108,12 @@ pub fn run(args: &RenderArgs) -> Result<(), CliError> {
             config.topics.skeletons
         )));
     }
-    let maps: BTreeMap<u64, HeatMaps> =
+    let maps: BTreeMap<(u64, u32), HeatMaps> =
         match read_topic::<HeatMaps>(&args.recording, &config.topics.heatmaps) {
-            Ok(all) => all.into_iter().map(|(_, m)| (m.sequence, m)).collect(),
+            Ok(all) => all
+                .into_iter()
+                .map(|(_, m)| ((m.sequence, m.track_id), m))
+                .collect(),
             Err(e) => {
                 tracing::warn!("no heat-map overlay: {e}");
                 BTreeMap::new()
@@ -144,19 +148,20 @@ pub fn run(args: &RenderArgs) -> Result<(), CliError> {
             }
             Err(e) => return Err(e.into()),
         };
-        let Some(skeleton) = skeletons.get(&frame.sequence) else {
+        let Some(people) = skeletons.get(&frame.sequence) else {
             continue;
         };
         if !gif && frame.sequence != wanted {
             continue;
         }
-        let picture = render_frame(
-            &frame.rgb,
-            maps.get(&frame.sequence),
-            skeleton,
-            &bones,
-            &settings,
-        );
+        let people: Vec<Person<'_>> = people
+            .values()
+            .map(|skeleton| Person {
+                maps: maps.get(&(frame.sequence, skeleton.track_id)),
+                skeleton,
+            })
+            .collect();
+        let picture = render_frame(&frame.rgb, &people, &bones, &settings);
         progress.inc(1);
         stamps.push(frame.stamp_ns);
         pictures.push(picture);

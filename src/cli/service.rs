@@ -92,12 +92,15 @@ impl Summary for service::DetectorReport {
         );
         if let Some(s) = &self.images {
             text.push_str(&format!(
-                "\nimages: {} frames, {} with a person, {} without; {} tracks; \
+                "\nimages: {} frames, {} with people ({} person-frames), {} without; \
+                 {} tracks confirmed ({} re-acquisitions); \
                  {} landmark runs, {:.1} ms each; person detector found someone {} of {} times",
                 s.frames,
                 s.detected,
+                s.people,
                 s.no_person,
-                s.acquisitions,
+                s.tracks.confirmed,
+                s.tracks.reacquisitions,
                 s.network_runs,
                 s.mean_network_ms(),
                 s.detector_hits,

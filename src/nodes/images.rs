@@ -3,6 +3,7 @@
 //! [`ImageDetector`], as a [`Source`] of heat maps, so the detector loop and the
 //! pipeline run it exactly as they run a replayed recording.
 
+use std::collections::VecDeque;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -19,9 +20,12 @@ use crate::transport::{Received, Source, TransportError};
 /// The detector's counters, readable while it runs on another thread.
 pub type SharedStats = Arc<Mutex<DetectorStats>>;
 
-/// Heat maps computed from the frames of an image source.
+/// Heat maps computed from the frames of an image source: one message per person and
+/// frame, the people of a frame in a row.
 pub struct ImageHeatMaps {
     frames: Box<dyn Source<ImageFrame>>,
+    /// The people of the current frame not yet handed on (at most `max_people`).
+    pending: VecDeque<(HeatMaps, u64)>,
     /// The field of view assumed for the images, and where their calibration goes.
     camera: Option<(f64, CameraTap)>,
     /// Notes when each image came in (latency to its skeletons).
@@ -41,6 +45,7 @@ impl ImageHeatMaps {
     ) -> Self {
         Self {
             frames,
+            pending: VecDeque::new(),
             camera: None,
             clock: None,
             joint_names: detector.joint_names().to_vec(),
@@ -71,6 +76,9 @@ impl ImageHeatMaps {
 
 impl Source<HeatMaps> for ImageHeatMaps {
     fn recv(&mut self, timeout: Duration) -> Result<Received<HeatMaps>, TransportError> {
+        if let Some((maps, stamp)) = self.pending.pop_front() {
+            return Ok(Received::Message(maps, stamp));
+        }
         let (frame, stamp) = match self.frames.recv(timeout)? {
             Received::Message(frame, stamp) => (frame, stamp),
             Received::Idle => return Ok(Received::Idle),
@@ -82,15 +90,15 @@ impl Source<HeatMaps> for ImageHeatMaps {
         if let Some((fov, tap)) = &self.camera {
             tap.image(assumed_camera_info(&frame, *fov), stamp);
         }
+        let header = Header {
+            stamp: Time::from_nanos(i64::try_from(frame.stamp_ns).unwrap_or(i64::MAX)),
+            frame_id: frame.frame_id.clone(),
+        };
         let result = self.detector.detect(&frame).map(|found| {
-            found.map(|d| {
-                let header = Header {
-                    stamp: Time::from_nanos(i64::try_from(frame.stamp_ns).unwrap_or(i64::MAX)),
-                    frame_id: frame.frame_id.clone(),
-                };
+            for d in found {
                 let size = d.size as u32;
                 let mut msg = HeatMaps::from_values(
-                    header,
+                    header.clone(),
                     frame.sequence,
                     self.joint_names.clone(),
                     size,
@@ -100,23 +108,25 @@ impl Source<HeatMaps> for ImageHeatMaps {
                     self.encoding,
                 );
                 msg.track_id = d.track_id;
-                msg
-            })
+                self.pending.push_back((msg, stamp));
+            }
         });
         if let Ok(mut stats) = self.stats.lock() {
             *stats = self.detector.stats();
         }
-        match result {
-            Ok(Some(maps)) => Ok(Received::Message(maps, stamp)),
-            Ok(None) => {
-                tracing::debug!("{}: no person", frame.name);
-                Ok(Received::Idle)
-            }
-            Err(e) => Err(TransportError::Broken {
+        if let Err(e) = result {
+            return Err(TransportError::Broken {
                 transport: "image detector",
                 topic: frame.name,
                 reason: e.to_string(),
-            }),
+            });
+        }
+        match self.pending.pop_front() {
+            Some((maps, stamp)) => Ok(Received::Message(maps, stamp)),
+            None => {
+                tracing::debug!("{}: nobody", frame.name);
+                Ok(Received::Idle)
+            }
         }
     }
 }

@@ -27,6 +27,36 @@ pub fn squared(b: &CropBox) -> CropBox {
     }
 }
 
+/// Square tiles covering `area` where people look bigger than in the whole: `n` along
+/// its longer side (each `1.25 / n` of it, overlapping), as many along the shorter as
+/// cover it (centred when one is enough); none for `n <= 1`.
+pub fn tiles(area: &CropBox, n: u32) -> Vec<CropBox> {
+    if n <= 1 {
+        return Vec::new();
+    }
+    let long = area.width.max(area.height);
+    let side = (1.25 * long / f64::from(n)).min(long);
+    let starts = |origin: f64, length: f64| -> Vec<f64> {
+        if length <= side {
+            return vec![origin + 0.5 * (length - side)];
+        }
+        let count = ((length - side) / (0.8 * side)).ceil() as usize + 1;
+        let step = (length - side) / (count - 1) as f64;
+        (0..count).map(|k| origin + k as f64 * step).collect()
+    };
+    let (xs, ys) = (starts(area.x0, area.width), starts(area.y0, area.height));
+    ys.iter()
+        .flat_map(|&y0| {
+            xs.iter().map(move |&x0| CropBox {
+                x0,
+                y0,
+                width: side,
+                height: side,
+            })
+        })
+        .collect()
+}
+
 /// MediaPipe's person box from two alignment keypoints, image pixels: `centre` (the
 /// hips' midpoint) and `scale` (a point whose distance to the centre is the radius of
 /// the circle holding the body). The box is square, centred on `centre`, its side the
@@ -105,6 +135,26 @@ mod tests {
         assert_eq!((b.x0, b.y0, b.width, b.height), (0.0, -80.0, 640.0, 640.0));
         let s = squared(&CropBox::new(10.0, 20.0, 30.0, 50.0).expect("box"));
         assert_eq!((s.x0, s.y0, s.width, s.height), (0.0, 20.0, 50.0, 50.0));
+    }
+
+    #[test]
+    fn tiles_overlap_and_cover_the_area() {
+        let area = CropBox::new(0.0, 0.0, 1280.0, 720.0).expect("box");
+        assert!(tiles(&area, 1).is_empty());
+        let t = tiles(&area, 2);
+        // 800-px squares: two across (0 and 480), one down, centred.
+        assert_eq!(t.len(), 2);
+        assert_eq!((t[0].x0, t[1].x0, t[0].y0), (0.0, 480.0, -40.0));
+        assert_eq!(t[0].width, 800.0);
+        let portrait = CropBox::new(0.0, 0.0, 810.0, 1080.0).expect("box");
+        let t = tiles(&portrait, 3);
+        // 450-px squares: 3 down, 2 across, reaching the far edges.
+        assert_eq!(t.len(), 6, "{t:?}");
+        let last = t[t.len() - 1];
+        assert_eq!(
+            (last.x0 + last.width, last.y0 + last.height),
+            (810.0, 1080.0)
+        );
     }
 
     #[test]

@@ -1,31 +1,39 @@
-//! The image detector: a camera frame in, the dictionary's heat maps with their crop
-//! box and track id (a [`Detection`]; the node makes the `HeatMaps` message) out,
-//! through a BlazePose landmark model.
+//! The image detector: a camera frame in, the dictionary's heat maps of every person
+//! in it, each with its crop box and track id (a [`Detection`]; the node makes the
+//! `HeatMaps` messages) out, through a BlazePose landmark model.
 //!
-//! Where it looks, per frame (MediaPipe's tracking, without the rotation):
-//! 1. the box that followed the previous frame's landmarks, while a person is tracked;
-//! 2. otherwise (first frame, or after a loss) BlazePose's person detector searches the
-//!    configured `person_box`, else the whole image letterboxed to a square, and its
-//!    best detection's alignment keypoints place the box; if it finds nobody (or is
-//!    switched off), the search region itself is the box. The landmarks found there
-//!    give a tighter box and the model runs once more on it.
+//! Per frame (MediaPipe's tracking, without the rotation, for several people):
+//! 1. each person followed looks at the box their previous landmarks gave, moved by
+//!    their velocity; the landmark runs of different people go in parallel across
+//!    cores (`rayon`);
+//! 2. when the [`Tracker`] wants new boxes (nobody followed, someone just lost, every
+//!    `detect_every` frames), BlazePose's person detector searches the configured
+//!    `person_box`, else the whole image letterboxed to a square; its boxes (placed by
+//!    each detection's alignment keypoints) are matched to lost tracks or start new
+//!    ones, and the landmark model looks at each (then at the box its landmarks give,
+//!    until that settles: at most three looks). Without the person detector the search region itself is
+//!    the one box;
+//! 3. a look whose pose flag is below `presence_threshold`, or whose landmarks
+//!    collapse to a point (a box drifted off its person), is a miss: that person gets
+//!    no heat maps in this frame (the estimator sees a gap); the tracker ends tracks
+//!    after `lost_frames` misses and reports only confirmed ones.
 //!
-//! The model's pose flag says whether a person is in the box; below
-//! `presence_threshold` the track is lost, the frame yields no heat maps (the
-//! estimator sees a gap) and the next frame starts over at step 2. Each acquisition
-//! starts a new track id.
+//! A change of image size is a new scene: every track ends (a folder of unrelated
+//! photos).
 
 use std::path::PathBuf;
 use std::time::Instant;
 
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::crop::{box_from_alignment, crop_input, squared, whole_image_box};
+use super::crop::{box_from_alignment, crop_input, squared, tiles, whole_image_box};
 use super::mapping::{ChannelMapping, ChannelMappingError};
 use crate::images::ImageFrame;
 use crate::models::landmarks::{HEATMAP_SIZE, INPUT_SIZE, LandmarkNetwork, NetworkError};
 use crate::models::person::{INPUT_SIZE as PERSON_INPUT, PersonNetwork};
 use crate::models::{LandmarkModel, ModelFile};
+use crate::tracker::{Assignment, Observation, Tracker, TrackerStats, TrackingSettings, iou};
 use posestream_math::camera::CropBox;
 use posestream_math::error::{OutOfDomain, check_real};
 use posestream_msgs::HeatMapEncoding;
@@ -36,6 +44,25 @@ use posestream_transport::shm::FRAME_ID_BYTES;
 const ALIGNMENT: [usize; 2] = [33, 34];
 /// Values per landmark in the model's output (x, y, z, visibility, presence).
 const LANDMARK_VALUES: usize = 5;
+/// BlazePose's body landmarks (the rest are auxiliary).
+const BODY_LANDMARKS: usize = 33;
+/// Landmarks spread over less than this fraction of the crop's side: collapsed to a
+/// point, the box has drifted off its person.
+const COLLAPSED_SPREAD: f64 = 0.05;
+/// Person-detector boxes from different search regions overlapping more than this
+/// (IoU) are one person.
+const SAME_PERSON_IOU: f64 = 0.4;
+/// Landmarks closer than this fraction of the body's extent, on average: one person.
+const SAME_PERSON_DISTANCE: f64 = 0.15;
+/// Faces closer than this fraction of the body's extent, on average: one person.
+const SAME_FACE_DISTANCE: f64 = 0.3;
+/// BlazePose's face landmarks (nose, eyes, ears, mouth) come first.
+const FACE_LANDMARKS: usize = 11;
+/// Looks at most at a newly found person: the detector's box, then the landmarks' box
+/// until it settles.
+const ACQUISITION_LOOKS: usize = 3;
+/// A landmark box overlapping the box looked at by more than this (IoU) has settled.
+const SETTLED_IOU: f64 = 0.7;
 
 /// The image detector's settings (`[detector.images]`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -74,6 +101,13 @@ pub struct ImageSettings {
     /// videos), which carry no calibration: their `sensor_msgs/CameraInfo` is that of a
     /// pinhole camera centred on the image; 0: none (skeletons in dictionary units).
     pub field_of_view: f64,
+    /// The person detector also searches tiles of the image, this many along its
+    /// longer side (overlapping, as many as cover the shorter), where people far from
+    /// the camera look bigger: all on a scene's first frame, else one per search in
+    /// turn beside the whole image; 1: the whole image only.
+    pub search_tiles: u32,
+    /// How people are followed from frame to frame (`[detector.images.tracking]`).
+    pub tracking: TrackingSettings,
 }
 
 /// [`HeatMapEncoding`] as configured.
@@ -102,6 +136,8 @@ impl Default for ImageSettings {
             detection_threshold: 0.5,
             encoding: MapEncoding::Float32,
             field_of_view: 60.0,
+            search_tiles: 4,
+            tracking: TrackingSettings::default(),
         }
     }
 }
@@ -138,6 +174,14 @@ impl ImageSettings {
             false,
         )?;
         check_topic_name("topic", &self.topic)?;
+        self.tracking.check()?;
+        if !(1..=8).contains(&self.search_tiles) {
+            return Err(OutOfDomain::new(
+                "search_tiles",
+                "an integer in 1..=8",
+                self.search_tiles.to_string(),
+            ));
+        }
         if self.frame_id.len() > FRAME_ID_BYTES {
             return Err(OutOfDomain::new(
                 "frame_id",
@@ -200,15 +244,15 @@ pub enum DetectorError {
 pub struct DetectorStats {
     /// Frames seen.
     pub frames: u64,
-    /// Frames with a person (heat maps sent).
+    /// Frames with at least one person (heat maps sent).
     pub detected: u64,
-    /// Frames without one.
+    /// Frames without anyone.
     pub no_person: u64,
-    /// Tracks started (first frame, and after each loss).
-    pub acquisitions: u64,
+    /// Heat maps sent: one per person and frame.
+    pub people: u64,
     /// Landmark model runs.
     pub network_runs: u64,
-    /// Seconds in the landmark model.
+    /// Seconds in the landmark model (summed over the runs, parallel ones too).
     pub network_seconds: f64,
     /// Person detector runs.
     pub detector_runs: u64,
@@ -216,6 +260,10 @@ pub struct DetectorStats {
     pub detector_hits: u64,
     /// Seconds in the person detector.
     pub detector_seconds: f64,
+    /// Looks whose landmarks had collapsed to a point (a box drifted off its person).
+    pub collapsed: u64,
+    /// The tracker's births, deaths, re-acquisitions.
+    pub tracks: TrackerStats,
 }
 
 impl DetectorStats {
@@ -233,11 +281,102 @@ impl DetectorStats {
 struct Look {
     crop: CropBox,
     pose_flag: f32,
+    /// The box the landmarks give for the next frame.
     next_box: Option<CropBox>,
+    /// The body landmarks' extent over the crop's side.
+    spread: f64,
+    /// The body landmarks, image pixels.
+    points: Vec<[f64; 2]>,
     logits: Vec<f32>,
+    seconds: f64,
 }
 
-/// The detector: the landmark model, the mapping, and the tracked box.
+impl Look {
+    /// Where the person is, if there is one: the pose flag at least `threshold`, a box
+    /// from the landmarks, the landmarks not collapsed.
+    fn person(&self, threshold: f32) -> Option<CropBox> {
+        if self.pose_flag >= threshold && self.spread >= COLLAPSED_SPREAD {
+            self.next_box
+        } else {
+            None
+        }
+    }
+}
+
+/// Runs `network` on `crop` of `frame`, `input` its scratch.
+fn look(
+    network: &LandmarkNetwork,
+    frame: &ImageFrame,
+    crop: CropBox,
+    input: &mut Vec<f32>,
+) -> Result<Look, DetectorError> {
+    let began = Instant::now();
+    crop_input(&frame.rgb, &crop, INPUT_SIZE, input);
+    let out = network.run(input)?;
+    // Landmarks are in input pixels: map them into the image.
+    let scale = crop.width / INPUT_SIZE as f64;
+    let point = |i: usize| {
+        let at = i * LANDMARK_VALUES;
+        let (x, y) = (out.landmarks[at], out.landmarks[at + 1]);
+        [
+            crop.x0 + f64::from(x) * scale,
+            crop.y0 + f64::from(y) * scale,
+        ]
+    };
+    let next_box = box_from_alignment(point(ALIGNMENT[0]), point(ALIGNMENT[1]), 16.0);
+    let points: Vec<[f64; 2]> = (0..BODY_LANDMARKS).map(point).collect();
+    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+    for p in &points {
+        for k in 0..2 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+    }
+    let extent = (hi[0] - lo[0]).max(hi[1] - lo[1]);
+    Ok(Look {
+        crop,
+        pose_flag: out.pose_flag,
+        next_box,
+        spread: if extent.is_finite() {
+            extent / crop.width
+        } else {
+            0.0
+        },
+        points,
+        logits: out.heatmap_logits,
+        seconds: began.elapsed().as_secs_f64(),
+    })
+}
+
+/// Two looks found the same person: their faces (BlazePose's landmarks 0-10) within
+/// `SAME_FACE_DISTANCE` (about half a metre for a standing body), or all their body
+/// landmarks within `SAME_PERSON_DISTANCE`, of the smaller body's extent of each other
+/// on average. The face is the test that holds for a body seen in part (a portrait):
+/// two looks at it guess the unseen rest of it differently. Two people whose faces
+/// come that close in the image (one passing behind the other) are one track until
+/// they part; the other is then re-acquired.
+fn same_person(a: &Look, b: &Look) -> bool {
+    let extent = (a.spread * a.crop.width).min(b.spread * b.crop.width);
+    let n = a.points.len().min(b.points.len());
+    if n <= FACE_LANDMARKS || extent.is_nan() || extent <= 0.0 {
+        return false;
+    }
+    let distance =
+        |k: usize| (a.points[k][0] - b.points[k][0]).hypot(a.points[k][1] - b.points[k][1]);
+    let face = (0..FACE_LANDMARKS).map(distance).sum::<f64>() / FACE_LANDMARKS as f64;
+    let body = (0..n).map(distance).sum::<f64>() / n as f64;
+    tracing::trace!("same person? face {face:.1} px, body {body:.1} px, extent {extent:.1} px");
+    face < SAME_FACE_DISTANCE * extent || body < SAME_PERSON_DISTANCE * extent
+}
+
+/// One person's heat maps in the current frame.
+struct Found {
+    crop: CropBox,
+    track_id: u32,
+    maps: Vec<f32>,
+}
+
+/// The detector: the landmark model, the mapping, and the people tracked.
 pub struct ImageDetector {
     network: LandmarkNetwork,
     person: Option<PersonNetwork>,
@@ -246,10 +385,18 @@ pub struct ImageDetector {
     joint_names: Vec<String>,
     person_box: Option<CropBox>,
     threshold: f32,
-    tracked: Option<CropBox>,
-    track_id: u32,
-    input: Vec<f32>,
-    maps: Vec<f32>,
+    search_tiles: u32,
+    tracker: Tracker,
+    /// The image size of the scene, and the frame it began.
+    scene: Option<(u32, u32)>,
+    scene_start: u64,
+    /// The tile the next search looks at besides the whole image.
+    next_tile: usize,
+    /// One landmark input per look running in parallel.
+    inputs: Vec<Vec<f32>>,
+    /// The people of the current frame (their maps buffers reused).
+    found: Vec<Found>,
+    found_len: usize,
     stats: DetectorStats,
 }
 
@@ -295,18 +442,9 @@ impl ImageDetector {
                 joint_names.len()
             )));
         }
-        if !(0.0..=1.0).contains(&settings.presence_threshold) {
-            return Err(DetectorError::Settings(format!(
-                "presence_threshold {} is not in [0, 1]",
-                settings.presence_threshold
-            )));
-        }
-        if !(0.0..=1.0).contains(&settings.detection_threshold) {
-            return Err(DetectorError::Settings(format!(
-                "detection_threshold {} is not in [0, 1]",
-                settings.detection_threshold
-            )));
-        }
+        settings
+            .check()
+            .map_err(|e| DetectorError::Settings(e.to_string()))?;
         Ok(Self {
             network,
             person: None,
@@ -315,119 +453,276 @@ impl ImageDetector {
             joint_names: joint_names.to_vec(),
             person_box: settings.person_box()?,
             threshold: settings.presence_threshold,
-            tracked: None,
-            track_id: 0,
-            input: Vec::new(),
-            maps: Vec::new(),
+            search_tiles: settings.search_tiles,
+            tracker: Tracker::new(settings.tracking.clone(), settings.detection_threshold),
+            scene: None,
+            scene_start: 0,
+            next_tile: 0,
+            inputs: Vec::new(),
+            found: Vec::new(),
+            found_len: 0,
             stats: DetectorStats::default(),
         })
     }
 
     /// What it did so far.
     pub fn stats(&self) -> DetectorStats {
-        self.stats
-    }
-
-    /// Runs the model on `crop` of `frame`; keeps the logits.
-    fn look(&mut self, frame: &ImageFrame, crop: CropBox) -> Result<Look, DetectorError> {
-        let began = Instant::now();
-        crop_input(&frame.rgb, &crop, INPUT_SIZE, &mut self.input);
-        let out = self.network.run(&self.input)?;
-        self.stats.network_runs += 1;
-        self.stats.network_seconds += began.elapsed().as_secs_f64();
-        // Landmarks are in input pixels: map them into the image.
-        let scale = crop.width / INPUT_SIZE as f64;
-        let point = |i: usize| {
-            let at = i * LANDMARK_VALUES;
-            let (x, y) = (out.landmarks[at], out.landmarks[at + 1]);
-            [
-                crop.x0 + f64::from(x) * scale,
-                crop.y0 + f64::from(y) * scale,
-            ]
-        };
-        let next_box = box_from_alignment(point(ALIGNMENT[0]), point(ALIGNMENT[1]), 16.0);
-        Ok(Look {
-            crop,
-            pose_flag: out.pose_flag,
-            next_box,
-            logits: out.heatmap_logits,
-        })
-    }
-
-    /// Where to look when no person is tracked: the person detector's best detection
-    /// in the search region (the person box, else the whole image), else the region.
-    fn search_box(&mut self, frame: &ImageFrame) -> Result<CropBox, DetectorError> {
-        let region = match &self.person_box {
-            Some(b) => squared(b),
-            None => whole_image_box(frame.rgb.width(), frame.rgb.height()),
-        };
-        let Some(person) = &self.person else {
-            return Ok(region);
-        };
-        let began = Instant::now();
-        crop_input(&frame.rgb, &region, PERSON_INPUT, &mut self.input);
-        for v in &mut self.input {
-            *v = 2.0 * *v - 1.0;
+        DetectorStats {
+            tracks: self.tracker.stats(),
+            ..self.stats
         }
-        let found = person.detect(&self.input, self.detection_threshold)?;
-        self.stats.detector_runs += 1;
-        self.stats.detector_seconds += began.elapsed().as_secs_f64();
-        let to_image = |p: [f32; 2]| {
-            [
-                region.x0 + f64::from(p[0]) * region.width,
-                region.y0 + f64::from(p[1]) * region.height,
-            ]
-        };
-        let placed = found.first().and_then(|d| {
-            box_from_alignment(to_image(d.keypoints[0]), to_image(d.keypoints[1]), 16.0)
-        });
-        if placed.is_some() {
-            self.stats.detector_hits += 1;
-        }
-        Ok(placed.unwrap_or(region))
     }
 
-    /// What the detector found in `frame` (the heat maps, lent until the next frame),
-    /// or `None` when no person is found in it. The node makes the message.
-    pub fn detect(&mut self, frame: &ImageFrame) -> Result<Option<Detection<'_>>, DetectorError> {
-        self.stats.frames += 1;
-        let mut look = match self.tracked {
-            Some(b) => Some(self.look(frame, b)?),
-            None => None,
-        };
-        if look.as_ref().is_none_or(|l| l.pose_flag < self.threshold) {
-            // (Re)acquire: search, then refine on the box the landmarks give.
-            let search = self.search_box(frame)?;
-            let first = self.look(frame, search)?;
-            let refined = match first.next_box {
-                Some(b) if first.pose_flag >= self.threshold => Some(self.look(frame, b)?),
-                _ => None,
-            };
-            look = Some(match refined {
-                Some(second) if second.pose_flag >= self.threshold => second,
-                _ => first,
-            });
-            if look.as_ref().is_some_and(|l| l.pose_flag >= self.threshold) {
-                self.stats.acquisitions += 1;
-                self.track_id = self.track_id.wrapping_add(1);
+    /// The landmark model on each of `boxes` of `frame`, in parallel.
+    fn look_all(
+        &mut self,
+        frame: &ImageFrame,
+        boxes: &[CropBox],
+    ) -> Result<Vec<Look>, DetectorError> {
+        if self.inputs.len() < boxes.len() {
+            self.inputs.resize_with(boxes.len(), Vec::new);
+        }
+        let network = &self.network;
+        let looks: Vec<Result<Look, DetectorError>> = self.inputs[..boxes.len()]
+            .par_iter_mut()
+            .zip(boxes.par_iter())
+            .map(|(input, crop)| look(network, frame, *crop, input))
+            .collect();
+        let looks = looks.into_iter().collect::<Result<Vec<Look>, _>>()?;
+        for l in &looks {
+            self.stats.network_runs += 1;
+            self.stats.network_seconds += l.seconds;
+            if l.pose_flag >= self.threshold && l.spread < COLLAPSED_SPREAD {
+                self.stats.collapsed += 1;
             }
         }
-        let Some(look) = look.filter(|l| l.pose_flag >= self.threshold) else {
-            self.tracked = None;
-            self.stats.no_person += 1;
-            return Ok(None);
+        Ok(looks)
+    }
+
+    /// Where the people are, as the person detector sees the search region (the
+    /// person box, else the whole image); without the person detector, the region.
+    fn search(&mut self, frame: &ImageFrame) -> Result<Vec<Observation>, DetectorError> {
+        let (width, height) = frame.rgb.dimensions();
+        let (region, area) = match &self.person_box {
+            Some(b) => (squared(b), *b),
+            None => (
+                whole_image_box(width, height),
+                CropBox {
+                    x0: 0.0,
+                    y0: 0.0,
+                    width: f64::from(width.max(1)),
+                    height: f64::from(height.max(1)),
+                },
+            ),
         };
-        self.tracked = look.next_box;
-        self.mapping
-            .apply(&look.logits, HEATMAP_SIZE, HEATMAP_SIZE, &mut self.maps)
-            .map_err(|source| DetectorError::Maps(Box::new(source)))?;
-        self.stats.detected += 1;
-        Ok(Some(Detection {
-            crop: look.crop,
-            maps: &self.maps,
-            size: HEATMAP_SIZE,
-            track_id: self.track_id,
-        }))
+        let Some(person) = &self.person else {
+            return Ok(vec![Observation { region, score: 1.0 }]);
+        };
+        let began = Instant::now();
+        // The whole region, and tiles of it where people far away look bigger: all of
+        // them on a scene's first frame, else one a search in turn.
+        let mut regions = vec![region];
+        let all = tiles(&area, self.search_tiles);
+        if self.stats.frames == self.scene_start || all.is_empty() {
+            regions.extend(all);
+        } else {
+            regions.push(all[self.next_tile % all.len()]);
+            self.next_tile = self.next_tile.wrapping_add(1);
+        }
+        let low = self.tracker_low_threshold();
+        let rgb = &frame.rgb;
+        let found: Vec<Result<Vec<Observation>, DetectorError>> = regions
+            .par_iter()
+            .map(|region| {
+                let mut input = Vec::new();
+                crop_input(rgb, region, PERSON_INPUT, &mut input);
+                for v in &mut input {
+                    *v = 2.0 * *v - 1.0;
+                }
+                let found = person.detect(&input, low)?;
+                let to_image = |p: [f32; 2]| {
+                    [
+                        region.x0 + f64::from(p[0]) * region.width,
+                        region.y0 + f64::from(p[1]) * region.height,
+                    ]
+                };
+                Ok(found
+                    .iter()
+                    .filter_map(|d| {
+                        box_from_alignment(to_image(d.keypoints[0]), to_image(d.keypoints[1]), 16.0)
+                            .map(|region| Observation {
+                                region,
+                                score: d.score,
+                            })
+                    })
+                    .collect())
+            })
+            .collect();
+        let mut all = Vec::new();
+        for f in found {
+            all.extend(f?);
+        }
+        // One person seen in several regions: the best-scoring box.
+        all.sort_by(|a, b| b.score.total_cmp(&a.score));
+        let mut placed: Vec<Observation> = Vec::new();
+        for o in all {
+            if !placed
+                .iter()
+                .any(|p| iou(&p.region, &o.region) > SAME_PERSON_IOU)
+            {
+                placed.push(o);
+            }
+        }
+        self.stats.detector_runs += regions.len() as u64;
+        self.stats.detector_seconds += began.elapsed().as_secs_f64();
+        tracing::debug!(
+            "person detector: {} boxes {:?}",
+            placed.len(),
+            placed
+                .iter()
+                .map(|o| (o.score, o.region.x0, o.region.y0, o.region.width))
+                .collect::<Vec<_>>()
+        );
+        if placed.iter().any(|o| o.score >= self.detection_threshold) {
+            self.stats.detector_hits += 1;
+        }
+        Ok(placed)
+    }
+
+    /// The low-score pass's threshold (never above the confident one).
+    fn tracker_low_threshold(&self) -> f32 {
+        self.tracker.low_threshold().min(self.detection_threshold)
+    }
+
+    /// The people the detector found in `frame`, one [`Detection`] each (the heat maps
+    /// lent until the next frame); empty when it finds nobody. The node makes the
+    /// messages.
+    pub fn detect(&mut self, frame: &ImageFrame) -> Result<Vec<Detection<'_>>, DetectorError> {
+        self.stats.frames += 1;
+        let size = frame.rgb.dimensions();
+        if self.scene != Some(size) {
+            if self.scene.is_some() {
+                self.tracker.reset();
+            }
+            self.scene = Some(size);
+            self.scene_start = self.stats.frames;
+            self.next_tile = 0;
+        }
+        self.tracker.begin();
+        // 1. Follow.
+        let (ids, boxes): (Vec<u32>, Vec<CropBox>) = self.tracker.predictions().unzip();
+        let looks = self.look_all(frame, &boxes)?;
+        let mut kept: Vec<(u32, Look)> = Vec::with_capacity(looks.len());
+        for (id, l) in ids.into_iter().zip(looks) {
+            match l.person(self.threshold) {
+                Some(next) => {
+                    self.tracker.seen(id, next);
+                    kept.push((id, l));
+                }
+                None => self.tracker.missed(id),
+            }
+        }
+        // Two followed boxes on one person (their landmarks coincide): the older track
+        // (first) keeps them.
+        let mut k = 0;
+        while k < kept.len() {
+            if kept[..k].iter().any(|(_, o)| same_person(o, &kept[k].1)) {
+                let (id, _) = kept.remove(k);
+                self.tracker.duplicate(id);
+            } else {
+                k += 1;
+            }
+        }
+        // 2. Search, when wanted.
+        if self.tracker.wants_detections() {
+            let observations = self.search(frame)?;
+            let verdicts = self.tracker.associate(&observations);
+            let (what, boxes): (Vec<Assignment>, Vec<CropBox>) = verdicts
+                .into_iter()
+                .zip(&observations)
+                .filter(|(a, _)| *a != Assignment::Ignored)
+                .map(|(a, o)| (a, o.region))
+                .unzip();
+            // Look at each box; while the landmarks found give a box unlike the one
+            // looked at (a detector box is a rough guess), look again there.
+            let mut current: Vec<Option<Look>> = self
+                .look_all(frame, &boxes)?
+                .into_iter()
+                .map(|l| l.person(self.threshold).is_some().then_some(l))
+                .collect();
+            for _ in 1..ACQUISITION_LOOKS {
+                let again: Vec<(usize, CropBox)> = current
+                    .iter()
+                    .enumerate()
+                    .filter_map(|(i, l)| {
+                        let l = l.as_ref()?;
+                        let next = l.person(self.threshold)?;
+                        (iou(&next, &l.crop) < SETTLED_IOU).then_some((i, next))
+                    })
+                    .collect();
+                if again.is_empty() {
+                    break;
+                }
+                let (index, next): (Vec<usize>, Vec<CropBox>) = again.into_iter().unzip();
+                for (i, l) in index.into_iter().zip(self.look_all(frame, &next)?) {
+                    if l.person(self.threshold).is_some() {
+                        current[i] = Some(l);
+                    }
+                }
+            }
+            for (a, l) in what.into_iter().zip(current) {
+                let Some(l) = l else { continue };
+                if kept.iter().any(|(_, o)| same_person(o, &l)) {
+                    continue;
+                }
+                let next = l.person(self.threshold).expect("checked");
+                let id = match a {
+                    Assignment::Track(id) => {
+                        self.tracker.seen(id, next);
+                        id
+                    }
+                    _ => self.tracker.born(next),
+                };
+                kept.push((id, l));
+            }
+        }
+        let reported = self.tracker.end();
+        // 3. The heat maps of the people reported.
+        self.found_len = 0;
+        for (id, _) in &reported {
+            let Some((_, l)) = kept.iter().find(|(k, _)| k == id) else {
+                continue;
+            };
+            if self.found.len() == self.found_len {
+                self.found.push(Found {
+                    crop: l.crop,
+                    track_id: *id,
+                    maps: Vec::new(),
+                });
+            }
+            let slot = &mut self.found[self.found_len];
+            slot.crop = l.crop;
+            slot.track_id = *id;
+            self.mapping
+                .apply(&l.logits, HEATMAP_SIZE, HEATMAP_SIZE, &mut slot.maps)
+                .map_err(|source| DetectorError::Maps(Box::new(source)))?;
+            self.found_len += 1;
+        }
+        if self.found_len == 0 {
+            self.stats.no_person += 1;
+        } else {
+            self.stats.detected += 1;
+            self.stats.people += self.found_len as u64;
+        }
+        Ok(self.found[..self.found_len]
+            .iter()
+            .map(|f| Detection {
+                crop: f.crop,
+                maps: &f.maps,
+                size: HEATMAP_SIZE,
+                track_id: f.track_id,
+            })
+            .collect())
     }
 
     /// The joints of the maps (the dictionary's), in order.
@@ -446,7 +741,7 @@ pub struct Detection<'a> {
     pub maps: &'a [f32],
     /// Rows (and columns) of each map.
     pub size: usize,
-    /// The person: a new id each time the detector (re)acquires someone.
+    /// The person: their track's id, kept while they are followed or re-acquired.
     pub track_id: u32,
 }
 

@@ -5,7 +5,8 @@
 //! - [`render`]: pictures of results;
 //! - [`crop`]: person boxes and the crop resampled into the model's input;
 //! - [`image`]: the detector itself (landmark model, tracking, heat-map messages);
-//! - [`mapping`]: the network's channels to the dictionary's joints.
+//! - [`mapping`]: the network's channels to the dictionary's joints;
+//! - [`tracker`]: who is who from frame to frame (tracks of boxes).
 
 pub mod crop;
 pub mod image;
@@ -13,5 +14,6 @@ pub mod images;
 pub mod mapping;
 pub mod models;
 pub mod render;
+pub mod tracker;
 
 pub use image::{Detection, DetectorError, DetectorStats, ImageDetector, ImageSettings};

@@ -121,48 +121,85 @@ fn draw_skeleton_2d(img: &mut RgbImage, s: &Skeleton3D, bones: &[(usize, usize)]
     }
 }
 
-/// The 3D skeleton in a `side x side` panel, rotated by the settings' azimuth and
-/// elevation about its centre, drawn orthographically (y down, as the camera).
+/// The 3D skeletons of one frame in a `side x side` panel, rotated by the settings'
+/// azimuth and elevation about their centre, drawn orthographically (y down, as the
+/// camera). Skeletons in metres stand where they are; others (each centred on itself)
+/// side by side.
 pub fn skeleton_view(
-    s: &Skeleton3D,
+    skeletons: &[&Skeleton3D],
     bones: &[(usize, usize)],
     side: u32,
     settings: &RenderSettings,
 ) -> RgbImage {
     let mut img = RgbImage::from_pixel(side, side, BACKGROUND);
-    let joints: Vec<[f64; 3]> = s
-        .positions
-        .chunks_exact(3)
-        .map(|p| [p[0], p[1], p[2]])
-        .collect();
-    if joints.is_empty() || joints.iter().flatten().any(|v| !v.is_finite()) {
+    let metric = skeletons
+        .iter()
+        .all(|s| s.units == posestream_msgs::Units::Metres as u8);
+    let mut people: Vec<Vec<[f64; 3]>> = Vec::new();
+    for s in skeletons {
+        let joints: Vec<[f64; 3]> = s
+            .positions
+            .chunks_exact(3)
+            .map(|p| [p[0], p[1], p[2]])
+            .collect();
+        if joints.is_empty() || joints.iter().flatten().any(|v| !v.is_finite()) {
+            continue;
+        }
+        people.push(joints);
+    }
+    if !metric {
+        let spacing = 2.2
+            * people
+                .iter()
+                .flatten()
+                .flatten()
+                .fold(1e-9, |m: f64, v| m.max(v.abs()));
+        for (i, joints) in people.iter_mut().enumerate() {
+            let n = joints.len() as f64;
+            let mean: [f64; 3] =
+                std::array::from_fn(|k| joints.iter().map(|p| p[k]).sum::<f64>() / n);
+            for p in joints.iter_mut() {
+                p[0] += i as f64 * spacing - mean[0];
+                p[1] -= mean[1];
+                p[2] -= mean[2];
+            }
+        }
+    }
+    let all: Vec<[f64; 3]> = people.iter().flatten().copied().collect();
+    if all.is_empty() {
         return img;
     }
-    let n = joints.len() as f64;
-    let mean: [f64; 3] = std::array::from_fn(|k| joints.iter().map(|p| p[k]).sum::<f64>() / n);
+    let n = all.len() as f64;
+    let mean: [f64; 3] = std::array::from_fn(|k| all.iter().map(|p| p[k]).sum::<f64>() / n);
     let (az, el) = (
         settings.azimuth_deg.to_radians(),
         settings.elevation_deg.to_radians(),
     );
-    let view: Vec<[f64; 2]> = joints
+    let project = |p: &[f64; 3]| {
+        let (x, y, z) = (p[0] - mean[0], p[1] - mean[1], p[2] - mean[2]);
+        // About the vertical (y) axis, then tilted about x.
+        let (x1, z1) = (x * az.cos() + z * az.sin(), -x * az.sin() + z * az.cos());
+        let y1 = y * el.cos() - z1 * el.sin();
+        [x1, y1]
+    };
+    let views: Vec<Vec<[f64; 2]>> = people
         .iter()
-        .map(|p| {
-            let (x, y, z) = (p[0] - mean[0], p[1] - mean[1], p[2] - mean[2]);
-            // About the vertical (y) axis, then tilted about x.
-            let (x1, z1) = (x * az.cos() + z * az.sin(), -x * az.sin() + z * az.cos());
-            let y1 = y * el.cos() - z1 * el.sin();
-            [x1, y1]
-        })
+        .map(|joints| joints.iter().map(project).collect())
         .collect();
-    let extent = view
+    let extent = views
         .iter()
+        .flatten()
         .flat_map(|p| [p[0].abs(), p[1].abs()])
         .fold(1e-9, f64::max);
     let k = 0.42 * f64::from(side) / extent;
     let c = 0.5 * f64::from(side);
     let screen = |p: [f64; 2]| [(c + k * p[0]) as f32, (c + k * p[1]) as f32];
     // The floor under the lowest joint.
-    let floor = view.iter().map(|p| p[1]).fold(f64::MIN, f64::max);
+    let floor = views
+        .iter()
+        .flatten()
+        .map(|p| p[1])
+        .fold(f64::MIN, f64::max);
     let fy = (c + k * floor) as f32 + 6.0;
     draw_line_segment_mut(
         &mut img,
@@ -170,30 +207,44 @@ pub fn skeleton_view(
         (0.85 * side as f32, fy),
         Rgb([90, 90, 100]),
     );
-    for &(a, b) in bones {
-        if let (Some(&pa), Some(&pb)) = (view.get(a), view.get(b)) {
-            let name = s.joint_names.get(b).map_or("", String::as_str);
-            thick_line(&mut img, screen(pa), screen(pb), side_colour(name), 3);
+    let names = skeletons
+        .iter()
+        .find(|s| !s.joint_names.is_empty())
+        .map_or(&[][..], |s| s.joint_names.as_slice());
+    for view in &views {
+        for &(a, b) in bones {
+            if let (Some(&pa), Some(&pb)) = (view.get(a), view.get(b)) {
+                let name = names.get(b).map_or("", String::as_str);
+                thick_line(&mut img, screen(pa), screen(pb), side_colour(name), 3);
+            }
         }
-    }
-    for p in &view {
-        let q = screen(*p);
-        draw_filled_circle_mut(
-            &mut img,
-            (q[0] as i32, q[1] as i32),
-            3,
-            Rgb([255, 255, 255]),
-        );
+        for p in view {
+            let q = screen(*p);
+            draw_filled_circle_mut(
+                &mut img,
+                (q[0] as i32, q[1] as i32),
+                3,
+                Rgb([255, 255, 255]),
+            );
+        }
     }
     img
 }
 
-/// One frame: the image (scaled to the settings' height) with the heat maps (if any)
-/// and the 2D skeleton, beside the 3D skeleton from the novel view.
+/// One person of a frame to draw: their heat maps (if recorded) and skeleton.
+#[derive(Debug, Clone, Copy)]
+pub struct Person<'a> {
+    /// The heat maps the skeleton came from.
+    pub maps: Option<&'a HeatMaps>,
+    /// The skeleton.
+    pub skeleton: &'a Skeleton3D,
+}
+
+/// One frame: the image (scaled to the settings' height) with each person's heat maps
+/// (if any) and 2D skeleton, beside their 3D skeletons from the novel view.
 pub fn render_frame(
     image: &RgbImage,
-    maps: Option<&HeatMaps>,
-    skeleton: &Skeleton3D,
+    people: &[Person<'_>],
     bones: &[(usize, usize)],
     settings: &RenderSettings,
 ) -> RgbImage {
@@ -202,11 +253,16 @@ pub fn render_frame(
     let width = ((f64::from(image.width()) * scale).round() as u32).max(1);
     let mut left =
         image::imageops::resize(image, width, height, image::imageops::FilterType::Triangle);
-    if let Some(m) = maps {
-        overlay_heatmaps(&mut left, m, scale, settings.overlay);
+    for p in people {
+        if let Some(m) = p.maps {
+            overlay_heatmaps(&mut left, m, scale, settings.overlay);
+        }
     }
-    draw_skeleton_2d(&mut left, skeleton, bones, scale);
-    let right = skeleton_view(skeleton, bones, height, settings);
+    for p in people {
+        draw_skeleton_2d(&mut left, p.skeleton, bones, scale);
+    }
+    let skeletons: Vec<&Skeleton3D> = people.iter().map(|p| p.skeleton).collect();
+    let right = skeleton_view(&skeletons, bones, height, settings);
     let mut out = RgbImage::from_pixel(width + height, height, BACKGROUND);
     image::imageops::replace(&mut out, &left, 0, 0);
     image::imageops::replace(&mut out, &right, i64::from(width), 0);
@@ -236,7 +292,16 @@ mod tests {
             elevation_deg: 0.0,
             overlay: 0.7,
         };
-        let out = render_frame(&image, None, &skeleton(), &bones, &settings);
+        let s = skeleton();
+        let out = render_frame(
+            &image,
+            &[Person {
+                maps: None,
+                skeleton: &s,
+            }],
+            &bones,
+            &settings,
+        );
         assert_eq!(out.dimensions(), (300, 100));
         // The left hip's bone is blue in the image, right of the pelvis.
         assert_eq!(*out.get_pixel(55, 50), LEFT);
@@ -253,7 +318,34 @@ mod tests {
     fn a_skeleton_with_nan_draws_an_empty_view_without_panicking() {
         let mut s = skeleton();
         s.positions[0] = f64::NAN;
-        let view = skeleton_view(&s, &[(0, 1)], 50, &RenderSettings::default());
+        let view = skeleton_view(&[&s], &[(0, 1)], 50, &RenderSettings::default());
         assert!(view.pixels().all(|p| *p == BACKGROUND));
+    }
+
+    #[test]
+    fn two_people_in_dictionary_units_stand_side_by_side() {
+        let (a, b) = (skeleton(), skeleton());
+        let one = skeleton_view(
+            &[&a],
+            &[(0, 1), (0, 2)],
+            100,
+            &RenderSettings {
+                azimuth_deg: 0.0,
+                elevation_deg: 0.0,
+                ..RenderSettings::default()
+            },
+        );
+        let two = skeleton_view(
+            &[&a, &b],
+            &[(0, 1), (0, 2)],
+            100,
+            &RenderSettings {
+                azimuth_deg: 0.0,
+                elevation_deg: 0.0,
+                ..RenderSettings::default()
+            },
+        );
+        let white = |img: &RgbImage| img.pixels().filter(|p| **p == Rgb([255, 255, 255])).count();
+        assert!(white(&two) > white(&one), "two people, more joints drawn");
     }
 }

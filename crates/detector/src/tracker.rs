@@ -1,0 +1,718 @@
+//! Who is who from frame to frame: tracks of people as boxes in the image, ByteTrack /
+//! OC-SORT style, independent of any model so it can be tested on boxes alone.
+//!
+//! A frame's work, in order:
+//! 1. [`Tracker::begin`]; the boxes of tracks being followed
+//!    ([`Tracker::predictions`]: each track's box moved by its velocity);
+//! 2. what was seen there, per track ([`Tracker::seen`]); the image detector looks with
+//!    its landmark model, whose landmarks give the next box;
+//! 3. when new boxes are needed ([`Tracker::wants_detections`]: nobody followed, a track
+//!    just lost, or every `detect_every` frames), unlabelled boxes from a person detector
+//!    are matched to tracks not seen this frame by a minimum-cost assignment
+//!    (Hungarian, `pathfinding`'s Kuhn-Munkres) on 1 - IoU with the tracks' predicted
+//!    boxes, in two passes: confident boxes first, then the low-scoring ones against
+//!    the tracks still unmatched ([`Tracker::associate`]); confident boxes left over
+//!    start tracks, while there is room for `max_people`;
+//! 4. [`Tracker::end`]: a track unseen misses a frame (as one the caller found on a
+//!    person another track has: [`Tracker::duplicate`]), and ends after
+//!    `lost_frames` misses in a row (until then, a box near where its velocity has
+//!    taken it re-acquires it with its id); a new track is confirmed after
+//!    `birth_frames` frames in a row (at once on a scene's first frame), and only
+//!    confirmed tracks are reported.
+//!
+//! Boxes are square crop boxes in image pixels ([`CropBox`]); ids are `u32`, counted up
+//! with wrap-around, never two live tracks with one id.
+
+use pathfinding::kuhn_munkres::kuhn_munkres_min;
+use pathfinding::matrix::Matrix;
+use serde::{Deserialize, Serialize};
+
+use posestream_math::camera::CropBox;
+use posestream_math::error::{OutOfDomain, check_real};
+
+/// How people are tracked (`[detector.images.tracking]`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TrackingSettings {
+    /// People tracked at most at once; more are ignored (counted).
+    pub max_people: usize,
+    /// Frames in a row a new person must be seen before their track is reported (a
+    /// scene's first frame reports at once).
+    pub birth_frames: u32,
+    /// Frames in a row a track may be unseen and still be re-acquired with its id.
+    pub lost_frames: u32,
+    /// The person detector runs at least every this many frames while people are
+    /// followed (to find newcomers); always when nobody is, and after a loss.
+    pub detect_every: u32,
+    /// Person-detector scores from this up to `detection_threshold` are the second,
+    /// low-score pass: they may re-acquire a track, never start one.
+    pub low_threshold: f32,
+    /// A box overlapping a track's predicted box by less than this (IoU) is not that
+    /// track.
+    pub match_iou: f64,
+    /// A confident box overlapping a track seen this frame by more than this (IoU) is
+    /// that person, not a new one.
+    pub duplicate_iou: f64,
+}
+
+impl Default for TrackingSettings {
+    fn default() -> Self {
+        Self {
+            max_people: 4,
+            birth_frames: 2,
+            lost_frames: 30,
+            detect_every: 10,
+            low_threshold: 0.2,
+            match_iou: 0.2,
+            duplicate_iou: 0.5,
+        }
+    }
+}
+
+impl TrackingSettings {
+    /// People at most (the estimator's `max_tracks` is at most this many).
+    pub const MAX_PEOPLE: usize = 64;
+
+    /// Checks every value is in its domain; the error names the key.
+    pub fn check(&self) -> Result<(), OutOfDomain> {
+        let count = |key: &'static str, v: u64, lo: u64, hi: u64| {
+            if (lo..=hi).contains(&v) {
+                Ok(())
+            } else {
+                Err(OutOfDomain::new(
+                    key,
+                    format!("an integer in {lo}..={hi}"),
+                    v.to_string(),
+                ))
+            }
+        };
+        count(
+            "tracking.max_people",
+            self.max_people as u64,
+            1,
+            Self::MAX_PEOPLE as u64,
+        )?;
+        count("tracking.birth_frames", self.birth_frames.into(), 1, 1000)?;
+        count("tracking.lost_frames", self.lost_frames.into(), 0, 100_000)?;
+        count(
+            "tracking.detect_every",
+            self.detect_every.into(),
+            1,
+            100_000,
+        )?;
+        check_real(
+            "tracking.low_threshold",
+            f64::from(self.low_threshold),
+            0.0,
+            1.0,
+            false,
+        )?;
+        check_real("tracking.match_iou", self.match_iou, 0.0, 1.0, false)?;
+        check_real(
+            "tracking.duplicate_iou",
+            self.duplicate_iou,
+            0.0,
+            1.0,
+            false,
+        )?;
+        Ok(())
+    }
+}
+
+/// An unlabelled box: where a person detector saw someone, and how sure it is.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Observation {
+    /// The box, image pixels.
+    pub region: CropBox,
+    /// The detector's score, 0 to 1.
+    pub score: f32,
+}
+
+/// What an observation is, as [`Tracker::associate`] decides.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Assignment {
+    /// Track `id` (unseen this frame), re-acquired or caught up.
+    Track(u32),
+    /// A new person: [`Tracker::born`] starts the track once it is confirmed there.
+    Birth,
+    /// A person already seen this frame, a low score with no track to match, or no room.
+    Ignored,
+}
+
+/// What the tracker did so far.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
+pub struct TrackerStats {
+    /// Tracks started.
+    pub births: u64,
+    /// Of these, confirmed (reported).
+    pub confirmed: u64,
+    /// Tracks ended: unseen longer than `lost_frames`, or never confirmed.
+    pub deaths: u64,
+    /// Lost tracks found again with their id.
+    pub reacquisitions: u64,
+    /// Tracks dropped as a second track on a person already tracked.
+    pub duplicates: u64,
+    /// Confident boxes of new people ignored for want of room (`max_people`).
+    pub no_room: u64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum State {
+    Tentative,
+    Confirmed,
+}
+
+#[derive(Debug, Clone)]
+struct Track {
+    id: u32,
+    state: State,
+    /// The newest box seen.
+    region: CropBox,
+    /// Per frame: centre x, centre y, side.
+    velocity: [f64; 3],
+    /// Frames seen in a row.
+    hits: u32,
+    /// Frames unseen in a row (0 while followed).
+    misses: u32,
+    /// Its place in the order of births (older tracks win duplicates).
+    born: u64,
+    /// Seen this frame: where.
+    seen: Option<CropBox>,
+}
+
+impl Track {
+    /// Where the track is expected `frames` after its newest box: moved by its velocity,
+    /// grown by 10 % a frame unseen (the longer it is gone, the less sure where).
+    fn predicted(&self, frames: u32) -> CropBox {
+        let f = f64::from(frames);
+        let (cx, cy, side) = centre_side(&self.region);
+        let side = (side + self.velocity[2] * f).max(0.5 * side);
+        let grown = side * (1.0 + 0.1 * f64::from(self.misses));
+        let centre = [cx + self.velocity[0] * f, cy + self.velocity[1] * f];
+        CropBox {
+            x0: centre[0] - 0.5 * grown,
+            y0: centre[1] - 0.5 * grown,
+            width: grown,
+            height: grown,
+        }
+    }
+}
+
+fn centre_side(b: &CropBox) -> (f64, f64, f64) {
+    (
+        b.x0 + 0.5 * b.width,
+        b.y0 + 0.5 * b.height,
+        0.5 * (b.width + b.height),
+    )
+}
+
+/// Intersection over union of two boxes (0 for disjoint or empty ones).
+pub fn iou(a: &CropBox, b: &CropBox) -> f64 {
+    let w = (a.x0 + a.width).min(b.x0 + b.width) - a.x0.max(b.x0);
+    let h = (a.y0 + a.height).min(b.y0 + b.height) - a.y0.max(b.y0);
+    if w.is_nan() || h.is_nan() || w <= 0.0 || h <= 0.0 {
+        return 0.0;
+    }
+    let inter = w * h;
+    let union = a.width * a.height + b.width * b.height - inter;
+    if union > 0.0 { inter / union } else { 0.0 }
+}
+
+/// The tracks of the people in view.
+#[derive(Debug, Clone)]
+pub struct Tracker {
+    settings: TrackingSettings,
+    /// The person detector's confident score.
+    detection_threshold: f32,
+    tracks: Vec<Track>,
+    next_id: u32,
+    frame: u64,
+    /// The frame the scene began (its tracks are confirmed at once).
+    scene_start: u64,
+    frames_since_detection: u32,
+    lost_this_frame: bool,
+    stats: TrackerStats,
+}
+
+impl Tracker {
+    /// A tracker with no tracks; `detection_threshold` is the person detector's
+    /// confident score (boxes below it are the low-score pass).
+    pub fn new(settings: TrackingSettings, detection_threshold: f32) -> Self {
+        Self {
+            settings,
+            detection_threshold,
+            tracks: Vec::new(),
+            next_id: 1,
+            frame: 0,
+            scene_start: 1,
+            frames_since_detection: u32::MAX,
+            lost_this_frame: false,
+            stats: TrackerStats::default(),
+        }
+    }
+
+    /// The low-score pass's threshold.
+    pub fn low_threshold(&self) -> f32 {
+        self.settings.low_threshold
+    }
+
+    /// What it did so far.
+    pub fn stats(&self) -> TrackerStats {
+        self.stats
+    }
+
+    /// Ends every track (counted); the next frame is a new scene's first.
+    pub fn reset(&mut self) {
+        self.stats.deaths += self.tracks.len() as u64;
+        self.tracks.clear();
+        self.scene_start = self.frame + 1;
+        self.frames_since_detection = u32::MAX;
+    }
+
+    /// Starts a frame.
+    pub fn begin(&mut self) {
+        self.frame += 1;
+        self.lost_this_frame = false;
+        for t in &mut self.tracks {
+            t.seen = None;
+        }
+    }
+
+    /// The tracks to follow this frame (those seen in the previous one): id and box
+    /// expected now.
+    pub fn predictions(&self) -> impl Iterator<Item = (u32, CropBox)> + '_ {
+        self.tracks
+            .iter()
+            .filter(|t| t.misses == 0)
+            .map(|t| (t.id, t.predicted(1)))
+    }
+
+    /// Track `id` was seen this frame at `region` (the box its person fills).
+    pub fn seen(&mut self, id: u32, region: CropBox) {
+        if let Some(t) = self.tracks.iter_mut().find(|t| t.id == id) {
+            t.seen = Some(region);
+        }
+    }
+
+    /// Track `id`, followed, was not found where expected.
+    pub fn missed(&mut self, id: u32) {
+        if let Some(t) = self.tracks.iter_mut().find(|t| t.id == id) {
+            t.seen = None;
+            self.lost_this_frame |= t.misses == 0;
+        }
+    }
+
+    /// Track `id`, followed, was found on a person another track has: a miss, counted
+    /// as a duplicate.
+    pub fn duplicate(&mut self, id: u32) {
+        self.missed(id);
+        self.stats.duplicates += 1;
+    }
+
+    /// Whether boxes from the person detector are wanted this frame (after the
+    /// followed tracks are [`seen`](Self::seen) or [`missed`](Self::missed)).
+    pub fn wants_detections(&self) -> bool {
+        let followed = self.tracks.iter().filter(|t| t.seen.is_some()).count();
+        followed == 0
+            || self.lost_this_frame
+            || self.frames_since_detection >= self.settings.detect_every.saturating_sub(1)
+    }
+
+    /// The room left for new tracks.
+    /// The room left for new tracks: lost ones give theirs up to a newcomer.
+    fn room(&self) -> usize {
+        let present = self
+            .tracks
+            .iter()
+            .filter(|t| t.misses == 0 || t.seen.is_some())
+            .count();
+        self.settings.max_people.saturating_sub(present)
+    }
+
+    /// What each of `observations` is: a track not yet seen this frame (matched by
+    /// minimum total 1 - IoU with its predicted box, confident boxes first, then the
+    /// low-score ones), a new person, or nothing. Changes no track: the caller checks
+    /// each and reports with [`seen`](Self::seen) or [`born`](Self::born).
+    pub fn associate(&mut self, observations: &[Observation]) -> Vec<Assignment> {
+        self.frames_since_detection = 0;
+        let mut out = vec![Assignment::Ignored; observations.len()];
+        let usable: Vec<usize> = (0..observations.len())
+            .filter(|&i| observations[i].score >= self.settings.low_threshold)
+            .collect();
+        let confident = |i: &usize| observations[*i].score >= self.detection_threshold;
+        let (high, low): (Vec<usize>, Vec<usize>) = usable.into_iter().partition(confident);
+        // Confident boxes against every track (one on a person seen this frame is that
+        // person), then the low-score ones against the tracks still unseen.
+        let all: Vec<usize> = (0..self.tracks.len()).collect();
+        let mut taken = vec![false; self.tracks.len()];
+        for (i, k) in self.assign(observations, &high, &all) {
+            taken[k] = true;
+            if self.tracks[k].seen.is_none() {
+                out[i] = Assignment::Track(self.tracks[k].id);
+            }
+        }
+        let open: Vec<usize> = all
+            .iter()
+            .copied()
+            .filter(|&k| !taken[k] && self.tracks[k].seen.is_none())
+            .collect();
+        for (i, k) in self.assign(observations, &low, &open) {
+            out[i] = Assignment::Track(self.tracks[k].id);
+        }
+        // Confident boxes left, not on a person seen this frame: new people, best
+        // first, while there is room.
+        let matched: Vec<bool> = (0..observations.len())
+            .map(|i| out[i] != Assignment::Ignored)
+            .collect();
+        let mut births: Vec<usize> = high
+            .iter()
+            .copied()
+            .filter(|&i| {
+                !matched[i]
+                    && !self.tracks.iter().enumerate().any(|(k, t)| {
+                        let on = t.seen.unwrap_or_else(|| t.predicted(t.misses + 1));
+                        (taken[k] || t.seen.is_some())
+                            && iou(&on, &observations[i].region) > self.settings.duplicate_iou
+                    })
+            })
+            .collect();
+        births.sort_by(|&a, &b| observations[b].score.total_cmp(&observations[a].score));
+        let room = self.room();
+        for (n, i) in births.into_iter().enumerate() {
+            if n < room {
+                out[i] = Assignment::Birth;
+            } else {
+                self.stats.no_room += 1;
+            }
+        }
+        out
+    }
+
+    /// The minimum-cost matching of observations `obs` to tracks `open` (indices into
+    /// both), each pair overlapping by at least `match_iou`: a track seen this frame by
+    /// where it was seen, others by where they are expected.
+    fn assign(
+        &self,
+        observations: &[Observation],
+        obs: &[usize],
+        open: &[usize],
+    ) -> Vec<(usize, usize)> {
+        if obs.is_empty() || open.is_empty() {
+            return Vec::new();
+        }
+        // Square: rows observations, columns tracks, padding costs more than any pair.
+        const SCALE: f64 = 1e6;
+        let n = obs.len().max(open.len());
+        let gate = self.settings.match_iou;
+        let expected: Vec<CropBox> = open
+            .iter()
+            .map(|&k| {
+                let t = &self.tracks[k];
+                t.seen.unwrap_or_else(|| t.predicted(t.misses + 1))
+            })
+            .collect();
+        let overlap = |i: usize, k: usize| iou(&observations[obs[i]].region, &expected[k]);
+        let cost = Matrix::from_fn(n, n, |(i, k)| {
+            if i < obs.len() && k < open.len() && overlap(i, k) >= gate {
+                ((1.0 - overlap(i, k)) * SCALE).round() as i64
+            } else {
+                SCALE as i64 + 1
+            }
+        });
+        let (_, columns) = kuhn_munkres_min(&cost);
+        columns
+            .into_iter()
+            .enumerate()
+            .filter(|&(i, k)| i < obs.len() && k < open.len() && overlap(i, k) >= gate)
+            .map(|(i, k)| (obs[i], open[k]))
+            .collect()
+    }
+
+    /// A new person seen at `region` this frame: their track's id.
+    pub fn born(&mut self, region: CropBox) -> u32 {
+        let mut id = self.next_id;
+        while self.tracks.iter().any(|t| t.id == id) {
+            id = id.wrapping_add(1);
+        }
+        self.next_id = id.wrapping_add(1);
+        self.stats.births += 1;
+        // Room: the track lost longest ends.
+        while self.tracks.len() >= self.settings.max_people {
+            let Some(k) = (0..self.tracks.len())
+                .filter(|&k| self.tracks[k].seen.is_none())
+                .max_by_key(|&k| self.tracks[k].misses)
+            else {
+                break;
+            };
+            self.tracks.swap_remove(k);
+            self.stats.deaths += 1;
+        }
+        self.tracks.push(Track {
+            id,
+            state: State::Tentative,
+            region,
+            velocity: [0.0; 3],
+            hits: 0,
+            misses: 0,
+            born: self.stats.births,
+            seen: Some(region),
+        });
+        id
+    }
+
+    /// Ends the frame: misses counted, lost tracks ended, confirmations. Returns the confirmed tracks seen this frame (id, box), oldest
+    /// first.
+    pub fn end(&mut self) -> Vec<(u32, CropBox)> {
+        self.frames_since_detection = self.frames_since_detection.saturating_add(1);
+        self.tracks.sort_by_key(|t| t.born);
+        let first_of_scene = self.frame == self.scene_start;
+        let (birth, lost) = (self.settings.birth_frames, self.settings.lost_frames);
+        let mut out = Vec::new();
+        let stats = &mut self.stats;
+        self.tracks.retain_mut(|t| match t.seen {
+            Some(now) => {
+                let gap = f64::from(t.misses + 1);
+                let (a, b) = (centre_side(&t.region), centre_side(&now));
+                let step = [(b.0 - a.0) / gap, (b.1 - a.1) / gap, (b.2 - a.2) / gap];
+                if t.hits > 0 || t.misses > 0 {
+                    for (v, s) in t.velocity.iter_mut().zip(step) {
+                        *v = 0.5 * *v + 0.5 * s;
+                    }
+                }
+                if t.misses > 0 {
+                    stats.reacquisitions += 1;
+                }
+                t.region = now;
+                t.hits = t.hits.saturating_add(1);
+                t.misses = 0;
+                if t.state == State::Tentative && (t.hits >= birth || first_of_scene) {
+                    t.state = State::Confirmed;
+                    stats.confirmed += 1;
+                }
+                if t.state == State::Confirmed {
+                    out.push((t.id, now));
+                }
+                true
+            }
+            None => {
+                t.hits = 0;
+                t.misses = t.misses.saturating_add(1);
+                let keep = t.state == State::Confirmed && t.misses <= lost;
+                if !keep {
+                    stats.deaths += 1;
+                }
+                keep
+            }
+        });
+        out
+    }
+
+    /// Live tracks (followed, tentative or lost but not yet ended).
+    pub fn len(&self) -> usize {
+        self.tracks.len()
+    }
+
+    /// No live track.
+    pub fn is_empty(&self) -> bool {
+        self.tracks.is_empty()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn square(cx: f64, cy: f64, side: f64) -> CropBox {
+        CropBox {
+            x0: cx - 0.5 * side,
+            y0: cy - 0.5 * side,
+            width: side,
+            height: side,
+        }
+    }
+
+    fn seen_at(t: &mut Tracker, boxes: &[CropBox]) -> Vec<(u32, CropBox)> {
+        t.begin();
+        let obs: Vec<Observation> = boxes
+            .iter()
+            .map(|&region| Observation { region, score: 0.9 })
+            .collect();
+        let what = t.associate(&obs);
+        for (o, a) in obs.iter().zip(what) {
+            match a {
+                Assignment::Track(id) => t.seen(id, o.region),
+                Assignment::Birth => {
+                    t.born(o.region);
+                }
+                Assignment::Ignored => {}
+            }
+        }
+        t.end()
+    }
+
+    fn settings() -> TrackingSettings {
+        TrackingSettings::default()
+    }
+
+    #[test]
+    fn two_people_walking_keep_their_ids_in_any_order() {
+        let mut t = Tracker::new(settings(), 0.5);
+        let mut ids = None;
+        for f in 0..50 {
+            let a = square(100.0 + 4.0 * f64::from(f), 200.0, 120.0);
+            let b = square(500.0 - 3.0 * f64::from(f), 220.0, 100.0);
+            let boxes = if f % 2 == 0 { [a, b] } else { [b, a] };
+            let out = seen_at(&mut t, &boxes);
+            assert_eq!(out.len(), 2, "frame {f}");
+            let id_of = |bx: CropBox| out.iter().find(|(_, r)| *r == bx).expect("seen").0;
+            let now = (id_of(a), id_of(b));
+            assert_ne!(now.0, now.1);
+            assert_eq!(*ids.get_or_insert(now), now, "frame {f}");
+        }
+        assert_eq!(t.stats().births, 2);
+    }
+
+    #[test]
+    fn a_newcomer_is_reported_after_birth_frames_and_a_leaver_ends_after_lost_frames() {
+        let mut t = Tracker::new(settings(), 0.5);
+        let a = square(100.0, 100.0, 80.0);
+        assert_eq!(seen_at(&mut t, &[a]).len(), 1, "first frame: at once");
+        let b = square(400.0, 100.0, 80.0);
+        assert_eq!(seen_at(&mut t, &[a, b]).len(), 1, "b is tentative");
+        assert_eq!(seen_at(&mut t, &[a, b]).len(), 2, "b confirmed");
+        // b leaves: kept for lost_frames, then ended.
+        for _ in 0..30 {
+            assert_eq!(seen_at(&mut t, &[a]).len(), 1);
+        }
+        assert_eq!(t.len(), 2);
+        seen_at(&mut t, &[a]);
+        assert_eq!(t.len(), 1);
+        assert_eq!(t.stats().deaths, 1);
+        // A one-frame flicker never becomes a track.
+        seen_at(&mut t, &[a, square(700.0, 100.0, 80.0)]);
+        seen_at(&mut t, &[a]);
+        assert_eq!((t.len(), t.stats().confirmed), (1, 2));
+    }
+
+    #[test]
+    fn a_person_hidden_for_a_while_comes_back_with_their_id_where_their_velocity_took_them() {
+        let mut t = Tracker::new(settings(), 0.5);
+        let at = |f: u32| square(100.0 + 10.0 * f64::from(f), 300.0, 100.0);
+        let mut id = 0;
+        for f in 0..10 {
+            id = seen_at(&mut t, &[at(f)])[0].0;
+        }
+        // Hidden 12 frames (120 px: no overlap with where they were).
+        for _ in 10..22 {
+            assert!(seen_at(&mut t, &[]).is_empty());
+        }
+        let back = seen_at(&mut t, &[at(22)]);
+        assert_eq!(back, vec![(id, at(22))]);
+        assert_eq!(t.stats().reacquisitions, 1);
+        assert_eq!(t.stats().births, 1);
+    }
+
+    #[test]
+    fn a_low_score_box_reacquires_but_never_starts_a_track() {
+        let mut t = Tracker::new(settings(), 0.5);
+        let a = square(100.0, 100.0, 80.0);
+        let id = seen_at(&mut t, &[a])[0].0;
+        t.begin();
+        assert!(t.end().is_empty(), "missed");
+        t.begin();
+        let weak = [
+            Observation {
+                region: a,
+                score: 0.3,
+            },
+            Observation {
+                region: square(400.0, 100.0, 80.0),
+                score: 0.3,
+            },
+        ];
+        assert_eq!(
+            t.associate(&weak),
+            vec![Assignment::Track(id), Assignment::Ignored]
+        );
+    }
+
+    #[test]
+    fn a_duplicate_is_a_miss_a_box_on_a_seen_person_starts_nobody_and_room_is_bounded() {
+        let mut t = Tracker::new(
+            TrackingSettings {
+                max_people: 2,
+                ..settings()
+            },
+            0.5,
+        );
+        let a = square(100.0, 100.0, 80.0);
+        let b = square(300.0, 100.0, 80.0);
+        let c = square(500.0, 100.0, 80.0);
+        let out = seen_at(&mut t, &[a, b, c]);
+        assert_eq!(out.len(), 2);
+        assert_eq!(t.stats().no_room, 1);
+        // The caller found both followed tracks on one person: the second is a miss.
+        t.begin();
+        t.seen(out[0].0, a);
+        t.duplicate(out[1].0);
+        // A second box on the person seen is not a newcomer.
+        let near = Observation {
+            region: square(104.0, 100.0, 80.0),
+            score: 0.9,
+        };
+        assert_eq!(t.associate(&[near]), vec![Assignment::Ignored]);
+        let after = t.end();
+        assert_eq!(after, vec![(out[0].0, a)]);
+        assert_eq!((t.stats().duplicates, t.len()), (1, 2));
+    }
+
+    #[test]
+    fn two_people_crossing_keep_their_ids() {
+        let mut t = Tracker::new(settings(), 0.5);
+        let mut first = None;
+        for f in 0..60 {
+            // One walks right in front of the other, who walks left: their boxes
+            // coincide in the middle.
+            let x = f64::from(f);
+            let a = square(100.0 + 8.0 * x, 300.0, 160.0);
+            let b = square(580.0 - 8.0 * x, 290.0, 140.0);
+            let out = seen_at(&mut t, &[b, a]);
+            let id_a = out.iter().find(|(_, r)| *r == a).map(|p| p.0);
+            let id_b = out.iter().find(|(_, r)| *r == b).map(|p| p.0);
+            let now = (id_a.expect("a"), id_b.expect("b"));
+            assert_eq!(*first.get_or_insert(now), now, "frame {f}");
+        }
+    }
+
+    #[test]
+    fn ids_wrap_around_and_skip_live_ones() {
+        let mut t = Tracker::new(settings(), 0.5);
+        t.next_id = u32::MAX;
+        let ids: Vec<u32> = seen_at(
+            &mut t,
+            &[square(100.0, 100.0, 80.0), square(400.0, 100.0, 80.0)],
+        )
+        .into_iter()
+        .map(|(id, _)| id)
+        .collect();
+        assert_eq!(ids, vec![u32::MAX, 0]);
+        t.next_id = u32::MAX;
+        t.begin();
+        assert_eq!(t.born(square(700.0, 100.0, 80.0)), 1);
+    }
+
+    #[test]
+    fn out_of_domain_settings_name_their_key() {
+        let bad = TrackingSettings {
+            max_people: 0,
+            ..settings()
+        };
+        assert!(bad.check().unwrap_err().to_string().contains("max_people"));
+        let bad = TrackingSettings {
+            match_iou: f64::NAN,
+            ..settings()
+        };
+        assert!(bad.check().unwrap_err().to_string().contains("match_iou"));
+        assert!(settings().check().is_ok());
+    }
+}
