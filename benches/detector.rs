@@ -6,13 +6,16 @@
 //!   first frame and after a loss only).
 //!
 //! A tracked frame costs crop + landmark model + mapping. Fetches the models into the
-//! cache first (`posestream models fetch`).
+//! cache first (`posestream models fetch`). With `$POSESTREAM_LITERT` naming LiteRT's
+//! `libLiteRt.so`, the models also run on LiteRT, side by side; the landmark models
+//! also run with tract's matrix products spread over the cores.
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use posestream::CropBox;
 use posestream::detector::crop::crop_input;
 use posestream::detector::mapping::ChannelMapping;
 use posestream::models::landmarks::{HEATMAP_CHANNELS, HEATMAP_SIZE, INPUT_SIZE, LandmarkNetwork};
+use posestream::models::litert::{LiteRt, LiteRtNetwork};
 use posestream::models::person::{self, PersonNetwork};
 use posestream::models::{self, LandmarkModel, ModelFile};
 
@@ -23,6 +26,9 @@ fn bench(c: &mut Criterion) {
     let rgb: Vec<f32> = (0..INPUT_SIZE * INPUT_SIZE * 3)
         .map(|i| ((i * 7919) % 255) as f32 / 255.0)
         .collect();
+    // LiteRT beside tract when its library is named (`$POSESTREAM_LITERT`).
+    let litert = LiteRt::library_path(std::path::Path::new(""))
+        .map(|p| LiteRt::load(&p).expect("$POSESTREAM_LITERT loads"));
     let mut group = c.benchmark_group("image to heat maps (one core)");
     group.sample_size(20);
     let frame = image::RgbImage::from_fn(640, 480, |x, y| {
@@ -41,6 +47,15 @@ fn bench(c: &mut Criterion) {
         group.bench_function(format!("landmarks {model:?}"), |b| {
             b.iter(|| network.run(&rgb).expect("runs"))
         });
+        group.bench_function(format!("landmarks {model:?}, spread over the cores"), |b| {
+            b.iter(|| network.run_spread(&rgb).expect("runs"))
+        });
+        if let Some(runtime) = &litert {
+            let mut compiled = LiteRtNetwork::load(runtime, &m.original).expect("compiles");
+            group.bench_function(format!("landmarks {model:?}, LiteRT"), |b| {
+                b.iter(|| compiled.run(&rgb).expect("runs"))
+            });
+        }
     }
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
     let dict = posestream::Dictionary::load(root.join("config/dictionaries/default-k128.json"))
@@ -66,8 +81,16 @@ fn bench(c: &mut Criterion) {
         .map(|i| ((i * 7919) % 255) as f32 / 127.5 - 1.0)
         .collect();
     group.bench_function("person detector 224x224", |b| {
-        b.iter(|| detector.detect(&input, 0.5).expect("runs"))
+        b.iter(|| detector.detect(0, &input, 0.5).expect("runs"))
     });
+    if let Some(runtime) = &litert {
+        let fast =
+            PersonNetwork::load_litert(runtime, &ModelFile::PersonDetector.original(&dir), 1)
+                .expect("compiles");
+        group.bench_function("person detector 224x224, LiteRT", |b| {
+            b.iter(|| fast.detect(0, &input, 0.5).expect("runs"))
+        });
+    }
     group.finish();
 }
 

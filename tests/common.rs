@@ -87,6 +87,24 @@ pub fn python() -> String {
     std::env::var("POSESTREAM_PYTHON").unwrap_or_else(|_| "python3".into())
 }
 
+/// LiteRT's `libLiteRt.so` in the Python environment of the clients (the
+/// `ai-edge-litert` wheel `.ci/run` installs).
+pub fn litert_library() -> std::path::PathBuf {
+    let out = std::process::Command::new(python())
+        .args([
+            "-c",
+            "import ai_edge_litert, os; print(os.path.join(os.path.dirname(ai_edge_litert.__file__), 'libLiteRt.so'))",
+        ])
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run {}: {e}", python()));
+    assert!(
+        out.status.success(),
+        "ai-edge-litert is not installed (.ci/run installs it): {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    std::path::PathBuf::from(String::from_utf8_lossy(&out.stdout).trim())
+}
+
 /// Runs `tests/python/<script>` with `args`; returns its stdout parsed as JSON. Panics
 /// with the client's stderr when it fails (for instance when the PyPI packages are
 /// missing: `.ci/run` installs them).

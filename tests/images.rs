@@ -143,6 +143,28 @@ fn a_folder_of_real_photos_becomes_skeletons_in_mcap_and_a_picture() {
             }
         }
     }
+    // The same with LiteRT running the models (`--runtime litert`): the same people.
+    let fast_out = dir.path().join("photos-litert.mcap");
+    let fast = Command::new(env!("CARGO_BIN_EXE_posestream"))
+        .args(["run", "--images", s(&f.images), "--record", s(&fast_out)])
+        .args(["--ros2", "false", "--json", "--runtime", "litert"])
+        .current_dir(common::root())
+        .env("POSESTREAM_MODELS", &f.models)
+        .env("POSESTREAM_LITERT", common::litert_library())
+        .output()
+        .expect("runs");
+    assert!(
+        fast.status.success(),
+        "{}",
+        String::from_utf8_lossy(&fast.stderr)
+    );
+    let fast: serde_json::Value = serde_json::from_slice(&fast.stdout).expect("json");
+    for key in ["detected", "people"] {
+        assert_eq!(
+            fast["detector"]["images"][key], images[key],
+            "{key}: litert {fast} tract {report}"
+        );
+    }
     // zidane.jpg (1280 x 720): Zidane's head left of the middle, Ancelotti's right.
     let mut xs: Vec<f64> = skeletons
         .iter()
@@ -477,6 +499,26 @@ fn what_a_new_user_gets_wrong_is_one_clear_error() {
         &["run", "--video", s(&text), "--ros2", "false"],
         &[],
         "not a video",
+    );
+    // LiteRT asked for, without its library, or with a file that is not it.
+    let run_litert = [
+        "run",
+        "--images",
+        images,
+        "--ros2",
+        "false",
+        "--runtime",
+        "litert",
+    ];
+    expect_error(
+        &run_litert,
+        &[("POSESTREAM_LITERT", Path::new(""))],
+        "litert_library",
+    );
+    expect_error(
+        &run_litert,
+        &[("POSESTREAM_LITERT", &text)],
+        "not the libLiteRt.so of an ai-edge-litert wheel",
     );
     // Rendering needs the images.
     expect_error(

@@ -56,6 +56,7 @@ fn estimate_from(logits: &[f32]) {
     assert_eq!(out[0].state, TrackState::Initialising);
     assert!(out[0].pose.iter().all(|v| v.is_finite()) && out[0].pose.len() == 51);
 }
+use posestream::models::litert::{LiteRt, LiteRtNetwork};
 use posestream::models::person::{PersonNetwork, anchors, decode};
 use posestream::models::{LandmarkModel, ModelFile, fetch};
 
@@ -109,6 +110,32 @@ fn fetched_models_run_in_tract_with_the_reference_runtimes_heat_maps() {
         assert!(worst <= 1e-3, "{:?}: {worst}", m.model);
         assert!(got.pose_flag > 0.5);
         estimate_from(&got.heatmap_logits);
+        // posestream's LiteRT binding (the C API of the same wheel's libLiteRt.so) on
+        // the original model: the Python runtime's heat maps, and tract's landmarks.
+        let runtime = LiteRt::load(&common::litert_library()).expect("libLiteRt.so loads");
+        let mut compiled = LiteRtNetwork::load(&runtime, &m.original).expect("compiles");
+        let fast = compiled.run(&input.data).expect("runs");
+        let worst_litert = fast
+            .heatmap_logits
+            .iter()
+            .zip(&expected.data)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0_f32, f32::max);
+        let landmarks = fast
+            .landmarks
+            .iter()
+            .zip(&got.landmarks)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0_f32, f32::max);
+        println!(
+            "{:?}: LiteRT binding: heat-map logits within {worst_litert:e} of Python's, landmarks within {landmarks:e} px of tract's",
+            m.model
+        );
+        assert!(worst_litert <= 1e-4, "{:?}: {worst_litert}", m.model);
+        assert!(landmarks <= 0.05, "{:?}: {landmarks}", m.model);
+        assert!((fast.pose_flag - got.pose_flag).abs() < 1e-3);
+        // The same run again (buffers reused) gives the same values.
+        assert_eq!(compiled.run(&input.data).expect("runs"), fast);
     }
     person_detector_matches_the_reference_runtime(dir.path());
     // A tarball with other bytes is refused.
@@ -141,7 +168,7 @@ fn person_detector_matches_the_reference_runtime(models: &std::path::Path) {
     let boxes = posestream::npy::read::<f32>(&out.join("boxes.npy")).expect("boxes");
     let scores = posestream::npy::read::<f32>(&out.join("scores.npy")).expect("scores");
     let network = PersonNetwork::load(&file.for_tract(models)).expect("tract loads the rewrite");
-    let got = network.run_raw(&input.data).expect("runs");
+    let got = network.run_raw(0, &input.data).expect("runs");
     let worst = |a: &[f32], b: &[f32]| {
         assert_eq!(a.len(), b.len());
         a.iter()
@@ -158,6 +185,21 @@ fn person_detector_matches_the_reference_runtime(models: &std::path::Path) {
     assert!(
         box_diff <= 1e-2 && score_diff <= 5e-3,
         "{box_diff} {score_diff}"
+    );
+    // posestream's LiteRT binding on the original detector: the Python runtime's values.
+    let runtime = LiteRt::load(&common::litert_library()).expect("libLiteRt.so loads");
+    let fast = PersonNetwork::load_litert(&runtime, &file.original(models), 2)
+        .expect("compiles")
+        .run_raw(1, &input.data)
+        .expect("runs");
+    let (fast_box, fast_score) = (
+        worst(&fast.boxes, &boxes.data),
+        worst(&fast.scores, &scores.data),
+    );
+    println!("person detector, LiteRT binding: box {fast_box:e} px, score logit {fast_score:e}");
+    assert!(
+        fast_box <= 1e-3 && fast_score <= 1e-3,
+        "{fast_box} {fast_score}"
     );
     // Decoded the same way, both find the same people.
     let a = anchors();

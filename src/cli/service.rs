@@ -167,6 +167,10 @@ pub struct SourceArgs {
     /// Landmark model (overrides `detector.images.model`).
     #[arg(long, value_enum)]
     pub model: Option<posestream::models::LandmarkModel>,
+    /// What runs the models (overrides `detector.images.runtime`): `litert` needs
+    /// `$POSESTREAM_LITERT` or `detector.images.litert_library`.
+    #[arg(long, value_enum)]
+    pub runtime: Option<posestream::detector::Runtime>,
     /// Pace of a replayed recording (overrides `detector.rate`).
     #[arg(long, value_enum)]
     pub rate: Option<ReplayRate>,
@@ -196,6 +200,9 @@ impl SourceArgs {
         }
         if let Some(m) = self.model {
             d.images.model = m;
+        }
+        if let Some(r) = self.runtime {
+            d.images.runtime = r;
         }
         if let Some(rate) = self.rate {
             d.rate = rate;

@@ -16,4 +16,4 @@ pub mod models;
 pub mod render;
 pub mod tracker;
 
-pub use image::{Detection, DetectorError, DetectorStats, ImageDetector, ImageSettings};
+pub use image::{Detection, DetectorError, DetectorStats, ImageDetector, ImageSettings, Runtime};

@@ -168,8 +168,8 @@ struct Track {
     state: State,
     /// The newest box seen.
     region: CropBox,
-    /// Per frame: centre x, centre y, side.
-    velocity: [f64; 3],
+    /// Pixels per frame of the box's centre.
+    velocity: [f64; 2],
     /// Frames seen in a row.
     hits: u32,
     /// Frames unseen in a row (0 while followed).
@@ -182,11 +182,12 @@ struct Track {
 
 impl Track {
     /// Where the track is expected `frames` after its newest box: moved by its velocity,
-    /// grown by 10 % a frame unseen (the longer it is gone, the less sure where).
+    /// grown by 10 % a frame unseen (the longer it is gone, the less sure where). The
+    /// side is not extrapolated: a box that follows its own landmarks would feed its
+    /// growth back into itself.
     fn predicted(&self, frames: u32) -> CropBox {
         let f = f64::from(frames);
         let (cx, cy, side) = centre_side(&self.region);
-        let side = (side + self.velocity[2] * f).max(0.5 * side);
         let grown = side * (1.0 + 0.1 * f64::from(self.misses));
         let centre = [cx + self.velocity[0] * f, cy + self.velocity[1] * f];
         CropBox {
@@ -451,7 +452,7 @@ impl Tracker {
             id,
             state: State::Tentative,
             region,
-            velocity: [0.0; 3],
+            velocity: [0.0; 2],
             hits: 0,
             misses: 0,
             born: self.stats.births,
@@ -473,7 +474,7 @@ impl Tracker {
             Some(now) => {
                 let gap = f64::from(t.misses + 1);
                 let (a, b) = (centre_side(&t.region), centre_side(&now));
-                let step = [(b.0 - a.0) / gap, (b.1 - a.1) / gap, (b.2 - a.2) / gap];
+                let step = [(b.0 - a.0) / gap, (b.1 - a.1) / gap];
                 if t.hits > 0 || t.misses > 0 {
                     for (v, s) in t.velocity.iter_mut().zip(step) {
                         *v = 0.5 * *v + 0.5 * s;

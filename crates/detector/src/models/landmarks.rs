@@ -26,6 +26,14 @@ pub enum NetworkError {
     /// The model's outputs are not the expected ones.
     #[error("unexpected model outputs: {0}")]
     Outputs(String),
+    /// LiteRT could not be loaded, or refused the model or a run.
+    #[error("LiteRT: {context}: {reason}")]
+    LiteRt {
+        /// What was being done.
+        context: String,
+        /// Why it failed.
+        reason: String,
+    },
 }
 
 fn tract_error(context: impl Into<String>) -> impl FnOnce(TractError) -> NetworkError {
@@ -103,6 +111,14 @@ impl LandmarkNetwork {
         Ok(Self {
             model: load_model(path)?,
         })
+    }
+
+    /// [`run`](Self::run) with the model's matrix products split across rayon's global
+    /// pool (tract's multithreaded executor): for one crop at a time on several
+    /// cores.
+    pub fn run_spread(&self, rgb: &[f32]) -> Result<LandmarkOutput, NetworkError> {
+        use tract_linalg::multithread::{Executor, multithread_tract_scope};
+        multithread_tract_scope(Executor::RayonGlobal, || self.run(rgb))
     }
 
     /// Runs on one crop: `rgb` is `256 x 256 x 3`, row-major, values in [0, 1].

@@ -8,6 +8,7 @@
 pub mod append;
 pub mod fetch;
 pub mod landmarks;
+pub mod litert;
 pub mod person;
 pub mod rewrite;
 

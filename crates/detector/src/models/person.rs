@@ -1,4 +1,4 @@
-//! BlazePose's person detector (`pose_detection.tflite`) run by `tract`: a 224 x 224
+//! BlazePose's person detector (`pose_detection.tflite`) run by `tract` or LiteRT: a 224 x 224
 //! letterboxed image in, people out, each with a box and four keypoints, the first two
 //! of which (hips' midpoint, body-circle point) place the landmark model's crop.
 //!
@@ -12,6 +12,7 @@ use std::path::Path;
 use tract_tflite::prelude::*;
 
 use super::landmarks::{NetworkError, load_model, output_of_shape, run_model};
+use super::litert::{LiteRt, LiteRtNetwork, compiled_models, worker as worker_of};
 
 /// Input side, pixels.
 pub const INPUT_SIZE: usize = 224;
@@ -143,9 +144,15 @@ pub struct PersonOutput {
     pub scores: Vec<f32>,
 }
 
+/// What runs the detector.
+enum Engine {
+    Tract(std::sync::Arc<TypedRunnableModel>),
+    LiteRt(Vec<std::sync::Mutex<LiteRtNetwork>>),
+}
+
 /// A loaded person detector.
 pub struct PersonNetwork {
-    model: std::sync::Arc<TypedRunnableModel>,
+    engine: Engine,
     anchors: Vec<[f32; 2]>,
 }
 
@@ -153,23 +160,60 @@ impl PersonNetwork {
     /// Loads the detector rewritten for tract ([`super::rewrite`]).
     pub fn load(path: &Path) -> Result<Self, NetworkError> {
         Ok(Self {
-            model: load_model(path)?,
+            engine: Engine::Tract(load_model(path)?),
             anchors: anchors(),
         })
     }
 
-    /// Raw outputs for `input`: `224 x 224 x 3`, row-major, values in [-1, 1].
-    pub fn run_raw(&self, input: &[f32]) -> Result<PersonOutput, NetworkError> {
-        let outputs = run_model(&self.model, &[1, INPUT_SIZE, INPUT_SIZE, 3], input)?;
-        Ok(PersonOutput {
-            boxes: output_of_shape(&outputs, &[1, ANCHORS, VALUES_PER_ANCHOR])?,
-            scores: output_of_shape(&outputs, &[1, ANCHORS, 1])?,
+    /// Compiles the original detector at `path` with LiteRT, one compiled model per
+    /// worker of parallel runs.
+    pub fn load_litert(
+        runtime: &LiteRt,
+        path: &Path,
+        workers: usize,
+    ) -> Result<Self, NetworkError> {
+        Ok(Self {
+            engine: Engine::LiteRt(compiled_models(
+                runtime,
+                path,
+                workers,
+                INPUT_SIZE * INPUT_SIZE * 3,
+                &[ANCHORS * VALUES_PER_ANCHOR, ANCHORS],
+            )?),
+            anchors: anchors(),
         })
     }
 
+    /// Raw outputs for `input`: `224 x 224 x 3`, row-major, values in [-1, 1];
+    /// `worker` picks LiteRT's compiled model.
+    pub fn run_raw(&self, worker: usize, input: &[f32]) -> Result<PersonOutput, NetworkError> {
+        match &self.engine {
+            Engine::Tract(model) => {
+                let outputs = run_model(model, &[1, INPUT_SIZE, INPUT_SIZE, 3], input)?;
+                Ok(PersonOutput {
+                    boxes: output_of_shape(&outputs, &[1, ANCHORS, VALUES_PER_ANCHOR])?,
+                    scores: output_of_shape(&outputs, &[1, ANCHORS, 1])?,
+                })
+            }
+            Engine::LiteRt(nets) => {
+                let mut net = worker_of(nets, worker)?;
+                net.run_raw(input)?;
+                Ok(PersonOutput {
+                    boxes: net.output(ANCHORS * VALUES_PER_ANCHOR)?.to_vec(),
+                    scores: net.output(ANCHORS)?.to_vec(),
+                })
+            }
+        }
+    }
+
     /// The people in `input` scoring at least `threshold`, best first.
-    pub fn detect(&self, input: &[f32], threshold: f32) -> Result<Vec<Detection>, NetworkError> {
-        let raw = self.run_raw(input)?;
+    pub fn detect(
+        &self,
+        worker: usize,
+        input: &[f32],
+        threshold: f32,
+    ) -> Result<Vec<Detection>, NetworkError> {
+        let raw = self.run_raw(worker, input)?;
         Ok(decode(&raw.boxes, &raw.scores, &self.anchors, threshold))
     }
 }
