@@ -94,7 +94,7 @@ impl Summary for service::DetectorReport {
             text.push_str(&format!(
                 "\nimages: {} frames, {} with people ({} person-frames), {} without; \
                  {} tracks confirmed ({} re-acquisitions); \
-                 {} landmark runs, {:.1} ms each; person detector found someone {} of {} times",
+                 {} landmark runs, {:.1} ms each; person detector found someone in {} of {} searches",
                 s.frames,
                 s.detected,
                 s.people,
@@ -104,7 +104,7 @@ impl Summary for service::DetectorReport {
                 s.network_runs,
                 s.mean_network_ms(),
                 s.detector_hits,
-                s.detector_runs
+                s.searches
             ));
         }
         if let Some(e) = &self.input_error {

@@ -83,7 +83,7 @@ pub struct ImageSettings {
     /// The landmark model (`posestream models fetch` downloads it).
     pub model: LandmarkModel,
     /// What runs it: `tract` (pure Rust, built in) or `litert` (Google's LiteRT, loaded
-    /// from `litert_library`: 3-4 x faster on CPU).
+    /// from `litert_library`: 2-3 x faster on CPU).
     pub runtime: Runtime,
     /// LiteRT's `libLiteRt.so` (`site-packages/ai_edge_litert/libLiteRt.so` of
     /// `pip install 'ai-edge-litert==2.3.*'`); empty: `$POSESTREAM_LITERT`.
@@ -271,11 +271,14 @@ pub struct DetectorStats {
     pub people: u64,
     /// Landmark model runs.
     pub network_runs: u64,
-    /// Seconds in the landmark model (summed over the runs, parallel ones too).
+    /// Seconds in the landmark runs, the crop included (summed over the runs, parallel
+    /// ones too).
     pub network_seconds: f64,
-    /// Person detector runs.
+    /// Person detector runs (one per region searched).
     pub detector_runs: u64,
-    /// Person detector runs that found someone.
+    /// Searches with the person detector (each runs it on the whole image and tiles).
+    pub searches: u64,
+    /// Searches that found someone.
     pub detector_hits: u64,
     /// Seconds in the person detector.
     pub detector_seconds: f64,
@@ -535,8 +538,10 @@ impl ImageDetector {
         let looks: Vec<Result<Look, DetectorError>> = self.inputs[..boxes.len()]
             .par_iter_mut()
             .zip(boxes.par_iter())
-            .enumerate()
-            .map(|(worker, (input, crop))| look(network, worker, frame, *crop, input))
+            .map(|(input, crop)| {
+                let worker = rayon::current_thread_index().unwrap_or(0);
+                look(network, worker, frame, *crop, input)
+            })
             .collect();
         let looks = looks.into_iter().collect::<Result<Vec<Look>, _>>()?;
         for l in &looks {
@@ -583,8 +588,8 @@ impl ImageDetector {
         let rgb = &frame.rgb;
         let found: Vec<Result<Vec<Observation>, DetectorError>> = regions
             .par_iter()
-            .enumerate()
-            .map(|(worker, region)| {
+            .map(|region| {
+                let worker = rayon::current_thread_index().unwrap_or(0);
                 let mut input = Vec::new();
                 crop_input(rgb, region, PERSON_INPUT, &mut input);
                 for v in &mut input {
@@ -625,6 +630,7 @@ impl ImageDetector {
             }
         }
         self.stats.detector_runs += regions.len() as u64;
+        self.stats.searches += 1;
         self.stats.detector_seconds += began.elapsed().as_secs_f64();
         tracing::debug!(
             "person detector: {} boxes {:?}",
@@ -721,18 +727,29 @@ impl ImageDetector {
                     }
                 }
             }
-            for (a, l) in what.into_iter().zip(current) {
-                let Some(l) = l else { continue };
+            // People found again first (they keep their places), then newcomers.
+            let mut found: Vec<(Assignment, Look)> = what
+                .into_iter()
+                .zip(current)
+                .filter_map(|(a, l)| Some((a, l?)))
+                .collect();
+            found.sort_by_key(|(a, _)| matches!(a, Assignment::Birth));
+            for (a, l) in found {
                 if kept.iter().any(|(_, o)| same_person(o, &l)) {
                     continue;
                 }
-                let next = l.person(self.threshold).expect("checked");
+                let Some(next) = l.person(self.threshold) else {
+                    continue;
+                };
                 let id = match a {
                     Assignment::Track(id) => {
                         self.tracker.seen(id, next);
                         id
                     }
-                    _ => self.tracker.born(next),
+                    _ => match self.tracker.born(next) {
+                        Some(id) => id,
+                        None => continue,
+                    },
                 };
                 kept.push((id, l));
             }

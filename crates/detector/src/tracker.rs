@@ -232,6 +232,8 @@ pub struct Tracker {
     scene_start: u64,
     frames_since_detection: u32,
     lost_this_frame: bool,
+    /// Tracks [`Tracker::associate`] gave boxes this frame (not evicted for newcomers).
+    claimed: Vec<u32>,
     stats: TrackerStats,
 }
 
@@ -248,6 +250,7 @@ impl Tracker {
             scene_start: 1,
             frames_since_detection: u32::MAX,
             lost_this_frame: false,
+            claimed: Vec::new(),
             stats: TrackerStats::default(),
         }
     }
@@ -274,6 +277,7 @@ impl Tracker {
     pub fn begin(&mut self) {
         self.frame += 1;
         self.lost_this_frame = false;
+        self.claimed.clear();
         for t in &mut self.tracks {
             t.seen = None;
         }
@@ -316,18 +320,20 @@ impl Tracker {
         let followed = self.tracks.iter().filter(|t| t.seen.is_some()).count();
         followed == 0
             || self.lost_this_frame
-            || self.frames_since_detection >= self.settings.detect_every.saturating_sub(1)
+            || self.frames_since_detection >= self.settings.detect_every
     }
 
-    /// The room left for new tracks.
-    /// The room left for new tracks: lost ones give theirs up to a newcomer.
-    fn room(&self) -> usize {
+    /// The room left for new tracks, besides those seen this frame, those followed in
+    /// the previous one and `coming_back` more: lost ones give theirs up to a newcomer.
+    fn room(&self, coming_back: usize) -> usize {
         let present = self
             .tracks
             .iter()
             .filter(|t| t.misses == 0 || t.seen.is_some())
             .count();
-        self.settings.max_people.saturating_sub(present)
+        self.settings
+            .max_people
+            .saturating_sub(present + coming_back)
     }
 
     /// What each of `observations` is: a track not yet seen this frame (matched by
@@ -337,19 +343,27 @@ impl Tracker {
     pub fn associate(&mut self, observations: &[Observation]) -> Vec<Assignment> {
         self.frames_since_detection = 0;
         let mut out = vec![Assignment::Ignored; observations.len()];
-        let usable: Vec<usize> = (0..observations.len())
+        // The best-scoring boxes only (bounds the assignment's cost on a cluttered
+        // image): four per person tracked at most.
+        let mut usable: Vec<usize> = (0..observations.len())
             .filter(|&i| observations[i].score >= self.settings.low_threshold)
             .collect();
+        usable.sort_by(|&a, &b| observations[b].score.total_cmp(&observations[a].score));
+        usable.truncate(4 * self.settings.max_people);
         let confident = |i: &usize| observations[*i].score >= self.detection_threshold;
         let (high, low): (Vec<usize>, Vec<usize>) = usable.into_iter().partition(confident);
         // Confident boxes against every track (one on a person seen this frame is that
         // person), then the low-score ones against the tracks still unseen.
         let all: Vec<usize> = (0..self.tracks.len()).collect();
         let mut taken = vec![false; self.tracks.len()];
+        // Boxes matched to a person seen this frame: that person, never a newcomer.
+        let mut absorbed = vec![false; observations.len()];
         for (i, k) in self.assign(observations, &high, &all) {
             taken[k] = true;
             if self.tracks[k].seen.is_none() {
                 out[i] = Assignment::Track(self.tracks[k].id);
+            } else {
+                absorbed[i] = true;
             }
         }
         let open: Vec<usize> = all
@@ -363,8 +377,18 @@ impl Tracker {
         // Confident boxes left, not on a person seen this frame: new people, best
         // first, while there is room.
         let matched: Vec<bool> = (0..observations.len())
-            .map(|i| out[i] != Assignment::Ignored)
+            .map(|i| out[i] != Assignment::Ignored || absorbed[i])
             .collect();
+        for a in &out {
+            if let Assignment::Track(id) = a {
+                self.claimed.push(*id);
+            }
+        }
+        let coming_back = self
+            .tracks
+            .iter()
+            .filter(|t| t.misses > 0 && self.claimed.contains(&t.id))
+            .count();
         let mut births: Vec<usize> = high
             .iter()
             .copied()
@@ -378,7 +402,29 @@ impl Tracker {
             })
             .collect();
         births.sort_by(|&a, &b| observations[b].score.total_cmp(&observations[a].score));
-        let room = self.room();
+        let room = self.room(coming_back);
+        tracing::debug!(
+            "associate: boxes {:?} tracks {:?} -> {out:?}, births {births:?}, room {room}",
+            observations
+                .iter()
+                .map(|o| (
+                    o.score,
+                    o.region.x0 as i64,
+                    o.region.y0 as i64,
+                    o.region.width as i64
+                ))
+                .collect::<Vec<_>>(),
+            self.tracks
+                .iter()
+                .map(|t| (
+                    t.id,
+                    t.misses,
+                    t.seen.is_some(),
+                    t.region.x0 as i64,
+                    t.region.width as i64
+                ))
+                .collect::<Vec<_>>()
+        );
         for (n, i) in births.into_iter().enumerate() {
             if n < room {
                 out[i] = Assignment::Birth;
@@ -429,25 +475,31 @@ impl Tracker {
             .collect()
     }
 
-    /// A new person seen at `region` this frame: their track's id.
-    pub fn born(&mut self, region: CropBox) -> u32 {
+    /// A new person seen at `region` this frame: their track's id; `None` (counted as
+    /// `no_room`) when `max_people` tracks are seen this frame, were followed in the
+    /// previous one or were given a box by [`associate`](Self::associate). Room is made
+    /// by ending the track lost longest.
+    pub fn born(&mut self, region: CropBox) -> Option<u32> {
+        while self.tracks.len() >= self.settings.max_people {
+            let Some(k) = (0..self.tracks.len())
+                .filter(|&k| {
+                    let t = &self.tracks[k];
+                    t.seen.is_none() && t.misses > 0 && !self.claimed.contains(&t.id)
+                })
+                .max_by_key(|&k| self.tracks[k].misses)
+            else {
+                self.stats.no_room += 1;
+                return None;
+            };
+            self.tracks.swap_remove(k);
+            self.stats.deaths += 1;
+        }
         let mut id = self.next_id;
         while self.tracks.iter().any(|t| t.id == id) {
             id = id.wrapping_add(1);
         }
         self.next_id = id.wrapping_add(1);
         self.stats.births += 1;
-        // Room: the track lost longest ends.
-        while self.tracks.len() >= self.settings.max_people {
-            let Some(k) = (0..self.tracks.len())
-                .filter(|&k| self.tracks[k].seen.is_none())
-                .max_by_key(|&k| self.tracks[k].misses)
-            else {
-                break;
-            };
-            self.tracks.swap_remove(k);
-            self.stats.deaths += 1;
-        }
         self.tracks.push(Track {
             id,
             state: State::Tentative,
@@ -458,10 +510,11 @@ impl Tracker {
             born: self.stats.births,
             seen: Some(region),
         });
-        id
+        Some(id)
     }
 
-    /// Ends the frame: misses counted, lost tracks ended, confirmations. Returns the confirmed tracks seen this frame (id, box), oldest
+    /// Ends the frame: misses counted, lost tracks ended, confirmations. Returns the
+    /// confirmed tracks seen this frame (id, box), oldest
     /// first.
     pub fn end(&mut self) -> Vec<(u32, CropBox)> {
         self.frames_since_detection = self.frames_since_detection.saturating_add(1);
@@ -539,13 +592,14 @@ mod tests {
             .map(|&region| Observation { region, score: 0.9 })
             .collect();
         let what = t.associate(&obs);
-        for (o, a) in obs.iter().zip(what) {
-            match a {
-                Assignment::Track(id) => t.seen(id, o.region),
-                Assignment::Birth => {
-                    t.born(o.region);
-                }
-                Assignment::Ignored => {}
+        for (o, a) in obs.iter().zip(&what) {
+            if let Assignment::Track(id) = a {
+                t.seen(*id, o.region);
+            }
+        }
+        for (o, a) in obs.iter().zip(&what) {
+            if *a == Assignment::Birth {
+                t.born(o.region).expect("room");
             }
         }
         t.end()
@@ -668,6 +722,77 @@ mod tests {
     }
 
     #[test]
+    fn a_lost_person_coming_back_keeps_their_place_from_a_newcomer() {
+        // max_people 2: A followed, B lost; B comes back beside a confident newcomer C.
+        let mut t = Tracker::new(
+            TrackingSettings {
+                max_people: 2,
+                ..settings()
+            },
+            0.5,
+        );
+        let (a, b, c) = (
+            square(100.0, 100.0, 80.0),
+            square(300.0, 100.0, 80.0),
+            square(500.0, 100.0, 80.0),
+        );
+        let ids = seen_at(&mut t, &[a, b]);
+        seen_at(&mut t, &[a]);
+        for order in [[b, c], [c, b]] {
+            let mut u = t.clone();
+            u.begin();
+            u.seen(ids[0].0, a);
+            let obs: Vec<Observation> = order
+                .iter()
+                .map(|&region| Observation { region, score: 0.9 })
+                .collect();
+            let what = u.associate(&obs);
+            let b_at = order.iter().position(|r| *r == b).expect("b");
+            assert_eq!(what[b_at], Assignment::Track(ids[1].0), "{order:?}");
+            assert_eq!(what[1 - b_at], Assignment::Ignored, "no room for C");
+            // Even a caller that tries to start C first finds no room.
+            assert_eq!(u.born(c), None);
+            u.seen(ids[1].0, b);
+            let out = u.end();
+            assert_eq!(out, vec![(ids[0].0, a), (ids[1].0, b)]);
+            assert_eq!(u.len(), 2);
+        }
+    }
+
+    #[test]
+    fn a_box_matched_to_a_person_seen_starts_nobody_even_when_it_overlaps_little() {
+        let mut t = Tracker::new(settings(), 0.5);
+        let a = square(100.0, 100.0, 100.0);
+        let id = seen_at(&mut t, &[a])[0].0;
+        t.begin();
+        t.seen(id, a);
+        // IoU about 0.33: within the match gate, under duplicate_iou.
+        let off = Observation {
+            region: square(150.0, 100.0, 100.0),
+            score: 0.9,
+        };
+        assert_eq!(t.associate(&[off]), vec![Assignment::Ignored]);
+    }
+
+    #[test]
+    fn the_detector_is_wanted_every_detect_every_frames_while_people_are_followed() {
+        let mut t = Tracker::new(settings(), 0.5);
+        let a = square(100.0, 100.0, 80.0);
+        let id = seen_at(&mut t, &[a])[0].0;
+        let mut wanted = Vec::new();
+        for f in 1..=25 {
+            t.begin();
+            t.seen(id, a);
+            if t.wants_detections() {
+                wanted.push(f);
+                t.associate(&[]);
+            }
+            t.end();
+        }
+        assert_eq!(wanted, vec![10, 20]);
+    }
+
+    #[test]
     fn two_people_crossing_keep_their_ids() {
         let mut t = Tracker::new(settings(), 0.5);
         let mut first = None;
@@ -713,7 +838,7 @@ mod tests {
         assert_eq!(ids, vec![u32::MAX, 0]);
         t.next_id = u32::MAX;
         t.begin();
-        assert_eq!(t.born(square(700.0, 100.0, 80.0)), 1);
+        assert_eq!(t.born(square(700.0, 100.0, 80.0)), Some(1));
     }
 
     #[test]

@@ -296,9 +296,10 @@ impl LiteRtNetwork {
                         api.signature_output
                     };
                     check(getter(signature, i, &raw mut tensor), "a tensor")?;
-                    let mut kind = vec![0u8; TENSOR_TYPE_BYTES];
+                    // 8-byte aligned, as the struct LiteRT writes there.
+                    let mut kind = [0u64; TENSOR_TYPE_BYTES / 8];
                     check(
-                        (api.ranked_tensor_type)(tensor, kind.as_mut_ptr()),
+                        (api.ranked_tensor_type)(tensor, kind.as_mut_ptr().cast::<u8>()),
                         "its type",
                     )?;
                     let buffer = net.host_buffer(&kind, ctx)?;
@@ -328,7 +329,7 @@ impl LiteRtNetwork {
     }
 
     /// A host buffer for a tensor of type `kind` (made by `LiteRtGetRankedTensorType`).
-    fn host_buffer(&self, kind: &[u8], ctx: &str) -> Result<Buffer, NetworkError> {
+    fn host_buffer(&self, kind: &[u64], ctx: &str) -> Result<Buffer, NetworkError> {
         let api = &self.runtime.api;
         // Generous room first; the packed size the buffer reports is the tensor's.
         const ROOM_FLOATS: usize = 1 << 20;
@@ -344,26 +345,26 @@ impl LiteRtNetwork {
         // destroys the handle first); no deallocator: the memory is ours.
         let status = unsafe {
             let base = memory.as_mut_ptr().add(offset).cast::<c_void>();
-            let s = (api.buffer_from_host_memory)(
-                kind.as_ptr(),
+            (api.buffer_from_host_memory)(
+                kind.as_ptr().cast::<u8>(),
                 base,
                 ROOM_FLOATS * 4,
                 None,
                 &raw mut handle,
-            );
-            if s == 0 {
-                (api.buffer_packed_size)(handle, &raw mut packed)
-            } else {
-                s
-            }
+            )
         };
         if status != 0 {
             return Err(error(ctx, format!("a host buffer: status {status}")));
         }
-        if packed % 4 != 0 || packed / 4 > ROOM_FLOATS {
+        // SAFETY: `handle` was just made.
+        let status = unsafe { (api.buffer_packed_size)(handle, &raw mut packed) };
+        if status != 0 || packed % 4 != 0 || packed / 4 > ROOM_FLOATS {
             // SAFETY: made above, not destroyed elsewhere.
             unsafe { (api.destroy_buffer)(handle) };
-            return Err(error(ctx, format!("a tensor of {packed} bytes")));
+            return Err(error(
+                ctx,
+                format!("a tensor of {packed} bytes (status {status})"),
+            ));
         }
         Ok(Buffer {
             memory,
