@@ -75,8 +75,14 @@ fn read_all<M: posestream::msgs::RosMessage>(path: &Path, topic: &str) -> Vec<M>
 
 /// `posestream run --<source> PATH --record OUT --ros2 false --json`: the report.
 fn run_json(source: &str, path: &Path, out: &Path) -> serde_json::Value {
-    let args = [
-        "run",
+    run_json_with(&[], source, path, out)
+}
+
+/// [`run_json`] with more options first.
+fn run_json_with(more: &[&str], source: &str, path: &Path, out: &Path) -> serde_json::Value {
+    let mut args = vec!["run"];
+    args.extend_from_slice(more);
+    args.extend([
         source,
         s(path),
         "--record",
@@ -84,7 +90,7 @@ fn run_json(source: &str, path: &Path, out: &Path) -> serde_json::Value {
         "--ros2",
         "false",
         "--json",
-    ];
+    ]);
     serde_json::from_str(&posestream(&args)).expect("json")
 }
 
@@ -165,6 +171,24 @@ fn a_folder_of_real_photos_becomes_skeletons_in_mcap_and_a_picture() {
             "{key}: litert {fast} tract {report}"
         );
     }
+    // More people than max_people: the best-scoring one, the others counted.
+    let one = dir.path().join("one.toml");
+    let mut text =
+        std::fs::read_to_string(common::root().join("config/default.toml")).expect("config");
+    text = text.replace("max_people = 4 ", "max_people = 1 ");
+    std::fs::write(&one, text).expect("write");
+    let capped = run_json_with(
+        &["--config", s(&one)],
+        "--images",
+        &f.images,
+        &dir.path().join("one.mcap"),
+    );
+    let capped = &capped["detector"]["images"];
+    assert_eq!(capped["people"], 3, "one person per photo: {capped}");
+    assert!(
+        capped["tracks"]["no_room"].as_u64().expect("n") >= 2,
+        "{capped}"
+    );
     // zidane.jpg (1280 x 720): Zidane's head left of the middle, Ancelotti's right.
     let mut xs: Vec<f64> = skeletons
         .iter()
