@@ -585,3 +585,48 @@ fn the_tracker_follows_both_people_through_their_crossing_without_an_id_switch()
         assert!(e.root_aligned < 0.16 && e.within[1] > 0.9, "{e:?}");
     }
 }
+
+#[test]
+fn the_scenes_command_reports_every_person_and_the_tracker_s_ids() {
+    // `posestream scenes`: three synthetic scenes, ids from the tracker on the crop
+    // boxes; per person the errors, per scene id switches and IDF1.
+    let dir = tempfile::tempdir().expect("tempdir");
+    let md = dir.path().join("people.md");
+    let out = Command::new(env!("CARGO_BIN_EXE_posestream"))
+        .current_dir(root())
+        .args(["scenes", "--work"])
+        .arg(dir.path().join("work"))
+        .arg("--out")
+        .arg(&md)
+        .arg("--data")
+        .arg(common::shared().join("data/mocap/bandai-namco-1"))
+        .output()
+        .expect("runs");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = std::fs::read_to_string(&md).expect("markdown");
+    // Every scene's people all tracked under one id each, the boxes crossing.
+    assert_eq!(text.matches("0 id switches, IDF1 1.000").count(), 3, "{text}");
+    for line in text.lines().filter(|l| l.starts_with("Tracker:")) {
+        let overlap: f64 = line
+            .split("IoU ")
+            .nth(1)
+            .and_then(|r| r.split(' ').next())
+            .and_then(|v| v.parse().ok())
+            .expect("overlap");
+        assert!(overlap > 0.3, "{line}");
+    }
+    // Seven people in all, each with 111 refined frames and errors within the bounds
+    // of one person alone (README, "Metres").
+    let rows: Vec<Vec<&str>> = text
+        .lines()
+        .filter(|l| l.starts_with("| ") && !l.starts_with("| person"))
+        .map(|l| l.split('|').map(str::trim).collect())
+        .collect();
+    assert_eq!(rows.len(), 7, "{text}");
+    for r in &rows {
+        assert_eq!(r[3], "111", "{r:?}");
+        let mpjpe: f64 = r[4].parse().expect("mpjpe");
+        let root: f64 = r[7].parse().expect("root");
+        assert!(mpjpe < 0.45 && root < 0.40, "{r:?}");
+    }
+}

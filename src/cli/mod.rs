@@ -14,6 +14,7 @@ pub mod record;
 pub mod render;
 pub mod replay;
 pub mod run;
+pub mod scenes;
 pub mod service;
 pub mod solver_args;
 pub mod synth;
@@ -50,6 +51,9 @@ enum Command {
     /// Evaluate the estimator on held-out motion capture: markdown tables mirroring the
     /// paper's Tables 1-4.
     Eval(eval::EvalArgs),
+    /// Evaluate people in one room end to end: synthetic scenes of held-out takes, ids
+    /// from the tracker, the estimator in metres (per person errors, id switches, IDF1).
+    Scenes(scenes::ScenesArgs),
     /// Replay a recording (MCAP) of heat maps through the streaming estimator; record
     /// the skeletons to MCAP.
     Replay(replay::ReplayArgs),
@@ -81,6 +85,7 @@ impl Cli {
             Command::LearnDict(args) => learn::run(&args),
             Command::Synth(args) => synth::run(&args),
             Command::Eval(args) => eval::run(&args),
+            Command::Scenes(args) => scenes::run(&args),
             Command::Replay(args) => replay::run(&args),
             Command::Detector(args) => detector::run(&args),
             Command::Estimator(args) => estimator::run(&args),
