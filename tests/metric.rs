@@ -602,10 +602,18 @@ fn the_scenes_command_reports_every_person_and_the_tracker_s_ids() {
         .arg(common::shared().join("data/mocap/bandai-namco-1"))
         .output()
         .expect("runs");
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let text = std::fs::read_to_string(&md).expect("markdown");
     // Every scene's people all tracked under one id each, the boxes crossing.
-    assert_eq!(text.matches("0 id switches, IDF1 1.000").count(), 3, "{text}");
+    assert_eq!(
+        text.matches("0 id switches, IDF1 1.000").count(),
+        3,
+        "{text}"
+    );
     for line in text.lines().filter(|l| l.starts_with("Tracker:")) {
         let overlap: f64 = line
             .split("IoU ")
