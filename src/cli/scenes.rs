@@ -280,8 +280,8 @@ pub fn run(args: &ScenesArgs) -> Result<(), CliError> {
          ids removed and each image's people shuffled, ids from posestream's tracker on the \
          crop boxes, the streaming estimator in metres (mean limb length \
          0.2235 m, the takes' subjects'). Errors of the refined (lag 10) skeletons, metres, \
-         camera frame. Not modelled: one person hiding another (each person's heat maps \
-         have only the error model's occlusions).\n\n",
+         camera frame. People hide each other as `synth` models it (a joint behind \
+         another's limb peaks on that limb).\n\n",
     );
     for (i, scene) in SCENES.iter().enumerate() {
         let dir = args.work.join(format!("scene-{i}"));

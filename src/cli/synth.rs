@@ -144,6 +144,10 @@ pub struct SynthArgs {
     /// Crop box side, times the joints' larger extent.
     #[arg(long, default_value_t = 1.25)]
     pub margin: f64,
+    /// Several people: do not let them hide each other (by default a joint behind
+    /// another person's limb gets that limb's peak, and only a weak one of its own).
+    #[arg(long)]
+    pub no_hiding: bool,
     #[command(flatten)]
     pub camera: CameraArgs,
     #[command(flatten)]
@@ -181,6 +185,9 @@ fn placement(text: &str) -> Result<Placement, String> {
         _ => Err("expected ahead,left[,turn[,ahead_speed,left_speed]]".into()),
     }
 }
+
+/// A limb's thickness, metres, when people hide each other.
+const LIMB_THICKNESS: f64 = 0.12;
 
 /// One person of the scene, seen by the camera.
 struct Person {
@@ -238,7 +245,7 @@ pub fn run(args: &SynthArgs) -> Result<(), CliError> {
     }
     let skel = &mapping.layout;
     let first = takes[0].clone();
-    let mut people = Vec::new();
+    let mut views = Vec::new();
     for (i, take) in takes.iter().enumerate() {
         let placed = match i {
             0 => first.clone(),
@@ -253,17 +260,28 @@ pub fn run(args: &SynthArgs) -> Result<(), CliError> {
                 args.place[i - 1]
             )),
         })?;
+        views.push((view, take.frame_time));
+    }
+    // People hide each other: each joint behind another's limb (12 cm thick).
+    let just_views: Vec<synth::View> = views.iter().map(|(v, _)| v.clone()).collect();
+    let hidden = if views.len() > 1 && !args.no_hiding {
+        synth::hidden_by_others(&just_views, skel, cam.focal, LIMB_THICKNESS)
+    } else {
+        vec![Vec::new(); views.len()]
+    };
+    let mut people = Vec::new();
+    for (i, ((view, frame_time), hidden)) in views.into_iter().zip(&hidden).enumerate() {
         let boxes = synth::crop_boxes(&view.image_2d, view.joints, args.margin);
         // Each person's detector errors drawn apart.
         let model = ErrorModel {
             seed: model.seed.wrapping_add(i as u64),
             ..model.clone()
         };
-        let rendered = heatmaps::render(&view.image_2d, &boxes, skel, &model)?;
+        let rendered = heatmaps::render_hidden(&view.image_2d, &boxes, skel, &model, hidden)?;
         people.push(Person {
             view,
             model,
-            frame_time: take.frame_time,
+            frame_time,
             boxes,
             rendered,
         });
@@ -282,8 +300,8 @@ pub fn run(args: &SynthArgs) -> Result<(), CliError> {
     for (i, person) in people.iter().enumerate() {
         let e = &person.rendered.episodes;
         println!(
-            "person {i}: {} frames of {} joints (swapped {}, occluded {}, missing {} joint-frames)",
-            person.view.frames, person.view.joints, e.swapped, e.occluded, e.missing
+            "person {i}: {} frames of {} joints (swapped {}, occluded {}, missing {}, hidden by others {} joint-frames)",
+            person.view.frames, person.view.joints, e.swapped, e.occluded, e.missing, e.hidden
         );
     }
     println!("-> {}", args.out.display());

@@ -106,6 +106,9 @@ pub struct EpisodeCounts {
     pub occluded: usize,
     /// Joint-frames with no peak.
     pub missing: usize,
+    /// Joint-frames hidden by another person (a weak peak at the joint, a strong one on
+    /// the other person's limb in front of it).
+    pub hidden: usize,
 }
 
 /// Rendered heat maps and the truth in map cells.
@@ -126,6 +129,20 @@ pub fn render(
     skeleton: &Skeleton,
     model: &ErrorModel,
 ) -> Result<RenderedMaps, EstimateError> {
+    render_hidden(image_2d, boxes, skeleton, model, &[])
+}
+
+/// [`render`] of a person whom others hide: `hidden` (empty, or F x p) holds, for each
+/// joint hidden in a frame, where the limb in front of it is (pixels,
+/// [`super::hidden_by_others`]). Such a joint's map has a weak broad peak at the joint
+/// and a strong one on that limb, as a detector that sees the person in front.
+pub fn render_hidden(
+    image_2d: &[f64],
+    boxes: &[CropBox],
+    skeleton: &Skeleton,
+    model: &ErrorModel,
+    hidden: &[Option<[f64; 2]>],
+) -> Result<RenderedMaps, EstimateError> {
     model.validate().map_err(EstimateError::Parameter)?;
     let p = skeleton.len();
     let frames = boxes.len();
@@ -133,6 +150,12 @@ pub fn render(
         return Err(EstimateError::Parameter(format!(
             "{} image coordinates for {frames} boxes of {p} joints",
             image_2d.len()
+        )));
+    }
+    if !hidden.is_empty() && hidden.len() != frames * p {
+        return Err(EstimateError::Parameter(format!(
+            "{} hidden flags for {frames} frames of {p} joints",
+            hidden.len()
         )));
     }
     let [h, w] = model.size;
@@ -211,9 +234,20 @@ pub fn render(
                 }
             };
             let (x, y) = (x + jitter(&mut rng), y + jitter(&mut rng));
+            let front = hidden.get(t * p + j).copied().flatten();
             if miss_left[j] > 0 {
                 miss_left[j] -= 1;
                 episodes.missing += 1;
+            } else if let Some(limb) = front {
+                // (An occlusion episode runs on underneath, as it would unseen.)
+                occl_left[j] = occl_left[j].saturating_sub(1);
+                episodes.hidden += 1;
+                add_blob(frame_maps, w, [x, y], 3.0 * model.blob, 0.3);
+                let c = [
+                    (limb[0] - map.offset[0]) / map.scale[0],
+                    (limb[1] - map.offset[1]) / map.scale[1],
+                ];
+                add_blob(frame_maps, w, c, model.blob, 0.8);
             } else if occl_left[j] > 0 {
                 occl_left[j] -= 1;
                 episodes.occluded += 1;
@@ -292,6 +326,26 @@ mod tests {
         assert!(a.episodes.swapped > 0 && a.episodes.occluded > 0 && a.episodes.missing > 0);
         let c = render(&xy, &boxes, &skel, &ErrorModel { seed: 1, ..noisy }).expect("render");
         assert_ne!(a.maps, c.maps);
+    }
+
+    #[test]
+    fn a_joint_hidden_by_another_person_peaks_on_their_limb() {
+        let (xy, boxes) = frame();
+        let skel = default_layout();
+        let mut hidden = vec![None; 3 * 17];
+        // Joint 4 of frame 1 behind a limb at image (250, 250): cell (48, 48).
+        hidden[17 + 4] = Some([250.0, 250.0]);
+        let r = render_hidden(&xy, &boxes, &skel, &ErrorModel::clean(), &hidden).expect("render");
+        assert_eq!(r.episodes.hidden, 1);
+        let (x, y, _) = r.maps.argmax(1, 4);
+        assert!(
+            (x - 48.0).abs() <= 0.5 && (y - 48.0).abs() <= 0.5,
+            "({x}, {y})"
+        );
+        // The same joint in the other frames, and the others, at the truth.
+        let (x, _, _) = r.maps.argmax(0, 4);
+        assert!((x - r.truth[2 * 4]).abs() <= 0.5);
+        assert!(render_hidden(&xy, &boxes, &skel, &ErrorModel::clean(), &hidden[1..]).is_err());
     }
 
     #[test]

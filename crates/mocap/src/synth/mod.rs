@@ -117,6 +117,67 @@ pub struct View {
     pub image_2d: Vec<f64>,
 }
 
+/// Which joints of each person another person hides, frame by frame: a joint is hidden
+/// when its image lies within a limb's `thickness` (metres, at the bone's depth through
+/// a camera of `focal` pixels) of a bone of another person that is nearer the camera
+/// there (by 5 cm at least). Per person, per frame and joint (`frames x joints`): the
+/// point of the hiding bone nearest the joint's image (pixels), or `None`.
+pub fn hidden_by_others(
+    views: &[View],
+    skeleton: &Skeleton,
+    focal: f64,
+    thickness: f64,
+) -> Vec<Vec<Option<[f64; 2]>>> {
+    let bones: Vec<(usize, usize)> = skeleton.bones().collect();
+    views
+        .iter()
+        .enumerate()
+        .map(|(i, v)| {
+            let p = v.joints;
+            let mut out = vec![None; v.frames * p];
+            for t in 0..v.frames {
+                for j in 0..p {
+                    let at = t * p + j;
+                    let q = [v.image_2d[2 * at], v.image_2d[2 * at + 1]];
+                    let z = v.camera_3d[3 * at + 2];
+                    let mut best: Option<(f64, [f64; 2])> = None;
+                    for (k, o) in views.iter().enumerate() {
+                        if k == i || t >= o.frames || o.joints != p {
+                            continue;
+                        }
+                        for &(a, b) in &bones {
+                            let (ia, ib) = (t * p + a, t * p + b);
+                            let pa = [o.image_2d[2 * ia], o.image_2d[2 * ia + 1]];
+                            let pb = [o.image_2d[2 * ib], o.image_2d[2 * ib + 1]];
+                            let (za, zb) = (o.camera_3d[3 * ia + 2], o.camera_3d[3 * ib + 2]);
+                            let d = [pb[0] - pa[0], pb[1] - pa[1]];
+                            let len2 = d[0] * d[0] + d[1] * d[1];
+                            let s = if len2 > 0.0 {
+                                (((q[0] - pa[0]) * d[0] + (q[1] - pa[1]) * d[1]) / len2)
+                                    .clamp(0.0, 1.0)
+                            } else {
+                                0.0
+                            };
+                            let c = [pa[0] + s * d[0], pa[1] + s * d[1]];
+                            let zc = za + s * (zb - za);
+                            if !(zc > 0.0 && zc < z - 0.05) {
+                                continue;
+                            }
+                            let reach = focal * thickness / zc;
+                            let dist = (q[0] - c[0]).hypot(q[1] - c[1]);
+                            if dist < reach && best.is_none_or(|(bd, _)| dist < bd) {
+                                best = Some((dist, c));
+                            }
+                        }
+                    }
+                    out[at] = best.map(|(_, c)| c);
+                }
+            }
+            out
+        })
+        .collect()
+}
+
 /// Projects a mapped sequence through the camera.
 pub fn view(seq: &MappedSequence, skeleton: &Skeleton, cam: &CameraSpec) -> Result<View, String> {
     view_from(seq, seq, skeleton, cam)
@@ -349,5 +410,45 @@ mod tests {
         let boxes = crop_boxes(&v.image_2d, 17, 1.2);
         assert_eq!(boxes.len(), 11);
         assert!((boxes[0].width - boxes[0].height).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_person_right_behind_another_is_hidden_by_them_and_not_the_other_way() {
+        let skel = default_layout();
+        let cam = CameraSpec {
+            elevation_deg: 0.0,
+            ..CameraSpec::default()
+        };
+        let near = view(&standing(2), &skel, &cam).expect("view");
+        // The same figure 1 m further from the camera, straight behind; and one far
+        // to the side.
+        let shift = |v: &View, dx: f64, dz: f64| {
+            let mut camera_3d = v.camera_3d.clone();
+            for p in camera_3d.chunks_exact_mut(3) {
+                p[0] += dx;
+                p[2] += dz;
+            }
+            let image_2d = camera_3d
+                .chunks_exact(3)
+                .flat_map(|p| [500.0 + 1000.0 * p[0] / p[2], 500.0 + 1000.0 * p[1] / p[2]])
+                .collect();
+            View {
+                camera_3d,
+                image_2d,
+                ..v.clone()
+            }
+        };
+        let near = shift(&near, 0.0, 0.0);
+        let behind = shift(&near, 0.0, 1.0);
+        let aside = shift(&near, 3.0, 1.0);
+        let hidden = hidden_by_others(&[near, behind, aside], &skel, 1000.0, 0.12);
+        let count = |h: &[Option<[f64; 2]>]| h.iter().filter(|x| x.is_some()).count();
+        assert_eq!(count(&hidden[0]), 0, "nobody is in front of the nearest");
+        assert!(
+            count(&hidden[1]) > 2 * 17 / 2,
+            "most of the one behind: {}",
+            count(&hidden[1])
+        );
+        assert_eq!(count(&hidden[2]), 0, "nobody in front of the one aside");
     }
 }
