@@ -325,6 +325,13 @@ fn a_real_video_is_tracked_and_its_skeletons_recorded() {
         latency["p99_ms"].as_f64().expect("p99"),
     );
     assert!(median > 0.0 && p99 >= median, "{report}");
+    // Where each image's time went.
+    let stages = &report["stages"];
+    for key in ["image_ms", "landmark_ms", "person_detector_ms"] {
+        assert!(stages[key].as_f64().expect(key) > 0.0, "{report}");
+    }
+    let runs = stages["landmark_runs_per_image"].as_f64().expect("runs");
+    assert!((runs * 250.0 - images["network_runs"].as_f64().expect("n")).abs() < 1e-6);
     assert!(
         skeletons
             .iter()

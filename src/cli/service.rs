@@ -129,6 +129,18 @@ impl Summary for service::PipelineReport {
                 l.median_ms, l.p99_ms
             ));
         }
+        if let Some(st) = &self.stages {
+            text.push_str(&format!(
+                "\nper image: getting it {:.1} ms; {:.2} landmark runs of {:.1} ms; \
+                 {:.2} person-detector runs of {:.1} ms; estimator update median {:.2} ms",
+                st.image_ms,
+                st.landmark_runs_per_image,
+                st.landmark_ms,
+                st.person_detector_runs_per_image,
+                st.person_detector_ms,
+                st.estimator_update_median_ms
+            ));
+        }
         if let Some(r) = &self.recording {
             text.push_str(&format!("\nrecorded -> {}", r.path.display()));
         }

@@ -79,11 +79,14 @@ impl Source<HeatMaps> for ImageHeatMaps {
         if let Some((maps, stamp)) = self.pending.pop_front() {
             return Ok(Received::Message(maps, stamp));
         }
+        let began = std::time::Instant::now();
         let (frame, stamp) = match self.frames.recv(timeout)? {
             Received::Message(frame, stamp) => (frame, stamp),
             Received::Idle => return Ok(Received::Idle),
             Received::Closed => return Ok(Received::Closed),
         };
+        self.detector
+            .add_source_seconds(began.elapsed().as_secs_f64());
         if let Some(clock) = &self.clock {
             clock.image_in(i64::try_from(frame.stamp_ns).unwrap_or(i64::MAX));
         }

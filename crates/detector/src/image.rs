@@ -284,6 +284,9 @@ pub struct DetectorStats {
     pub detector_seconds: f64,
     /// Looks whose landmarks had collapsed to a point (a box drifted off its person).
     pub collapsed: u64,
+    /// Seconds spent getting the images from their source (decoding files; for a topic,
+    /// also the wait for the next image), counted by the node.
+    pub source_seconds: f64,
     /// The tracker's births, deaths, re-acquisitions.
     pub tracks: TrackerStats,
 }
@@ -523,6 +526,11 @@ impl ImageDetector {
             tracks: self.tracker.stats(),
             ..self.stats
         }
+    }
+
+    /// Adds `seconds` to the time spent getting images (the node measures it).
+    pub fn add_source_seconds(&mut self, seconds: f64) {
+        self.stats.source_seconds += seconds;
     }
 
     /// The landmark model on each of `boxes` of `frame`, in parallel.

@@ -227,11 +227,47 @@ pub struct PipelineReport {
     /// Image sources: from a decoded image to each of its newest (lag 0) skeletons
     /// published, one per person.
     pub latency: Option<LatencySummary>,
+    /// Image sources: milliseconds per stage.
+    pub stages: Option<Stages>,
     /// The output recording, if any.
     pub recording: Option<RecordingSummary>,
     /// Why the output recording could not be finished, if it could not (the service
     /// went on; what was written is in its `.partial` file).
     pub recording_error: Option<String>,
+}
+
+/// Where the time of an image source's frames goes, milliseconds.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Stages {
+    /// Getting each image from its source, per image (decoding a file; for a topic,
+    /// also the wait).
+    pub image_ms: f64,
+    /// One landmark run (crop and model), per run.
+    pub landmark_ms: f64,
+    /// Landmark runs per image.
+    pub landmark_runs_per_image: f64,
+    /// One person-detector run (one region searched), per run.
+    pub person_detector_ms: f64,
+    /// Person-detector runs per image.
+    pub person_detector_runs_per_image: f64,
+    /// The estimator's update, per heat-map message: median.
+    pub estimator_update_median_ms: f64,
+}
+
+impl Stages {
+    /// The stages of a run whose detector did `images` and estimator `update`.
+    pub fn of(images: &DetectorStats, update: &LatencySummary) -> Self {
+        let per = |total: f64, n: u64| if n == 0 { 0.0 } else { total / n as f64 };
+        let frames = images.frames;
+        Self {
+            image_ms: 1e3 * per(images.source_seconds, frames),
+            landmark_ms: 1e3 * per(images.network_seconds, images.network_runs),
+            landmark_runs_per_image: per(images.network_runs as f64, frames),
+            person_detector_ms: 1e3 * per(images.detector_seconds, images.detector_runs),
+            person_detector_runs_per_image: per(images.detector_runs as f64, frames),
+            estimator_update_median_ms: update.median_ms,
+        }
+    }
 }
 
 /// Detector and estimator in one process, on a tokio runtime: the detector's source
@@ -295,12 +331,17 @@ pub fn run_pipeline(
     };
     let seconds = start.elapsed().as_secs_f64();
     let frames = detector.images.map_or(estimator.frames, |s| s.frames);
+    let stages = detector
+        .images
+        .as_ref()
+        .map(|s| Stages::of(s, &estimator.update));
     Ok(PipelineReport {
         detector,
         estimator,
         seconds,
         frames_per_second: frames as f64 / seconds.max(f64::MIN_POSITIVE),
         latency: clock.map(|c| c.summary()),
+        stages,
         recording,
         recording_error,
     })
