@@ -1,8 +1,9 @@
 //! `posestream scenes`: people in one room, evaluated end to end. Each scene is made by
 //! `synth` (held-out motion capture takes placed in a room, a static pinhole camera, the
-//! heat maps' error model, ground truth in metres in the camera frame); the heat maps
-//! lose their ids and each image's people are shuffled; posestream's tracker (the image
-//! detector's) gives the ids from the crop boxes; the estimator replays them in metres.
+//! heat maps' error model, people hiding each other, ground truth in metres in the
+//! camera frame); the heat maps lose their ids and each image's people come in a
+//! rotating order; posestream's tracker (the image detector's, default settings)
+//! associates the exact crop boxes each frame; the estimator replays them in metres.
 //! Per person: MPJPE in the camera frame (no alignment), root-aligned MPJPE, P-MPJPE,
 //! root position and depth error, the share of per-axis errors within 1 and 2
 //! `position_std`; per scene: id switches, IDF1, the estimator's frames per second.
@@ -18,7 +19,7 @@ use pathfinding::matrix::Matrix;
 use posestream::detector::tracker::{Assignment, Observation, Tracker, TrackingSettings, iou};
 use posestream::metrics::p_mpjpe;
 use posestream::msgs::sensor::CameraInfo;
-use posestream::msgs::{HeatMaps, Skeleton3D, SkeletonState};
+use posestream::msgs::{HeatMaps, Skeleton3D, SkeletonState, Units};
 use posestream::nodes::ServiceConfig;
 use posestream::nodes::config::ReplayRate;
 use posestream::nodes::replay::{ReplayOptions, replay};
@@ -213,17 +214,27 @@ fn track(input: &Path, output: &Path) -> Result<Tracking, CliError> {
     Ok(tracking)
 }
 
-/// The errors of `skeletons` (ids already the true ones) against `truth`.
-fn errors(skeletons: &[Skeleton3D], truth: &[(u64, Skeleton3D)]) -> BTreeMap<u32, PersonErrors> {
+/// The errors of `skeletons` (ids already the true ones) at `lag` against `truth`; and
+/// how many of them were not in metres (not scored).
+fn errors(
+    skeletons: &[Skeleton3D],
+    truth: &[(u64, Skeleton3D)],
+    lag: u32,
+) -> (BTreeMap<u32, PersonErrors>, usize) {
     let truth: BTreeMap<(u32, u64), &Skeleton3D> = truth
         .iter()
         .map(|(_, g)| ((g.track_id, g.sequence), g))
         .collect();
     let mut out: BTreeMap<u32, PersonErrors> = BTreeMap::new();
+    let mut not_metric = 0;
     for s in skeletons
         .iter()
-        .filter(|s| s.lag == 10 && s.state != SkeletonState::Lost as u8)
+        .filter(|s| s.lag == lag && s.state != SkeletonState::Lost as u8)
     {
+        if s.units != Units::Metres as u8 {
+            not_metric += 1;
+            continue;
+        }
         let Some(g) = truth.get(&(s.track_id, s.sequence)) else {
             continue;
         };
@@ -261,7 +272,7 @@ fn errors(skeletons: &[Skeleton3D], truth: &[(u64, Skeleton3D)]) -> BTreeMap<u32
         e.depth += (p0[2] - q0[2]).abs() / q0[2];
         e.frames += 1;
     }
-    out
+    (out, not_metric)
 }
 
 /// Runs `scenes`.
@@ -273,15 +284,16 @@ pub fn run(args: &ScenesArgs) -> Result<(), CliError> {
         path: args.work.clone(),
         source,
     })?;
-    let mut text = String::from(
+    let mut text = format!(
         "## People in the room (`posestream scenes`)\n\n\
          Synthetic scenes of held-out takes (`synth`: a static pinhole camera, focal 1000 px, \
          the first person 5 m in front of it; the heat maps' error model), the heat maps' \
-         ids removed and each image's people shuffled, ids from posestream's tracker on the \
-         crop boxes, the streaming estimator in metres (mean limb length \
-         0.2235 m, the takes' subjects'). Errors of the refined (lag 10) skeletons, metres, \
-         camera frame. People hide each other as `synth` models it (a joint behind \
-         another's limb peaks on that limb).\n\n",
+         ids removed and each image's people in a rotating order, ids from posestream's \
+         tracker (default settings) associating the exact crop boxes each frame, the \
+         streaming estimator in metres (mean limb length {} m). Errors of the refined \
+         (lag {}) skeletons, metres, camera frame. People hide each other as `synth` \
+         models it (a joint behind another's limb peaks on that limb).\n\n",
+        args.mean_limb_length, config.estimator.window.lag
     );
     for (i, scene) in SCENES.iter().enumerate() {
         let dir = args.work.join(format!("scene-{i}"));
@@ -313,20 +325,30 @@ pub fn run(args: &ScenesArgs) -> Result<(), CliError> {
         let began = Instant::now();
         let report = replay(&config, &tracked, &options, &AtomicBool::new(false))?;
         let fps = report.frames as f64 / began.elapsed().as_secs_f64().max(1e-9);
-        let skeletons: Vec<Skeleton3D> =
-            read_topic::<Skeleton3D>(&dir.join("skeletons.mcap"), &config.topics.skeletons)?
-                .into_iter()
-                .filter_map(|(_, mut s)| {
-                    s.track_id = *to_truth.get(&s.track_id)?;
-                    Some(s)
-                })
-                .collect();
+        let all = read_topic::<Skeleton3D>(&dir.join("skeletons.mcap"), &config.topics.skeletons)?;
+        let total = all.len();
+        let skeletons: Vec<Skeleton3D> = all
+            .into_iter()
+            .filter_map(|(_, mut s)| {
+                s.track_id = *to_truth.get(&s.track_id)?;
+                Some(s)
+            })
+            .collect();
+        let unattributed = total - skeletons.len();
         let truth = read_topic::<Skeleton3D>(&recording, "/posestream/ground_truth")?;
-        let per_person = errors(&skeletons, &truth);
+        let lag = u32::try_from(config.estimator.window.lag).unwrap_or(u32::MAX);
+        let (per_person, not_metric) = errors(&skeletons, &truth, lag);
+        if per_person.is_empty() {
+            return Err(CliError::Nothing(format!(
+                "scene {i}: no refined (lag {lag}) skeletons in metres: the configuration's \
+                 estimator.window must publish them"
+            )));
+        }
         text.push_str(&format!(
             "### {}\n\nTracker: {} id switches, IDF1 {:.3} ({} of {} true boxes reported; \
              two people's boxes overlapped by IoU {:.2} at most); \
-             estimator {} tracks, {} resets, {:.0} frames/s (all people, replay as fast as it goes).\n\n\
+             estimator {} tracks, {} resets, {:.0} frames/s (all people, replay as fast as it goes); \
+             skeletons of no person's id (not scored) {}, not in metres (not scored) {}.\n\n\
              | person | take | frames | MPJPE | root-aligned | P-MPJPE | root | depth | within 1 / 2 std |\n\
              |---|---|---:|---:|---:|---:|---:|---:|---:|\n",
             scene.name,
@@ -338,6 +360,8 @@ pub fn run(args: &ScenesArgs) -> Result<(), CliError> {
             report.counters.tracks,
             report.counters.resets,
             fps,
+            unattributed,
+            not_metric,
         ));
         for (person, (file, _)) in scene.people.iter().enumerate() {
             let take = file

@@ -131,7 +131,7 @@ impl Summary for service::PipelineReport {
         }
         if let Some(st) = &self.stages {
             text.push_str(&format!(
-                "\nper image: getting it {:.1} ms; {:.2} landmark runs of {:.1} ms; \
+                "\nper image: getting it (reading, decoding, waiting) {:.1} ms; {:.2} landmark runs of {:.1} ms; \
                  {:.2} person-detector runs of {:.1} ms; estimator update median {:.2} ms",
                 st.image_ms,
                 st.landmark_runs_per_image,

@@ -186,8 +186,9 @@ fn placement(text: &str) -> Result<Placement, String> {
     }
 }
 
-/// A limb's thickness, metres, when people hide each other.
-const LIMB_THICKNESS: f64 = 0.12;
+/// The width of a body part (a bone: arms about 10 cm, legs 15, the trunk 30), metres,
+/// when people hide each other.
+const LIMB_WIDTH: f64 = 0.2;
 
 /// One person of the scene, seen by the camera.
 struct Person {
@@ -262,10 +263,15 @@ pub fn run(args: &SynthArgs) -> Result<(), CliError> {
         })?;
         views.push((view, take.frame_time));
     }
-    // People hide each other: each joint behind another's limb (12 cm thick).
+    // People hide each other: each joint behind another's body part (20 cm wide).
     let just_views: Vec<synth::View> = views.iter().map(|(v, _)| v.clone()).collect();
     let hidden = if views.len() > 1 && !args.no_hiding {
-        synth::hidden_by_others(&just_views, skel, cam.focal, LIMB_THICKNESS)
+        synth::hidden_by_others(
+            &just_views,
+            skel,
+            &|z| cam.pixels_per_metre(z),
+            0.5 * LIMB_WIDTH,
+        )
     } else {
         vec![Vec::new(); views.len()]
     };

@@ -239,8 +239,9 @@ pub struct PipelineReport {
 /// Where the time of an image source's frames goes, milliseconds.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Stages {
-    /// Getting each image from its source, per image (decoding a file; for a topic,
-    /// also the wait).
+    /// Getting each image from its source, per image: reading and decoding a file
+    /// (a video: reading ffmpeg's decoded frames); for a topic, mostly the wait for
+    /// the next image.
     pub image_ms: f64,
     /// One landmark run (crop and model), per run.
     pub landmark_ms: f64,

@@ -118,15 +118,15 @@ pub struct View {
 }
 
 /// Which joints of each person another person hides, frame by frame: a joint is hidden
-/// when its image lies within a limb's `thickness` (metres, at the bone's depth through
-/// a camera of `focal` pixels) of a bone of another person that is nearer the camera
+/// when its image lies within `half_width` metres (in the image at the bone's depth:
+/// `pixels_per_metre(depth)`) of a bone of another person that is nearer the camera
 /// there (by 5 cm at least). Per person, per frame and joint (`frames x joints`): the
 /// point of the hiding bone nearest the joint's image (pixels), or `None`.
 pub fn hidden_by_others(
     views: &[View],
     skeleton: &Skeleton,
-    focal: f64,
-    thickness: f64,
+    pixels_per_metre: &dyn Fn(f64) -> f64,
+    half_width: f64,
 ) -> Vec<Vec<Option<[f64; 2]>>> {
     let bones: Vec<(usize, usize)> = skeleton.bones().collect();
     views
@@ -163,7 +163,7 @@ pub fn hidden_by_others(
                             if !(zc > 0.0 && zc < z - 0.05) {
                                 continue;
                             }
-                            let reach = focal * thickness / zc;
+                            let reach = pixels_per_metre(zc) * half_width;
                             let dist = (q[0] - c[0]).hypot(q[1] - c[1]);
                             if dist < reach && best.is_none_or(|(bd, _)| dist < bd) {
                                 best = Some((dist, c));
@@ -176,6 +176,16 @@ pub fn hidden_by_others(
             out
         })
         .collect()
+}
+
+impl CameraSpec {
+    /// Image pixels per metre at depth `z` (orthographic: the same at every depth).
+    pub fn pixels_per_metre(&self, z: f64) -> f64 {
+        match self.projection {
+            Projection::Pinhole => self.focal / z.max(1e-6),
+            Projection::Orthographic => self.focal / self.distance,
+        }
+    }
 }
 
 /// Projects a mapped sequence through the camera.
@@ -441,7 +451,7 @@ mod tests {
         let near = shift(&near, 0.0, 0.0);
         let behind = shift(&near, 0.0, 1.0);
         let aside = shift(&near, 3.0, 1.0);
-        let hidden = hidden_by_others(&[near, behind, aside], &skel, 1000.0, 0.12);
+        let hidden = hidden_by_others(&[near, behind, aside], &skel, &|z| 1000.0 / z, 0.06);
         let count = |h: &[Option<[f64; 2]>]| h.iter().filter(|x| x.is_some()).count();
         assert_eq!(count(&hidden[0]), 0, "nobody is in front of the nearest");
         assert!(
