@@ -666,6 +666,42 @@ fn configuration_values_outside_their_domain_are_one_error_naming_the_key() {
             "[detector.images]\nperson_box = [0.0, 0.0, -5.0, 10.0]\n",
             "detector.images.person_box",
         ),
+        (
+            "[detector.images.tracking]\nmax_people = 0\n",
+            "detector.images.tracking.max_people",
+        ),
+        (
+            "[detector.images.tracking]\nmax_people = 18446744073709551615\n",
+            "detector.images.tracking.max_people",
+        ),
+        (
+            "[detector.images.tracking]\nbirth_frames = 0\n",
+            "detector.images.tracking.birth_frames",
+        ),
+        (
+            "[detector.images.tracking]\ndetect_every = 4294967295\n",
+            "detector.images.tracking.detect_every",
+        ),
+        (
+            "[detector.images.tracking]\nlow_threshold = nan\n",
+            "detector.images.tracking.low_threshold",
+        ),
+        (
+            "[detector.images.tracking]\nmatch_iou = inf\n",
+            "detector.images.tracking.match_iou",
+        ),
+        (
+            "[detector.images.tracking]\nduplicate_iou = -1.0\n",
+            "detector.images.tracking.duplicate_iou",
+        ),
+        (
+            "[detector.images]\nsearch_tiles = 0\n",
+            "detector.images.search_tiles",
+        ),
+        (
+            "[detector.images]\nsearch_tiles = 1000000\n",
+            "detector.images.search_tiles",
+        ),
         ("[limits]\nmax_map_size = 0\n", "limits.max_map_size"),
         ("[limits]\nmax_joints = 100000\n", "limits.max_joints"),
         (
