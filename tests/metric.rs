@@ -54,6 +54,22 @@ fn synthetic_scene(dir: &Path, more: &[&str]) -> std::path::PathBuf {
     rec
 }
 
+/// [`synthetic`] and a second held-out take (byebye) starting 1 m further and 2 m to
+/// the camera's right, walking across to its left at 0.4 m/s, passing behind the first
+/// (static camera).
+fn crossing(dir: &Path) -> std::path::PathBuf {
+    let byebye = common::shared().join("data/mocap/bandai-namco-1/dataset-1_byebye_normal_001.bvh");
+    synthetic_scene(
+        dir,
+        &[
+            "--bvh",
+            byebye.to_str().expect("utf-8"),
+            "--place=-1.0,2.0,0,0,-0.4",
+            "--static-camera",
+        ],
+    )
+}
+
 fn replayed(config: &ServiceConfig, input: &Path, output: &Path) -> Vec<Skeleton3D> {
     let options = ReplayOptions {
         record: Some(output.to_path_buf()),
@@ -365,16 +381,7 @@ fn two_people_crossing_a_room_are_two_tracks_in_metres_that_never_mix() {
     // held-out take (byebye) starting 1 m further and 2 m to the camera's right, walking
     // across to its left at 0.4 m/s, passing behind the first.
     let dir = tempfile::tempdir().expect("tempdir");
-    let byebye = common::shared().join("data/mocap/bandai-namco-1/dataset-1_byebye_normal_001.bvh");
-    let input = synthetic_scene(
-        dir.path(),
-        &[
-            "--bvh",
-            byebye.to_str().expect("utf-8"),
-            "--place=-1.0,2.0,0,0,-0.4",
-            "--static-camera",
-        ],
-    );
+    let input = crossing(dir.path());
     let truth: Vec<Skeleton3D> = common::messages(&input, "/posestream/ground_truth");
     let mut c = config();
     c.estimator.metric.mean_limb_length = 0.2235;
@@ -480,20 +487,11 @@ fn the_tracker_follows_both_people_through_their_crossing_without_an_id_switch()
     // The crossing scene above, its heat maps stripped of their ids and each image's
     // people in a changing order: posestream's tracker (the image detector's) gives
     // the ids from the crop boxes alone.
-    use posestream::detector::tracker::{Assignment, Observation, Tracker, TrackingSettings};
+    use posestream::detector::tracker::{Observation, Tracker, TrackingSettings};
     use std::collections::{BTreeMap, BTreeSet};
 
     let dir = tempfile::tempdir().expect("tempdir");
-    let byebye = common::shared().join("data/mocap/bandai-namco-1/dataset-1_byebye_normal_001.bvh");
-    let input = synthetic_scene(
-        dir.path(),
-        &[
-            "--bvh",
-            byebye.to_str().expect("utf-8"),
-            "--place=-1.0,2.0,0,0,-0.4",
-            "--static-camera",
-        ],
-    );
+    let input = crossing(dir.path());
     let truth: Vec<Skeleton3D> = common::messages(&input, "/posestream/ground_truth");
     let maps = read_topic::<HeatMaps>(&input, "/posestream/heatmaps").expect("maps");
     let infos = read_topic::<CameraInfo>(&input, "/camera/camera_info").expect("info");
@@ -525,29 +523,20 @@ fn the_tracker_follows_both_people_through_their_crossing_without_an_id_switch()
         if let [a, b] = observations.as_slice() {
             closest = closest.max(posestream::detector::tracker::iou(&a.region, &b.region));
         }
-        tracker.begin();
-        for (o, a) in observations.iter().zip(tracker.associate(&observations)) {
-            match a {
-                Assignment::Track(id) => tracker.seen(id, o.region),
-                Assignment::Birth => {
-                    tracker.born(o.region);
-                }
-                Assignment::Ignored => {}
+        for (u, info) in &infos {
+            if u == t {
+                rec.write("/camera/camera_info", *t, info).expect("write");
             }
         }
-        for (id, region) in tracker.end() {
-            let k = observations
-                .iter()
-                .position(|o| o.region == region)
-                .expect("a reported track is an observation");
+        for (k, id) in tracker
+            .frame_of_boxes(&observations)
+            .into_iter()
+            .enumerate()
+        {
+            let Some(id) = id else { continue };
             given.entry(truth_ids[k]).or_default().insert(id);
             let mut m = people[k].clone();
             m.track_id = id;
-            for (u, info) in &infos {
-                if u == t {
-                    rec.write("/camera/camera_info", *t, info).expect("write");
-                }
-            }
             rec.write("/posestream/heatmaps", *t, &m).expect("write");
         }
     }

@@ -16,12 +16,12 @@ use std::time::Instant;
 use clap::{Args, Parser};
 use pathfinding::kuhn_munkres::kuhn_munkres;
 use pathfinding::matrix::Matrix;
-use posestream::detector::tracker::{Assignment, Observation, Tracker, TrackingSettings, iou};
+use posestream::detector::tracker::{Observation, Tracker, TrackingSettings, iou};
 use posestream::metrics::p_mpjpe;
 use posestream::msgs::sensor::CameraInfo;
 use posestream::msgs::{HeatMaps, Skeleton3D, SkeletonState, Units};
 use posestream::nodes::ServiceConfig;
-use posestream::nodes::config::ReplayRate;
+use posestream::nodes::config::{ReplayRate, Topics};
 use posestream::nodes::replay::{ReplayOptions, replay};
 use posestream::recording::{Recorder, read_topic};
 
@@ -154,7 +154,7 @@ impl Tracking {
 
 /// Strips the ids of `input`'s heat maps, shuffles each image's people, gives them the
 /// tracker's ids and writes them (with the camera) to `output`.
-fn track(input: &Path, output: &Path) -> Result<Tracking, CliError> {
+fn track(input: &Path, output: &Path, topics: &Topics) -> Result<Tracking, CliError> {
     let maps = read_topic::<HeatMaps>(input, "/posestream/heatmaps")?;
     let infos = read_topic::<CameraInfo>(input, "/camera/camera_info")?;
     let mut images: BTreeMap<u64, Vec<HeatMaps>> = BTreeMap::new();
@@ -184,30 +184,17 @@ fn track(input: &Path, output: &Path) -> Result<Tracking, CliError> {
                 tracking.closest = tracking.closest.max(iou(&o.region, &b.region));
             }
         }
-        tracker.begin();
-        let what = tracker.associate(&observations);
-        for (o, a) in observations.iter().zip(&what) {
-            if let Assignment::Track(id) = a {
-                tracker.seen(*id, o.region);
-            }
-        }
-        for (o, a) in observations.iter().zip(&what) {
-            if *a == Assignment::Birth {
-                tracker.born(o.region);
-            }
-        }
         for (_, info) in infos.iter().filter(|(u, _)| u == t) {
-            rec.write("/camera/camera_info", *t, info)?;
+            rec.write(&topics.camera_info, *t, info)?;
         }
-        for (id, region) in tracker.end() {
-            let Some(k) = observations.iter().position(|o| o.region == region) else {
-                continue;
-            };
+        let ids = tracker.frame_of_boxes(&observations);
+        for (k, id) in ids.into_iter().enumerate() {
+            let Some(id) = id else { continue };
             tracking.given.entry(truth[k]).or_default().push(id);
             tracking.reported += 1;
             let mut m = people[k].clone();
             m.track_id = id;
-            rec.write("/posestream/heatmaps", *t, &m)?;
+            rec.write(&topics.heatmaps, *t, &m)?;
         }
     }
     rec.finish()?;
@@ -280,6 +267,9 @@ pub fn run(args: &ScenesArgs) -> Result<(), CliError> {
     let mut config = ServiceConfig::load(&args.config)?;
     config.estimator.metric.mean_limb_length = args.mean_limb_length;
     config.outputs.ros2 = false;
+    config
+        .validate()
+        .map_err(|e| CliError::Usage(format!("--mean-limb-length: {e}")))?;
     std::fs::create_dir_all(&args.work).map_err(|source| CliError::File {
         path: args.work.clone(),
         source,
@@ -315,7 +305,7 @@ pub fn run(args: &ScenesArgs) -> Result<(), CliError> {
             .map_err(|e| CliError::Usage(format!("scene {i}: {e}")))?;
         super::synth::run(&synth.args)?;
         let tracked = dir.join("tracked.mcap");
-        let tracking = track(&recording, &tracked)?;
+        let tracking = track(&recording, &tracked, &config.topics)?;
         let (idf1, to_truth) = tracking.idf1();
         let options = ReplayOptions {
             record: Some(dir.join("skeletons.mcap")),

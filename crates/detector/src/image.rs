@@ -31,7 +31,7 @@ use super::crop::{box_from_alignment, crop_input, squared, tiles, whole_image_bo
 use super::mapping::{ChannelMapping, ChannelMappingError};
 use crate::images::ImageFrame;
 use crate::models::landmarks::{HEATMAP_SIZE, INPUT_SIZE, LandmarkNetwork, NetworkError};
-use crate::models::litert::{Landmarks, LiteRt, LiteRtNetwork};
+use crate::models::litert::{Landmarks, LiteRt};
 use crate::models::person::{INPUT_SIZE as PERSON_INPUT, PersonNetwork};
 use crate::models::{LandmarkModel, ModelFile};
 use crate::tracker::{Assignment, Observation, Tracker, TrackerStats, TrackingSettings, iou};
@@ -460,16 +460,14 @@ impl ImageDetector {
                 // One compiled model per worker of the parallel runs.
                 let workers = rayon::current_num_threads().clamp(1, 8);
                 let path = existing(settings.model.original(&dir))?;
-                let nets = (0..workers)
-                    .map(|_| LiteRtNetwork::load(&runtime, &path).map(std::sync::Mutex::new))
-                    .collect::<Result<Vec<_>, _>>()?;
+                let landmarks = Landmarks::litert(&runtime, &path, workers)?;
                 let person = if settings.person_detector {
                     let path = existing(ModelFile::PersonDetector.original(&dir))?;
                     Some(PersonNetwork::load_litert(&runtime, &path, workers)?)
                 } else {
                     None
                 };
-                (Landmarks::LiteRt(nets), person)
+                (landmarks, person)
             }
         };
         let mapping = ChannelMapping::load(&settings.mapping, joint_names).map_err(|source| {

@@ -325,26 +325,13 @@ mod tests {
     #[test]
     fn two_people_in_dictionary_units_stand_side_by_side() {
         let (a, b) = (skeleton(), skeleton());
-        let one = skeleton_view(
-            &[&a],
-            &[(0, 1), (0, 2)],
-            100,
-            &RenderSettings {
-                azimuth_deg: 0.0,
-                elevation_deg: 0.0,
-                ..RenderSettings::default()
-            },
-        );
-        let two = skeleton_view(
-            &[&a, &b],
-            &[(0, 1), (0, 2)],
-            100,
-            &RenderSettings {
-                azimuth_deg: 0.0,
-                elevation_deg: 0.0,
-                ..RenderSettings::default()
-            },
-        );
+        let front = RenderSettings {
+            azimuth_deg: 0.0,
+            elevation_deg: 0.0,
+            ..RenderSettings::default()
+        };
+        let one = skeleton_view(&[&a], &[(0, 1), (0, 2)], 100, &front);
+        let two = skeleton_view(&[&a, &b], &[(0, 1), (0, 2)], 100, &front);
         let white = |img: &RgbImage| img.pixels().filter(|p| **p == Rgb([255, 255, 255])).count();
         assert!(white(&two) > white(&one), "two people, more joints drawn");
     }

@@ -513,6 +513,34 @@ impl Tracker {
         Some(id)
     }
 
+    /// A whole frame of unlabelled boxes, nothing followed (the boxes are all there
+    /// is): [`begin`](Self::begin), [`associate`](Self::associate), the tracks found
+    /// again, the newcomers, [`end`](Self::end). Returns each box's reported track id
+    /// (`None`: not reported: ignored, refused, or a track not yet confirmed).
+    pub fn frame_of_boxes(&mut self, observations: &[Observation]) -> Vec<Option<u32>> {
+        self.begin();
+        let what = self.associate(observations);
+        let mut ids = vec![None; observations.len()];
+        for (i, (o, a)) in observations.iter().zip(&what).enumerate() {
+            if let Assignment::Track(id) = a {
+                self.seen(*id, o.region);
+                ids[i] = Some(*id);
+            }
+        }
+        for (i, (o, a)) in observations.iter().zip(&what).enumerate() {
+            if *a == Assignment::Birth {
+                ids[i] = self.born(o.region);
+            }
+        }
+        let reported: Vec<u32> = self.end().into_iter().map(|(id, _)| id).collect();
+        for id in &mut ids {
+            if id.is_some_and(|i| !reported.contains(&i)) {
+                *id = None;
+            }
+        }
+        ids
+    }
+
     /// Ends the frame: misses counted, lost tracks ended, confirmations. Returns the
     /// confirmed tracks seen this frame (id, box), oldest
     /// first.
@@ -586,23 +614,20 @@ mod tests {
     }
 
     fn seen_at(t: &mut Tracker, boxes: &[CropBox]) -> Vec<(u32, CropBox)> {
-        t.begin();
         let obs: Vec<Observation> = boxes
             .iter()
             .map(|&region| Observation { region, score: 0.9 })
             .collect();
-        let what = t.associate(&obs);
-        for (o, a) in obs.iter().zip(&what) {
-            if let Assignment::Track(id) = a {
-                t.seen(*id, o.region);
-            }
-        }
-        for (o, a) in obs.iter().zip(&what) {
-            if *a == Assignment::Birth {
-                t.born(o.region).expect("room");
-            }
-        }
-        t.end()
+        let mut out: Vec<(u32, CropBox)> = t
+            .frame_of_boxes(&obs)
+            .into_iter()
+            .zip(boxes)
+            .filter_map(|(id, b)| Some((id?, *b)))
+            .collect();
+        // Oldest first, as `end` reports them.
+        let order: Vec<u32> = t.tracks.iter().map(|t| t.id).collect();
+        out.sort_by_key(|(id, _)| order.iter().position(|o| o == id));
+        out
     }
 
     fn settings() -> TrackingSettings {

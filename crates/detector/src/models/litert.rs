@@ -488,6 +488,14 @@ pub enum Landmarks {
 }
 
 impl Landmarks {
+    /// The original landmark model at `path` compiled by LiteRT, once per worker.
+    pub fn litert(runtime: &LiteRt, path: &Path, workers: usize) -> Result<Self, NetworkError> {
+        (0..workers.max(1))
+            .map(|_| LiteRtNetwork::load(runtime, path).map(std::sync::Mutex::new))
+            .collect::<Result<Vec<_>, _>>()
+            .map(Self::LiteRt)
+    }
+
     /// Runs on one crop (`256 x 256 x 3`, values in [0, 1]); `worker` picks LiteRT's
     /// compiled model (any number: taken modulo their count).
     pub fn run(&self, worker: usize, rgb: &[f32]) -> Result<LandmarkOutput, NetworkError> {
