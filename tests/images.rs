@@ -551,6 +551,52 @@ fn what_a_new_user_gets_wrong_is_one_clear_error() {
         &[("POSESTREAM_LITERT", &text)],
         "not the libLiteRt.so of an ai-edge-litert wheel",
     );
+    expect_error(
+        &run_litert,
+        &[("POSESTREAM_LITERT", &dir.path().join("missing.so"))],
+        "no such file",
+    );
+    // A damaged model is refused before LiteRT parses it (LiteRT does not verify a
+    // model and crashed on a truncated one), and LiteRT loaded then an error is a
+    // clean exit 1 (unloading LiteRT at exit crashed).
+    let damaged = dir.path().join("damaged");
+    std::fs::create_dir_all(&damaged).expect("dir");
+    for entry in std::fs::read_dir(&f.models).expect("models") {
+        let p = entry.expect("entry").path();
+        std::fs::copy(&p, damaged.join(p.file_name().expect("name"))).expect("copy");
+    }
+    let full = damaged.join("pose_landmark_full.tflite");
+    let bytes = std::fs::read(&full).expect("model");
+    std::fs::write(&full, &bytes[..bytes.len() / 2]).expect("truncate");
+    let litert = common::litert_library();
+    for (env, says) in [
+        (damaged.as_path(), "is not the fetched model"),
+        (dir.path(), "not found"),
+    ] {
+        let out = Command::new(env!("CARGO_BIN_EXE_posestream"))
+            .args(run_litert)
+            .current_dir(common::root())
+            .env("POSESTREAM_MODELS", env)
+            .env("POSESTREAM_LITERT", &litert)
+            .output()
+            .expect("runs");
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{stderr}");
+        assert!(stderr.contains(says), "{stderr}");
+    }
+    // A picture too big to allocate is refused before anything is read.
+    expect_error(
+        &[
+            "render",
+            s(&text),
+            "-o",
+            s(&dir.path().join("x.png")),
+            "--height",
+            "100000",
+        ],
+        &[],
+        "16..=4096",
+    );
     // Rendering needs the images.
     expect_error(
         &["render", s(&text), "-o", s(&dir.path().join("x.png"))],

@@ -47,8 +47,8 @@ pub struct RenderArgs {
     /// Draw the newest estimate of each frame, not the refined (lagged) one.
     #[arg(long)]
     pub newest: bool,
-    /// Picture height, pixels.
-    #[arg(long, default_value_t = 360)]
+    /// Picture height, pixels (16 to 4096).
+    #[arg(long, default_value_t = 360, value_parser = clap::value_parser!(u32).range(16..=4096))]
     pub height: u32,
     /// The 3D view's azimuth, degrees.
     #[arg(long, default_value_t = 60.0, allow_negative_numbers = true)]

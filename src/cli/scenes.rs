@@ -214,10 +214,15 @@ fn errors(
         .collect();
     let mut out: BTreeMap<u32, PersonErrors> = BTreeMap::new();
     let mut not_metric = 0;
+    let mut scored = std::collections::BTreeSet::new();
     for s in skeletons
         .iter()
         .filter(|s| s.lag == lag && s.state != SkeletonState::Lost as u8)
     {
+        // At lag 0 with both outputs, the newest and the lagged estimate are one.
+        if !scored.insert((s.track_id, s.sequence)) {
+            continue;
+        }
         if s.units != Units::Metres as u8 {
             not_metric += 1;
             continue;

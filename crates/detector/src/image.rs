@@ -437,6 +437,16 @@ impl ImageDetector {
                 Err(DetectorError::MissingModel(path))
             }
         };
+        // LiteRT's models: present, and the package's bytes (LiteRT does not verify them).
+        let checked = |file: ModelFile| {
+            let path = existing(file.original(&dir))?;
+            file.checked_original(&dir).map_err(|reason| {
+                DetectorError::Network(NetworkError::LiteRt {
+                    context: format!("loading {}", path.display()),
+                    reason,
+                })
+            })
+        };
         let (network, person) = match settings.runtime {
             Runtime::Tract => {
                 let landmarks = LandmarkNetwork::load(&existing(settings.model.for_tract(&dir))?)?;
@@ -459,10 +469,10 @@ impl ImageDetector {
                 let runtime = LiteRt::load(&library)?;
                 // One compiled model per worker of the parallel runs.
                 let workers = rayon::current_num_threads().clamp(1, 8);
-                let path = existing(settings.model.original(&dir))?;
+                let path = checked(ModelFile::Landmark(settings.model))?;
                 let landmarks = Landmarks::litert(&runtime, &path, workers)?;
                 let person = if settings.person_detector {
-                    let path = existing(ModelFile::PersonDetector.original(&dir))?;
+                    let path = checked(ModelFile::PersonDetector)?;
                     Some(PersonNetwork::load_litert(&runtime, &path, workers)?)
                 } else {
                     None
@@ -652,9 +662,9 @@ impl ImageDetector {
         Ok(placed)
     }
 
-    /// The low-score pass's threshold (never above the confident one).
+    /// The low-score pass's threshold (the tracker keeps it under the confident one).
     fn tracker_low_threshold(&self) -> f32 {
-        self.tracker.low_threshold().min(self.detection_threshold)
+        self.tracker.low_threshold()
     }
 
     /// The people the detector found in `frame`, one [`Detection`] each (the heat maps

@@ -240,7 +240,9 @@ pub struct Tracker {
 impl Tracker {
     /// A tracker with no tracks; `detection_threshold` is the person detector's
     /// confident score (boxes below it are the low-score pass).
-    pub fn new(settings: TrackingSettings, detection_threshold: f32) -> Self {
+    pub fn new(mut settings: TrackingSettings, detection_threshold: f32) -> Self {
+        // The low-score pass lies below the confident one.
+        settings.low_threshold = settings.low_threshold.min(detection_threshold);
         Self {
             settings,
             detection_threshold,
@@ -847,6 +849,25 @@ mod tests {
         let (_, next) = t.predictions().next().expect("followed");
         assert_eq!(next.width, 110.0);
         assert!(next.x0 + 0.5 * next.width > 110.0, "moved on: {next:?}");
+    }
+
+    #[test]
+    fn a_low_threshold_above_the_confident_one_drops_no_confident_box() {
+        // Found by trying hostile settings: low_threshold 0.9 over detection 0.5 made
+        // every box under 0.9 unusable, confident ones included.
+        let mut t = Tracker::new(
+            TrackingSettings {
+                low_threshold: 0.9,
+                ..settings()
+            },
+            0.5,
+        );
+        let seen = Observation {
+            region: square(100.0, 100.0, 80.0),
+            score: 0.6,
+        };
+        assert_eq!(t.frame_of_boxes(&[seen]).len(), 1);
+        assert!(t.frame_of_boxes(&[seen])[0].is_some());
     }
 
     #[test]

@@ -88,6 +88,48 @@ impl ModelFile {
     pub fn for_tract(self, dir: &Path) -> PathBuf {
         dir.join(self.file_name().replace(".tflite", ".tract.tflite"))
     }
+
+    /// SHA-256 of the original file as the pinned package holds it (measured here).
+    pub fn original_sha256(self) -> &'static str {
+        match self {
+            Self::Landmark(LandmarkModel::Lite) => {
+                "f17bfbecadb61c3be1baa8b8d851cc6619c870a87167b32848ad20db306b9d61"
+            }
+            Self::Landmark(LandmarkModel::Full) => {
+                "e9a5c5cb17f736fafd4c2ec1da3b3d331d6edbe8a0d32395855aeb2cdfd64b9f"
+            }
+            Self::Landmark(LandmarkModel::Heavy) => {
+                "59e42d71bcd44cbdbabc419f0ff76686595fd265419566bd4009ef703ea8e1fe"
+            }
+            Self::PersonDetector => {
+                "a63c614bef30d35947f13be361820b1e4e3bec9cfeebf4d11216a18373108e85"
+            }
+        }
+    }
+
+    /// The original in `dir` if it is the package's file, byte for byte: LiteRT parses
+    /// a model without verifying it, and a damaged one can crash it. `Err`: why not.
+    pub fn checked_original(self, dir: &Path) -> Result<PathBuf, String> {
+        let path = self.original(dir);
+        let bytes = std::fs::read(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+        let found = sha256_hex(&bytes);
+        if found == self.original_sha256() {
+            Ok(path)
+        } else {
+            Err(format!(
+                "{} is not the fetched model (SHA-256 {found}): damaged? `posestream models fetch --force` fetches it again",
+                path.display()
+            ))
+        }
+    }
+}
+
+/// SHA-256 of `bytes`, lower-case hex.
+fn sha256_hex(bytes: &[u8]) -> String {
+    Sha256::digest(bytes)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
 }
 
 /// The byte range of `asset` in the packed data, from the loader script's
@@ -203,10 +245,7 @@ pub fn package_bytes(tarball: Option<&Path>) -> Result<Vec<u8>, FetchError> {
             bytes
         }
     };
-    let found = Sha256::digest(&bytes)
-        .iter()
-        .map(|b| format!("{b:02x}"))
-        .collect::<String>();
+    let found = sha256_hex(&bytes);
     if found != PACKAGE_SHA256 {
         return Err(FetchError::Checksum {
             url: tarball.map_or(PACKAGE_URL.to_string(), |p| p.display().to_string()),

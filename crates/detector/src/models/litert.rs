@@ -68,8 +68,9 @@ struct Api {
     buffer_packed_size: unsafe extern "C" fn(Handle, *mut usize) -> Status,
     destroy_buffer: unsafe extern "C" fn(Handle),
     run: unsafe extern "C" fn(Handle, usize, usize, *mut Handle, usize, *mut Handle) -> Status,
-    /// Kept last: dropped after the function pointers above are no longer used.
-    _library: libloading::Library,
+    /// Never unloaded: LiteRT registers exit handlers that must find its code in
+    /// memory (unloading it made every exit after an error a segmentation fault).
+    _library: std::mem::ManuallyDrop<libloading::Library>,
 }
 
 /// A loaded `libLiteRt.so`.
@@ -101,6 +102,16 @@ impl LiteRt {
     /// `pip install ai-edge-litert==2.3.*`).
     pub fn load(library: &Path) -> Result<Self, NetworkError> {
         let context = format!("loading {}", library.display());
+        if !library.is_file() {
+            return Err(error(
+                &context,
+                if library.exists() {
+                    "not a file"
+                } else {
+                    "no such file"
+                },
+            ));
+        }
         match wheel_version(library) {
             Some(v) if v.starts_with(BOUND_VERSION) => {}
             Some(v) => {
@@ -151,7 +162,7 @@ impl LiteRt {
             buffer_packed_size: symbol!(b"LiteRtGetTensorBufferPackedSize\0"),
             destroy_buffer: symbol!(b"LiteRtDestroyTensorBuffer\0"),
             run: symbol!(b"LiteRtRunCompiledModel\0"),
-            _library: library,
+            _library: std::mem::ManuallyDrop::new(library),
         };
         Ok(Self { api: Arc::new(api) })
     }
