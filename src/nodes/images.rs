@@ -14,6 +14,7 @@ use crate::detector::{DetectorStats, ImageDetector};
 use crate::images::{DecodedImages, FolderSource, ImageFrame, VideoSource};
 use crate::msgs::{CompressedImage, Header, HeatMapEncoding, HeatMaps, Image, Time};
 use crate::transport::mcap::McapSource;
+use crate::transport::read_ahead::ReadAhead;
 use crate::transport::ros2::Ros2;
 use crate::transport::{Received, Source, TransportError};
 
@@ -140,6 +141,9 @@ pub fn is_compressed_topic(topic: &str) -> bool {
     topic.ends_with("/compressed")
 }
 
+/// Images of a file source decoded ahead of the detector.
+const READ_AHEAD: usize = 2;
+
 /// The frames of the configured image source (`detector.source`, not `recording`);
 /// `ros` is needed for the `ros2` source.
 pub fn image_frames(
@@ -161,7 +165,7 @@ pub fn image_frames(
     if needs_path && path.as_os_str().is_empty() {
         return Err(setup("detector.images.path is empty"));
     }
-    Ok(match config.detector.source {
+    let files: Box<dyn Source<ImageFrame>> = match config.detector.source {
         DetectorSource::Images => Box::new(FolderSource::open(
             path,
             images.fps,
@@ -182,8 +186,10 @@ pub fn image_frames(
             limits,
         )),
         DetectorSource::Ros2 => {
+            // A live camera: each image as it comes (reading ahead would only queue
+            // older ones in front of the newest).
             let ros = ros.ok_or_else(|| setup("ROS 2 is not opened"))?;
-            if is_compressed_topic(topic) {
+            return Ok(if is_compressed_topic(topic) {
                 Box::new(DecodedImages::new(
                     ros.source::<CompressedImage>(topic)?,
                     topic,
@@ -195,8 +201,10 @@ pub fn image_frames(
                     topic,
                     limits,
                 ))
-            }
+            });
         }
         DetectorSource::Recording => return Err(setup("not an image source")),
-    })
+    };
+    // Files: the next images read and decoded while the detector works on this one.
+    Ok(Box::new(ReadAhead::new(files, READ_AHEAD, "image-reader")?))
 }

@@ -125,9 +125,65 @@ pub fn crop_input(rgb: &image::RgbImage, b: &CropBox, size: usize, out: &mut Vec
     }
 }
 
+/// Blacks out `region` (image pixels) in `out`, the `size x size x 3` input
+/// [`crop_input`] made of box `b`: another person's face, so that a single-person model
+/// looking at a box that holds two people locks on the one it was given. Input pixels
+/// whose centres fall inside `region` become 0, as outside the image.
+pub fn mask_input(out: &mut [f32], b: &CropBox, size: usize, region: &CropBox) {
+    if out.len() != size * size * 3 || b.width <= 0.0 || b.height <= 0.0 {
+        return;
+    }
+    // Input pixel u covers image x = b.x0 + (u + 0.5) * step - 0.5 at its centre.
+    let span = |origin: f64, step: f64, lo: f64, extent: f64| {
+        let first = ((lo + 0.5 - origin) / step - 0.5).ceil().max(0.0);
+        let last = ((lo + extent + 0.5 - origin) / step - 0.5)
+            .floor()
+            .min(size as f64 - 1.0);
+        (first.is_finite() && last.is_finite() && first <= last)
+            .then_some((first as usize, last as usize))
+    };
+    let (sx, sy) = (b.width / size as f64, b.height / size as f64);
+    let (Some((u0, u1)), Some((v0, v1))) = (
+        span(b.x0, sx, region.x0, region.width),
+        span(b.y0, sy, region.y0, region.height),
+    ) else {
+        return;
+    };
+    for v in v0..=v1 {
+        out[(v * size + u0) * 3..(v * size + u1 + 1) * 3].fill(0.0);
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_masked_region_is_black_in_the_input_and_nothing_else_is() {
+        let rgb = image::RgbImage::from_pixel(100, 100, image::Rgb([255, 255, 255]));
+        let b = CropBox::new(0.0, 0.0, 100.0, 100.0).expect("box");
+        let mut input = Vec::new();
+        crop_input(&rgb, &b, 10, &mut input);
+        // Image x in [20, 40): input columns 2 and 3 (centres 25, 35); rows 5..=9.
+        let region = CropBox::new(20.0, 50.0, 20.0, 80.0).expect("region");
+        mask_input(&mut input, &b, 10, &region);
+        for v in 0..10 {
+            for u in 0..10 {
+                let black = (2..=3).contains(&u) && v >= 5;
+                let value = input[(v * 10 + u) * 3];
+                assert_eq!(value == 0.0, black, "pixel ({u}, {v}) = {value}");
+            }
+        }
+        // Outside the box, or of no size: nothing changes.
+        let before = input.clone();
+        mask_input(
+            &mut input,
+            &b,
+            10,
+            &CropBox::new(200.0, 0.0, 10.0, 10.0).expect("far"),
+        );
+        assert_eq!(input, before);
+    }
 
     #[test]
     fn the_whole_image_box_is_a_centred_square() {

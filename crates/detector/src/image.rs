@@ -27,7 +27,7 @@ use std::time::Instant;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::crop::{box_from_alignment, crop_input, squared, tiles, whole_image_box};
+use super::crop::{box_from_alignment, crop_input, mask_input, squared, tiles, whole_image_box};
 use super::mapping::{ChannelMapping, ChannelMappingError};
 use crate::images::ImageFrame;
 use crate::models::landmarks::{HEATMAP_SIZE, INPUT_SIZE, LandmarkNetwork, NetworkError};
@@ -64,6 +64,12 @@ const FACE_LANDMARKS: usize = 11;
 const ACQUISITION_LOOKS: usize = 3;
 /// A landmark box overlapping the box looked at by more than this (IoU) has settled.
 const SETTLED_IOU: f64 = 0.7;
+/// The head's side over the face landmarks' extent (nose, eyes, ears, mouth: the ears
+/// span about two thirds of a head).
+const HEAD_PER_FACE: f64 = 2.0;
+/// A face the landmark model finds and the person detector's head box differ in size by
+/// at most this factor when they are the same head.
+const HEAD_SIZE_RATIO: f64 = 3.0;
 
 /// The image detector's settings (`[detector.images]`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -284,6 +290,9 @@ pub struct DetectorStats {
     pub detector_seconds: f64,
     /// Looks whose landmarks had collapsed to a point (a box drifted off its person).
     pub collapsed: u64,
+    /// Looks at a person followed whose head jumped onto another person's: the model had
+    /// taken to someone else in the box (a miss).
+    pub jumps: u64,
     /// Seconds spent getting the images from their source (decoding files; for a topic,
     /// also the wait for the next image), counted by the node.
     pub source_seconds: f64,
@@ -312,6 +321,8 @@ struct Look {
     spread: f64,
     /// The body landmarks, image pixels.
     points: Vec<[f64; 2]>,
+    /// Where the head is: a square around the face landmarks, image pixels.
+    face: Option<CropBox>,
     logits: Vec<f32>,
     seconds: f64,
 }
@@ -328,16 +339,21 @@ impl Look {
     }
 }
 
-/// Runs `network` (its `worker`) on `crop` of `frame`, `input` its scratch.
+/// Runs `network` (its `worker`) on `crop` of `frame` with the other people's heads
+/// `masks` blacked out, `input` its scratch.
 fn look(
     network: &Landmarks,
     worker: usize,
     frame: &ImageFrame,
     crop: CropBox,
+    masks: &[CropBox],
     input: &mut Vec<f32>,
 ) -> Result<Look, DetectorError> {
     let began = Instant::now();
     crop_input(&frame.rgb, &crop, INPUT_SIZE, input);
+    for m in masks {
+        mask_input(input, &crop, INPUT_SIZE, m);
+    }
     let out = network.run(worker, input)?;
     // Landmarks are in input pixels: map them into the image.
     let scale = crop.width / INPUT_SIZE as f64;
@@ -351,14 +367,9 @@ fn look(
     };
     let next_box = box_from_alignment(point(ALIGNMENT[0]), point(ALIGNMENT[1]), 16.0);
     let points: Vec<[f64; 2]> = (0..BODY_LANDMARKS).map(point).collect();
-    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
-    for p in &points {
-        for k in 0..2 {
-            lo[k] = lo[k].min(p[k]);
-            hi[k] = hi[k].max(p[k]);
-        }
-    }
+    let (lo, hi) = extent(&points);
     let extent = (hi[0] - lo[0]).max(hi[1] - lo[1]);
+    let face = head_box(&points[..FACE_LANDMARKS]);
     Ok(Look {
         crop,
         pose_flag: out.pose_flag,
@@ -369,9 +380,87 @@ fn look(
             0.0
         },
         points,
+        face,
         logits: out.heatmap_logits,
         seconds: began.elapsed().as_secs_f64(),
     })
+}
+
+/// The head around face landmarks `face`: a square twice their extent, centred on them.
+fn head_box(face: &[[f64; 2]]) -> Option<CropBox> {
+    let (lo, hi) = extent(face);
+    let side = HEAD_PER_FACE * (hi[0] - lo[0]).max(hi[1] - lo[1]);
+    let centre = [0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1])];
+    CropBox::new(centre[0] - 0.5 * side, centre[1] - 0.5 * side, side, side).ok()
+}
+
+/// The heads of other people to black out in a look at a person whose head is `own`
+/// (if known): every one of `heads` that does not overlap it (a head that does may be
+/// the person's own, seen by another track).
+fn masks_for(own: Option<&CropBox>, heads: impl Iterator<Item = CropBox>) -> Vec<CropBox> {
+    heads
+        .filter(|h| own.is_none_or(|o| iou(o, h) <= 0.0))
+        .collect()
+}
+
+/// A head seen at `after` is not the one seen at `before` the frame before but one of
+/// the `others` (people followed): their centres are more than `before`'s side apart (a
+/// head moves far less between frames) and `after`'s lies in another's head box. The
+/// landmark model looking at a box that holds two people can jump to the other one (a
+/// person cut off at the waist has a body circle, and so a box, several times their
+/// width).
+fn head_jump<'a>(
+    before: &CropBox,
+    after: &CropBox,
+    mut others: impl Iterator<Item = &'a CropBox>,
+) -> bool {
+    let centre = |b: &CropBox| [b.x0 + 0.5 * b.width, b.y0 + 0.5 * b.height];
+    let (a, b) = (centre(before), centre(after));
+    let inside = |h: &CropBox| {
+        (h.x0..=h.x0 + h.width).contains(&b[0]) && (h.y0..=h.y0 + h.height).contains(&b[1])
+    };
+    (a[0] - b[0]).hypot(a[1] - b[1]) > before.width && others.any(inside)
+}
+
+/// A look confirms a low-scoring detection (a candidate newcomer): the landmark model
+/// found a face where the person detector saw one (its centre inside the detector's
+/// head box), of a like size (within a factor `HEAD_SIZE_RATIO`), and not within the
+/// body of anyone in `present` (their landmarks' extent). The lite model, shown a
+/// hand held out that the detector took for a face at a low score, finds a whole
+/// small person there, face on the hand, with a confident pose flag.
+fn confirms<'a>(
+    head: Option<&CropBox>,
+    look: &Look,
+    mut present: impl Iterator<Item = &'a Look>,
+) -> bool {
+    let (Some(head), Some(face)) = (head, look.face.as_ref()) else {
+        return false;
+    };
+    let centre = [face.x0 + 0.5 * face.width, face.y0 + 0.5 * face.height];
+    let inside = |lo: [f64; 2], hi: [f64; 2]| {
+        (lo[0]..=hi[0]).contains(&centre[0]) && (lo[1]..=hi[1]).contains(&centre[1])
+    };
+    let ratio = face.width / head.width;
+    inside(
+        [head.x0, head.y0],
+        [head.x0 + head.width, head.y0 + head.height],
+    ) && (1.0 / HEAD_SIZE_RATIO..=HEAD_SIZE_RATIO).contains(&ratio)
+        && !present.any(|p| {
+            let (lo, hi) = extent(&p.points);
+            inside(lo, hi)
+        })
+}
+
+/// The corners of the box around `points`.
+fn extent(points: &[[f64; 2]]) -> ([f64; 2], [f64; 2]) {
+    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+    for p in points {
+        for k in 0..2 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+    }
+    (lo, hi)
 }
 
 /// Two looks found the same person: their faces (BlazePose's landmarks 0-10) within
@@ -394,6 +483,10 @@ fn same_person(a: &Look, b: &Look) -> bool {
     tracing::trace!("same person? face {face:.1} px, body {body:.1} px, extent {extent:.1} px");
     face < SAME_FACE_DISTANCE * extent || body < SAME_PERSON_DISTANCE * extent
 }
+
+/// A person the person detector saw: their box for the landmark model, and their
+/// head's box (the detector's own box).
+type Sighting = (Observation, Option<CropBox>);
 
 /// One person's heat maps in the current frame.
 struct Found {
@@ -418,6 +511,14 @@ pub struct ImageDetector {
     scene_start: u64,
     /// The tile the next search looks at besides the whole image.
     next_tile: usize,
+    /// Each person's head where it was last seen: blacked out in the other people's
+    /// looks (a box that holds two people is looked at for the one it was given).
+    heads: Vec<(u32, CropBox)>,
+    /// The frame a candidate (a low-scoring box) was last looked at: one is looked at
+    /// every `detect_every` frames at most (low scores on a background would otherwise
+    /// cost a look a search, and a search runs every frame while nobody is followed).
+    last_candidate: Option<u64>,
+    candidate_every: u64,
     /// One landmark input per look running in parallel.
     inputs: Vec<Vec<f32>>,
     /// The people of the current frame (their maps buffers reused).
@@ -521,6 +622,9 @@ impl ImageDetector {
             scene: None,
             scene_start: 0,
             next_tile: 0,
+            heads: Vec::new(),
+            last_candidate: None,
+            candidate_every: u64::from(settings.tracking.detect_every),
             inputs: Vec::new(),
             found: Vec::new(),
             found_len: 0,
@@ -541,11 +645,13 @@ impl ImageDetector {
         self.stats.source_seconds += seconds;
     }
 
-    /// The landmark model on each of `boxes` of `frame`, in parallel.
+    /// The landmark model on each of `boxes` of `frame`, in parallel, each with its
+    /// `masks` (other people's heads) blacked out.
     fn look_all(
         &mut self,
         frame: &ImageFrame,
         boxes: &[CropBox],
+        masks: &[Vec<CropBox>],
     ) -> Result<Vec<Look>, DetectorError> {
         if self.inputs.len() < boxes.len() {
             self.inputs.resize_with(boxes.len(), Vec::new);
@@ -553,10 +659,10 @@ impl ImageDetector {
         let network = &self.network;
         let looks: Vec<Result<Look, DetectorError>> = self.inputs[..boxes.len()]
             .par_iter_mut()
-            .zip(boxes.par_iter())
-            .map(|(input, crop)| {
+            .zip(boxes.par_iter().zip(masks.par_iter()))
+            .map(|(input, (crop, masks))| {
                 let worker = rayon::current_thread_index().unwrap_or(0);
-                look(network, worker, frame, *crop, input)
+                look(network, worker, frame, *crop, masks, input)
             })
             .collect();
         let looks = looks.into_iter().collect::<Result<Vec<Look>, _>>()?;
@@ -571,8 +677,12 @@ impl ImageDetector {
     }
 
     /// Where the people are, as the person detector sees the search region (the
-    /// person box, else the whole image); without the person detector, the region.
-    fn search(&mut self, frame: &ImageFrame) -> Result<Vec<Observation>, DetectorError> {
+    /// person box, else the whole image), each with their head's box (the detector's);
+    /// without the person detector, the region.
+    fn search(
+        &mut self,
+        frame: &ImageFrame,
+    ) -> Result<(Vec<Observation>, Vec<Option<CropBox>>), DetectorError> {
         let (width, height) = frame.rgb.dimensions();
         let (region, area) = match &self.person_box {
             Some(b) => (squared(b), *b),
@@ -587,7 +697,7 @@ impl ImageDetector {
             ),
         };
         let Some(person) = &self.person else {
-            return Ok(vec![Observation { region, score: 1.0 }]);
+            return Ok((vec![Observation { region, score: 1.0 }], vec![None]));
         };
         let began = Instant::now();
         // The whole region, and tiles of it where people far away look bigger: all of
@@ -602,7 +712,7 @@ impl ImageDetector {
         }
         let low = self.tracker_low_threshold();
         let rgb = &frame.rgb;
-        let found: Vec<Result<Vec<Observation>, DetectorError>> = regions
+        let found: Vec<Result<Vec<Sighting>, DetectorError>> = regions
             .par_iter()
             .map(|region| {
                 let worker = rayon::current_thread_index().unwrap_or(0);
@@ -621,10 +731,26 @@ impl ImageDetector {
                 Ok(found
                     .iter()
                     .filter_map(|d| {
+                        let [x, y] = to_image([
+                            d.centre[0] - 0.5 * d.size[0],
+                            d.centre[1] - 0.5 * d.size[1],
+                        ]);
+                        let head = CropBox::new(
+                            x,
+                            y,
+                            f64::from(d.size[0]) * region.width,
+                            f64::from(d.size[1]) * region.height,
+                        )
+                        .ok();
                         box_from_alignment(to_image(d.keypoints[0]), to_image(d.keypoints[1]), 16.0)
-                            .map(|region| Observation {
-                                region,
-                                score: d.score,
+                            .map(|region| {
+                                (
+                                    Observation {
+                                        region,
+                                        score: d.score,
+                                    },
+                                    head,
+                                )
                             })
                     })
                     .collect())
@@ -635,14 +761,16 @@ impl ImageDetector {
             all.extend(f?);
         }
         // One person seen in several regions: the best-scoring box.
-        all.sort_by(|a, b| b.score.total_cmp(&a.score));
+        all.sort_by(|a, b| b.0.score.total_cmp(&a.0.score));
         let mut placed: Vec<Observation> = Vec::new();
-        for o in all {
+        let mut heads = Vec::new();
+        for (o, head) in all {
             if !placed
                 .iter()
                 .any(|p| iou(&p.region, &o.region) > SAME_PERSON_IOU)
             {
                 placed.push(o);
+                heads.push(head);
             }
         }
         self.stats.detector_runs += regions.len() as u64;
@@ -659,7 +787,7 @@ impl ImageDetector {
         if placed.iter().any(|o| o.score >= self.detection_threshold) {
             self.stats.detector_hits += 1;
         }
-        Ok(placed)
+        Ok((placed, heads))
     }
 
     /// The low-score pass's threshold (the tracker keeps it under the confident one).
@@ -676,6 +804,8 @@ impl ImageDetector {
         if self.scene != Some(size) {
             if self.scene.is_some() {
                 self.tracker.reset();
+                self.heads.clear();
+                self.last_candidate = None;
             }
             self.scene = Some(size);
             self.scene_start = self.stats.frames;
@@ -684,15 +814,39 @@ impl ImageDetector {
         self.tracker.begin();
         // 1. Follow.
         let (ids, boxes): (Vec<u32>, Vec<CropBox>) = self.tracker.predictions().unzip();
-        let looks = self.look_all(frame, &boxes)?;
+        let heads = &self.heads;
+        let masks: Vec<Vec<CropBox>> = ids
+            .iter()
+            .map(|id| {
+                let own = heads.iter().find(|(k, _)| k == id).map(|(_, h)| h);
+                masks_for(own, heads.iter().filter(|(k, _)| k != id).map(|(_, h)| *h))
+            })
+            .collect();
+        let looks = self.look_all(frame, &boxes, &masks)?;
         let mut kept: Vec<(u32, Look)> = Vec::with_capacity(looks.len());
         for (id, l) in ids.into_iter().zip(looks) {
+            tracing::trace!(
+                "follow {id}: box ({:.0}, {:.0}, {:.0}), pose flag {:.2}, face {:?}",
+                l.crop.x0,
+                l.crop.y0,
+                l.crop.width,
+                l.pose_flag,
+                l.face.map(|f| (f.x0 as i64, f.y0 as i64, f.width as i64))
+            );
+            let before = self.heads.iter().find(|(k, _)| *k == id).map(|(_, h)| h);
+            let others = self.heads.iter().filter(|(k, _)| *k != id).map(|(_, h)| h);
+            let jumped = before
+                .zip(l.face.as_ref())
+                .is_some_and(|(a, b)| head_jump(a, b, others));
+            if jumped {
+                self.stats.jumps += 1;
+            }
             match l.person(self.threshold) {
-                Some(next) => {
+                Some(next) if !jumped => {
                     self.tracker.seen(id, next);
                     kept.push((id, l));
                 }
-                None => self.tracker.missed(id),
+                _ => self.tracker.missed(id),
             }
         }
         // Two followed boxes on one person (their landmarks coincide): the older track
@@ -708,18 +862,66 @@ impl ImageDetector {
         }
         // 2. Search, when wanted.
         if self.tracker.wants_detections() {
-            let observations = self.search(frame)?;
-            let verdicts = self.tracker.associate(&observations);
-            let (what, boxes): (Vec<Assignment>, Vec<CropBox>) = verdicts
-                .into_iter()
+            let (observations, heads) = self.search(frame)?;
+            let mut verdicts = self.tracker.associate(&observations);
+            // One candidate (the best) every `detect_every` frames at most.
+            let now = self.stats.frames;
+            let mut allowed = self
+                .last_candidate
+                .is_none_or(|at| now - at >= self.candidate_every);
+            for v in &mut verdicts {
+                if *v == Assignment::Candidate {
+                    if allowed {
+                        self.last_candidate = Some(now);
+                        allowed = false;
+                    } else {
+                        *v = Assignment::Ignored;
+                    }
+                }
+            }
+            // Each box to look at, the other people blacked out (those followed this
+            // frame, and the heads the detector saw of the others looked at now) but
+            // for a head where the detector saw this one's.
+            let others: Vec<CropBox> = kept
+                .iter()
+                .filter_map(|(_, l)| l.face)
+                .chain(
+                    verdicts
+                        .iter()
+                        .zip(&heads)
+                        .filter(|(a, _)| **a != Assignment::Ignored)
+                        .filter_map(|(_, h)| *h),
+                )
+                .collect();
+            let sought: Vec<(Assignment, Option<CropBox>, Vec<CropBox>)> = verdicts
+                .iter()
+                .zip(&heads)
+                .filter(|(a, _)| **a != Assignment::Ignored)
+                .map(|(a, own)| {
+                    // Not for a candidate: with the heads near it blacked out, a part
+                    // of someone (a hand held out) can pass for a whole person.
+                    let masks = if *a == Assignment::Candidate {
+                        Vec::new()
+                    } else {
+                        masks_for(
+                            own.as_ref(),
+                            others.iter().copied().filter(|h| Some(h) != own.as_ref()),
+                        )
+                    };
+                    (*a, *own, masks)
+                })
+                .collect();
+            let boxes: Vec<CropBox> = verdicts
+                .iter()
                 .zip(&observations)
-                .filter(|(a, _)| *a != Assignment::Ignored)
-                .map(|(a, o)| (a, o.region))
-                .unzip();
+                .filter(|(a, _)| **a != Assignment::Ignored)
+                .map(|(_, o)| o.region)
+                .collect();
+            let masks: Vec<Vec<CropBox>> = sought.iter().map(|(_, _, m)| m.clone()).collect();
             // Look at each box; while the landmarks found give a box unlike the one
             // looked at (a detector box is a rough guess), look again there.
             let mut current: Vec<Option<Look>> = self
-                .look_all(frame, &boxes)?
+                .look_all(frame, &boxes, &masks)?
                 .into_iter()
                 .map(|l| l.person(self.threshold).is_some().then_some(l))
                 .collect();
@@ -727,6 +929,7 @@ impl ImageDetector {
                 let again: Vec<(usize, CropBox)> = current
                     .iter()
                     .enumerate()
+                    .filter(|(i, _)| sought[*i].0 != Assignment::Candidate)
                     .filter_map(|(i, l)| {
                         let l = l.as_ref()?;
                         let next = l.person(self.threshold)?;
@@ -737,20 +940,35 @@ impl ImageDetector {
                     break;
                 }
                 let (index, next): (Vec<usize>, Vec<CropBox>) = again.into_iter().unzip();
-                for (i, l) in index.into_iter().zip(self.look_all(frame, &next)?) {
+                let again_masks: Vec<Vec<CropBox>> =
+                    index.iter().map(|&i| masks[i].clone()).collect();
+                for (i, l) in index
+                    .into_iter()
+                    .zip(self.look_all(frame, &next, &again_masks)?)
+                {
                     if l.person(self.threshold).is_some() {
                         current[i] = Some(l);
                     }
                 }
             }
+            // A candidate is looked at once: confirmed, or not a person.
+            for ((what, head, _), l) in sought.iter().zip(current.iter_mut()) {
+                if *what == Assignment::Candidate
+                    && !l
+                        .as_ref()
+                        .is_some_and(|l| confirms(head.as_ref(), l, kept.iter().map(|(_, k)| k)))
+                {
+                    *l = None;
+                }
+            }
             // People found again first (they keep their places), then newcomers.
-            let mut found: Vec<(Assignment, Look)> = what
+            let mut found: Vec<(Assignment, Option<CropBox>, Look)> = sought
                 .into_iter()
                 .zip(current)
-                .filter_map(|(a, l)| Some((a, l?)))
+                .filter_map(|((a, head, _), l)| Some((a, head, l?)))
                 .collect();
-            found.sort_by_key(|(a, _)| matches!(a, Assignment::Birth));
-            for (a, l) in found {
+            found.sort_by_key(|(a, _, _)| !matches!(a, Assignment::Track(_)));
+            for (a, _, l) in found {
                 if kept.iter().any(|(_, o)| same_person(o, &l)) {
                     continue;
                 }
@@ -771,6 +989,18 @@ impl ImageDetector {
             }
         }
         let reported = self.tracker.end();
+        // Heads where they were seen this frame; a person lost keeps theirs until their
+        // track ends (masked in the others' looks, and a head jumping there is theirs).
+        for (id, l) in &kept {
+            if let Some(face) = l.face {
+                match self.heads.iter_mut().find(|(k, _)| k == id) {
+                    Some(h) => h.1 = face,
+                    None => self.heads.push((*id, face)),
+                }
+            }
+        }
+        let tracker = &self.tracker;
+        self.heads.retain(|(id, _)| tracker.is_live(*id));
         // 3. The heat maps of the people reported.
         self.found_len = 0;
         for (id, _) in &reported {
@@ -836,5 +1066,82 @@ impl MapEncoding {
             Self::Float32 => HeatMapEncoding::Float32,
             Self::Uint8 => HeatMapEncoding::Uint8,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn square(x: f64, y: f64, side: f64) -> CropBox {
+        CropBox::new(x, y, side, side).expect("box")
+    }
+
+    /// A look whose face landmarks lie in `face` (corners and centre).
+    fn look_with_face(face: CropBox) -> Look {
+        let (x, y, w) = (face.x0, face.y0, face.width);
+        let mut points = vec![[x + 0.5 * w, y + 0.5 * w]; BODY_LANDMARKS];
+        points[1] = [x, y];
+        points[2] = [x + w, y + w];
+        Look {
+            crop: square(0.0, 0.0, 1000.0),
+            pose_flag: 1.0,
+            next_box: None,
+            spread: 0.5,
+            face: head_box(&points[..FACE_LANDMARKS]),
+            points,
+            logits: Vec::new(),
+            seconds: 0.0,
+        }
+    }
+
+    #[test]
+    fn a_head_is_twice_the_face_landmarks_extent_around_their_centre() {
+        let h = head_box(&[[100.0, 200.0], [140.0, 220.0], [120.0, 210.0]]).expect("head");
+        assert_eq!((h.x0, h.y0, h.width, h.height), (80.0, 170.0, 80.0, 80.0));
+        assert!(head_box(&[[f64::NAN, 0.0]]).is_none());
+    }
+
+    #[test]
+    fn other_heads_are_masked_but_one_overlapping_the_persons_own() {
+        let own = square(100.0, 100.0, 50.0);
+        let near = square(130.0, 120.0, 50.0);
+        let far = square(500.0, 100.0, 50.0);
+        assert_eq!(masks_for(Some(&own), [near, far].into_iter()), vec![far]);
+        assert_eq!(masks_for(None, [near, far].into_iter()), vec![near, far]);
+    }
+
+    #[test]
+    fn a_head_jumps_only_far_and_onto_someone_elses() {
+        let before = square(100.0, 100.0, 50.0);
+        let other = square(400.0, 100.0, 60.0);
+        let moved = square(130.0, 110.0, 50.0);
+        let onto_other = square(405.0, 105.0, 50.0);
+        let far_away = square(900.0, 100.0, 50.0);
+        assert!(!head_jump(&before, &moved, [&other].into_iter()));
+        assert!(head_jump(&before, &onto_other, [&other].into_iter()));
+        // Far, but onto nobody followed: small faces jitter that much.
+        assert!(!head_jump(&before, &far_away, [&other].into_iter()));
+        assert!(!head_jump(&before, &onto_other, std::iter::empty()));
+    }
+
+    #[test]
+    fn a_low_score_box_is_confirmed_only_by_a_face_of_like_size_inside_its_head() {
+        let head = square(100.0, 100.0, 60.0);
+        // The look's head is twice the landmarks' extent: a 30 px face gives 60 px.
+        let same = look_with_face(square(115.0, 115.0, 30.0));
+        let none = std::iter::empty;
+        assert!(confirms(Some(&head), &same, none()));
+        let elsewhere = look_with_face(square(300.0, 115.0, 30.0));
+        assert!(!confirms(Some(&head), &elsewhere, none()));
+        // On someone's body (a hand held out): a part of them.
+        let someone = look_with_face(square(50.0, 50.0, 200.0));
+        assert!(!confirms(Some(&head), &same, [&someone].into_iter()));
+        let huge = look_with_face(square(30.0, 30.0, 200.0));
+        assert!(
+            !confirms(Some(&head), &huge, none()),
+            "centre inside, 6.7 x the size"
+        );
+        assert!(!confirms(None, &same, none()));
     }
 }

@@ -12,7 +12,9 @@
 //!    (Hungarian, `pathfinding`'s Kuhn-Munkres) on 1 - IoU with the tracks' predicted
 //!    boxes, in two passes: confident boxes first, then the low-scoring ones against
 //!    the tracks still unmatched ([`Tracker::associate`]); confident boxes left over
-//!    start tracks, while there is room for `max_people`;
+//!    start tracks, while there is room for `max_people`, and low-scoring ones on
+//!    nobody are candidates: they start a track only if the caller's second opinion
+//!    (the image detector's landmark model) finds a person there;
 //! 4. [`Tracker::end`]: a track unseen misses a frame (as one the caller found on a
 //!    person another track has: [`Tracker::duplicate`]), and ends after
 //!    `lost_frames` misses in a row (until then, a box near where its velocity has
@@ -45,7 +47,8 @@ pub struct TrackingSettings {
     /// followed (to find newcomers); always when nobody is, and after a loss.
     pub detect_every: u32,
     /// Person-detector scores from this up to `detection_threshold` are the second,
-    /// low-score pass: they may re-acquire a track, never start one.
+    /// low-score pass: they may re-acquire a track, and start one only where a second
+    /// opinion finds a person ([`Assignment::Candidate`]).
     pub low_threshold: f32,
     /// A box overlapping a track's predicted box by less than this (IoU) is not that
     /// track.
@@ -135,6 +138,12 @@ pub enum Assignment {
     Track(u32),
     /// A new person: [`Tracker::born`] starts the track once it is confirmed there.
     Birth,
+    /// A low score on nobody: a new person only if a second opinion (the landmark
+    /// model's pose flag) finds one there; then [`Tracker::born`] starts the track.
+    /// ByteTrack never starts a track from a low score, having no second opinion
+    /// ([`Tracker::frame_of_boxes`] does not either): here the track must still be
+    /// followed by its landmarks for `birth_frames` frames before it is reported.
+    Candidate,
     /// A person already seen this frame, a low score with no track to match, or no room.
     Ignored,
 }
@@ -368,6 +377,9 @@ impl Tracker {
                 absorbed[i] = true;
             }
         }
+        // Low-scoring boxes against the tracks still unseen, then those left against
+        // the people seen this frame: on one of them, that person again (not a
+        // candidate newcomer).
         let open: Vec<usize> = all
             .iter()
             .copied()
@@ -375,6 +387,20 @@ impl Tracker {
             .collect();
         for (i, k) in self.assign(observations, &low, &open) {
             out[i] = Assignment::Track(self.tracks[k].id);
+            taken[k] = true;
+        }
+        let left: Vec<usize> = low
+            .iter()
+            .copied()
+            .filter(|&i| out[i] == Assignment::Ignored)
+            .collect();
+        let seen: Vec<usize> = all
+            .iter()
+            .copied()
+            .filter(|&k| !taken[k] && self.tracks[k].seen.is_some())
+            .collect();
+        for (i, _) in self.assign(observations, &left, &seen) {
+            absorbed[i] = true;
         }
         // Confident boxes left, not on a person seen this frame: new people, best
         // first, while there is room.
@@ -391,22 +417,22 @@ impl Tracker {
             .iter()
             .filter(|t| t.misses > 0 && self.claimed.contains(&t.id))
             .count();
-        let mut births: Vec<usize> = high
-            .iter()
-            .copied()
-            .filter(|&i| {
-                !matched[i]
-                    && !self.tracks.iter().enumerate().any(|(k, t)| {
-                        let on = t.seen.unwrap_or_else(|| t.predicted(t.misses + 1));
-                        (taken[k] || t.seen.is_some())
-                            && iou(&on, &observations[i].region) > self.settings.duplicate_iou
-                    })
-            })
-            .collect();
-        births.sort_by(|&a, &b| observations[b].score.total_cmp(&observations[a].score));
+        let on_nobody = |&i: &usize| {
+            !matched[i]
+                && !self.tracks.iter().enumerate().any(|(k, t)| {
+                    let on = t.seen.unwrap_or_else(|| t.predicted(t.misses + 1));
+                    (taken[k] || t.seen.is_some())
+                        && iou(&on, &observations[i].region) > self.settings.duplicate_iou
+                })
+        };
+        // Confident boxes first, then the low-scoring candidates, each best first (the
+        // passes are sorted by score already).
+        let births: Vec<usize> = high.iter().copied().filter(on_nobody).collect();
+        let candidates: Vec<usize> = low.iter().copied().filter(on_nobody).collect();
         let room = self.room(coming_back);
         tracing::debug!(
-            "associate: boxes {:?} tracks {:?} -> {out:?}, births {births:?}, room {room}",
+            "associate: boxes {:?} tracks {:?} -> {out:?}, births {births:?}, candidates \
+             {candidates:?}, room {room}",
             observations
                 .iter()
                 .map(|o| (
@@ -427,10 +453,14 @@ impl Tracker {
                 ))
                 .collect::<Vec<_>>()
         );
-        for (n, i) in births.into_iter().enumerate() {
+        let newcomers = births
+            .into_iter()
+            .map(|i| (i, Assignment::Birth))
+            .chain(candidates.into_iter().map(|i| (i, Assignment::Candidate)));
+        for (n, (i, what)) in newcomers.enumerate() {
             if n < room {
-                out[i] = Assignment::Birth;
-            } else {
+                out[i] = what;
+            } else if what == Assignment::Birth {
                 self.stats.no_room += 1;
             }
         }
@@ -591,6 +621,11 @@ impl Tracker {
         out
     }
 
+    /// Whether track `id` is live (followed, tentative, or lost but not yet ended).
+    pub fn is_live(&self, id: u32) -> bool {
+        self.tracks.iter().any(|t| t.id == id)
+    }
+
     /// Live tracks (followed, tentative or lost but not yet ended).
     pub fn len(&self) -> usize {
         self.tracks.len()
@@ -695,7 +730,7 @@ mod tests {
     }
 
     #[test]
-    fn a_low_score_box_reacquires_but_never_starts_a_track() {
+    fn a_low_score_box_reacquires_or_is_only_a_candidate_for_a_new_track() {
         let mut t = Tracker::new(settings(), 0.5);
         let a = square(100.0, 100.0, 80.0);
         let id = seen_at(&mut t, &[a])[0].0;
@@ -714,8 +749,17 @@ mod tests {
         ];
         assert_eq!(
             t.associate(&weak),
-            vec![Assignment::Track(id), Assignment::Ignored]
+            vec![Assignment::Track(id), Assignment::Candidate]
         );
+        t.seen(id, a);
+        t.end();
+        // Boxes alone (no second opinion): a low score starts nobody.
+        let weak = [Observation {
+            region: square(400.0, 100.0, 80.0),
+            score: 0.3,
+        }];
+        assert_eq!(t.frame_of_boxes(&weak), vec![None]);
+        assert_eq!(t.len(), 1);
     }
 
     #[test]

@@ -16,6 +16,7 @@
 
 pub mod mcap;
 pub mod memory;
+pub mod read_ahead;
 pub mod ros2;
 pub mod runtime;
 pub mod shm;
