@@ -532,6 +532,90 @@ fn camera_messages_in_a_recording_give_the_heat_maps_of_the_same_files() {
 }
 
 #[test]
+fn a_recorded_camera_s_own_calibration_puts_run_s_skeletons_in_metres() {
+    // An image recording with the camera's CameraInfo beside its images: `run` reads
+    // it (found missing: run left a real camera's skeletons in dictionary units) and
+    // records it; without it, dictionary units.
+    let f = fixtures();
+    let dir = tempfile::tempdir().expect("dir");
+    let rgb = image::open(f.images.join("astronaut.png"))
+        .expect("decodes")
+        .to_rgb8();
+    let (w, h) = rgb.dimensions();
+    let info = posestream::msgs::sensor::CameraInfo {
+        header: Header {
+            stamp: Time::from_nanos(0),
+            frame_id: "camera_optical".into(),
+        },
+        width: w,
+        height: h,
+        k: [600.0, 0.0, 250.0, 0.0, 600.0, 260.0, 0.0, 0.0, 1.0],
+        ..Default::default()
+    };
+    for with_info in [true, false] {
+        let cameras = dir.path().join(format!("camera-{with_info}.mcap"));
+        let recorder = SharedRecorder::create(&cameras).expect("recorder");
+        let mut images = recorder.sink::<Image>("/camera/image_raw");
+        let mut infos =
+            recorder.sink::<posestream::msgs::sensor::CameraInfo>("/camera/camera_info");
+        for i in 0..3_i64 {
+            let header = Header {
+                stamp: Time::from_nanos(i * 33_000_000),
+                frame_id: "camera_optical".into(),
+            };
+            if with_info {
+                let mut info = info.clone();
+                info.header = header.clone();
+                infos.send(&info, i as u64).expect("send");
+            }
+            let msg = Image {
+                header,
+                height: h,
+                width: w,
+                encoding: "rgb8".into(),
+                is_bigendian: 0,
+                step: 3 * w,
+                data: rgb.as_raw().clone(),
+            };
+            images.send(&msg, i as u64).expect("send");
+        }
+        drop((images, infos));
+        recorder.finish().expect("finish");
+        let config = dir.path().join("camera.toml");
+        std::fs::write(
+            &config,
+            format!(
+                "[detector]\nsource = \"image-recording\"\n[detector.images]\npath = {:?}\n",
+                s(&cameras)
+            ),
+        )
+        .expect("config");
+        let out = dir.path().join(format!("run-{with_info}.mcap"));
+        let report = posestream(&[
+            "run",
+            "--config",
+            s(&config),
+            "--record",
+            s(&out),
+            "--ros2",
+            "false",
+            "--json",
+        ]);
+        let skeletons = read_all::<Skeleton3D>(&out, "/posestream/skeletons");
+        assert!(!skeletons.is_empty(), "{report}");
+        let metres = posestream::msgs::Units::Metres as u8;
+        assert!(
+            skeletons.iter().all(|k| (k.units == metres) == with_info),
+            "with the camera's calibration: {with_info}"
+        );
+        let recorded =
+            read_all::<posestream::msgs::sensor::CameraInfo>(&out, "/camera/camera_info");
+        assert_eq!(recorded.len(), if with_info { 3 } else { 0 });
+        assert!(recorded.iter().all(|r| r.k == info.k));
+    }
+}
+
+#[test]
 fn what_a_new_user_gets_wrong_is_one_clear_error() {
     let f = fixtures();
     let dir = tempfile::tempdir().expect("dir");

@@ -628,3 +628,39 @@ fn the_scenes_command_reports_every_person_and_the_tracker_s_ids() {
         assert!(mpjpe < 0.45 && root < 0.40, "{r:?}");
     }
 }
+
+#[test]
+fn eval_ends_with_every_person_of_the_scenes() {
+    // docs/results.md is eval's output: the paper's tables, then the people in the room
+    // (the scenes section `posestream scenes` writes).
+    let dir = tempfile::tempdir().expect("tempdir");
+    let md = dir.path().join("results.md");
+    let mocap = common::shared().join("data/mocap");
+    let out = Command::new(env!("CARGO_BIN_EXE_posestream"))
+        .current_dir(root())
+        .args(["eval", "--max-files-per-action", "1", "--max-frames", "5"])
+        .args([
+            "--dict",
+            "ours K128=config/dictionaries/default-k128.json",
+            "--data",
+        ])
+        .arg(mocap.join("bandai-namco-1"))
+        .arg(mocap.join("bandai-namco-2"))
+        .arg("--scenes-data")
+        .arg(mocap.join("bandai-namco-1"))
+        .arg("--out")
+        .arg(&md)
+        .output()
+        .expect("runs");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = std::fs::read_to_string(&md).expect("markdown");
+    let table = text.find("## Table 1").expect("the tables");
+    let people = text.find("## People in the room").expect("the scenes");
+    assert!(table < people, "{text}");
+    assert_eq!(text.matches("### ").count(), 3, "{text}");
+    assert_eq!(text.matches("| person | take |").count(), 3, "{text}");
+}

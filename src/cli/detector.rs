@@ -43,7 +43,10 @@ pub fn run(args: &DetectorArgs) -> Result<(), CliError> {
         stats,
         rate,
         camera,
-        // The latency to skeletons is measured where the estimator runs too (`run`).
+        // A real camera's calibration is the estimator node's to read (its own
+        // subscription), and the latency to skeletons is measured where the estimator
+        // runs too (`run`).
+        calibration: _,
         clock: _,
     } = input;
     // Images from files: their assumed calibration goes out beside the heat maps.

@@ -49,6 +49,13 @@ pub struct EvalArgs {
     /// Write the markdown here as well as to stdout.
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Folder of the takes of the people-in-the-room scenes (`posestream scenes`, run
+    /// after the tables with its defaults; its section ends the markdown).
+    #[arg(long, default_value = "../shared/data/mocap/bandai-namco-1")]
+    pub scenes_data: PathBuf,
+    /// Leave the people-in-the-room scenes out.
+    #[arg(long)]
+    pub no_scenes: bool,
 }
 
 /// Runs `eval`.
@@ -123,7 +130,11 @@ pub fn run(args: &EvalArgs) -> Result<(), CliError> {
         .into_iter()
         .map(|e| e.results().clone())
         .collect();
-    let text = evaluation::markdown(&results, &settings);
+    let mut text = evaluation::markdown(&results, &settings);
+    if !args.no_scenes {
+        let scenes = super::scenes::ScenesArgs::with(&args.mapping, &args.scenes_data);
+        text.push_str(&super::scenes::markdown(&scenes)?);
+    }
     print!("{text}");
     if let Some(path) = &args.out {
         let options: Vec<String> = std::env::args().skip(1).collect();

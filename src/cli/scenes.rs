@@ -269,6 +269,34 @@ fn errors(
 
 /// Runs `scenes`.
 pub fn run(args: &ScenesArgs) -> Result<(), CliError> {
+    let text = markdown(args)?;
+    print!("{text}");
+    if let Some(out) = &args.out {
+        std::fs::write(out, &text).map_err(|source| CliError::File {
+            path: out.clone(),
+            source,
+        })?;
+    }
+    Ok(())
+}
+
+impl ScenesArgs {
+    /// The defaults, with the takes in `data` and the skeleton mapping `mapping`
+    /// (`eval` runs the scenes with them).
+    pub fn with(mapping: &Path, data: &Path) -> Self {
+        Self {
+            config: PathBuf::from("config/default.toml"),
+            mapping: mapping.to_path_buf(),
+            data: data.to_path_buf(),
+            mean_limb_length: 0.2235,
+            work: PathBuf::from("target/scenes"),
+            out: None,
+        }
+    }
+}
+
+/// The scenes evaluated: a markdown section (`## People in the room`).
+pub fn markdown(args: &ScenesArgs) -> Result<String, CliError> {
     let mut config = ServiceConfig::load(&args.config)?;
     config.estimator.metric.mean_limb_length = args.mean_limb_length;
     config.outputs.ros2 = false;
@@ -383,12 +411,5 @@ pub fn run(args: &ScenesArgs) -> Result<(), CliError> {
         }
         text.push('\n');
     }
-    print!("{text}");
-    if let Some(out) = &args.out {
-        std::fs::write(out, &text).map_err(|source| CliError::File {
-            path: out.clone(),
-            source,
-        })?;
-    }
-    Ok(())
+    Ok(text)
 }

@@ -12,6 +12,7 @@ use super::runtime::{DetectorSide, run_estimator_with_camera};
 use super::wiring::{DetectorInput, EstimatorOutputs, Publishers, Wiring, detector_transport};
 use crate::detector::DetectorStats;
 use crate::msgs::HeatMaps;
+use crate::msgs::sensor::CameraInfo;
 use crate::nodes::camera::CameraTap;
 use crate::nodes::config::{ReplayRate, ServiceConfig};
 use crate::nodes::latency::{LatencyHistogram, LatencySummary};
@@ -292,6 +293,7 @@ pub fn run_pipeline(
         stats,
         rate,
         camera,
+        calibration,
         clock,
     } = input;
     let mut outputs = outputs.with_clock(clock.clone());
@@ -308,10 +310,18 @@ pub fn run_pipeline(
         );
     }
     let mut detector = DetectorSide::spawn(source, heatmaps, rate, stop)?;
+    // The estimator reads the assumed calibration, or a real camera's own (recorded as
+    // it is read, so that a replay of the recording is in metres too).
+    let calibration = calibration.map(|source| {
+        let sink = wiring.recorder.as_ref().map(|r| {
+            Box::new(r.sink::<CameraInfo>(&config.topics.camera_info)) as Box<dyn Sink<CameraInfo>>
+        });
+        Box::new(RecordedCalibration { source, sink }) as Box<dyn Source<CameraInfo>>
+    });
     let estimator = run_estimator_with_camera(
         &mut node,
         &mut detector,
-        camera.as_ref().map(CameraTap::reader),
+        camera.as_ref().map(CameraTap::reader).or(calibration),
         &mut outputs,
         stop,
     )?;
@@ -346,6 +356,26 @@ pub fn run_pipeline(
         recording,
         recording_error,
     })
+}
+
+/// A camera's calibration as the estimator reads it, written to the recording too.
+struct RecordedCalibration {
+    source: Box<dyn Source<CameraInfo>>,
+    sink: Option<Box<dyn Sink<CameraInfo>>>,
+}
+
+impl Source<CameraInfo> for RecordedCalibration {
+    fn recv(&mut self, timeout: Duration) -> Result<Received<CameraInfo>, TransportError> {
+        let received = self.source.recv(timeout)?;
+        if let (Received::Message(info, stamp), Some(sink)) = (&received, &mut self.sink)
+            && let Err(e) = sink.send(info, *stamp)
+        {
+            // Reported once; the estimator still reads the calibration.
+            tracing::warn!("recording the camera's calibration: {e}");
+            self.sink = None;
+        }
+        Ok(received)
+    }
 }
 
 /// One topic of a recorder: takes a message (waiting up to the given time) and writes

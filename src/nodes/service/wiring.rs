@@ -555,6 +555,10 @@ pub struct DetectorInput {
     /// The calibration assumed for images from files (`detector.images.field_of_view`),
     /// for the outputs ([`Wiring::camera_outputs`]) and an estimator in the process.
     pub camera: Option<CameraTap>,
+    /// A real camera's own calibration, for an estimator in the process: the `ros2`
+    /// source's `topics.camera_info` topic, the `image-recording` source's channel of
+    /// that name (none there: dictionary units).
+    pub calibration: Option<Box<dyn Source<CameraInfo>>>,
     /// When each image came in (image sources), for the latency to its skeletons.
     pub clock: Option<FrameClock>,
 }
@@ -579,6 +583,7 @@ pub fn detector_input(
             stats: None,
             rate: config.detector.rate,
             camera: None,
+            calibration: None,
             clock: None,
         });
     }
@@ -587,6 +592,21 @@ pub fn detector_input(
     let detector = ImageDetector::load(&config.detector.images, &dictionary.skeleton().joints)
         .map_err(SetupError::Detector)?;
     let frames = image_frames(config, middleware.ros.as_mut())?;
+    let camera_topic = &config.topics.camera_info;
+    let calibration: Option<Box<dyn Source<CameraInfo>>> = match config.detector.source {
+        DetectorSource::Ros2 => match middleware.ros.as_mut() {
+            Some(ros) => Some(Box::new(ros.source::<CameraInfo>(camera_topic)?)),
+            None => None,
+        },
+        DetectorSource::ImageRecording => {
+            Some(Box::new(McapSource::<CameraInfo>::open_with_limit(
+                &config.detector.images.path,
+                camera_topic,
+                config.limits.max_record_bytes,
+            )?))
+        }
+        _ => None,
+    };
     let encoding = config.detector.images.encoding.message_encoding();
     let mut source = ImageHeatMaps::new(frames, detector, encoding);
     // Files carry no calibration: a camera is assumed (a real one has its own).
@@ -606,6 +626,7 @@ pub fn detector_input(
         source: Box::new(source),
         rate: ReplayRate::Fast,
         camera,
+        calibration,
         clock: Some(clock),
     })
 }
