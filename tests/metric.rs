@@ -663,4 +663,19 @@ fn eval_ends_with_every_person_of_the_scenes() {
     assert!(table < people, "{text}");
     assert_eq!(text.matches("### ").count(), 3, "{text}");
     assert_eq!(text.matches("| person | take |").count(), 3, "{text}");
+    // The scenes' takes are checked before the tables' minutes, not after.
+    let began = std::time::Instant::now();
+    let out = Command::new(env!("CARGO_BIN_EXE_posestream"))
+        .current_dir(root())
+        .args(["eval", "--scenes-data", "no/such/folder", "--out"])
+        .arg(dir.path().join("never.md"))
+        .output()
+        .expect("runs");
+    let said = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && said.contains("--scenes-data"),
+        "{said}"
+    );
+    assert!(began.elapsed() < std::time::Duration::from_secs(20));
+    assert!(!dir.path().join("never.md").exists());
 }

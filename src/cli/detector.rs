@@ -43,13 +43,11 @@ pub fn run(args: &DetectorArgs) -> Result<(), CliError> {
         stats,
         rate,
         camera,
-        // A real camera's calibration is the estimator node's to read (its own
-        // subscription), and the latency to skeletons is measured where the estimator
-        // runs too (`run`).
-        calibration: _,
+        // The latency to skeletons is measured where the estimator runs too (`run`).
         clock: _,
     } = input;
-    // Images from files: their assumed calibration goes out beside the heat maps.
+    // Images from files: their assumed calibration goes out beside the heat maps (a
+    // recording of a camera: its own).
     if let Some(tap) = &camera {
         tap.publish_to(wiring.camera_outputs(&config)?);
     }

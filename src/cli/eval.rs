@@ -63,6 +63,15 @@ pub fn run(args: &EvalArgs) -> Result<(), CliError> {
     if args.max_frames == 0 {
         return Err(CliError::Usage("--max-frames must be at least 1".into()));
     }
+    // The scenes run after the tables: their takes are checked first.
+    let scenes = if args.no_scenes {
+        None
+    } else {
+        Some(super::scenes::ScenesArgs::with(
+            &args.mapping,
+            &args.scenes_data,
+        )?)
+    };
     let mapping = SkeletonMapping::load(&args.mapping)?;
     let split = Split::load(&args.split)?;
     let mut dicts = Vec::new();
@@ -131,9 +140,8 @@ pub fn run(args: &EvalArgs) -> Result<(), CliError> {
         .map(|e| e.results().clone())
         .collect();
     let mut text = evaluation::markdown(&results, &settings);
-    if !args.no_scenes {
-        let scenes = super::scenes::ScenesArgs::with(&args.mapping, &args.scenes_data);
-        text.push_str(&super::scenes::markdown(&scenes)?);
+    if let Some(scenes) = &scenes {
+        text.push_str(&super::scenes::markdown(scenes)?);
     }
     print!("{text}");
     if let Some(path) = &args.out {

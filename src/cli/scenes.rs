@@ -280,18 +280,38 @@ pub fn run(args: &ScenesArgs) -> Result<(), CliError> {
     Ok(())
 }
 
+#[derive(Parser)]
+struct ScenesCommand {
+    #[command(flatten)]
+    args: ScenesArgs,
+}
+
 impl ScenesArgs {
     /// The defaults, with the takes in `data` and the skeleton mapping `mapping`
-    /// (`eval` runs the scenes with them).
-    pub fn with(mapping: &Path, data: &Path) -> Self {
-        Self {
-            config: PathBuf::from("config/default.toml"),
-            mapping: mapping.to_path_buf(),
-            data: data.to_path_buf(),
-            mean_limb_length: 0.2235,
-            work: PathBuf::from("target/scenes"),
-            out: None,
+    /// (`eval` runs the scenes with them); an error when a scene's take is not there.
+    pub fn with(mapping: &Path, data: &Path) -> Result<Self, CliError> {
+        let argv = [
+            "scenes".into(),
+            "--mapping".into(),
+            mapping.as_os_str().to_owned(),
+            "--data".into(),
+            data.as_os_str().to_owned(),
+        ];
+        let args = ScenesCommand::try_parse_from(argv)
+            .map_err(|e| CliError::Usage(e.to_string()))?
+            .args;
+        for scene in &SCENES {
+            for (file, _) in scene.people {
+                let take = args.data.join(file);
+                if !take.is_file() {
+                    return Err(CliError::Usage(format!(
+                        "the scenes need {} (--scenes-data; --no-scenes leaves them out)",
+                        take.display()
+                    )));
+                }
+            }
         }
+        Ok(args)
     }
 }
 

@@ -12,6 +12,7 @@ use super::config::{DetectorSource, ServiceConfig};
 use super::latency::FrameClock;
 use crate::detector::{DetectorStats, ImageDetector};
 use crate::images::{DecodedImages, FolderSource, ImageFrame, VideoSource};
+use crate::msgs::sensor::CameraInfo;
 use crate::msgs::{CompressedImage, Header, HeatMapEncoding, HeatMaps, Image, Time};
 use crate::transport::mcap::McapSource;
 use crate::transport::read_ahead::ReadAhead;
@@ -29,6 +30,8 @@ pub struct ImageHeatMaps {
     pending: VecDeque<(HeatMaps, u64)>,
     /// The field of view assumed for the images, and where their calibration goes.
     camera: Option<(f64, CameraTap)>,
+    /// A recording's own calibration of its images (`image-recording`).
+    recorded: Option<RecordedCamera>,
     /// Notes when each image came in (latency to its skeletons).
     clock: Option<FrameClock>,
     detector: ImageDetector,
@@ -48,6 +51,7 @@ impl ImageHeatMaps {
             frames,
             pending: VecDeque::new(),
             camera: None,
+            recorded: None,
             clock: None,
             joint_names: detector.joint_names().to_vec(),
             detector,
@@ -60,6 +64,22 @@ impl ImageHeatMaps {
     /// field of view `fov_deg` (degrees): written to `tap` before its heat maps.
     pub fn with_assumed_camera(mut self, fov_deg: f64, tap: CameraTap) -> Self {
         self.camera = Some((fov_deg, tap));
+        self
+    }
+
+    /// The same source, giving each image the calibration `calibration` (a recording's
+    /// channel) logged up to its time: written to `tap` before its heat maps.
+    pub fn with_recorded_camera(
+        mut self,
+        calibration: Box<dyn Source<CameraInfo>>,
+        tap: CameraTap,
+    ) -> Self {
+        self.recorded = Some(RecordedCamera {
+            source: calibration,
+            next: None,
+            tap,
+            done: false,
+        });
         self
     }
 
@@ -93,6 +113,9 @@ impl Source<HeatMaps> for ImageHeatMaps {
         }
         if let Some((fov, tap)) = &self.camera {
             tap.image(assumed_camera_info(&frame, *fov), stamp);
+        }
+        if let Some(recorded) = &mut self.recorded {
+            recorded.up_to(stamp);
         }
         let header = Header {
             stamp: Time::from_nanos(i64::try_from(frame.stamp_ns).unwrap_or(i64::MAX)),
@@ -130,6 +153,49 @@ impl Source<HeatMaps> for ImageHeatMaps {
             None => {
                 tracing::debug!("{}: nobody", frame.name);
                 Ok(Received::Idle)
+            }
+        }
+    }
+}
+
+/// A recording's calibration channel, read beside its images: each `CameraInfo` goes to
+/// the tap once the images reach its log time (the next one held back), so a
+/// calibration that changes applies from its own time on. A recording without that
+/// channel is read to its end once, on the first image, to find that out (dictionary
+/// units then).
+struct RecordedCamera {
+    source: Box<dyn Source<CameraInfo>>,
+    next: Option<(CameraInfo, u64)>,
+    tap: CameraTap,
+    done: bool,
+}
+
+impl RecordedCamera {
+    /// Hands the calibrations logged up to `stamp` to the tap.
+    fn up_to(&mut self, stamp: u64) {
+        loop {
+            if self.next.is_none() && !self.done {
+                match self.source.recv(Duration::ZERO) {
+                    Ok(Received::Message(info, at)) => self.next = Some((info, at)),
+                    Ok(Received::Idle) => return,
+                    Ok(Received::Closed) => self.done = true,
+                    Err(
+                        e
+                        @ (TransportError::Malformed { .. } | TransportError::BeyondLimits { .. }),
+                    ) => tracing::warn!("camera calibration skipped: {e}"),
+                    Err(e) => {
+                        tracing::info!("{e}: no (more) calibration from the recording");
+                        self.done = true;
+                    }
+                }
+                continue;
+            }
+            match self.next.take() {
+                Some((info, at)) if at <= stamp => self.tap.image(info, at),
+                later => {
+                    self.next = later;
+                    return;
+                }
             }
         }
     }

@@ -130,7 +130,11 @@ pub fn crop_input(rgb: &image::RgbImage, b: &CropBox, size: usize, out: &mut Vec
 /// looking at a box that holds two people locks on the one it was given. Input pixels
 /// whose centres fall inside `region` become 0, as outside the image.
 pub fn mask_input(out: &mut [f32], b: &CropBox, size: usize, region: &CropBox) {
-    if out.len() != size * size * 3 || b.width <= 0.0 || b.height <= 0.0 {
+    let finite = [b.x0, b.y0, b.width, b.height, region.x0, region.y0]
+        .into_iter()
+        .chain([region.width, region.height])
+        .all(f64::is_finite);
+    if !finite || out.len() != size * size * 3 || b.width <= 0.0 || b.height <= 0.0 {
         return;
     }
     // Input pixel u covers image x = b.x0 + (u + 0.5) * step - 0.5 at its centre.

@@ -18,6 +18,11 @@
 //!    no heat maps in this frame (the estimator sees a gap); the tracker ends tracks
 //!    after `lost_frames` misses and reports only confirmed ones.
 //!
+//! People side by side: every look has the other people's heads blacked out (a box
+//! that follows a person cut off at the waist holds their neighbour too), a look whose
+//! head jumped onto another person's is a miss, and a low-scoring detection on nobody
+//! starts a track only when the landmark model confirms a face there (`confirms`).
+//!
 //! A change of image size is a new scene: every track ends (a folder of unrelated
 //! photos).
 
@@ -70,6 +75,9 @@ const HEAD_PER_FACE: f64 = 2.0;
 /// A face the landmark model finds and the person detector's head box differ in size by
 /// at most this factor when they are the same head.
 const HEAD_SIZE_RATIO: f64 = 3.0;
+/// A lost person's head is blacked out in the others' looks for this many frames after
+/// they were last seen (then it may be where someone else is now).
+const MASKED_HEAD_FRAMES: u64 = 2;
 
 /// The image detector's settings (`[detector.images]`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -293,8 +301,9 @@ pub struct DetectorStats {
     /// Looks at a person followed whose head jumped onto another person's: the model had
     /// taken to someone else in the box (a miss).
     pub jumps: u64,
-    /// Seconds spent getting the images from their source (decoding files; for a topic,
-    /// also the wait for the next image), counted by the node.
+    /// Seconds spent getting the images from their source, counted by the node: the
+    /// wait for the next image (files are decoded ahead on another thread; a topic's
+    /// images are decoded here).
     pub source_seconds: f64,
     /// The tracker's births, deaths, re-acquisitions.
     pub tracks: TrackerStats,
@@ -394,13 +403,14 @@ fn head_box(face: &[[f64; 2]]) -> Option<CropBox> {
     CropBox::new(centre[0] - 0.5 * side, centre[1] - 0.5 * side, side, side).ok()
 }
 
-/// The heads of other people to black out in a look at a person whose head is `own`
-/// (if known): every one of `heads` that does not overlap it (a head that does may be
-/// the person's own, seen by another track).
+/// The heads of other people to black out in a look at a person whose head is `own`:
+/// every one of `heads` that does not overlap it (a head that does may be the person's
+/// own, seen by another track); none when `own` is unknown (any might be theirs).
 fn masks_for(own: Option<&CropBox>, heads: impl Iterator<Item = CropBox>) -> Vec<CropBox> {
-    heads
-        .filter(|h| own.is_none_or(|o| iou(o, h) <= 0.0))
-        .collect()
+    match own {
+        Some(own) => heads.filter(|h| iou(own, h) <= 0.0).collect(),
+        None => Vec::new(),
+    }
 }
 
 /// A head seen at `after` is not the one seen at `before` the frame before but one of
@@ -414,12 +424,24 @@ fn head_jump<'a>(
     after: &CropBox,
     mut others: impl Iterator<Item = &'a CropBox>,
 ) -> bool {
-    let centre = |b: &CropBox| [b.x0 + 0.5 * b.width, b.y0 + 0.5 * b.height];
     let (a, b) = (centre(before), centre(after));
-    let inside = |h: &CropBox| {
-        (h.x0..=h.x0 + h.width).contains(&b[0]) && (h.y0..=h.y0 + h.height).contains(&b[1])
-    };
-    (a[0] - b[0]).hypot(a[1] - b[1]) > before.width && others.any(inside)
+    (a[0] - b[0]).hypot(a[1] - b[1]) > before.width && others.any(|h| contains(h, b))
+}
+
+/// The centre of `b`.
+fn centre(b: &CropBox) -> [f64; 2] {
+    [b.x0 + 0.5 * b.width, b.y0 + 0.5 * b.height]
+}
+
+/// Whether `p` lies in `b`.
+fn contains(b: &CropBox, p: [f64; 2]) -> bool {
+    (b.x0..=b.x0 + b.width).contains(&p[0]) && (b.y0..=b.y0 + b.height).contains(&p[1])
+}
+
+/// Whether `p` lies within the extent of `look`'s body landmarks.
+fn within_body(look: &Look, p: [f64; 2]) -> bool {
+    let (lo, hi) = extent(&look.points);
+    (lo[0]..=hi[0]).contains(&p[0]) && (lo[1]..=hi[1]).contains(&p[1])
 }
 
 /// A look confirms a low-scoring detection (a candidate newcomer): the landmark model
@@ -436,19 +458,11 @@ fn confirms<'a>(
     let (Some(head), Some(face)) = (head, look.face.as_ref()) else {
         return false;
     };
-    let centre = [face.x0 + 0.5 * face.width, face.y0 + 0.5 * face.height];
-    let inside = |lo: [f64; 2], hi: [f64; 2]| {
-        (lo[0]..=hi[0]).contains(&centre[0]) && (lo[1]..=hi[1]).contains(&centre[1])
-    };
+    let at = centre(face);
     let ratio = face.width / head.width;
-    inside(
-        [head.x0, head.y0],
-        [head.x0 + head.width, head.y0 + head.height],
-    ) && (1.0 / HEAD_SIZE_RATIO..=HEAD_SIZE_RATIO).contains(&ratio)
-        && !present.any(|p| {
-            let (lo, hi) = extent(&p.points);
-            inside(lo, hi)
-        })
+    contains(head, at)
+        && (1.0 / HEAD_SIZE_RATIO..=HEAD_SIZE_RATIO).contains(&ratio)
+        && !present.any(|p| within_body(p, at))
 }
 
 /// The corners of the box around `points`.
@@ -488,6 +502,13 @@ fn same_person(a: &Look, b: &Look) -> bool {
 /// head's box (the detector's own box).
 type Sighting = (Observation, Option<CropBox>);
 
+/// Where a person's head was last seen, and the frame.
+struct Head {
+    id: u32,
+    region: CropBox,
+    seen: u64,
+}
+
 /// One person's heat maps in the current frame.
 struct Found {
     crop: CropBox,
@@ -513,7 +534,7 @@ pub struct ImageDetector {
     next_tile: usize,
     /// Each person's head where it was last seen: blacked out in the other people's
     /// looks (a box that holds two people is looked at for the one it was given).
-    heads: Vec<(u32, CropBox)>,
+    heads: Vec<Head>,
     /// The frame a candidate (a low-scoring box) was last looked at: one is looked at
     /// every `detect_every` frames at most (low scores on a background would otherwise
     /// cost a look a search, and a search runs every frame while nobody is followed).
@@ -812,14 +833,21 @@ impl ImageDetector {
             self.next_tile = 0;
         }
         self.tracker.begin();
+        let now = self.stats.frames;
         // 1. Follow.
         let (ids, boxes): (Vec<u32>, Vec<CropBox>) = self.tracker.predictions().unzip();
         let heads = &self.heads;
         let masks: Vec<Vec<CropBox>> = ids
             .iter()
-            .map(|id| {
-                let own = heads.iter().find(|(k, _)| k == id).map(|(_, h)| h);
-                masks_for(own, heads.iter().filter(|(k, _)| k != id).map(|(_, h)| *h))
+            .map(|&id| {
+                let own = heads.iter().find(|h| h.id == id).map(|h| &h.region);
+                masks_for(
+                    own,
+                    heads
+                        .iter()
+                        .filter(|h| h.id != id && now - h.seen <= MASKED_HEAD_FRAMES)
+                        .map(|h| h.region),
+                )
             })
             .collect();
         let looks = self.look_all(frame, &boxes, &masks)?;
@@ -833,8 +861,8 @@ impl ImageDetector {
                 l.pose_flag,
                 l.face.map(|f| (f.x0 as i64, f.y0 as i64, f.width as i64))
             );
-            let before = self.heads.iter().find(|(k, _)| *k == id).map(|(_, h)| h);
-            let others = self.heads.iter().filter(|(k, _)| *k != id).map(|(_, h)| h);
+            let before = self.heads.iter().find(|h| h.id == id).map(|h| &h.region);
+            let others = self.heads.iter().filter(|h| h.id != id).map(|h| &h.region);
             let jumped = before
                 .zip(l.face.as_ref())
                 .is_some_and(|(a, b)| head_jump(a, b, others));
@@ -864,62 +892,51 @@ impl ImageDetector {
         if self.tracker.wants_detections() {
             let (observations, heads) = self.search(frame)?;
             let mut verdicts = self.tracker.associate(&observations);
-            // One candidate (the best) every `detect_every` frames at most.
-            let now = self.stats.frames;
+            // One candidate (the best whose face the detector saw off everyone followed)
+            // every `detect_every` frames at most.
             let mut allowed = self
                 .last_candidate
-                .is_none_or(|at| now - at >= self.candidate_every);
-            for v in &mut verdicts {
-                if *v == Assignment::Candidate {
-                    if allowed {
-                        self.last_candidate = Some(now);
-                        allowed = false;
-                    } else {
-                        *v = Assignment::Ignored;
-                    }
+                .is_none_or(|at| now.saturating_sub(at) >= self.candidate_every);
+            for (v, head) in verdicts.iter_mut().zip(&heads) {
+                if *v != Assignment::Candidate {
+                    continue;
+                }
+                let on_someone = head
+                    .as_ref()
+                    .is_none_or(|h| kept.iter().any(|(_, k)| within_body(k, centre(h))));
+                if allowed && !on_someone {
+                    self.last_candidate = Some(now);
+                    allowed = false;
+                } else {
+                    *v = Assignment::Ignored;
                 }
             }
+            let looked: Vec<usize> = (0..verdicts.len())
+                .filter(|&i| verdicts[i] != Assignment::Ignored)
+                .collect();
             // Each box to look at, the other people blacked out (those followed this
             // frame, and the heads the detector saw of the others looked at now) but
-            // for a head where the detector saw this one's.
+            // for a head overlapping this one's (as the detector saw it; unknown: none).
+            // Not for a candidate: with the heads near it blacked out, a part of
+            // someone (a hand held out) can pass for a whole person.
             let others: Vec<CropBox> = kept
                 .iter()
                 .filter_map(|(_, l)| l.face)
-                .chain(
-                    verdicts
-                        .iter()
-                        .zip(&heads)
-                        .filter(|(a, _)| **a != Assignment::Ignored)
-                        .filter_map(|(_, h)| *h),
-                )
+                .chain(looked.iter().filter_map(|&i| heads[i]))
                 .collect();
-            let sought: Vec<(Assignment, Option<CropBox>, Vec<CropBox>)> = verdicts
+            let masks: Vec<Vec<CropBox>> = looked
                 .iter()
-                .zip(&heads)
-                .filter(|(a, _)| **a != Assignment::Ignored)
-                .map(|(a, own)| {
-                    // Not for a candidate: with the heads near it blacked out, a part
-                    // of someone (a hand held out) can pass for a whole person.
-                    let masks = if *a == Assignment::Candidate {
-                        Vec::new()
-                    } else {
-                        masks_for(
-                            own.as_ref(),
-                            others.iter().copied().filter(|h| Some(h) != own.as_ref()),
-                        )
-                    };
-                    (*a, *own, masks)
+                .map(|&i| match (&verdicts[i], heads[i].as_ref()) {
+                    (Assignment::Candidate, _) | (_, None) => Vec::new(),
+                    (_, Some(own)) => {
+                        masks_for(Some(own), others.iter().copied().filter(|h| h != own))
+                    }
                 })
                 .collect();
-            let boxes: Vec<CropBox> = verdicts
-                .iter()
-                .zip(&observations)
-                .filter(|(a, _)| **a != Assignment::Ignored)
-                .map(|(_, o)| o.region)
-                .collect();
-            let masks: Vec<Vec<CropBox>> = sought.iter().map(|(_, _, m)| m.clone()).collect();
+            let boxes: Vec<CropBox> = looked.iter().map(|&i| observations[i].region).collect();
             // Look at each box; while the landmarks found give a box unlike the one
-            // looked at (a detector box is a rough guess), look again there.
+            // looked at (a detector box is a rough guess), look again there (a
+            // candidate is looked at once).
             let mut current: Vec<Option<Look>> = self
                 .look_all(frame, &boxes, &masks)?
                 .into_iter()
@@ -929,11 +946,11 @@ impl ImageDetector {
                 let again: Vec<(usize, CropBox)> = current
                     .iter()
                     .enumerate()
-                    .filter(|(i, _)| sought[*i].0 != Assignment::Candidate)
-                    .filter_map(|(i, l)| {
+                    .filter(|(n, _)| verdicts[looked[*n]] != Assignment::Candidate)
+                    .filter_map(|(n, l)| {
                         let l = l.as_ref()?;
                         let next = l.person(self.threshold)?;
-                        (iou(&next, &l.crop) < SETTLED_IOU).then_some((i, next))
+                        (iou(&next, &l.crop) < SETTLED_IOU).then_some((n, next))
                     })
                     .collect();
                 if again.is_empty() {
@@ -941,41 +958,37 @@ impl ImageDetector {
                 }
                 let (index, next): (Vec<usize>, Vec<CropBox>) = again.into_iter().unzip();
                 let again_masks: Vec<Vec<CropBox>> =
-                    index.iter().map(|&i| masks[i].clone()).collect();
-                for (i, l) in index
+                    index.iter().map(|&n| masks[n].clone()).collect();
+                for (n, l) in index
                     .into_iter()
                     .zip(self.look_all(frame, &next, &again_masks)?)
                 {
                     if l.person(self.threshold).is_some() {
-                        current[i] = Some(l);
+                        current[n] = Some(l);
                     }
                 }
             }
-            // A candidate is looked at once: confirmed, or not a person.
-            for ((what, head, _), l) in sought.iter().zip(current.iter_mut()) {
-                if *what == Assignment::Candidate
-                    && !l
-                        .as_ref()
-                        .is_some_and(|l| confirms(head.as_ref(), l, kept.iter().map(|(_, k)| k)))
-                {
-                    *l = None;
-                }
-            }
-            // People found again first (they keep their places), then newcomers.
-            let mut found: Vec<(Assignment, Option<CropBox>, Look)> = sought
-                .into_iter()
+            // People found again first (they keep their places), then newcomers, best
+            // first (confident ones before candidates).
+            let mut found: Vec<(usize, Look)> = looked
+                .iter()
                 .zip(current)
-                .filter_map(|((a, head, _), l)| Some((a, head, l?)))
+                .filter_map(|(&i, l)| Some((i, l?)))
                 .collect();
-            found.sort_by_key(|(a, _, _)| !matches!(a, Assignment::Track(_)));
-            for (a, _, l) in found {
-                if kept.iter().any(|(_, o)| same_person(o, &l)) {
+            found.sort_by_key(|(i, _)| !matches!(verdicts[*i], Assignment::Track(_)));
+            for (i, l) in found {
+                // A candidate is confirmed against everyone now present, those just
+                // found included.
+                if kept.iter().any(|(_, o)| same_person(o, &l))
+                    || (verdicts[i] == Assignment::Candidate
+                        && !confirms(heads[i].as_ref(), &l, kept.iter().map(|(_, k)| k)))
+                {
                     continue;
                 }
                 let Some(next) = l.person(self.threshold) else {
                     continue;
                 };
-                let id = match a {
+                let id = match verdicts[i] {
                     Assignment::Track(id) => {
                         self.tracker.seen(id, next);
                         id
@@ -990,17 +1003,24 @@ impl ImageDetector {
         }
         let reported = self.tracker.end();
         // Heads where they were seen this frame; a person lost keeps theirs until their
-        // track ends (masked in the others' looks, and a head jumping there is theirs).
+        // track ends (a head jumping there is theirs; blacked out for a few frames).
         for (id, l) in &kept {
             if let Some(face) = l.face {
-                match self.heads.iter_mut().find(|(k, _)| k == id) {
-                    Some(h) => h.1 = face,
-                    None => self.heads.push((*id, face)),
+                match self.heads.iter_mut().find(|h| h.id == *id) {
+                    Some(h) => {
+                        h.region = face;
+                        h.seen = now;
+                    }
+                    None => self.heads.push(Head {
+                        id: *id,
+                        region: face,
+                        seen: now,
+                    }),
                 }
             }
         }
         let tracker = &self.tracker;
-        self.heads.retain(|(id, _)| tracker.is_live(*id));
+        self.heads.retain(|h| tracker.is_live(h.id));
         // 3. The heat maps of the people reported.
         self.found_len = 0;
         for (id, _) in &reported {
@@ -1108,7 +1128,7 @@ mod tests {
         let near = square(130.0, 120.0, 50.0);
         let far = square(500.0, 100.0, 50.0);
         assert_eq!(masks_for(Some(&own), [near, far].into_iter()), vec![far]);
-        assert_eq!(masks_for(None, [near, far].into_iter()), vec![near, far]);
+        assert!(masks_for(None, [near, far].into_iter()).is_empty());
     }
 
     #[test]

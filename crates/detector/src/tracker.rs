@@ -138,13 +138,15 @@ pub enum Assignment {
     Track(u32),
     /// A new person: [`Tracker::born`] starts the track once it is confirmed there.
     Birth,
-    /// A low score on nobody: a new person only if a second opinion (the landmark
-    /// model's pose flag) finds one there; then [`Tracker::born`] starts the track.
+    /// A low score on nobody: a new person only if a second opinion finds one there
+    /// (the image detector's landmark model: a face where the person detector saw one,
+    /// on nobody's body); then [`Tracker::born`] starts the track.
     /// ByteTrack never starts a track from a low score, having no second opinion
     /// ([`Tracker::frame_of_boxes`] does not either): here the track must still be
     /// followed by its landmarks for `birth_frames` frames before it is reported.
     Candidate,
-    /// A person already seen this frame, a low score with no track to match, or no room.
+    /// A person already seen this frame, a low score on someone seen this frame, or no
+    /// room.
     Ignored,
 }
 

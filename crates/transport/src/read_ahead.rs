@@ -1,8 +1,11 @@
 //! A [`Source`] read ahead on its own thread: a file's next frames are read and decoded
 //! while the caller works on the current one (a folder of PNGs costs ~25 ms a
-//! 2000 x 720 image to decode, as much as a landmark run). At most `depth` results wait,
-//! so a slow caller bounds the work done ahead; the thread ends with the source (closed,
-//! or an error it cannot go on from) or when the reader is dropped.
+//! 2000 x 720 image to decode, as much as a landmark run). At most `depth` results wait
+//! (and one more in the thread's hands), so a slow caller bounds the work done ahead;
+//! the thread ends with the source (closed, or an error it cannot go on from) or when
+//! the reader is dropped. Dropping the reader waits for the thread a moment (its
+//! source's current call) and then leaves it: a source stuck in a read (a stalled
+//! `ffmpeg` pipe) must not hang the service's shutdown.
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -21,7 +24,12 @@ pub struct ReadAhead<M> {
     results: Option<Receiver<Result<Received<M>, TransportError>>>,
     stop: Arc<AtomicBool>,
     thread: Option<JoinHandle<()>>,
+    /// Disconnected when the thread ends.
+    ended: Receiver<()>,
 }
+
+/// How long dropping the reader waits for its thread.
+const JOIN_WAIT: Duration = Duration::from_secs(2);
 
 impl<M: Send + 'static> ReadAhead<M> {
     /// Reads `source` on a thread named `name`, keeping up to `depth` (at least 1)
@@ -34,9 +42,14 @@ impl<M: Send + 'static> ReadAhead<M> {
         let (tx, rx) = sync_channel(depth.max(1));
         let stop = Arc::new(AtomicBool::new(false));
         let stopped = stop.clone();
+        let (ending, ended) = std::sync::mpsc::channel::<()>();
         let thread = std::thread::Builder::new()
             .name(name.into())
-            .spawn(move || read(&mut *source, &tx, &stopped))
+            .spawn(move || {
+                read(&mut *source, &tx, &stopped);
+                drop(source);
+                drop(ending);
+            })
             .map_err(|e| TransportError::Setup {
                 transport: "read-ahead",
                 what: name.into(),
@@ -46,6 +59,7 @@ impl<M: Send + 'static> ReadAhead<M> {
             results: Some(rx),
             stop,
             thread: Some(thread),
+            ended,
         })
     }
 }
@@ -106,10 +120,18 @@ impl<M> Drop for ReadAhead<M> {
         // The reader gone, the thread ends after its source's current call.
         self.stop.store(true, Ordering::Relaxed);
         self.results = None;
-        if let Some(thread) = self.thread.take()
-            && thread.join().is_err()
-        {
-            tracing::warn!("a read-ahead thread panicked");
+        let Some(thread) = self.thread.take() else {
+            return;
+        };
+        match self.ended.recv_timeout(JOIN_WAIT) {
+            Err(RecvTimeoutError::Timeout) => tracing::warn!(
+                "a read-ahead thread is still in its source's read after {JOIN_WAIT:?}: left"
+            ),
+            _ => {
+                if thread.join().is_err() {
+                    tracing::warn!("a read-ahead thread panicked");
+                }
+            }
         }
     }
 }
@@ -189,6 +211,24 @@ mod tests {
         let mut ahead = ReadAhead::new(Box::new(source), 1, "test").expect("thread");
         let got = drain(&mut ahead);
         assert!(got.last().is_some_and(|e| e.contains("gone")), "{got:?}");
+    }
+
+    /// A source whose read never returns (a stalled pipe).
+    struct Stuck;
+
+    impl Source<u32> for Stuck {
+        fn recv(&mut self, _: Duration) -> Result<Received<u32>, TransportError> {
+            std::thread::sleep(Duration::from_secs(3600));
+            Ok(Received::Idle)
+        }
+    }
+
+    #[test]
+    fn dropping_the_reader_of_a_stuck_source_does_not_hang() {
+        let ahead = ReadAhead::new(Box::new(Stuck), 1, "stuck").expect("thread");
+        let began = std::time::Instant::now();
+        drop(ahead);
+        assert!(began.elapsed() < JOIN_WAIT + Duration::from_secs(2));
     }
 
     #[test]

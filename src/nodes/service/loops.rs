@@ -293,7 +293,6 @@ pub fn run_pipeline(
         stats,
         rate,
         camera,
-        calibration,
         clock,
     } = input;
     let mut outputs = outputs.with_clock(clock.clone());
@@ -310,9 +309,10 @@ pub fn run_pipeline(
         );
     }
     let mut detector = DetectorSide::spawn(source, heatmaps, rate, stop)?;
-    // The estimator reads the assumed calibration, or a real camera's own (recorded as
-    // it is read, so that a replay of the recording is in metres too).
-    let calibration = calibration.map(|source| {
+    // The estimator reads the calibration of the images (assumed, or a recording's), or
+    // a live camera's own topic (recorded as it is read, so that a replay of the
+    // recording is in metres too).
+    let calibration = wiring.camera_calibration(config)?.map(|source| {
         let sink = wiring.recorder.as_ref().map(|r| {
             Box::new(r.sink::<CameraInfo>(&config.topics.camera_info)) as Box<dyn Sink<CameraInfo>>
         });

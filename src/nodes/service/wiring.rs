@@ -555,10 +555,6 @@ pub struct DetectorInput {
     /// The calibration assumed for images from files (`detector.images.field_of_view`),
     /// for the outputs ([`Wiring::camera_outputs`]) and an estimator in the process.
     pub camera: Option<CameraTap>,
-    /// A real camera's own calibration, for an estimator in the process: the `ros2`
-    /// source's `topics.camera_info` topic, the `image-recording` source's channel of
-    /// that name (none there: dictionary units).
-    pub calibration: Option<Box<dyn Source<CameraInfo>>>,
     /// When each image came in (image sources), for the latency to its skeletons.
     pub clock: Option<FrameClock>,
 }
@@ -583,7 +579,6 @@ pub fn detector_input(
             stats: None,
             rate: config.detector.rate,
             camera: None,
-            calibration: None,
             clock: None,
         });
     }
@@ -592,21 +587,6 @@ pub fn detector_input(
     let detector = ImageDetector::load(&config.detector.images, &dictionary.skeleton().joints)
         .map_err(SetupError::Detector)?;
     let frames = image_frames(config, middleware.ros.as_mut())?;
-    let camera_topic = &config.topics.camera_info;
-    let calibration: Option<Box<dyn Source<CameraInfo>>> = match config.detector.source {
-        DetectorSource::Ros2 => match middleware.ros.as_mut() {
-            Some(ros) => Some(Box::new(ros.source::<CameraInfo>(camera_topic)?)),
-            None => None,
-        },
-        DetectorSource::ImageRecording => {
-            Some(Box::new(McapSource::<CameraInfo>::open_with_limit(
-                &config.detector.images.path,
-                camera_topic,
-                config.limits.max_record_bytes,
-            )?))
-        }
-        _ => None,
-    };
     let encoding = config.detector.images.encoding.message_encoding();
     let mut source = ImageHeatMaps::new(frames, detector, encoding);
     // Files carry no calibration: a camera is assumed (a real one has its own).
@@ -615,9 +595,20 @@ pub fn detector_input(
         config.detector.source,
         DetectorSource::Images | DetectorSource::Video
     );
-    let camera = (from_files && fov > 0.0).then(CameraTap::default);
+    let mut camera = (from_files && fov > 0.0).then(CameraTap::default);
     if let Some(tap) = &camera {
         source = source.with_assumed_camera(fov, tap.clone());
+    }
+    // A recording of a camera: its own calibration channel, read beside the images.
+    if config.detector.source == DetectorSource::ImageRecording {
+        let tap = CameraTap::default();
+        let recorded = McapSource::<CameraInfo>::open_with_limit(
+            &config.detector.images.path,
+            &config.topics.camera_info,
+            config.limits.max_record_bytes,
+        )?;
+        source = source.with_recorded_camera(Box::new(recorded), tap.clone());
+        camera = Some(tap);
     }
     let clock = FrameClock::default();
     let source = source.with_clock(clock.clone());
@@ -626,7 +617,6 @@ pub fn detector_input(
         source: Box::new(source),
         rate: ReplayRate::Fast,
         camera,
-        calibration,
         clock: Some(clock),
     })
 }
@@ -709,6 +699,21 @@ impl Wiring {
         config: &ServiceConfig,
     ) -> Result<DetectorInput, ServiceError> {
         detector_input(config, &mut self.middleware)
+    }
+
+    /// A live camera's own calibration (the `ros2` source's `topics.camera_info`), for
+    /// an estimator in the process; `None` for other sources.
+    pub fn camera_calibration(
+        &mut self,
+        config: &ServiceConfig,
+    ) -> Result<Option<Box<dyn Source<CameraInfo>>>, ServiceError> {
+        if config.detector.source != DetectorSource::Ros2 {
+            return Ok(None);
+        }
+        let ros = self.middleware.ros()?;
+        Ok(Some(Box::new(
+            ros.source::<CameraInfo>(&config.topics.camera_info)?,
+        )))
     }
 
     /// The configured publishers of the camera's calibration (`topics.camera_info`: ROS 2
