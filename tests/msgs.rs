@@ -1,5 +1,7 @@
 //! The messages: `.msg` text and Rust types agree, CDR round trips, bad bytes are errors.
 
+mod common;
+
 use posestream::CropBox;
 use posestream::msgs::{
     self, CDR_LE_HEADER, Header, HeatMapEncoding, HeatMaps, RosMessage, Skeleton3D, Time,
@@ -175,4 +177,41 @@ fn malformed_bytes_are_errors_not_panics() {
     assert!(wrong.values_into(&mut Vec::new()).is_err());
     wrong.crop_width = -1.0;
     assert!(wrong.crop().is_err());
+}
+
+#[test]
+fn markers_decode_alike_with_humble_and_jazzy_definitions() {
+    // Humble's visualization_msgs (4.2) already has Marker's texture, uv_coordinates
+    // and mesh_file fields (ros2/common_interfaces "Marker Textures", 2021-08, before
+    // Humble branched); Jazzy only adds the ARROW_STRIP constant. So one layout serves
+    // Humble to Kilted; Foxy and Galactic (end of life) lack those fields and misread.
+    use posestream::msgs::{MarkerArray, SkeletonState};
+    let s = Skeleton3D {
+        track_id: 7,
+        lag: 10,
+        state: SkeletonState::Tracking as u8,
+        positions: vec![0.0, 0.0, 3.0, 0.1, 0.5, 3.0, 0.2, 1.0, 3.1],
+        ..Skeleton3D::default()
+    };
+    let markers: MarkerArray = posestream::nodes::markers::skeleton_markers(&s, &[(0, 1), (1, 2)]);
+    assert!(markers.markers.len() >= 3);
+    let ours: Vec<serde_json::Value> = markers
+        .markers
+        .iter()
+        .map(|m| serde_json::json!([m.ns, m.id, m.r#type, m.points.len(), m.text]))
+        .collect();
+    let dir = tempfile::tempdir().expect("dir");
+    let file = dir.path().join("markers.cdr");
+    std::fs::write(&file, msgs::encode(&markers).expect("encode")).expect("write");
+    let decoded = common::python_client("marker_distros.py", &[file.to_str().expect("utf-8")]);
+    for distro in ["ros2_humble", "ros2_iron", "ros2_jazzy", "ros2_kilted"] {
+        assert_eq!(
+            decoded[distro],
+            serde_json::Value::from(ours.clone()),
+            "{distro}"
+        );
+    }
+    for old in ["ros2_foxy", "ros2_galactic"] {
+        assert_ne!(decoded[old], serde_json::Value::from(ours.clone()), "{old}");
+    }
 }
