@@ -716,3 +716,60 @@ fn a_setup_that_fails_after_the_recording_started_leaves_no_file() {
         .collect();
     assert!(left.is_empty(), "files left behind: {left:?}");
 }
+
+#[test]
+fn a_detector_waits_for_its_estimator_so_no_frame_is_lost_over_ros2() {
+    // `posestream detector` and `posestream estimator`, two processes on ROS 2, the
+    // estimator started 0.8 s after the detector. Found: the detector published from
+    // its first frame on, before anyone subscribed, and the first frames were lost.
+    // With `[ros] wait_for_subscribers` it waits for the estimator to be discovered;
+    // without (0), the beginning is lost.
+    let dir = tempfile::tempdir().expect("tempdir");
+    let domain = (std::process::id() % 80) as u16 + 140;
+    let mut frames = Vec::new();
+    for wait in [10.0, 0.0] {
+        let common = format!(
+            "[ros]\nlocalhost_only = true\ndomain_id = {domain}\nwait_for_subscribers = {wait:.1}\n"
+        );
+        let det = config_file(
+            dir.path(),
+            "detector.toml",
+            &format!("{common}[outputs]\nros2 = true\nmarkers = false\narrays = false\n"),
+        );
+        let est = config_file(
+            dir.path(),
+            "estimator.toml",
+            &format!(
+                "{common}[outputs]\nros2 = false\nmarkers = false\narrays = false\nrecord = {:?}\n\
+                 [estimator]\ninput = \"ros2\"\n",
+                s(&dir.path().join(format!("wait-{wait}.mcap")))
+            ),
+        );
+        let detector = spawn(&[
+            "detector",
+            "--config",
+            s(&det),
+            "--recording",
+            "recordings/byebye.mcap",
+            "--rate",
+            "recorded",
+            "--json",
+        ]);
+        std::thread::sleep(Duration::from_millis(800));
+        let estimator = spawn(&["estimator", "--config", s(&est), "--json"]);
+        let detector = detector.wait_with_output().expect("detector");
+        assert!(detector.status.success());
+        assert_eq!(json_of(&detector)["published"], 121);
+        // The last frames arrive, then Ctrl-C stops the estimator.
+        std::thread::sleep(Duration::from_millis(1500));
+        signal(&estimator, "-INT");
+        let estimator = estimator.wait_with_output().expect("estimator");
+        assert!(estimator.status.success());
+        frames.push(json_of(&estimator)["frames"].as_u64().expect("frames"));
+    }
+    assert_eq!(frames[0], 121, "waited: every frame arrives ({frames:?})");
+    assert!(
+        frames[1] < 121,
+        "not waited: the beginning is lost ({frames:?})"
+    );
+}

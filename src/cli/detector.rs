@@ -1,6 +1,7 @@
 //! `posestream detector`: the detector node as a service.
 
 use std::path::PathBuf;
+use std::time::Duration;
 
 use clap::Args;
 use posestream::nodes::ServiceConfig;
@@ -50,6 +51,17 @@ pub fn run(args: &DetectorArgs) -> Result<(), CliError> {
     // recording of a camera: its own).
     if let Some(tap) = &camera {
         tap.publish_to(wiring.camera_outputs(&config)?);
+    }
+    // No lost beginning: the first frames wait (a while) for a subscriber to match.
+    if config.outputs.ros2
+        && config.ros.wait_for_subscribers > 0.0
+        && let Some(ros) = wiring.middleware.ros.as_ref()
+    {
+        let topic = &config.topics.heatmaps;
+        let wait = Duration::from_secs_f64(config.ros.wait_for_subscribers);
+        if !ros.wait_for_subscriptions(topic, wait) {
+            tracing::info!("no subscriber of {topic} after {wait:?}: publishing anyway");
+        }
     }
     // The source and the sinks are dropped in the loop: before the middleware under them.
     let mut report = run_detector_on_runtime(source, sinks, rate, &stop)?;

@@ -25,9 +25,12 @@ use serde::{Deserialize, Serialize};
 
 use super::runtime::AsyncSource;
 use super::{Message, Received, Sink, Source, TransportError};
-use posestream_math::error::{OutOfDomain, check_range};
+use posestream_math::error::{OutOfDomain, check_range, check_real};
 
 const TRANSPORT: &str = "ros2";
+
+/// After a subscription is discovered, how long until both ends have matched.
+const MATCH_SETTLE: Duration = Duration::from_millis(500);
 
 /// How long a publish waits for room in a full reliable history before it fails.
 const FULL_WAIT: Duration = Duration::from_millis(100);
@@ -45,6 +48,10 @@ pub struct RosSettings {
     pub node_name: String,
     /// Node namespace (absolute).
     pub namespace: String,
+    /// Seconds the detector node waits, before its first frame, for a subscriber of its
+    /// heat maps (an estimator) to be discovered, so that the first frames are not
+    /// published to nobody; 0: no wait.
+    pub wait_for_subscribers: f64,
     /// Quality of service of every topic.
     pub qos: QosSettings,
 }
@@ -56,6 +63,7 @@ impl Default for RosSettings {
             localhost_only: false,
             node_name: "posestream".into(),
             namespace: "/".into(),
+            wait_for_subscribers: 2.0,
             qos: QosSettings::default(),
         }
     }
@@ -110,6 +118,13 @@ impl RosSettings {
         // DDS maps domain ids to UDP ports: 232 is the largest that fits (ROS 2's range).
         check_range("domain_id", self.domain_id, 0, 232)?;
         check_range("qos.depth", self.qos.depth, 1, 10_000)?;
+        check_real(
+            "wait_for_subscribers",
+            self.wait_for_subscribers,
+            0.0,
+            3600.0,
+            false,
+        )?;
         if !is_ros_token(&self.node_name) {
             return Err(OutOfDomain::new(
                 "node_name",
@@ -261,6 +276,21 @@ impl Ros2 {
     /// process included).
     pub fn subscriptions(&self, topic: &str) -> usize {
         self.node.subscription_count(topic)
+    }
+
+    /// Waits up to `timeout` for DDS discovery to see a subscription to `topic`, then
+    /// `MATCH_SETTLE` for both ends to finish matching (the reader must also have
+    /// matched this writer before it takes samples). Whether one was seen.
+    pub fn wait_for_subscriptions(&self, topic: &str, timeout: Duration) -> bool {
+        let deadline = std::time::Instant::now() + timeout;
+        while self.subscriptions(topic) == 0 {
+            if std::time::Instant::now() >= deadline {
+                return false;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        std::thread::sleep(MATCH_SETTLE);
+        true
     }
 
     /// Publishers on `topic` that DDS discovery has seen so far.
