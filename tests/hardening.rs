@@ -702,6 +702,14 @@ fn configuration_values_outside_their_domain_are_one_error_naming_the_key() {
             "[detector.images]\nsearch_tiles = 1000000\n",
             "detector.images.search_tiles",
         ),
+        (
+            "[ros]\nwait_for_subscribers = -1.0\n",
+            "ros.wait_for_subscribers",
+        ),
+        (
+            "[ros]\nwait_for_subscribers = nan\n",
+            "ros.wait_for_subscribers",
+        ),
         ("[limits]\nmax_map_size = 0\n", "limits.max_map_size"),
         ("[limits]\nmax_joints = 100000\n", "limits.max_joints"),
         (
