@@ -837,3 +837,95 @@ fn camera_images_on_a_ros2_topic_become_heat_maps() {
     }
     drop((sink, camera, source, middleware));
 }
+
+#[test]
+fn run_on_a_ros2_camera_reads_its_calibration_topic_and_records_it() {
+    // A camera node publishes its CameraInfo and images; `run` (detector and estimator
+    // in one process) takes the calibration from the camera_info topic: skeletons in
+    // metres, and the calibration in the recording (found missing: `run` left a live
+    // camera's skeletons in dictionary units).
+    use posestream::msgs::sensor::CameraInfo;
+    use posestream::nodes::ServiceConfig;
+    use posestream::nodes::config::DetectorSource;
+    use posestream::transport::ros2::Ros2;
+    use std::sync::atomic::{AtomicBool, Ordering};
+
+    static STOP: AtomicBool = AtomicBool::new(false);
+    let f = fixtures();
+    let root = common::root();
+    let dir = tempfile::tempdir().expect("dir");
+    let out = dir.path().join("run.mcap");
+    let mut c = ServiceConfig::load(root.join("config/default.toml")).expect("config");
+    c.estimator.dictionary = root.join(&c.estimator.dictionary);
+    c.detector.images.mapping = root.join(&c.detector.images.mapping);
+    c.detector.images.models_dir = f.models.clone();
+    c.detector.source = DetectorSource::Ros2;
+    c.outputs.ros2 = false;
+    c.outputs.record = out.clone();
+    c.ros.localhost_only = true;
+    c.ros.domain_id = (std::process::id() % 90) as u16 + 30;
+    let config = c.clone();
+    let running = common::spawn("run", move || {
+        posestream::nodes::service::run_pipeline(&config, &STOP).expect("runs")
+    });
+    let mut camera_settings = c.ros.clone();
+    camera_settings.node_name = "camera".into();
+    let mut camera = Ros2::new(&camera_settings).expect("camera node");
+    let (images_topic, info_topic) = (
+        c.detector.images.topic.clone(),
+        c.topics.camera_info.clone(),
+    );
+    let mut images = camera.sink::<Image>(&images_topic).expect("publisher");
+    let mut infos = camera.sink::<CameraInfo>(&info_topic).expect("publisher");
+    let start = std::time::Instant::now();
+    while camera.subscriptions(&images_topic) == 0 || camera.subscriptions(&info_topic) == 0 {
+        assert!(
+            start.elapsed() < Duration::from_secs(30),
+            "no run discovered"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    std::thread::sleep(Duration::from_millis(500));
+    let rgb = image::open(f.images.join("astronaut.png"))
+        .expect("decodes")
+        .thumbnail(320, 320)
+        .to_rgb8();
+    let (w, h) = rgb.dimensions();
+    let k = [400.0, 0.0, 160.0, 0.0, 400.0, 160.0, 0.0, 0.0, 1.0];
+    for i in 0..5_i64 {
+        let header = Header {
+            stamp: Time::from_nanos(1_000_000_000 + i * 100_000_000),
+            frame_id: "camera_optical".into(),
+        };
+        let info = CameraInfo {
+            header: header.clone(),
+            width: w,
+            height: h,
+            k,
+            ..Default::default()
+        };
+        infos.send(&info, 0).expect("publish");
+        std::thread::sleep(Duration::from_millis(200));
+        let msg = Image {
+            header,
+            height: h,
+            width: w,
+            encoding: "rgb8".into(),
+            is_bigendian: 0,
+            step: 3 * w,
+            data: rgb.as_raw().clone(),
+        };
+        images.send(&msg, 0).expect("publish");
+    }
+    std::thread::sleep(Duration::from_secs(3));
+    STOP.store(true, Ordering::Relaxed);
+    let report = running.join().expect("run");
+    drop((images, infos, camera));
+    assert!(report.estimator.frames >= 4, "{:?}", report.estimator);
+    let skeletons = read_all::<Skeleton3D>(&out, "/posestream/skeletons");
+    assert!(!skeletons.is_empty());
+    let metres = posestream::msgs::Units::Metres as u8;
+    assert!(skeletons.iter().all(|k| k.units == metres));
+    let recorded = read_all::<CameraInfo>(&out, &c.topics.camera_info);
+    assert!(!recorded.is_empty() && recorded.iter().all(|r| r.k == k));
+}
