@@ -552,8 +552,13 @@ fn a_recorded_camera_s_own_calibration_puts_run_s_skeletons_in_metres() {
         k: [600.0, 0.0, 250.0, 0.0, 600.0, 260.0, 0.0, 0.0, 1.0],
         ..Default::default()
     };
-    for with_info in [true, false] {
-        let cameras = dir.path().join(format!("camera-{with_info}.mcap"));
+    // The images' calibration; none; one of images twice as large (skipped, said).
+    for (case, sent, with_info) in [
+        ("same", true, true),
+        ("none", false, false),
+        ("other", true, false),
+    ] {
+        let cameras = dir.path().join(format!("camera-{case}.mcap"));
         let recorder = SharedRecorder::create(&cameras).expect("recorder");
         let mut images = recorder.sink::<Image>("/camera/image_raw");
         let mut infos =
@@ -563,9 +568,12 @@ fn a_recorded_camera_s_own_calibration_puts_run_s_skeletons_in_metres() {
                 stamp: Time::from_nanos(i * 33_000_000),
                 frame_id: "camera_optical".into(),
             };
-            if with_info {
+            if sent {
                 let mut info = info.clone();
                 info.header = header.clone();
+                if case == "other" {
+                    (info.width, info.height) = (2 * w, 2 * h);
+                }
                 infos.send(&info, i as u64).expect("send");
             }
             let msg = Image {
@@ -590,7 +598,7 @@ fn a_recorded_camera_s_own_calibration_puts_run_s_skeletons_in_metres() {
             ),
         )
         .expect("config");
-        let out = dir.path().join(format!("run-{with_info}.mcap"));
+        let out = dir.path().join(format!("run-{case}.mcap"));
         let report = posestream(&[
             "run",
             "--config",
@@ -606,7 +614,7 @@ fn a_recorded_camera_s_own_calibration_puts_run_s_skeletons_in_metres() {
         let metres = posestream::msgs::Units::Metres as u8;
         assert!(
             skeletons.iter().all(|k| (k.units == metres) == with_info),
-            "with the camera's calibration: {with_info}"
+            "{case}: with the camera's calibration: {with_info}"
         );
         let recorded =
             read_all::<posestream::msgs::sensor::CameraInfo>(&out, "/camera/camera_info");

@@ -678,4 +678,24 @@ fn eval_ends_with_every_person_of_the_scenes() {
     );
     assert!(began.elapsed() < std::time::Duration::from_secs(20));
     assert!(!dir.path().join("never.md").exists());
+    // A take cut short: read before the tables too.
+    let takes = dir.path().join("takes");
+    std::fs::create_dir(&takes).expect("dir");
+    for take in ["kick", "byebye", "punch"] {
+        let name = format!("dataset-1_{take}_normal_001.bvh");
+        let bytes = std::fs::read(mocap.join("bandai-namco-1").join(&name)).expect("take");
+        let keep = if take == "byebye" { 3000 } else { bytes.len() };
+        std::fs::write(takes.join(&name), &bytes[..keep]).expect("write");
+    }
+    let out = Command::new(env!("CARGO_BIN_EXE_posestream"))
+        .current_dir(root())
+        .args(["eval", "--scenes-data"])
+        .arg(&takes)
+        .arg("--out")
+        .arg(dir.path().join("never.md"))
+        .output()
+        .expect("runs");
+    let said = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && said.contains("byebye"), "{said}");
+    assert!(!dir.path().join("never.md").exists());
 }

@@ -60,7 +60,7 @@ pub fn run(args: &DetectorArgs) -> Result<(), CliError> {
         let topic = &config.topics.heatmaps;
         let wait = Duration::from_secs_f64(config.ros.wait_for_subscribers);
         if !ros.wait_for_subscriptions(topic, wait) {
-            tracing::info!("no subscriber of {topic} after {wait:?}: publishing anyway");
+            tracing::warn!("no subscriber of {topic} after {wait:?}: publishing anyway");
         }
     }
     // The source and the sinks are dropped in the loop: before the middleware under them.

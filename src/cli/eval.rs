@@ -139,11 +139,20 @@ pub fn run(args: &EvalArgs) -> Result<(), CliError> {
         .into_iter()
         .map(|e| e.results().clone())
         .collect();
-    let mut text = evaluation::markdown(&results, &settings);
+    let tables = evaluation::markdown(&results, &settings);
+    print!("{tables}");
+    // The tables are written before the scenes run: a failure there keeps them.
+    write_results(args, &split, &tables)?;
     if let Some(scenes) = &scenes {
-        text.push_str(&super::scenes::markdown(scenes)?);
+        let people = super::scenes::markdown(scenes)?;
+        print!("{people}");
+        write_results(args, &split, &format!("{tables}{people}"))?;
     }
-    print!("{text}");
+    Ok(())
+}
+
+/// Writes `text` under its header to `--out`, if given.
+fn write_results(args: &EvalArgs, split: &Split, text: &str) -> Result<(), CliError> {
     if let Some(path) = &args.out {
         let options: Vec<String> = std::env::args().skip(1).collect();
         let command = format!("posestream {}", options.join(" "));

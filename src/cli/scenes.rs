@@ -288,7 +288,9 @@ struct ScenesCommand {
 
 impl ScenesArgs {
     /// The defaults, with the takes in `data` and the skeleton mapping `mapping`
-    /// (`eval` runs the scenes with them); an error when a scene's take is not there.
+    /// (`eval` runs the scenes with them); an error when a scene's take is not there or
+    /// does not read, the configuration does not load or the scratch folder cannot be
+    /// made (checked before `eval`'s long tables).
     pub fn with(mapping: &Path, data: &Path) -> Result<Self, CliError> {
         let argv = [
             "scenes".into(),
@@ -309,8 +311,14 @@ impl ScenesArgs {
                         take.display()
                     )));
                 }
+                posestream::mocap::Bvh::load(&take)?;
             }
         }
+        ServiceConfig::load(&args.config)?;
+        std::fs::create_dir_all(&args.work).map_err(|source| CliError::File {
+            path: args.work.clone(),
+            source,
+        })?;
         Ok(args)
     }
 }

@@ -79,6 +79,8 @@ impl ImageHeatMaps {
             next: None,
             tap,
             done: false,
+            handed: false,
+            mismatched: 0,
         });
         self
     }
@@ -115,7 +117,7 @@ impl Source<HeatMaps> for ImageHeatMaps {
             tap.image(assumed_camera_info(&frame, *fov), stamp);
         }
         if let Some(recorded) = &mut self.recorded {
-            recorded.up_to(stamp);
+            recorded.up_to(stamp, frame.rgb.dimensions());
         }
         let header = Header {
             stamp: Time::from_nanos(i64::try_from(frame.stamp_ns).unwrap_or(i64::MAX)),
@@ -160,25 +162,44 @@ impl Source<HeatMaps> for ImageHeatMaps {
 
 /// A recording's calibration channel, read beside its images: each `CameraInfo` goes to
 /// the tap once the images reach its log time (the next one held back), so a
-/// calibration that changes applies from its own time on. A recording without that
-/// channel is read to its end once, on the first image, to find that out (dictionary
-/// units then).
+/// calibration that changes applies from its own time on; one for another image size
+/// than the image's is skipped with a warning (a calibration of other images would put
+/// every skeleton at a wrong distance). A recording without that channel is read to
+/// its end once, on the first image, to find that out, and says so (dictionary units
+/// then).
 struct RecordedCamera {
     source: Box<dyn Source<CameraInfo>>,
     next: Option<(CameraInfo, u64)>,
     tap: CameraTap,
     done: bool,
+    /// Whether a calibration went to the tap.
+    handed: bool,
+    /// Calibrations skipped for their image size.
+    mismatched: u64,
 }
 
 impl RecordedCamera {
-    /// Hands the calibrations logged up to `stamp` to the tap.
-    fn up_to(&mut self, stamp: u64) {
+    /// A warning when the recording ended without a usable calibration.
+    fn say_if_none(&self) {
+        if !self.handed {
+            tracing::warn!(
+                "no usable camera calibration in the recording (topics.camera_info): \
+                 skeletons in dictionary units"
+            );
+        }
+    }
+
+    /// Hands the calibrations logged up to `stamp` for images of `size` to the tap.
+    fn up_to(&mut self, stamp: u64, size: (u32, u32)) {
         loop {
             if self.next.is_none() && !self.done {
                 match self.source.recv(Duration::ZERO) {
                     Ok(Received::Message(info, at)) => self.next = Some((info, at)),
                     Ok(Received::Idle) => return,
-                    Ok(Received::Closed) => self.done = true,
+                    Ok(Received::Closed) => {
+                        self.done = true;
+                        self.say_if_none();
+                    }
                     Err(
                         e
                         @ (TransportError::Malformed { .. } | TransportError::BeyondLimits { .. }),
@@ -186,12 +207,30 @@ impl RecordedCamera {
                     Err(e) => {
                         tracing::info!("{e}: no (more) calibration from the recording");
                         self.done = true;
+                        self.say_if_none();
                     }
                 }
                 continue;
             }
             match self.next.take() {
-                Some((info, at)) if at <= stamp => self.tap.image(info, at),
+                Some((info, at)) if at <= stamp => {
+                    if (info.width, info.height) == size {
+                        self.tap.image(info, at);
+                        self.handed = true;
+                    } else {
+                        self.mismatched += 1;
+                        if self.mismatched == 1 {
+                            tracing::warn!(
+                                "a camera calibration for {} x {} images, the images are {} x {}: \
+                                 skipped (and any more like it)",
+                                info.width,
+                                info.height,
+                                size.0,
+                                size.1
+                            );
+                        }
+                    }
+                }
                 later => {
                     self.next = later;
                     return;
