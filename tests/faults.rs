@@ -33,6 +33,21 @@ fn spawn(args: &[&str]) -> Child {
         .expect("starts")
 }
 
+/// Starts `posestream detector` with `config`, replaying the shipped byebye recording at
+/// its recorded pace, its report as JSON.
+fn spawn_detector(config: &Path) -> Child {
+    spawn(&[
+        "detector",
+        "--config",
+        s(config),
+        "--recording",
+        "recordings/byebye.mcap",
+        "--rate",
+        "recorded",
+        "--json",
+    ])
+}
+
 fn signal(child: &Child, sig: &str) {
     let ok = Command::new("kill")
         .args([sig, &child.id().to_string()])
@@ -242,16 +257,7 @@ fn a_killed_estimator_restarts_on_a_clean_track_and_iceoryx2_reclaims_its_resour
     );
     let first_estimator = spawn(&["estimator", "--config", s(&c1), "--json"]);
     std::thread::sleep(Duration::from_millis(500));
-    let detector = spawn(&[
-        "detector",
-        "--config",
-        s(&detector_config),
-        "--recording",
-        "recordings/byebye.mcap",
-        "--rate",
-        "recorded",
-        "--json",
-    ]);
+    let detector = spawn_detector(&detector_config);
     std::thread::sleep(Duration::from_millis(1500));
     signal(&first_estimator, "-KILL");
     let killed = first_estimator.wait_with_output().expect("waits");
@@ -371,23 +377,13 @@ fn the_estimator_ends_the_track_when_its_detector_goes_away_and_takes_the_next_o
     let det = ros2_config(dir.path(), "detector.toml", domain, None);
     let estimator = spawn(&["estimator", "--config", s(&est), "--json"]);
     std::thread::sleep(Duration::from_millis(1000));
-    let detector_args = [
-        "detector",
-        "--config",
-        s(&det),
-        "--recording",
-        "recordings/byebye.mcap",
-        "--rate",
-        "recorded",
-        "--json",
-    ];
-    let first = spawn(&detector_args);
+    let first = spawn_detector(&det);
     std::thread::sleep(Duration::from_millis(2500));
     signal(&first, "-KILL");
     let _ = first.wait_with_output();
     // Longer than the window's max_gap_seconds (1 s): the track ends on its own.
     std::thread::sleep(Duration::from_millis(2000));
-    let second = spawn(&detector_args).wait_with_output().expect("waits");
+    let second = spawn_detector(&det).wait_with_output().expect("waits");
     assert!(second.status.success());
     // The last frames reach the estimator, then Ctrl-C stops it.
     std::thread::sleep(Duration::from_millis(2000));
@@ -451,18 +447,7 @@ fn a_hostile_participant_cannot_stop_a_good_track_or_grow_the_estimator() {
         .stdout(Stdio::piped())
         .spawn()
         .expect("the hostile publisher starts (cyclonedds: .ci/run installs it)");
-    let detector = spawn(&[
-        "detector",
-        "--config",
-        s(&det),
-        "--recording",
-        "recordings/byebye.mcap",
-        "--rate",
-        "recorded",
-        "--json",
-    ])
-    .wait_with_output()
-    .expect("waits");
+    let detector = spawn_detector(&det).wait_with_output().expect("waits");
     assert!(detector.status.success());
     let hostile_out = {
         let status = hostile.wait().expect("waits");
@@ -745,16 +730,7 @@ fn a_detector_waits_for_its_estimator_so_no_frame_is_lost_over_ros2() {
                 s(&dir.path().join(format!("wait-{wait}.mcap")))
             ),
         );
-        let detector = spawn(&[
-            "detector",
-            "--config",
-            s(&det),
-            "--recording",
-            "recordings/byebye.mcap",
-            "--rate",
-            "recorded",
-            "--json",
-        ]);
+        let detector = spawn_detector(&det);
         std::thread::sleep(Duration::from_millis(800));
         let estimator = spawn(&["estimator", "--config", s(&est), "--json"]);
         let detector = detector.wait_with_output().expect("detector");

@@ -146,6 +146,22 @@ fn errors_of(skeletons: &[Skeleton3D], truth: &[Skeleton3D], track: u32) -> Erro
     }
 }
 
+/// `posestream`, run in the repository root.
+fn posestream() -> Command {
+    let mut command = Command::new(env!("CARGO_BIN_EXE_posestream"));
+    command.current_dir(root());
+    command
+}
+
+/// Panics with its stderr unless `out` is a success.
+fn succeeded(out: &std::process::Output) {
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
 #[test]
 fn with_the_camera_known_skeletons_are_metres_where_the_person_stands() {
     let dir = tempfile::tempdir().expect("tempdir");
@@ -582,8 +598,7 @@ fn the_scenes_command_reports_every_person_and_the_tracker_s_ids() {
     // boxes; per person the errors, per scene id switches and IDF1.
     let dir = tempfile::tempdir().expect("tempdir");
     let md = dir.path().join("people.md");
-    let out = Command::new(env!("CARGO_BIN_EXE_posestream"))
-        .current_dir(root())
+    let out = posestream()
         .args(["scenes", "--work"])
         .arg(dir.path().join("work"))
         .arg("--out")
@@ -592,11 +607,7 @@ fn the_scenes_command_reports_every_person_and_the_tracker_s_ids() {
         .arg(common::shared().join("data/mocap/bandai-namco-1"))
         .output()
         .expect("runs");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    succeeded(&out);
     let text = std::fs::read_to_string(&md).expect("markdown");
     // Every scene's people all tracked under one id each, the boxes crossing.
     assert_eq!(
@@ -636,8 +647,7 @@ fn eval_ends_with_every_person_of_the_scenes() {
     let dir = tempfile::tempdir().expect("tempdir");
     let md = dir.path().join("results.md");
     let mocap = common::shared().join("data/mocap");
-    let out = Command::new(env!("CARGO_BIN_EXE_posestream"))
-        .current_dir(root())
+    let out = posestream()
         .args(["eval", "--max-files-per-action", "1", "--max-frames", "5"])
         .args([
             "--dict",
@@ -652,11 +662,7 @@ fn eval_ends_with_every_person_of_the_scenes() {
         .arg(&md)
         .output()
         .expect("runs");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    succeeded(&out);
     let text = std::fs::read_to_string(&md).expect("markdown");
     let table = text.find("## Table 1").expect("the tables");
     let people = text.find("## People in the room").expect("the scenes");
@@ -665,8 +671,7 @@ fn eval_ends_with_every_person_of_the_scenes() {
     assert_eq!(text.matches("| person | take |").count(), 3, "{text}");
     // The scenes' takes are checked before the tables' minutes, not after.
     let began = std::time::Instant::now();
-    let out = Command::new(env!("CARGO_BIN_EXE_posestream"))
-        .current_dir(root())
+    let out = posestream()
         .args(["eval", "--scenes-data", "no/such/folder", "--out"])
         .arg(dir.path().join("never.md"))
         .output()
@@ -687,8 +692,7 @@ fn eval_ends_with_every_person_of_the_scenes() {
         let keep = if take == "byebye" { 3000 } else { bytes.len() };
         std::fs::write(takes.join(&name), &bytes[..keep]).expect("write");
     }
-    let out = Command::new(env!("CARGO_BIN_EXE_posestream"))
-        .current_dir(root())
+    let out = posestream()
         .args(["eval", "--scenes-data"])
         .arg(&takes)
         .arg("--out")
