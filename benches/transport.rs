@@ -106,8 +106,8 @@ fn node(c: &mut Criterion, on_runtime: bool) {
             .collect();
     let domain = (std::process::id() % 80) as u16 + 130 + u16::from(on_runtime);
     let mut node = EstimatorNode::from_config(&config.estimator).expect("node");
-    let mut server = Ros2::new(&settings(domain, "estimator")).expect("ros2");
-    let mut client = Ros2::new(&settings(domain, "client")).expect("ros2");
+    let server = Ros2::new(&settings(domain, "estimator")).expect("ros2");
+    let client = Ros2::new(&settings(domain, "client")).expect("ros2");
     let (maps_topic, skeletons_topic) = ("/posestream/heatmaps", "/posestream/skeletons");
     let input = server.source::<HeatMaps>(maps_topic).expect("subscription");
     let mut skeletons = Publishers::default();
@@ -204,8 +204,8 @@ fn hops(c: &mut Criterion) {
     });
 
     let domain = (std::process::id() % 90) as u16 + 120;
-    let mut publisher = Ros2::new(&settings(domain, "posestream")).expect("ros2");
-    let mut subscriber = Ros2::new(&settings(domain, "bench_sub")).expect("ros2");
+    let publisher = Ros2::new(&settings(domain, "posestream")).expect("ros2");
+    let subscriber = Ros2::new(&settings(domain, "bench_sub")).expect("ros2");
     let topic = "/posestream/skeletons";
     let mut source = subscriber
         .source::<Skeleton3D>(topic)

@@ -479,8 +479,8 @@ fn refused_frames_and_an_idle_track(on_runtime: bool) {
     let recorder = posestream::nodes::service::output_recording(&c)
         .expect("recording")
         .expect("configured");
-    let mut outputs = EstimatorOutputs::open(&c, &mut middleware, Some(&recorder), node.bones())
-        .expect("outputs");
+    let mut outputs =
+        EstimatorOutputs::open(&c, &mut middleware, Some(&recorder), &node).expect("outputs");
     let (mut sink, source) = memory::channel::<HeatMaps>(256);
     let all = frames("kick.mcap");
     let stop = AtomicBool::new(false);

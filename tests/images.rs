@@ -336,6 +336,40 @@ fn three_people_two_of_them_in_one_box_are_each_held_for_every_frame() {
         .collect();
     at.sort_by(f64::total_cmp);
     assert!(at[1] - at[0] > 250.0 && at[2] - at[1] > 250.0, "{at:?}");
+    // The same people as a ROS 2 user's tools see them (the image's assumed camera puts
+    // them in metres): /tf decoded with Humble's tf2_msgs, the body and joint frames
+    // composed back onto every newest skeleton's joints; REP-155's topics decoded with
+    // ros4hri's own definitions.
+    let hri_msgs = common::root().join("msgs/hri_msgs/msg");
+    let bodies = common::python_client("body_frames.py", &[s(&out), s(&hri_msgs)]);
+    // 180 newest estimates, and each track's last ones at its end.
+    let newest = bodies["skeletons"].as_u64().expect("skeletons");
+    assert!(newest >= 180, "{bodies}");
+    assert_eq!(bodies["without_frames"], 0, "{bodies}");
+    assert_eq!(bodies["joints_checked"], newest * 17, "{bodies}");
+    let error = bodies["max_error_m"].as_f64().expect("error");
+    assert!(error <= 1e-3, "composed frames miss a joint by {error} m");
+    assert_eq!(bodies["parents"], serde_json::json!(["camera"]), "{bodies}");
+    // Each image lists its three bodies; the end, none (their tracks ended).
+    let tracked = bodies["tracked"].as_array().expect("tracked");
+    let ids: Vec<String> = centres.keys().map(|id| format!("b{id}")).collect();
+    let full = tracked
+        .iter()
+        .filter(|t| **t == serde_json::json!(ids))
+        .count();
+    assert_eq!(full, 60, "{bodies}");
+    assert_eq!(tracked.last(), Some(&serde_json::json!([])), "{bodies}");
+    for id in &ids {
+        assert_eq!(bodies["roi"][id], 60, "{id}: {bodies}");
+        assert_eq!(bodies["skeleton2d"][id], 60, "{id}: {bodies}");
+    }
+    // Nose, eyes and ears are not among the dictionary's joints.
+    assert_eq!(
+        bodies["unobserved_keypoints"],
+        serde_json::json!([0, 14, 15, 16, 17]),
+        "{bodies}"
+    );
+    assert_eq!(bodies["bad"], 0, "{bodies}");
 }
 
 #[test]
@@ -794,7 +828,7 @@ fn camera_images_on_a_ros2_topic_become_heat_maps() {
     // A camera node publishes the photos, scaled down, as rgb8 and bgr8 images.
     let mut camera_settings = c.ros.clone();
     camera_settings.node_name = "camera".into();
-    let mut camera = Ros2::new(&camera_settings).expect("camera node");
+    let camera = Ros2::new(&camera_settings).expect("camera node");
     let topic = c.detector.images.topic.clone();
     let mut sink = camera.sink::<Image>(&topic).expect("publisher");
     let start = std::time::Instant::now();
@@ -891,7 +925,7 @@ fn run_on_a_ros2_camera_reads_its_calibration_topic_and_records_it() {
     });
     let mut camera_settings = c.ros.clone();
     camera_settings.node_name = "camera".into();
-    let mut camera = Ros2::new(&camera_settings).expect("camera node");
+    let camera = Ros2::new(&camera_settings).expect("camera node");
     let (images_topic, info_topic) = (
         c.detector.images.topic.clone(),
         c.topics.camera_info.clone(),

@@ -337,8 +337,8 @@ fn the_estimator_takes_the_camera_from_a_ros2_camera_info_topic() {
     let mut node = EstimatorNode::from_config(&c.estimator).expect("node");
     let mut middleware = Middleware::open(&c, Some(Transport::Ros2)).expect("middleware");
     let recorder = service::output_recording(&c).expect("recording");
-    let mut outputs = EstimatorOutputs::open(&c, &mut middleware, recorder.as_ref(), node.bones())
-        .expect("outputs");
+    let mut outputs =
+        EstimatorOutputs::open(&c, &mut middleware, recorder.as_ref(), &node).expect("outputs");
     let source = middleware
         .estimator_input(&c, Transport::Ros2)
         .expect("source");
@@ -350,12 +350,11 @@ fn the_estimator_takes_the_camera_from_a_ros2_camera_info_topic() {
         report
     });
     // A camera driver and a detector: the calibration with every image.
-    let mut ros =
-        posestream::transport::ros2::Ros2::new(&posestream::transport::ros2::RosSettings {
-            node_name: "camera".into(),
-            ..c.ros.clone()
-        })
-        .expect("ros");
+    let ros = posestream::transport::ros2::Ros2::new(&posestream::transport::ros2::RosSettings {
+        node_name: "camera".into(),
+        ..c.ros.clone()
+    })
+    .expect("ros");
     let mut info = ros
         .sink::<CameraInfo>(&c.topics.camera_info)
         .expect("camera info publisher");

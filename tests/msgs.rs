@@ -82,6 +82,62 @@ fn every_msg_file_declares_exactly_the_fields_of_its_rust_type() {
 }
 
 #[test]
+fn tf_and_rep155_messages_declare_the_upstream_fields() {
+    use posestream::msgs::{hri, tf};
+    assert_eq!(
+        parse_definition(tf::TFMessage::DEFINITION),
+        fields_of::<tf::TFMessage>()
+    );
+    assert_eq!(
+        parse_definition(tf::TransformStamped::DEFINITION),
+        fields_of::<tf::TransformStamped>()
+    );
+    assert_eq!(
+        parse_definition(tf::Transform::DEFINITION),
+        fields_of::<tf::Transform>()
+    );
+    // The ros4hri files name their own package's types without it.
+    let qualified = |text: &str| -> Vec<(String, String)> {
+        parse_definition(text)
+            .into_iter()
+            .map(|(ty, name)| {
+                let primitive = ty.chars().next().is_some_and(|c| c.is_ascii_lowercase());
+                let ty = if ty.contains('/') || primitive {
+                    ty
+                } else {
+                    format!("hri_msgs/{ty}")
+                };
+                (ty, name)
+            })
+            .collect()
+    };
+    assert_eq!(
+        qualified(hri::IdsList::DEFINITION),
+        fields_of::<hri::IdsList>()
+    );
+    assert_eq!(
+        qualified(hri::Skeleton2D::DEFINITION),
+        fields_of::<hri::Skeleton2D>()
+    );
+    assert_eq!(
+        qualified(hri::NormalizedPointOfInterest2D::DEFINITION),
+        fields_of::<hri::NormalizedPointOfInterest2D>()
+    );
+    // The keypoint order is the .msg's constants'.
+    for (k, name) in hri::SKELETON2D_KEYPOINTS.iter().enumerate() {
+        let constant = format!("uint8 {} = {k}\n", name.to_uppercase());
+        assert!(
+            hri::Skeleton2D::DEFINITION.contains(&constant),
+            "{constant}"
+        );
+    }
+    // A fixed array: 18 points without a length in CDR (after the encapsulation, a
+    // stamp of 8 bytes and an empty frame id of 5, padded to 16).
+    let bytes = msgs::encode(&hri::Skeleton2D::default()).expect("encodes");
+    assert_eq!(bytes.len(), 4 + 16 + 18 * 12);
+}
+
+#[test]
 fn full_definitions_append_nested_messages_after_80_equals_signs() {
     let def = Skeleton3D::full_definition();
     let sep = format!("{}\n", "=".repeat(80));

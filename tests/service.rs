@@ -94,8 +94,8 @@ fn spawn_estimator(
     let mut node = EstimatorNode::from_config(&c.estimator).expect("node");
     let mut middleware = Middleware::open(&c, Some(input)).expect("middleware");
     let recorder = service::output_recording(&c).expect("recording");
-    let mut outputs = EstimatorOutputs::open(&c, &mut middleware, recorder.as_ref(), node.bones())
-        .expect("outputs");
+    let mut outputs =
+        EstimatorOutputs::open(&c, &mut middleware, recorder.as_ref(), &node).expect("outputs");
     let source = middleware.estimator_input(&c, input).expect("source");
     common::spawn("estimator", move || {
         let report = serve_estimator(&mut node, source, &mut outputs, stop).expect("serves");
@@ -129,7 +129,7 @@ fn detector_and_estimator_nodes_talk_over_ros2() {
     est.ros.node_name = "estimator".into();
     let estimator = spawn_estimator(&est, Transport::Ros2, &STOP);
     // A third node listens to the skeletons, as they come.
-    let mut listener = posestream::transport::ros2::Ros2::new(&c.ros).expect("ros");
+    let listener = posestream::transport::ros2::Ros2::new(&c.ros).expect("ros");
     let mut heard = listener
         .source::<Skeleton3D>(&c.topics.skeletons)
         .expect("subscription");
@@ -251,7 +251,7 @@ fn the_record_command_records_ros2_topics() {
         .stdout(std::process::Stdio::piped())
         .spawn()
         .expect("posestream record");
-    let mut ros = posestream::transport::ros2::Ros2::new(&c.ros).expect("ros");
+    let ros = posestream::transport::ros2::Ros2::new(&c.ros).expect("ros");
     let mut sink = ros
         .sink::<Skeleton3D>(&c.topics.skeletons)
         .expect("publisher");

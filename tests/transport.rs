@@ -168,8 +168,8 @@ fn mcap_recording_passes_the_conformance_suite() {
 #[test]
 fn ros2_topic_passes_the_conformance_suite_on_loopback() {
     let d = domain(0);
-    let mut publisher = loopback(d, "conformance_pub");
-    let mut subscriber = loopback(d, "conformance_sub");
+    let publisher = loopback(d, "conformance_pub");
+    let subscriber = loopback(d, "conformance_sub");
     let mut source = subscriber
         .source::<Skeleton3D>("/posestream/skeletons")
         .expect("subscription");
@@ -246,8 +246,8 @@ fn awaited_sources_pass_the_conformance_suite() {
     );
     // A ROS 2 subscription, awaited natively (ros2-client's async API).
     let d = domain(3);
-    let mut publisher = loopback(d, "awaited_pub");
-    let mut subscriber = loopback(d, "awaited_sub");
+    let publisher = loopback(d, "awaited_pub");
+    let subscriber = loopback(d, "awaited_sub");
     let mut source = Awaited::new(
         subscriber
             .source::<Skeleton3D>("/posestream/skeletons")
@@ -435,7 +435,7 @@ fn cyclonedds_python_client_decodes_our_ros2_skeletons() {
         &[&d.to_string(), "/posestream/skeletons", "5", "40"],
         "cyclonedds",
     );
-    let mut ros = loopback(d, "skeleton_pub");
+    let ros = loopback(d, "skeleton_pub");
     let sink = ros
         .sink::<Skeleton3D>("/posestream/skeletons")
         .expect("publisher");
@@ -443,6 +443,24 @@ fn cyclonedds_python_client_decodes_our_ros2_skeletons() {
     let decoded = client.collect_while_publishing(sink, Duration::from_millis(50));
     drop(ros);
     decoded.iter().for_each(assert_is_our_skeleton);
+}
+
+/// `cyclonedds ls` and other DDS tools list our participant by its node's full name
+/// (RustDDS, patched, announces it: it used to go unnamed).
+#[test]
+fn dds_tools_see_our_participant_by_its_node_s_name() {
+    let d = domain(5);
+    let ros = loopback(d, "named_by_test");
+    let seen = common::python_client(
+        "participant_names.py",
+        &[&d.to_string(), "/named_by_test", "30"],
+    );
+    drop(ros);
+    let names = seen["names"].as_array().expect("names");
+    assert!(
+        names.iter().any(|n| n == "/named_by_test"),
+        "announced names: {seen}"
+    );
 }
 
 /// A matched reliable reader that stops acknowledging (its process stopped) fills the
@@ -459,7 +477,7 @@ fn an_awaited_publish_gives_up_on_a_reader_that_stopped_acknowledging() {
         &[&d.to_string(), topic, "1000000", "60"],
         "cyclonedds",
     );
-    let mut ros = loopback(d, "stalled_pub");
+    let ros = loopback(d, "stalled_pub");
     let mut sink = ros.sink::<Skeleton3D>(topic).expect("publisher");
     // Publish until the client has one: matched both ways.
     let matched = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));

@@ -29,6 +29,7 @@ pub struct DetectorArgs {
 pub fn run(args: &DetectorArgs) -> Result<(), CliError> {
     let mut config = ServiceConfig::load(&args.config)?;
     args.source.apply(&mut config);
+    config.ros.or_named("posestream_detector");
     let stop = stop_flag();
     let mut wiring = Wiring::open(&config, service::detector_transport(&config))?;
     let input = wiring.detector_input(&config)?;

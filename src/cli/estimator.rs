@@ -30,14 +30,15 @@ pub struct EstimatorArgs {
 
 /// Runs `estimator`: heat maps from ROS 2 or iceoryx2, skeletons to `[outputs]`.
 pub fn run(args: &EstimatorArgs) -> Result<(), CliError> {
-    let config = ServiceConfig::load(&args.config)?;
+    let mut config = ServiceConfig::load(&args.config)?;
+    config.ros.or_named("posestream_estimator");
     let stop = stop_flag();
     let input = args.input.unwrap_or(config.estimator.input);
     let mut node = EstimatorNode::from_service_config(&config)?;
     let mut wiring = Wiring::open(&config, Some(input))?;
     let source = wiring.estimator_input(&config, input)?;
     wiring.start_recording(&config)?;
-    let mut outputs = wiring.estimator_outputs(&config, node.bones())?;
+    let mut outputs = wiring.estimator_outputs(&config, &node)?;
     stop_after(args.duration, &stop);
     // The input is dropped in the loop, the outputs here: before the middleware under them.
     let report = serve_estimator(&mut node, source, &mut outputs, &stop)?;

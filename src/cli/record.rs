@@ -59,9 +59,10 @@ struct RecordReport {
 
 /// Runs `record`: ROS 2 topics into an MCAP recording.
 pub fn run(args: &RecordArgs) -> Result<(), CliError> {
-    let config = ServiceConfig::load(&args.config)?;
+    let mut config = ServiceConfig::load(&args.config)?;
+    config.ros.or_named("posestream_recorder");
     let stop = stop_flag();
-    let mut ros = Ros2::new(&config.ros)?;
+    let ros = Ros2::new(&config.ros)?;
     let recorder = SharedRecorder::create(&args.out)?;
     let mut steps = Vec::new();
     for topic in &args.topics {

@@ -111,6 +111,13 @@ pub struct OutputsConfig {
     /// `posestream_msgs/Skeleton3DArray` on `topics.skeleton_arrays` (ROS 2 and
     /// recordings).
     pub arrays: bool,
+    /// Also publish each person's body and joint frames on `topics.tf` (skeletons in
+    /// metres only; ROS 2 and recordings).
+    pub tf: bool,
+    /// Also publish REP-155's (ROS4HRI) body topics under `topics.hri_bodies`: the ids
+    /// tracked, and each body's region of interest and 2D skeleton (these two need the
+    /// images' size, from the camera's calibration; ROS 2 and recordings).
+    pub hri: bool,
     /// Also record everything published to this MCAP file (empty: no recording).
     pub record: PathBuf,
 }
@@ -122,6 +129,8 @@ impl Default for OutputsConfig {
             iceoryx2: false,
             markers: true,
             arrays: true,
+            tf: true,
+            hri: true,
             record: PathBuf::new(),
         }
     }
@@ -169,7 +178,21 @@ impl ServiceConfig {
             ("markers", &t.markers),
             ("ground_truth", &t.ground_truth),
             ("camera_info", &t.camera_info),
+            ("tf", &t.tf),
         ];
+        // The bodies' namespace: its topics are names of their own (`/humans/bodies/tracked`).
+        check_topic_name("hri_bodies", &t.hri_bodies).map_err(|x| x.within("topics"))?;
+        if let Some((other, _)) = topics
+            .iter()
+            .find(|(_, topic)| topic.starts_with(&format!("{}/", t.hri_bodies)))
+        {
+            return Err(crate::error::OutOfDomain::new(
+                "hri_bodies",
+                format!("a namespace no other topic is in (topics.{other} is)"),
+                &t.hri_bodies,
+            )
+            .within("topics"));
+        }
         for (i, (key, topic)) in topics.iter().enumerate() {
             check_topic_name(key, topic).map_err(|x| x.within("topics"))?;
             // Each carries its own type: two on one topic would mix them (a recording's
@@ -239,6 +262,11 @@ pub struct Topics {
     /// The camera's calibration (`sensor_msgs/CameraInfo`) beside the heat maps: the
     /// estimator's metric step takes it (ROS 2 input, recordings).
     pub camera_info: String,
+    /// Transforms of each person's body and joint frames (`tf2_msgs/TFMessage`).
+    pub tf: String,
+    /// The namespace of REP-155's bodies: `<this>/tracked` lists the ids, and
+    /// `<this>/<id>/roi` and `<this>/<id>/skeleton2d` describe each.
+    pub hri_bodies: String,
 }
 
 impl Default for Topics {
@@ -250,6 +278,8 @@ impl Default for Topics {
             markers: "/posestream/markers".into(),
             ground_truth: "/posestream/ground_truth".into(),
             camera_info: "/camera/camera_info".into(),
+            tf: "/tf".into(),
+            hri_bodies: "/humans/bodies".into(),
         }
     }
 }

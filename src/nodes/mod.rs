@@ -8,11 +8,15 @@
 //!   transport ([`crate::transport`]), and their wiring from the configuration;
 //! - [`markers`]: skeletons as `visualization_msgs/MarkerArray`;
 //! - [`arrays`]: the skeletons of one image together (`Skeleton3DArray`);
-//! - [`camera`]: the calibration assumed for images without one (`CameraInfo`).
+//! - [`camera`]: the calibration assumed for images without one (`CameraInfo`);
+//! - [`frames`]: each person's body and joint frames for `/tf`;
+//! - [`hri`]: skeletons as REP-155 (ROS4HRI) bodies: ids, regions, 2D skeletons.
 
 pub mod arrays;
 pub mod camera;
 pub mod config;
+pub mod frames;
+pub mod hri;
 pub mod images;
 pub mod latency;
 pub mod markers;
@@ -721,6 +725,16 @@ impl EstimatorNode {
     /// the next ones are written over them, so that a warm node allocates no message.
     pub fn recycle(&mut self, skeletons: &mut Vec<Skeleton3D>) {
         self.spare.append(skeletons);
+    }
+
+    /// The dictionary's joint names (those of every skeleton published).
+    pub fn joint_names(&self) -> &[String] {
+        &self.joint_names
+    }
+
+    /// The images' size (columns, rows), when a camera calibration gave it.
+    pub fn image_size(&self) -> Option<(f64, f64)> {
+        self.metric.as_ref().and_then(|m| m.size)
     }
 
     /// Frames the windows have taken so far (not refused, late or without evidence).

@@ -1,7 +1,8 @@
 //! The wire messages of posestream (ROS 2 package `posestream_msgs`, in `msgs/`) and the
 //! ROS 2 standard messages they use (`std_msgs/Header`, `builtin_interfaces/Time`,
 //! mirrored from ROS 2 Humble's `std_msgs` and `builtin_interfaces` packages), plus
-//! `visualization_msgs/MarkerArray` ([`visualization`]) for RViz2 and Foxglove, and the
+//! `visualization_msgs/MarkerArray` ([`visualization`]) for RViz2 and Foxglove, `/tf`'s
+//! `tf2_msgs/TFMessage` ([`tf`]), the ROS4HRI messages of REP-155 ([`hri`]), and the
 //! camera images the image detector reads ([`sensor`]).
 //!
 //! Each message is declared once, with [`ros_message!`]: the macro writes the Rust struct
@@ -27,8 +28,10 @@ pub mod recording;
 pub mod toml_file;
 
 mod heatmaps;
+pub mod hri;
 pub mod sensor;
 mod skeleton;
+pub mod tf;
 pub mod visualization;
 
 pub use heatmaps::{HeatMapEncoding, HeatMaps, HeatMapsView};

@@ -12,6 +12,7 @@
 //! `ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`) keeps DDS on the loopback interface.
 
 use std::net::{IpAddr, Ipv4Addr};
+use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 
 use ros2_client::dds::rustdds::DomainParticipantBuilder;
@@ -44,7 +45,9 @@ pub struct RosSettings {
     /// Keep DDS traffic on the loopback interface (also set by `ROS_LOCALHOST_ONLY=1` or
     /// `ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`).
     pub localhost_only: bool,
-    /// Node name.
+    /// Node name; empty: the command's (`posestream_detector`, `posestream_estimator`,
+    /// `posestream_recorder`; `posestream` for `run`), so that two nodes of one graph are
+    /// not named alike. The DDS participant is announced by the node's full name too.
     pub node_name: String,
     /// Node namespace (absolute).
     pub namespace: String,
@@ -61,7 +64,7 @@ impl Default for RosSettings {
         Self {
             domain_id: 0,
             localhost_only: false,
-            node_name: "posestream".into(),
+            node_name: String::new(),
             namespace: "/".into(),
             wait_for_subscribers: 2.0,
             qos: QosSettings::default(),
@@ -125,10 +128,10 @@ impl RosSettings {
             3600.0,
             false,
         )?;
-        if !is_ros_token(&self.node_name) {
+        if !self.node_name.is_empty() && !is_ros_token(&self.node_name) {
             return Err(OutOfDomain::new(
                 "node_name",
-                "a ROS name (letters, digits and _, not starting with a digit)",
+                "a ROS name (letters, digits and _, not starting with a digit) or empty",
                 format!("{:?}", self.node_name),
             ));
         }
@@ -186,6 +189,27 @@ impl QosSettings {
 }
 
 impl RosSettings {
+    /// Names the node `name` unless the configuration names it.
+    pub fn or_named(&mut self, name: &str) {
+        if self.node_name.is_empty() {
+            self.node_name = name.to_string();
+        }
+    }
+
+    /// The node's name (`posestream` when none was given).
+    pub fn node(&self) -> &str {
+        if self.node_name.is_empty() {
+            "posestream"
+        } else {
+            &self.node_name
+        }
+    }
+
+    /// The node's full name, `/namespace/name`.
+    pub fn full_node_name(&self) -> String {
+        format!("{}/{}", self.namespace.trim_end_matches('/'), self.node())
+    }
+
     /// The domain: `ROS_DOMAIN_ID` if set, else the configured one. A malformed or
     /// out-of-range `ROS_DOMAIN_ID` is an error, not silently ignored.
     pub fn effective_domain(&self) -> Result<u16, TransportError> {
@@ -228,9 +252,11 @@ fn setup_error(what: impl ToString, reason: impl ToString) -> TransportError {
     }
 }
 
-/// A ROS 2 participant and node: makes publishers and subscriptions.
+/// A ROS 2 participant and node: makes publishers and subscriptions. Clones share the
+/// node, so that publishers can be made while a loop runs (REP-155's topics per body).
+#[derive(Clone)]
 pub struct Ros2 {
-    node: Node,
+    node: Arc<Mutex<Node>>,
     qos: QosProfile,
     domain: u16,
     // Dropping the context shuts DDS down: keep it as long as the node.
@@ -241,7 +267,10 @@ impl Ros2 {
     /// Joins the domain as node `settings.node_name`.
     pub fn new(settings: &RosSettings) -> Result<Self, TransportError> {
         let domain = settings.effective_domain()?;
-        let mut builder = DomainParticipantBuilder::new(domain);
+        // Named, so that DDS tools (`cyclonedds ls`, Fast DDS's monitor) list it by the
+        // node's name (RustDDS patched: vendor/rustdds/PATCHES.md).
+        let mut builder =
+            DomainParticipantBuilder::new(domain).with_entity_name(settings.full_node_name());
         if settings.effective_localhost_only() {
             builder = builder.with_only_networks([IpAddr::V4(Ipv4Addr::LOCALHOST)]);
         }
@@ -250,9 +279,9 @@ impl Ros2 {
             .map_err(|e| setup_error(format!("a participant in domain {domain}"), e))?;
         let context = Context::from_domain_participant(participant)
             .map_err(|e| setup_error("the ROS 2 context", e))?;
-        let name = NodeName::new(&settings.namespace, &settings.node_name).map_err(|e| {
+        let name = NodeName::new(&settings.namespace, settings.node()).map_err(|e| {
             setup_error(
-                format!("node {}/{}", settings.namespace, settings.node_name),
+                format!("node {}", settings.full_node_name()),
                 format!("{e:?}"),
             )
         })?;
@@ -260,7 +289,7 @@ impl Ros2 {
             .new_node(name, NodeOptions::new().enable_rosout(false))
             .map_err(|e| setup_error("the node", e))?;
         Ok(Self {
-            node,
+            node: Arc::new(Mutex::new(node)),
             qos: settings.qos.profile(),
             domain,
             _context: context,
@@ -272,10 +301,15 @@ impl Ros2 {
         self.domain
     }
 
+    fn node(&self) -> MutexGuard<'_, Node> {
+        // Nothing is left half-done under the lock: go on after a panic elsewhere.
+        self.node.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
     /// Subscriptions to `topic` that DDS discovery has seen so far (any node, this
     /// process included).
     pub fn subscriptions(&self, topic: &str) -> usize {
-        self.node.subscription_count(topic)
+        self.node().subscription_count(topic)
     }
 
     /// Waits up to `timeout` for DDS discovery to see a subscription to `topic`, then
@@ -295,25 +329,25 @@ impl Ros2 {
 
     /// Publishers on `topic` that DDS discovery has seen so far.
     pub fn publishers(&self, topic: &str) -> usize {
-        self.node.publisher_count(topic)
+        self.node().publisher_count(topic)
     }
 
     fn topic<M: Message>(
-        &mut self,
+        &self,
+        node: &mut Node,
         topic: &str,
     ) -> Result<ros2_client::dds::rustdds::Topic, TransportError> {
         let name = topic_name(topic)?;
         let (package, type_name) = type_name::<M>()?;
-        self.node
-            .create_topic(&name, MessageTypeName::new(package, type_name), &self.qos)
+        node.create_topic(&name, MessageTypeName::new(package, type_name), &self.qos)
             .map_err(|e| setup_error(format!("topic {topic}"), e))
     }
 
     /// A publisher of `M` on `topic` (e.g. `/posestream/skeletons`).
-    pub fn sink<M: Message>(&mut self, topic: &str) -> Result<Ros2Sink<M>, TransportError> {
-        let t = self.topic::<M>(topic)?;
-        let publisher = self
-            .node
+    pub fn sink<M: Message>(&self, topic: &str) -> Result<Ros2Sink<M>, TransportError> {
+        let mut node = self.node();
+        let t = self.topic::<M>(&mut node, topic)?;
+        let publisher = node
             .create_publisher::<M>(&t, Some(self.qos.clone()))
             .map_err(|e| setup_error(format!("a publisher on {topic}"), e))?;
         Ok(Ros2Sink {
@@ -323,10 +357,10 @@ impl Ros2 {
     }
 
     /// A subscription to `M` on `topic`.
-    pub fn source<M: Message>(&mut self, topic: &str) -> Result<Ros2Source<M>, TransportError> {
-        let t = self.topic::<M>(topic)?;
-        let mut subscription = self
-            .node
+    pub fn source<M: Message>(&self, topic: &str) -> Result<Ros2Source<M>, TransportError> {
+        let mut node = self.node();
+        let t = self.topic::<M>(&mut node, topic)?;
+        let mut subscription = node
             .create_subscription::<M>(&t, Some(self.qos.clone()))
             .map_err(|e| setup_error(format!("a subscription to {topic}"), e))?;
         let poll = Poll::new().map_err(|e| setup_error("a poller", e))?;

@@ -136,15 +136,13 @@ pub fn run_estimator(
     node.finish(&mut out);
     outputs.flush_arrays();
     outputs.publish(None, &mut out, node);
-    outputs.skeletons.flush();
-    outputs.markers.flush();
-    outputs.arrays.flush();
+    outputs.flush();
     EstimatorReport {
         frames,
         malformed: node.malformed(),
         refused: node.refused().clone(),
         skeletons: outputs.skeletons.sent,
-        failed_sends: outputs.skeletons.failed + outputs.markers.failed,
+        failed_sends: outputs.failed_sends(),
         counters: node.counters(),
         metric_failures: node.metric_failures(),
         update: latency.summary(),
@@ -287,7 +285,7 @@ pub fn run_pipeline(
     let mut wiring = Wiring::open(config, detector_transport(config))?;
     let input = wiring.detector_input(config)?;
     wiring.start_recording(config)?;
-    let outputs = wiring.estimator_outputs(config, node.bones())?;
+    let outputs = wiring.estimator_outputs(config, &node)?;
     let DetectorInput {
         source,
         stats,

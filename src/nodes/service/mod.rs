@@ -1,9 +1,11 @@
 //! The nodes as services: the loops that move messages between sources, the
 //! [`EstimatorNode`](super::EstimatorNode) and sinks (blocking, [`loops`]; with their
 //! I/O on a tokio runtime, [`runtime`]), and the wiring that builds those ends from the
-//! configuration ([`wiring`]). What backend each end is
+//! configuration ([`wiring`]), and what is said of bodies rather than skeletons (frames
+//! on `/tf`, REP-155's topics: [`bodies`]). What backend each end is
 //! comes from the configuration; the loops do not know.
 
+pub mod bodies;
 pub mod loops;
 pub mod runtime;
 pub mod wiring;

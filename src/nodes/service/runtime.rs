@@ -88,6 +88,8 @@ struct Batch {
     /// Capture time and frame number of the image whose heat maps released them
     /// (`None`: released by no message, as at the end).
     image: Option<(i64, u64)>,
+    /// The images' size, when the node knows it (REP-155's image messages need it).
+    image_size: Option<(f64, f64)>,
 }
 
 /// What the solver thread counted.
@@ -183,14 +185,14 @@ pub fn run_estimator_with_camera(
                     }
                 };
                 outputs.frame_stamp(batch.released_at);
-                outputs.publish_async(batch.image, &batch.skeletons).await;
+                outputs
+                    .publish_async(batch.image, &batch.skeletons, batch.image_size)
+                    .await;
                 // Back to the node, to be written over (the solver may be gone).
                 let _ = spent.send(batch.skeletons);
             }
             outputs.flush_arrays_async().await;
-            outputs.skeletons.flush();
-            outputs.markers.flush();
-            outputs.arrays.flush();
+            outputs.flush();
         };
         let (input_error, ()) = runtime.block_on(async { tokio::join!(input, output) });
         let solved = solver.join().map_err(|_| ServiceError::Thread("solver"))?;
@@ -201,7 +203,7 @@ pub fn run_estimator_with_camera(
         malformed: node.malformed(),
         refused: node.refused().clone(),
         skeletons: outputs.skeletons.sent,
-        failed_sends: outputs.skeletons.failed + outputs.markers.failed,
+        failed_sends: outputs.failed_sends(),
         counters: node.counters(),
         metric_failures: node.metric_failures(),
         update: solved.latency.summary(),
@@ -269,6 +271,7 @@ fn solve(
                     skeletons,
                     released_at,
                     image,
+                    image_size: node.image_size(),
                 })
                 .is_err()
             {
@@ -283,6 +286,7 @@ fn solve(
             skeletons: out,
             released_at,
             image: None,
+            image_size: node.image_size(),
         });
     }
     solved

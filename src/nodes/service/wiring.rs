@@ -8,6 +8,7 @@ use std::path::Path;
 use std::time::Duration;
 
 use super::ServiceError;
+pub use super::bodies::{Bodies, TopicMaker};
 use crate::detector::{DetectorStats, ImageDetector};
 use crate::msgs::sensor::CameraInfo;
 use crate::msgs::{HeatMaps, MarkerArray, Skeleton3D, Skeleton3DArray, SkeletonState};
@@ -274,7 +275,10 @@ pub struct EstimatorOutputs {
     pub markers: Publishers<MarkerArray>,
     /// The skeletons of each image together (empty when `[outputs] arrays` is off).
     pub arrays: Publishers<Skeleton3DArray>,
-    /// Groups the skeletons into arrays, when there are array publishers.
+    /// Frames on `/tf` and REP-155 body topics.
+    pub bodies: Bodies,
+    /// Groups the skeletons into arrays, when there are array publishers or REP-155's
+    /// tracked ids are published.
     grouping: ImageArrays,
     /// Arrays ready to be sent (reused).
     ready: Vec<Skeleton3DArray>,
@@ -300,6 +304,7 @@ impl EstimatorOutputs {
             skeletons,
             markers,
             arrays: Publishers::default(),
+            bodies: Bodies::default(),
             grouping: ImageArrays::default(),
             ready: Vec::new(),
             clock: None,
@@ -322,6 +327,30 @@ impl EstimatorOutputs {
         self
     }
 
+    /// The same outputs, also describing bodies ([`Bodies`]: frames, REP-155 topics).
+    pub fn with_bodies(mut self, bodies: Bodies) -> Self {
+        self.bodies = bodies;
+        self
+    }
+
+    /// Whether skeletons are grouped by image (for arrays, or REP-155's tracked ids).
+    fn grouped(&self) -> bool {
+        !self.arrays.is_empty() || self.bodies.hri.is_some()
+    }
+
+    /// Flushes every output.
+    pub fn flush(&mut self) {
+        self.skeletons.flush();
+        self.markers.flush();
+        self.arrays.flush();
+        self.bodies.flush();
+    }
+
+    /// Sends that failed, on every output.
+    pub fn failed_sends(&self) -> u64 {
+        self.skeletons.failed + self.markers.failed + self.arrays.failed + self.bodies.failed()
+    }
+
     /// The same outputs, sending each skeleton stamped with the time of the frame that
     /// released it (its source's stamp: a recording's log time), as a recorder of the
     /// live topic would have logged it; the estimates still owed at the end, with the
@@ -336,13 +365,12 @@ impl EstimatorOutputs {
         self.released_at = stamp_ns;
     }
 
-    /// The configured outputs of the estimator node (skeletons of a dictionary whose
-    /// bones are `bones`).
+    /// The configured outputs of `node`'s skeletons.
     pub fn open(
         config: &ServiceConfig,
         middleware: &mut Middleware,
         recorder: Option<&SharedRecorder>,
-        bones: Vec<(usize, usize)>,
+        node: &EstimatorNode,
     ) -> Result<Self, ServiceError> {
         let shm_sink = match (&middleware.shm, config.outputs.iceoryx2) {
             (Some(shm), true) => Some(
@@ -374,7 +402,28 @@ impl EstimatorOutputs {
         } else {
             Publishers::default()
         };
-        Ok(Self::new(skeletons, markers, bones).with_arrays(arrays))
+        let tf = if config.outputs.tf {
+            publishers(config, middleware, recorder, &config.topics.tf, None)?
+        } else {
+            Publishers::default()
+        };
+        let hri = config.outputs.hri.then(|| {
+            let maker = TopicMaker {
+                ros: middleware.ros.clone().filter(|_| config.outputs.ros2),
+                recorder: recorder.cloned(),
+            };
+            (config.topics.hri_bodies.clone(), maker)
+        });
+        // The newest estimates when the window publishes them, else the refined ones.
+        let settings = node.settings();
+        let lag = match settings.outputs {
+            crate::streaming::Outputs::Lagged => settings.lag as u32,
+            _ => 0,
+        };
+        let bodies = Bodies::new(node.joint_names(), lag, tf, hri)?;
+        Ok(Self::new(skeletons, markers, node.bones())
+            .with_arrays(arrays)
+            .with_bodies(bodies))
     }
 
     /// Publishes the node's skeletons, released by a heat-map message of `image_ns` (its
@@ -387,16 +436,20 @@ impl EstimatorOutputs {
         skeletons: &mut Vec<Skeleton3D>,
         node: &mut EstimatorNode,
     ) {
-        if !self.arrays.is_empty() && (image_ns.is_some() || !skeletons.is_empty()) {
+        if self.grouped() && (image_ns.is_some() || !skeletons.is_empty()) {
             self.grouping.add(image_ns, skeletons, &mut self.ready);
             self.send_arrays();
         }
+        let image_size = node.image_size();
         for s in skeletons.iter() {
             let stamp = self.stamp(s);
             self.skeletons.publish(s, stamp);
             if !self.markers.is_empty() {
                 self.markers
                     .publish(&skeleton_markers(s, &self.bones), stamp);
+            }
+            if !self.bodies.is_empty() {
+                self.bodies.publish(s, image_size, stamp);
             }
             if let Some(clock) = &self.clock
                 && s.lag == 0
@@ -428,7 +481,10 @@ impl EstimatorOutputs {
     fn send_arrays(&mut self) {
         for a in &self.ready {
             let stamp = self.array_stamp(a);
-            self.arrays.publish(a, stamp);
+            if !self.arrays.is_empty() {
+                self.arrays.publish(a, stamp);
+            }
+            self.bodies.tracked(a, stamp);
         }
         self.grouping.recycle(&mut self.ready);
     }
@@ -437,7 +493,10 @@ impl EstimatorOutputs {
         let ready = std::mem::take(&mut self.ready);
         for a in &ready {
             let stamp = self.array_stamp(a);
-            self.arrays.publish_async(a, stamp).await;
+            if !self.arrays.is_empty() {
+                self.arrays.publish_async(a, stamp).await;
+            }
+            self.bodies.tracked_async(a, stamp).await;
         }
         self.ready = ready;
         self.grouping.recycle(&mut self.ready);
@@ -453,13 +512,14 @@ impl EstimatorOutputs {
     }
 
     /// Publishes skeletons on a runtime ([`Publishers::publish_async`]), as
-    /// [`EstimatorOutputs::publish`] does.
+    /// [`EstimatorOutputs::publish`] does (`image_size`: the node's, when known).
     pub(super) async fn publish_async(
         &mut self,
         image_ns: Option<(i64, u64)>,
         skeletons: &[Skeleton3D],
+        image_size: Option<(f64, f64)>,
     ) {
-        if !self.arrays.is_empty() && (image_ns.is_some() || !skeletons.is_empty()) {
+        if self.grouped() && (image_ns.is_some() || !skeletons.is_empty()) {
             self.grouping.add(image_ns, skeletons, &mut self.ready);
             self.send_arrays_async().await;
         }
@@ -469,6 +529,9 @@ impl EstimatorOutputs {
             if !self.markers.is_empty() {
                 let markers = skeleton_markers(s, &self.bones);
                 self.markers.publish_async(&markers, stamp).await;
+            }
+            if !self.bodies.is_empty() {
+                self.bodies.publish_async(s, image_size, stamp).await;
             }
             if let Some(clock) = &self.clock
                 && s.lag == 0
@@ -675,14 +738,13 @@ impl Wiring {
         Ok(())
     }
 
-    /// The estimator node's publishers (skeletons of a dictionary whose bones are
-    /// `bones`).
+    /// The publishers of `node`'s skeletons.
     pub fn estimator_outputs(
         &mut self,
         config: &ServiceConfig,
-        bones: Vec<(usize, usize)>,
+        node: &EstimatorNode,
     ) -> Result<EstimatorOutputs, ServiceError> {
-        EstimatorOutputs::open(config, &mut self.middleware, self.recorder.as_ref(), bones)
+        EstimatorOutputs::open(config, &mut self.middleware, self.recorder.as_ref(), node)
     }
 
     /// The detector node's heat-map publishers.

@@ -81,6 +81,9 @@ pub struct DomainParticipantBuilder {
   socket_receive_buffer_size: usize,
   socket_send_buffer_size: usize,
 
+  // posestream patch (vendor/rustdds/PATCHES.md): the name discovery announces.
+  entity_name: Option<String>,
+
   #[cfg(feature = "security")]
   security_plugins: Option<SecurityPlugins>,
   #[cfg(feature = "security")]
@@ -95,11 +98,19 @@ impl DomainParticipantBuilder {
       same_host_loopback: true,
       socket_receive_buffer_size: Self::DEFAULT_SOCKET_RECEIVE_BUFFER_SIZE,
       socket_send_buffer_size: Self::DEFAULT_SOCKET_SEND_BUFFER_SIZE,
+      entity_name: None,
       #[cfg(feature = "security")]
       security_plugins: None,
       #[cfg(feature = "security")]
       sec_properties: None,
     }
+  }
+
+  /// The participant's name, announced in discovery (`PID_ENTITY_NAME`, the
+  /// DDS `EntityName` QoS), so that tools list it by name. (posestream patch.)
+  pub fn with_entity_name(mut self, name: impl Into<String>) -> Self {
+    self.entity_name = Some(name.into());
+    self
   }
 
   /// Filter which local network interfaces are used for multicast and
@@ -329,7 +340,7 @@ impl DomainParticipantBuilder {
     let security_plugins_handle = self.security_plugins.map(SecurityPluginsHandle::new);
 
     // intermediate DP wrapper
-    let dp = DomainParticipantDisc::new(
+    let mut dp = DomainParticipantDisc::new(
       self.domain_id,
       participant_guid,
       participant_qos,
@@ -347,6 +358,7 @@ impl DomainParticipantBuilder {
       dp_waker,
       discovery_sample_sender,
     )?;
+    dp.entity_name = self.entity_name;
 
     // outer DP wrapper
     let dp = DomainParticipant {
@@ -649,6 +661,11 @@ impl DomainParticipant {
 
   pub(crate) fn self_locators(&self) -> HashMap<mio1::Token, Vec<Locator>> {
     self.dpi.lock().unwrap().self_locators()
+  }
+
+  /// The name announced in discovery, if one was given (posestream patch).
+  pub(crate) fn entity_name(&self) -> Option<String> {
+    self.dpi.lock().unwrap().entity_name.clone()
   }
 } // end impl DomainParticipant
 
@@ -958,6 +975,8 @@ pub(crate) struct DomainParticipantDisc {
   discovery_join_handle: std::sync::mpsc::Receiver<JoinHandle<()>>,
   // This allows deterministic generation of EntityIds for DataReader, DataWriter, etc.
   entity_id_generator: atomic::AtomicU32,
+  // posestream patch: the name discovery announces (PID_ENTITY_NAME).
+  entity_name: Option<String>,
 }
 
 impl DomainParticipantDisc {
@@ -1003,6 +1022,7 @@ impl DomainParticipantDisc {
       discovery_command_sender,
       discovery_join_handle,
       entity_id_generator: atomic::AtomicU32::new(0),
+      entity_name: None,
     })
   }
 

@@ -220,7 +220,7 @@ impl SpdpDiscoveredParticipantData {
       lease_duration: Some(lease_duration),
       manual_liveliness_count: 0,
       builtin_endpoint_qos: None,
-      entity_name: None,
+      entity_name: participant.entity_name(),
 
       // DDS Security
       #[cfg(feature = "security")]

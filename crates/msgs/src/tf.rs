@@ -1,0 +1,39 @@
+//! `tf2_msgs/TFMessage` and the `geometry_msgs` it needs, mirrored from ROS 2's
+//! `tf2_msgs` and `geometry_msgs` packages (the same from Humble to Kilted; field for field:
+//! the CDR layout must match what `tf2_ros` decodes). Comments of the upstream files are
+//! left out.
+
+use super::Header;
+use super::visualization::{Quaternion, Vector3};
+use crate::ros_message;
+
+ros_message! {
+    /// `geometry_msgs/Transform`: a frame's origin and axes in its parent frame.
+    Transform = "geometry_msgs/msg/Transform", "geometry_msgs/Transform",
+        "geometry_msgs/Vector3 translation\ngeometry_msgs/Quaternion rotation\n";
+    /// The child frame's origin in the parent frame.
+    translation: Vector3,
+    /// The child frame's axes in the parent frame.
+    rotation: Quaternion,
+}
+
+ros_message! {
+    /// `geometry_msgs/TransformStamped`: frame `child_frame_id` in frame
+    /// `header.frame_id` at `header.stamp`.
+    TransformStamped = "geometry_msgs/msg/TransformStamped", "geometry_msgs/TransformStamped",
+        "std_msgs/Header header\nstring child_frame_id\ngeometry_msgs/Transform transform\n";
+    /// Time and parent frame.
+    header: Header,
+    /// The frame placed.
+    child_frame_id: String,
+    /// Where it is.
+    transform: Transform,
+}
+
+ros_message! {
+    /// `tf2_msgs/TFMessage`: what `/tf` carries.
+    TFMessage = "tf2_msgs/msg/TFMessage", "tf2_msgs/TFMessage",
+        "geometry_msgs/TransformStamped[] transforms\n";
+    /// The transforms.
+    transforms: Vec<TransformStamped>,
+}

@@ -1,0 +1,318 @@
+//! The estimator's outputs about bodies rather than skeletons: each person's frames on
+//! `/tf` ([`BodyFrames`]) and REP-155's body topics ([`HriBodies`]): the ids tracked in
+//! each image on `<ns>/tracked`, and per body `<ns>/<id>/roi` and `<ns>/<id>/skeleton2d`.
+//! A body's topics are made when it is first seen and dropped when its track ends, so
+//! their number follows the people in view (at most [`MAX_BODY_TOPICS`] bodies at once).
+//!
+//! Bodies are described at one lag, [`Bodies::lag`]: the newest estimates when the window
+//! publishes them (the least delay, as TF and HRI consumers want), else the refined ones.
+
+use super::Publishers;
+use super::ServiceError;
+use crate::msgs::hri::{IdsList, Skeleton2D};
+use crate::msgs::sensor::RegionOfInterest;
+use crate::msgs::tf::TFMessage;
+use crate::msgs::{Skeleton3D, Skeleton3DArray, SkeletonState};
+use crate::nodes::frames::BodyFrames;
+use crate::nodes::hri::{HriBodies, body_id, tracked};
+use crate::transport::Message;
+use crate::transport::mcap::SharedRecorder;
+use crate::transport::ros2::Ros2;
+
+/// Bodies whose topics are kept at once; past it, the one seen least recently loses
+/// them (they are made again when it is seen again).
+pub const MAX_BODY_TOPICS: usize = 64;
+
+/// Makes publishers while the loop runs: a ROS 2 node shared with the wiring and the
+/// output recording, as configured.
+#[derive(Clone, Default)]
+pub struct TopicMaker {
+    /// The ROS 2 node, when publishing on ROS 2.
+    pub ros: Option<Ros2>,
+    /// The output recording, if any.
+    pub recorder: Option<SharedRecorder>,
+}
+
+impl TopicMaker {
+    /// Publishers of `M` on `topic`.
+    pub fn publishers<M: Message>(&self, topic: &str) -> Result<Publishers<M>, ServiceError> {
+        let mut out = Publishers::default();
+        if let Some(ros) = &self.ros {
+            out.add_ros2(format!("ros2 {topic}"), ros.sink::<M>(topic)?);
+        }
+        if let Some(r) = &self.recorder {
+            out.add(format!("mcap {topic}"), Box::new(r.sink::<M>(topic)));
+        }
+        Ok(out)
+    }
+}
+
+/// One body's REP-155 topics.
+struct BodyTopics {
+    track_id: u32,
+    roi: Publishers<RegionOfInterest>,
+    skeleton2d: Publishers<Skeleton2D>,
+    /// When it was used last (orders bodies by recency).
+    used: u64,
+}
+
+/// REP-155's body topics.
+pub struct HriTopics {
+    convert: HriBodies,
+    maker: TopicMaker,
+    namespace: String,
+    tracked: Publishers<IdsList>,
+    bodies: Vec<BodyTopics>,
+    uses: u64,
+    /// Sends of dropped bodies' topics that failed, and bodies whose topics could not be
+    /// made.
+    failed: u64,
+}
+
+/// What the estimator publishes about bodies (frames, REP-155), see the module docs.
+pub struct Bodies {
+    /// The lag described.
+    pub lag: u32,
+    frames: BodyFrames,
+    /// `/tf` (empty when off).
+    pub tf: Publishers<TFMessage>,
+    /// REP-155 topics, when on.
+    pub hri: Option<HriTopics>,
+    /// The transforms of the skeleton in hand (reused).
+    message: TFMessage,
+}
+
+impl Default for Bodies {
+    /// Nothing published.
+    fn default() -> Self {
+        Self {
+            lag: 0,
+            frames: BodyFrames::new(&[]),
+            tf: Publishers::default(),
+            hri: None,
+            message: TFMessage::default(),
+        }
+    }
+}
+
+impl Bodies {
+    /// Frames on `tf` and, with `hri` (its namespace and maker), REP-155 topics, for
+    /// skeletons of `joint_names` at `lag`.
+    pub fn new(
+        joint_names: &[String],
+        lag: u32,
+        tf: Publishers<TFMessage>,
+        hri: Option<(String, TopicMaker)>,
+    ) -> Result<Self, ServiceError> {
+        let hri = match hri {
+            Some((namespace, maker)) => Some(HriTopics {
+                convert: HriBodies::new(joint_names),
+                tracked: maker.publishers(&format!("{namespace}/tracked"))?,
+                maker,
+                namespace,
+                bodies: Vec::new(),
+                uses: 0,
+                failed: 0,
+            }),
+            None => None,
+        };
+        Ok(Self {
+            lag,
+            frames: BodyFrames::new(joint_names),
+            tf,
+            hri,
+            message: TFMessage::default(),
+        })
+    }
+
+    /// Nothing to publish.
+    pub fn is_empty(&self) -> bool {
+        self.tf.is_empty() && self.hri.is_none()
+    }
+
+    /// Publishes what `skeleton` says of its body (nothing unless it is at [`Bodies::lag`]):
+    /// its frames (in metres) and, in images of `image_size` (columns, rows; `None`:
+    /// unknown, no region or 2D skeleton), its REP-155 region and 2D skeleton. A track's
+    /// last estimate drops its body's topics.
+    pub fn publish(
+        &mut self,
+        skeleton: &Skeleton3D,
+        image_size: Option<(f64, f64)>,
+        stamp_ns: u64,
+    ) {
+        let (frames, body) = self.prepare(skeleton, image_size);
+        if frames {
+            self.tf.publish(&self.message, stamp_ns);
+        }
+        if let (Some((i, roi, points)), Some(hri)) = (body, &mut self.hri) {
+            let body = &mut hri.bodies[i];
+            if let Some(roi) = roi {
+                body.roi.publish(&roi, stamp_ns);
+            }
+            body.skeleton2d.publish(&points, stamp_ns);
+        }
+    }
+
+    /// [`Bodies::publish`] on a runtime ([`Publishers::publish_async`]).
+    pub async fn publish_async(
+        &mut self,
+        skeleton: &Skeleton3D,
+        image_size: Option<(f64, f64)>,
+        stamp_ns: u64,
+    ) {
+        let (frames, body) = self.prepare(skeleton, image_size);
+        if frames {
+            self.tf.publish_async(&self.message, stamp_ns).await;
+        }
+        if let (Some((i, roi, points)), Some(hri)) = (body, &mut self.hri) {
+            let body = &mut hri.bodies[i];
+            if let Some(roi) = roi {
+                body.roi.publish_async(&roi, stamp_ns).await;
+            }
+            body.skeleton2d.publish_async(&points, stamp_ns).await;
+        }
+    }
+
+    /// What to send of `skeleton`: whether its frames are in `self.message`, and its
+    /// body's index with its region and 2D skeleton.
+    #[allow(clippy::type_complexity, reason = "one private hand-over")]
+    fn prepare(
+        &mut self,
+        skeleton: &Skeleton3D,
+        image_size: Option<(f64, f64)>,
+    ) -> (bool, Option<(usize, Option<RegionOfInterest>, Skeleton2D)>) {
+        if skeleton.lag != self.lag {
+            return (false, None);
+        }
+        self.message.transforms.clear();
+        if !self.tf.is_empty() {
+            self.frames.transforms(skeleton, &mut self.message);
+        }
+        let frames = !self.message.transforms.is_empty();
+        let body = self
+            .hri
+            .as_mut()
+            .and_then(|hri| hri.prepare(skeleton, image_size));
+        (frames, body)
+    }
+
+    /// The ids tracked in an image's `array` (at [`Bodies::lag`]; others are skipped),
+    /// when REP-155 topics are on.
+    fn tracked_ids(&self, array: &Skeleton3DArray) -> Option<IdsList> {
+        if array.lag != self.lag || self.hri.is_none() {
+            return None;
+        }
+        Some(tracked(&array.header, &array.skeletons))
+    }
+
+    /// Publishes the ids tracked in an image's `array`, if it is at [`Bodies::lag`].
+    pub fn tracked(&mut self, array: &Skeleton3DArray, stamp_ns: u64) {
+        if let (Some(ids), Some(hri)) = (self.tracked_ids(array), &mut self.hri) {
+            hri.tracked.publish(&ids, stamp_ns);
+        }
+    }
+
+    /// [`Bodies::tracked`] on a runtime.
+    pub async fn tracked_async(&mut self, array: &Skeleton3DArray, stamp_ns: u64) {
+        if let (Some(ids), Some(hri)) = (self.tracked_ids(array), &mut self.hri) {
+            hri.tracked.publish_async(&ids, stamp_ns).await;
+        }
+    }
+
+    /// Flushes every output.
+    pub fn flush(&mut self) {
+        self.tf.flush();
+        if let Some(hri) = &mut self.hri {
+            hri.tracked.flush();
+            for b in &mut hri.bodies {
+                b.roi.flush();
+                b.skeleton2d.flush();
+            }
+        }
+    }
+
+    /// Sends that failed.
+    pub fn failed(&self) -> u64 {
+        let hri = self.hri.as_ref().map_or(0, |h| {
+            h.failed
+                + h.tracked.failed
+                + h.bodies
+                    .iter()
+                    .map(|b| b.roi.failed + b.skeleton2d.failed)
+                    .sum::<u64>()
+        });
+        self.tf.failed + hri
+    }
+}
+
+impl HriTopics {
+    /// Body `skeleton`'s index with its region and 2D skeleton, to be sent (none for a
+    /// track's last estimate, which drops its body's topics, or without the image size).
+    fn prepare(
+        &mut self,
+        skeleton: &Skeleton3D,
+        image_size: Option<(f64, f64)>,
+    ) -> Option<(usize, Option<RegionOfInterest>, Skeleton2D)> {
+        let id = skeleton.track_id;
+        let found = self.bodies.iter().position(|b| b.track_id == id);
+        if skeleton.state == SkeletonState::Lost as u8 {
+            if let Some(i) = found {
+                let mut gone = self.bodies.swap_remove(i);
+                gone.roi.flush();
+                gone.skeleton2d.flush();
+                self.failed += gone.roi.failed + gone.skeleton2d.failed;
+            }
+            return None;
+        }
+        let size = image_size?;
+        self.uses += 1;
+        let i = match found {
+            Some(i) => i,
+            None => self.open(id)?,
+        };
+        self.bodies[i].used = self.uses;
+        Some((
+            i,
+            self.convert.roi(skeleton, size),
+            self.convert.skeleton2d(skeleton, size),
+        ))
+    }
+
+    /// Makes body `id`'s topics (room made by the body seen least recently); its index.
+    fn open(&mut self, id: u32) -> Option<usize> {
+        if self.bodies.len() >= MAX_BODY_TOPICS
+            && let Some(oldest) = (0..self.bodies.len()).min_by_key(|&i| self.bodies[i].used)
+        {
+            let mut gone = self.bodies.swap_remove(oldest);
+            gone.roi.flush();
+            gone.skeleton2d.flush();
+            self.failed += gone.roi.failed + gone.skeleton2d.failed;
+        }
+        let base = format!("{}/{}", self.namespace, body_id(id));
+        let made = self
+            .maker
+            .publishers(&format!("{base}/roi"))
+            .and_then(|roi| Ok((roi, self.maker.publishers(&format!("{base}/skeleton2d"))?)));
+        match made {
+            Ok((roi, skeleton2d)) => {
+                self.bodies.push(BodyTopics {
+                    track_id: id,
+                    roi,
+                    skeleton2d,
+                    used: self.uses,
+                });
+                Some(self.bodies.len() - 1)
+            }
+            Err(e) => {
+                self.failed += 1;
+                if self.failed == 1 {
+                    tracing::warn!(
+                        "no REP-155 topics for body {}: {e} (further failures are counted)",
+                        body_id(id)
+                    );
+                }
+                None
+            }
+        }
+    }
+}
