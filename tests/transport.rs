@@ -636,3 +636,220 @@ fn assert_is_our_skeleton(v: &serde_json::Value) {
     assert_eq!(f64s("keypoint_std"), want.keypoint_std);
     assert_eq!(f64s("projected"), want.projected);
 }
+
+/// The Fast DDS peer (`tests/fastdds/`): configured and built once per target folder with
+/// CMake against Debian's `libfastrtps-dev`, types from `fastddsgen` (which `.ci/run`
+/// installs).
+fn fastdds_peer() -> std::path::PathBuf {
+    let build = common::root().join("target/fastdds-interop");
+    let run = |program: &str, args: &[&str]| {
+        let out = Command::new(program)
+            .args(args)
+            .current_dir(&build)
+            .output()
+            .unwrap_or_else(|e| {
+                panic!("cannot run {program} ({e}): the Fast DDS peer needs cmake, g++, libfastrtps-dev and fastddsgen (Debian; .ci/run installs them)")
+            });
+        assert!(
+            out.status.success(),
+            "{program} {args:?} failed:\n{}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
+    };
+    std::fs::create_dir_all(&build).expect("build folder");
+    let source = common::root().join("tests/fastdds");
+    run(
+        "cmake",
+        &[
+            "-S",
+            source.to_str().expect("utf-8"),
+            "-B",
+            ".",
+            "-DCMAKE_BUILD_TYPE=Release",
+        ],
+    );
+    run("cmake", &["--build", ".", "-j", "2"]);
+    build.join("interop")
+}
+
+/// eProsima Fast DDS, the DDS of a default ROS 2 install, as the peer on both ends: a
+/// C++ publisher (types generated from IDL written from our `.msg` files) drives
+/// `posestream estimator` with byebye's heat maps, and a C++ subscriber receives every
+/// skeleton, `/tf` and REP-155 message the estimator published (its recording says how
+/// many), bit for bit where it sums them; and it hears our participant leave.
+#[test]
+fn a_fast_dds_peer_drives_our_estimator_and_receives_everything_it_publishes() {
+    let peer = fastdds_peer();
+    let d = domain(6);
+    let dir = tempfile::tempdir().expect("dir");
+    // The heat maps, as the C++ publisher reads them: length, then CDR.
+    let maps: Vec<HeatMaps> =
+        common::messages(&common::recording("byebye.mcap"), "/posestream/heatmaps");
+    let mut file = Vec::new();
+    for m in &maps {
+        let bytes = posestream::msgs::encode(m).expect("encodes");
+        file.extend_from_slice(&(bytes.len() as u32).to_le_bytes());
+        file.extend_from_slice(&bytes);
+    }
+    let input = dir.path().join("heatmaps.bin");
+    std::fs::write(&input, file).expect("write");
+    let bodies: std::collections::BTreeSet<String> =
+        maps.iter().map(|m| format!("b{}", m.track_id)).collect();
+    // The subscriber first.
+    let mut sub_args = vec!["sub".to_string(), d.to_string(), "60".into()];
+    sub_args.extend(bodies.iter().cloned());
+    let mut subscriber = Command::new(&peer)
+        .args(&sub_args)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .expect("fast dds subscriber");
+    let mut sub_lines = BufReader::new(subscriber.stdout.take().expect("stdout")).lines();
+    assert_eq!(
+        sub_lines.next().and_then(Result::ok).as_deref(),
+        Some("ready")
+    );
+    // The estimator, recording what it publishes, on ordinary discovery (multicast).
+    let out = dir.path().join("estimator.mcap");
+    let config = dir.path().join("estimator.toml");
+    std::fs::write(
+        &config,
+        format!(
+            "[ros]\ndomain_id = {d}\nwait_for_subscribers = 0.0\n[outputs]\nrecord = \"{}\"\n",
+            out.display()
+        ),
+    )
+    .expect("config");
+    let estimator = Command::new(env!("CARGO_BIN_EXE_posestream"))
+        .args([
+            "estimator",
+            "--config",
+            config.to_str().expect("utf-8"),
+            "--json",
+        ])
+        .current_dir(common::root())
+        .env_remove("ROS_DOMAIN_ID")
+        .env_remove("ROS_LOCALHOST_ONLY")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("estimator");
+    // The camera's calibration (metres, and the images' size REP-155's messages need),
+    // from a node of ours, until the estimator is done.
+    let crop = maps[0].crop().expect("crop");
+    let (w, h) = (
+        (crop.x0 + crop.width).ceil() as u32 + 200,
+        (crop.y0 + crop.height).ceil() as u32 + 200,
+    );
+    let camera = Ros2::new(&RosSettings {
+        domain_id: d,
+        node_name: "camera".into(),
+        ..RosSettings::default()
+    })
+    .expect("camera node");
+    let info = posestream::msgs::sensor::CameraInfo {
+        header: Header {
+            stamp: Time::from_nanos(0),
+            frame_id: "camera".into(),
+        },
+        width: w,
+        height: h,
+        k: [
+            800.0,
+            0.0,
+            f64::from(w) / 2.0,
+            0.0,
+            800.0,
+            f64::from(h) / 2.0,
+            0.0,
+            0.0,
+            1.0,
+        ],
+        ..Default::default()
+    };
+    let calibrating = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(true));
+    let calibration = {
+        let calibrating = calibrating.clone();
+        let mut sink = camera
+            .sink::<posestream::msgs::sensor::CameraInfo>("/camera/camera_info")
+            .expect("camera_info");
+        common::spawn("camera", move || {
+            while calibrating.load(std::sync::atomic::Ordering::Relaxed) {
+                let _ = sink.send(&info, 0);
+                std::thread::sleep(Duration::from_millis(50));
+            }
+        })
+    };
+    // Let the calibration reach the estimator before the first heat maps.
+    std::thread::sleep(Duration::from_secs(3));
+    let published = Command::new(&peer)
+        .args(["pub", &d.to_string(), input.to_str().expect("utf-8")])
+        .output()
+        .expect("fast dds publisher");
+    let published: serde_json::Value =
+        serde_json::from_slice(&published.stdout).expect("publisher's json");
+    assert_eq!(published["matched"], true, "{published}");
+    assert_eq!(published["published"], maps.len(), "{published}");
+    // The estimator has what it needs; it ends the track and stops cleanly.
+    std::thread::sleep(Duration::from_secs(2));
+    calibrating.store(false, std::sync::atomic::Ordering::Relaxed);
+    calibration.join().expect("camera");
+    let stopped = Command::new("kill")
+        .args(["-INT", &estimator.id().to_string()])
+        .status()
+        .expect("kill");
+    assert!(stopped.success());
+    let report = estimator.wait_with_output().expect("estimator");
+    assert!(report.status.success());
+    let report: serde_json::Value = serde_json::from_slice(&report.stdout).expect("json");
+    // Every heat map from Fast DDS was taken.
+    assert_eq!(report["frames"], maps.len(), "{report}");
+    let heard = sub_lines
+        .next()
+        .and_then(Result::ok)
+        .expect("the subscriber's line");
+    let _ = subscriber.wait();
+    drop(camera);
+    let heard: serde_json::Value = serde_json::from_str(&heard).expect("json");
+    // What the estimator published, from its recording.
+    let mut per_topic = std::collections::BTreeMap::<String, usize>::new();
+    for m in posestream::recording::RecordingReader::open(&out).expect("recording") {
+        *per_topic.entry(m.expect("message").topic).or_default() += 1;
+    }
+    let recorded = |topic: &str| per_topic.get(topic).copied().unwrap_or(0);
+    let skeletons: Vec<Skeleton3D> = common::messages(&out, "/posestream/skeletons");
+    assert_eq!(skeletons.len(), 2 * maps.len(), "{report}");
+    assert!(
+        skeletons.iter().any(|s| s.units == 1),
+        "no skeleton in metres"
+    );
+    let counts = &heard["counts"];
+    assert_eq!(counts["/posestream/skeletons"], skeletons.len(), "{heard}");
+    assert_eq!(
+        heard["sequence_sum"],
+        skeletons.iter().map(|s| s.sequence).sum::<u64>(),
+        "{heard}"
+    );
+    for topic in ["/tf", "/humans/bodies/tracked"] {
+        assert!(recorded(topic) > 0, "{topic}");
+        assert_eq!(counts[topic], recorded(topic), "{topic}: {heard}");
+    }
+    for body in &bodies {
+        for what in ["roi", "skeleton2d"] {
+            let topic = format!("/humans/bodies/{body}/{what}");
+            assert!(recorded(&topic) > 0, "{topic}");
+            assert_eq!(counts[&topic], recorded(&topic), "{topic}: {heard}");
+        }
+    }
+    // Our participant, by its node's name, and its departure understood (not its lease
+    // running out).
+    let ours: Vec<&serde_json::Value> = heard["participants"]
+        .as_array()
+        .expect("participants")
+        .iter()
+        .filter(|p| p["name"] == "/posestream_estimator")
+        .collect();
+    assert_eq!(ours.len(), 1, "{heard}");
+    assert_eq!(ours[0]["left"], "removed", "{heard}");
+}

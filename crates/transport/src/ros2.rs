@@ -36,6 +36,13 @@ const MATCH_SETTLE: Duration = Duration::from_millis(500);
 /// How long a publish waits for room in a full reliable history before it fails.
 const FULL_WAIT: Duration = Duration::from_millis(100);
 
+/// How long after its last message a publisher's flush waits: DDS sends and resends in
+/// the background, and a participant dropped at once loses what went last (measured: a
+/// Fast DDS subscriber missed the 10 estimates an estimator stopped with Ctrl-C sent as
+/// it stopped). ros2-client gives no access to the writer's `wait_for_acknowledgments`,
+/// so a bounded wait stands in for it.
+const LINGER: Duration = Duration::from_millis(500);
+
 /// `[ros]` in the configuration.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -353,6 +360,7 @@ impl Ros2 {
         Ok(Ros2Sink {
             publisher,
             topic: topic.to_string(),
+            last_sent: Mutex::new(None),
         })
     }
 
@@ -405,6 +413,8 @@ fn type_name<M: Message>() -> Result<(&'static str, &'static str), TransportErro
 pub struct Ros2Sink<M: Message> {
     publisher: Publisher<M>,
     topic: String,
+    /// When a message went last ([`Sink::flush`] lets DDS deliver it).
+    last_sent: Mutex<Option<std::time::Instant>>,
 }
 
 impl<M: Message> Ros2Sink<M> {
@@ -423,6 +433,7 @@ impl<M: Message> Ros2Sink<M> {
     /// at its time limit only when woken, and a matched reader that stops
     /// acknowledging never wakes it: the limit is kept here.)
     pub async fn send_async(&self, message: &M) -> Result<(), TransportError> {
+        self.sent_now();
         match tokio::time::timeout(FULL_WAIT, self.publisher.async_publish(message.clone())).await {
             Ok(sent) => sent.map_err(|e| self.failed(e.to_string())),
             Err(_) => Err(self.failed(format!(
@@ -434,12 +445,29 @@ impl<M: Message> Ros2Sink<M> {
     }
 }
 
+impl<M: Message> Ros2Sink<M> {
+    fn sent_now(&self) {
+        *self.last_sent.lock().unwrap_or_else(|e| e.into_inner()) = Some(std::time::Instant::now());
+    }
+}
+
 impl<M: Message> Sink<M> for Ros2Sink<M> {
     /// Publishes (the stamp travels in the message's header; DDS adds its own).
     fn send(&mut self, message: &M, _stamp_ns: u64) -> Result<(), TransportError> {
+        self.sent_now();
         self.publisher
             .publish(message.clone())
             .map_err(|e| self.failed(e.to_string()))
+    }
+
+    /// Waits until [`LINGER`] after the last message, so that DDS delivers it before the
+    /// participant may go.
+    fn flush(&mut self) -> Result<(), TransportError> {
+        let last = *self.last_sent.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(last) = last {
+            std::thread::sleep(LINGER.saturating_sub(last.elapsed()));
+        }
+        Ok(())
     }
 }
 

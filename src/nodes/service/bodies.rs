@@ -1,8 +1,9 @@
 //! The estimator's outputs about bodies rather than skeletons: each person's frames on
 //! `/tf` ([`BodyFrames`]) and REP-155's body topics ([`HriBodies`]): the ids tracked in
 //! each image on `<ns>/tracked`, and per body `<ns>/<id>/roi` and `<ns>/<id>/skeleton2d`.
-//! A body's topics are made when it is first seen and dropped when its track ends, so
-//! their number follows the people in view (at most [`MAX_BODY_TOPICS`] bodies at once).
+//! A body's topics are made when it is first seen and dropped a while after its track
+//! ends, so their number follows the people in view (at most [`MAX_BODY_TOPICS`] bodies
+//! at once, and those that left in the last seconds).
 //!
 //! Bodies are described at one lag, [`Bodies::lag`]: the newest estimates when the window
 //! publishes them (the least delay, as TF and HRI consumers want), else the refined ones.
@@ -47,6 +48,10 @@ impl TopicMaker {
     }
 }
 
+/// How long an ended body's topics stay after its track ended: DDS delivers in the
+/// background, and a publisher dropped at once may lose what it sent last.
+const RETIRE_AFTER: std::time::Duration = std::time::Duration::from_secs(2);
+
 /// One body's REP-155 topics.
 struct BodyTopics {
     track_id: u32,
@@ -54,7 +59,14 @@ struct BodyTopics {
     skeleton2d: Publishers<Skeleton2D>,
     /// When it was used last (orders bodies by recency).
     used: u64,
+    /// Made while discovery knew subscribers of its topics: its first messages wait until
+    /// then for the new publishers to match them (else they go to nobody).
+    settle_until: Option<std::time::Instant>,
 }
+
+/// How long a new body's first messages wait for its new publishers to match
+/// subscribers discovery already knows (matching runs in the background).
+const MATCH_SETTLE: std::time::Duration = std::time::Duration::from_millis(200);
 
 /// REP-155's body topics.
 pub struct HriTopics {
@@ -63,6 +75,8 @@ pub struct HriTopics {
     namespace: String,
     tracked: Publishers<IdsList>,
     bodies: Vec<BodyTopics>,
+    /// Bodies whose tracks ended, and when: dropped [`RETIRE_AFTER`] later.
+    retired: Vec<(BodyTopics, std::time::Instant)>,
     uses: u64,
     /// Sends of dropped bodies' topics that failed, and bodies whose topics could not be
     /// made.
@@ -111,6 +125,7 @@ impl Bodies {
                 maker,
                 namespace,
                 bodies: Vec::new(),
+                retired: Vec::new(),
                 uses: 0,
                 failed: 0,
             }),
@@ -146,6 +161,9 @@ impl Bodies {
         }
         if let (Some((i, roi, points)), Some(hri)) = (body, &mut self.hri) {
             let body = &mut hri.bodies[i];
+            if let Some(wait) = body.settle() {
+                std::thread::sleep(wait);
+            }
             if let Some(roi) = roi {
                 body.roi.publish(&roi, stamp_ns);
             }
@@ -166,6 +184,9 @@ impl Bodies {
         }
         if let (Some((i, roi, points)), Some(hri)) = (body, &mut self.hri) {
             let body = &mut hri.bodies[i];
+            if let Some(wait) = body.settle() {
+                tokio::time::sleep(wait).await;
+            }
             if let Some(roi) = roi {
                 body.roi.publish_async(&roi, stamp_ns).await;
             }
@@ -224,7 +245,11 @@ impl Bodies {
         self.tf.flush();
         if let Some(hri) = &mut self.hri {
             hri.tracked.flush();
-            for b in &mut hri.bodies {
+            for b in hri
+                .bodies
+                .iter_mut()
+                .chain(hri.retired.iter_mut().map(|(b, _)| b))
+            {
                 b.roi.flush();
                 b.skeleton2d.flush();
             }
@@ -238,10 +263,19 @@ impl Bodies {
                 + h.tracked.failed
                 + h.bodies
                     .iter()
+                    .chain(h.retired.iter().map(|(b, _)| b))
                     .map(|b| b.roi.failed + b.skeleton2d.failed)
                     .sum::<u64>()
         });
         self.tf.failed + hri
+    }
+}
+
+impl BodyTopics {
+    /// How long its first messages still wait for its publishers to match (once).
+    fn settle(&mut self) -> Option<std::time::Duration> {
+        let until = self.settle_until.take()?;
+        Some(until.saturating_duration_since(std::time::Instant::now()))
     }
 }
 
@@ -254,13 +288,20 @@ impl HriTopics {
         image_size: Option<(f64, f64)>,
     ) -> Option<(usize, Option<RegionOfInterest>, Skeleton2D)> {
         let id = skeleton.track_id;
+        let now = std::time::Instant::now();
+        let retired = &mut self.retired;
+        let failed = &mut self.failed;
+        retired.retain(|(b, at)| {
+            let keep = now.duration_since(*at) < RETIRE_AFTER;
+            if !keep {
+                *failed += b.roi.failed + b.skeleton2d.failed;
+            }
+            keep
+        });
         let found = self.bodies.iter().position(|b| b.track_id == id);
         if skeleton.state == SkeletonState::Lost as u8 {
             if let Some(i) = found {
-                let mut gone = self.bodies.swap_remove(i);
-                gone.roi.flush();
-                gone.skeleton2d.flush();
-                self.failed += gone.roi.failed + gone.skeleton2d.failed;
+                self.retired.push((self.bodies.swap_remove(i), now));
             }
             return None;
         }
@@ -283,16 +324,19 @@ impl HriTopics {
         if self.bodies.len() >= MAX_BODY_TOPICS
             && let Some(oldest) = (0..self.bodies.len()).min_by_key(|&i| self.bodies[i].used)
         {
-            let mut gone = self.bodies.swap_remove(oldest);
-            gone.roi.flush();
-            gone.skeleton2d.flush();
-            self.failed += gone.roi.failed + gone.skeleton2d.failed;
+            let gone = self.bodies.swap_remove(oldest);
+            self.retired.push((gone, std::time::Instant::now()));
         }
         let base = format!("{}/{}", self.namespace, body_id(id));
+        let (roi_topic, skeleton2d_topic) = (format!("{base}/roi"), format!("{base}/skeleton2d"));
         let made = self
             .maker
-            .publishers(&format!("{base}/roi"))
-            .and_then(|roi| Ok((roi, self.maker.publishers(&format!("{base}/skeleton2d"))?)));
+            .publishers(&roi_topic)
+            .and_then(|roi| Ok((roi, self.maker.publishers(&skeleton2d_topic)?)));
+        // Subscribers discovery knows already (a consumer that expected this body).
+        let awaited = self.maker.ros.as_ref().is_some_and(|ros| {
+            ros.subscriptions(&roi_topic) + ros.subscriptions(&skeleton2d_topic) > 0
+        });
         match made {
             Ok((roi, skeleton2d)) => {
                 self.bodies.push(BodyTopics {
@@ -300,6 +344,7 @@ impl HriTopics {
                     roi,
                     skeleton2d,
                     used: self.uses,
+                    settle_until: awaited.then(|| std::time::Instant::now() + MATCH_SETTLE),
                 });
                 Some(self.bodies.len() - 1)
             }

@@ -278,7 +278,17 @@ impl MessageBuilder {
     match cache_change.data_value {
       DDSData::Data { .. } => (), // data sample, not dispose
 
-      DDSData::DisposeByKey { .. } => {
+      DDSData::DisposeByKey { key_hash, .. } => {
+        // posestream patch (vendor/rustdds/PATCHES.md): the key hash too, when known. A
+        // reader may not decode the serialized key (Fast DDS takes only a 16-byte raw
+        // key from the payload, "Ignoring Serialized Payload for too large key-only
+        // data") and then has nothing to find the instance by.
+        if let Some(key_hash) = key_hash {
+          param_list.push(Parameter {
+            parameter_id: ParameterId::PID_KEY_HASH,
+            value: key_hash.to_vec(),
+          });
+        }
         param_list.push(Parameter::create_pid_status_info_parameter(
           /* disposed */ true, /* unregistered */ true, /* filtered */ false,
         ));
