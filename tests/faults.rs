@@ -1016,3 +1016,67 @@ fn a_deployment_over_three_hosts_loses_nothing_and_rides_out_a_cut_link() {
         "{report}"
     );
 }
+
+#[test]
+fn run_waits_for_a_recorder_so_no_skeleton_is_lost_over_ros2() {
+    // `posestream record` started, then at once `posestream run` on a recording, fast.
+    // Found: run published from its first frame on, before the recorder matched, and
+    // lost the beginning. With `[ros] wait_for_subscribers` it waits for the recorder
+    // to be discovered; without (0), the beginning is lost.
+    let dir = tempfile::tempdir().expect("tempdir");
+    let domain = test_domain(9);
+    let mut heard = Vec::new();
+    for wait in [10.0, 0.0] {
+        let ros = format!(
+            "[ros]\nlocalhost_only = true\ndomain_id = {domain}\nwait_for_subscribers = {wait:.1}\n"
+        );
+        let rec = config_file(dir.path(), "recorder.toml", &ros);
+        let run = config_file(
+            dir.path(),
+            "run.toml",
+            &format!("{ros}[outputs]\nros2 = true\nmarkers = false\n"),
+        );
+        let out = dir.path().join(format!("wait-{wait}.mcap"));
+        let recorder = spawn(&[
+            "record",
+            s(&out),
+            "--config",
+            s(&rec),
+            "--topics",
+            "skeletons",
+        ]);
+        let run = spawn(&[
+            "run",
+            "--config",
+            s(&run),
+            "--recording",
+            "recordings/byebye.mcap",
+            "--rate",
+            "fast",
+            "--json",
+        ])
+        .wait_with_output()
+        .expect("run");
+        assert!(run.status.success());
+        assert_eq!(json_of(&run)["estimator"]["skeletons"], 242);
+        std::thread::sleep(Duration::from_millis(1000));
+        signal(&recorder, "-INT");
+        assert!(
+            recorder
+                .wait_with_output()
+                .expect("recorder")
+                .status
+                .success()
+        );
+        heard.push(
+            read_topic::<Skeleton3D>(&out, SKELETONS)
+                .expect("reads")
+                .len(),
+        );
+    }
+    assert_eq!(heard[0], 242, "waited: every skeleton recorded ({heard:?})");
+    assert!(
+        heard[1] < 242,
+        "not waited: the beginning is lost ({heard:?})"
+    );
+}

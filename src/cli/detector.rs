@@ -1,7 +1,6 @@
 //! `posestream detector`: the detector node as a service.
 
 use std::path::PathBuf;
-use std::time::Duration;
 
 use clap::Args;
 use posestream::nodes::ServiceConfig;
@@ -54,16 +53,7 @@ pub fn run(args: &DetectorArgs) -> Result<(), CliError> {
         tap.publish_to(wiring.camera_outputs(&config)?);
     }
     // No lost beginning: the first frames wait (a while) for a subscriber to match.
-    if config.outputs.ros2
-        && config.ros.wait_for_subscribers > 0.0
-        && let Some(ros) = wiring.middleware.ros.as_ref()
-    {
-        let topic = &config.topics.heatmaps;
-        let wait = Duration::from_secs_f64(config.ros.wait_for_subscribers);
-        if !ros.wait_for_subscriptions(topic, wait) {
-            tracing::warn!("no subscriber of {topic} after {wait:?}: publishing anyway");
-        }
-    }
+    wiring.wait_for_subscribers(&config, &config.topics.heatmaps);
     // The source and the sinks are dropped in the loop: before the middleware under them.
     let mut report = run_detector_on_runtime(source, sinks, rate, &stop)?;
     if let Some(tap) = &camera {

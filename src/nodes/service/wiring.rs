@@ -731,6 +731,21 @@ impl Wiring {
         })
     }
 
+    /// Waits up to `[ros] wait_for_subscribers` for DDS discovery to see a subscriber of
+    /// `topic` (then for both ends to match), when publishing on ROS 2: so that the first
+    /// messages do not go to nobody. Says so when it stops waiting.
+    pub fn wait_for_subscribers(&self, config: &ServiceConfig, topic: &str) {
+        if config.outputs.ros2
+            && config.ros.wait_for_subscribers > 0.0
+            && let Some(ros) = self.middleware.ros.as_ref()
+        {
+            let wait = Duration::from_secs_f64(config.ros.wait_for_subscribers);
+            if !ros.wait_for_subscriptions(topic, wait) {
+                tracing::warn!("no subscriber of {topic} after {wait:?}: publishing anyway");
+            }
+        }
+    }
+
     /// Starts the output recording, if one is configured (after the inputs are set up;
     /// a setup that fails later drops the wiring, which removes the empty recording).
     pub fn start_recording(&mut self, config: &ServiceConfig) -> Result<(), ServiceError> {
