@@ -44,15 +44,29 @@ impl BodyFrames {
             .iter()
             .filter_map(|(l, r)| Some((find(l)?, find(r)?)))
             .collect();
+        // Frame names of their own: a name that is empty, taken already or the body's
+        // own (`body`) becomes `joint<i>`.
+        let mut names: Vec<String> = Vec::with_capacity(joint_names.len());
+        for (i, j) in joint_names.iter().enumerate() {
+            let name: String = j
+                .chars()
+                .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
+                .collect();
+            let taken = |n: &str| names.iter().any(|m| m == n);
+            let name = if name.is_empty() || name == "body" || taken(&name) {
+                format!("joint{i}")
+            } else {
+                name
+            };
+            let name = if taken(&name) {
+                format!("joint{i}_")
+            } else {
+                name
+            };
+            names.push(name);
+        }
         Self {
-            names: joint_names
-                .iter()
-                .map(|j| {
-                    j.chars()
-                        .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
-                        .collect()
-                })
-                .collect(),
+            names,
             origin: match (find("l-hip"), find("r-hip"), find("pelvis")) {
                 (Some(l), Some(r), _) => vec![l, r],
                 (_, _, Some(p)) => vec![p],
@@ -216,6 +230,9 @@ mod tests {
             assert!((back - want).norm() < 1e-12, "{}", j.child_frame_id);
         }
         assert_eq!(tf.transforms[2].child_frame_id, "l_hip_b3");
+        // Frame names of their own, whatever the dictionary's joint names.
+        let odd = BodyFrames::new(&["l-knee", "l_knee", "", "body"].map(String::from));
+        assert_eq!(odd.names, ["l_knee", "joint1", "joint2", "joint3"]);
     }
 
     #[test]

@@ -31,7 +31,7 @@ const FROM_JOINTS: [(&str, &str); 13] = [
 ];
 
 /// A keypoint's confidence is `exp(-(s / r)^2 / 2)` for its 2D standard deviation `s`
-/// (pixels) and `r` this fraction of the image's longer side.
+/// (pixels) and `r` this fraction of the image's longer side; 0 outside the image.
 const CONFIDENCE_SPREAD: f64 = 0.05;
 
 /// A body's region is its joints' bounding box grown by this fraction of its size on
@@ -75,12 +75,15 @@ impl HriBodies {
             ) else {
                 continue;
             };
+            let (x, y) = (uv[0] / width, uv[1] / height);
             let c = (-0.5 * (s / reference).powi(2)).exp();
-            if uv.iter().all(|v| v.is_finite()) && c.is_finite() {
+            if x.is_finite() && y.is_finite() && c.is_finite() {
+                // A joint outside the image: on its edge, and not seen there.
+                let inside = (0.0..=1.0).contains(&x) && (0.0..=1.0).contains(&y);
                 *point = NormalizedPointOfInterest2D {
-                    x: (uv[0] / width).clamp(0.0, 1.0) as f32,
-                    y: (uv[1] / height).clamp(0.0, 1.0) as f32,
-                    c: c as f32,
+                    x: x.clamp(0.0, 1.0) as f32,
+                    y: y.clamp(0.0, 1.0) as f32,
+                    c: if inside { c as f32 } else { 0.0 },
                 };
             }
         }
@@ -151,7 +154,7 @@ mod tests {
             keypoints: vec![
                 100.0, 200.0, 90.0, 200.0, 110.0, 200.0, 100.0, 100.0, 700.0, 50.0,
             ],
-            keypoint_std: vec![5.0, 5.0, 5.0, 0.0, 64.0],
+            keypoint_std: vec![5.0, 64.0, 5.0, 0.0, 5.0],
             ..Skeleton3D::default()
         }
     }
@@ -173,10 +176,12 @@ mod tests {
             (neck.x, neck.y, neck.c),
             (100.0 / 640.0, 100.0 / 480.0, 1.0)
         );
-        // Past the image's edge: clipped; a spread of 2 r: confidence exp(-2).
+        // Past the image's edge: on it, not seen.
         let wrist = at("right_wrist");
-        assert_eq!(wrist.x, 1.0);
-        assert!((f64::from(wrist.c) - (-2.0f64).exp()).abs() < 1e-6);
+        assert_eq!((wrist.x, wrist.c), (1.0, 0.0));
+        // A spread of 2 r: confidence exp(-2).
+        let hip = at("right_hip");
+        assert!((f64::from(hip.c) - (-2.0f64).exp()).abs() < 1e-6, "{hip:?}");
         assert_eq!(at("left_hip").x, 110.0 / 640.0);
         // Not in the layout: unobserved.
         for k in ["nose", "left_eye", "right_ear", "left_knee"] {

@@ -1,6 +1,7 @@
 """Independent client: the bodies of a posestream MCAP recording as a ROS 2 user's tools
 see them. `/tf` (tf2_msgs/TFMessage) and sensor_msgs/RegionOfInterest are decoded with
-rosbags' ROS 2 Humble type store (not with the recording's schemas); hri_msgs/IdsList and
+rosbags' ROS 2 Humble type store (not with the recording's schemas), and `/tf` again with
+Jazzy's, which must read the same; hri_msgs/IdsList and
 Skeleton2D with the ros4hri definitions given on the command line; the skeletons with
 mcap-ros2-support. Each newest skeleton in metres is rebuilt from its body frame and joint
 frames (quaternions composed here) and compared with its published joint positions.
@@ -24,6 +25,8 @@ types = {}
 for name in ["NormalizedPointOfInterest2D", "IdsList", "Skeleton2D"]:
     types.update(get_types_from_msg((hri_dir / f"{name}.msg").read_text(), f"hri_msgs/msg/{name}"))
 store.register(types)
+jazzy = get_typestore(Stores.ROS2_JAZZY)
+distros_disagree = 0
 
 
 def rotate(q, v):
@@ -46,6 +49,7 @@ tracked = []
 roi = {}
 skeleton2d = {}
 unobserved = set()
+observed = set()
 roi_bad = 0
 factory = DecoderFactory()
 decoders = {}
@@ -55,6 +59,15 @@ with open(path, "rb") as f:
         topic = channel.topic
         if topic == "/tf":
             tf = store.deserialize_cdr(message.data, "tf2_msgs/msg/TFMessage")
+            other = jazzy.deserialize_cdr(message.data, "tf2_msgs/msg/TFMessage")
+            if [
+                (t.child_frame_id, t.transform.translation.x, t.transform.rotation.w)
+                for t in tf.transforms
+            ] != [
+                (t.child_frame_id, t.transform.translation.x, t.transform.rotation.w)
+                for t in other.transforms
+            ]:
+                distros_disagree += 1
             for t in tf.transforms:
                 stamp = t.header.stamp.sec * 10**9 + t.header.stamp.nanosec
                 tr, rq = t.transform.translation, t.transform.rotation
@@ -87,6 +100,8 @@ with open(path, "rb") as f:
                     unobserved.add(k)
                 elif not (0 <= p.x <= 1 and 0 <= p.y <= 1 and 0 < p.c <= 1):
                     roi_bad += 1
+                else:
+                    observed.add(k)
 
 worst, checked, missing, parents = 0.0, 0, 0, set()
 for s in skeletons:
@@ -120,7 +135,9 @@ print(
             "roi": roi,
             "skeleton2d": skeleton2d,
             "unobserved_keypoints": sorted(unobserved),
+            "observed_keypoints": sorted(observed),
             "bad": roi_bad,
+            "distros_disagree": distros_disagree,
         }
     )
 )

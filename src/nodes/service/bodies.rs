@@ -1,9 +1,12 @@
 //! The estimator's outputs about bodies rather than skeletons: each person's frames on
 //! `/tf` ([`BodyFrames`]) and REP-155's body topics ([`HriBodies`]): the ids tracked in
 //! each image on `<ns>/tracked`, and per body `<ns>/<id>/roi` and `<ns>/<id>/skeleton2d`.
-//! A body's topics are made when it is first seen and dropped a while after its track
-//! ends, so their number follows the people in view (at most [`MAX_BODY_TOPICS`] bodies
-//! at once, and those that left in the last seconds).
+//! A body's topics are made when it is first seen and dropped once it has not been seen
+//! for [`RETIRE_AFTER`] (its track ended, or it left), so their number follows the
+//! people in view: at most [`MAX_BODY_TOPICS`] bodies at once, and [`MAX_BODIES_MADE`]
+//! over a process's life (ros2-client keeps every publisher it ever made in its node's
+//! `ros_discovery_info`, which would otherwise grow for ever; later bodies get no
+//! topics of their own, counted, while `/tf` and the tracked ids go on).
 //!
 //! Bodies are described at one lag, [`Bodies::lag`]: the newest estimates when the window
 //! publishes them (the least delay, as TF and HRI consumers want), else the refined ones.
@@ -48,17 +51,21 @@ impl TopicMaker {
     }
 }
 
-/// How long an ended body's topics stay after its track ended: DDS delivers in the
-/// background, and a publisher dropped at once may lose what it sent last.
-const RETIRE_AFTER: std::time::Duration = std::time::Duration::from_secs(2);
+/// How long a body's topics stay after it was last seen (its track ended or it left):
+/// DDS delivers in the background, and a publisher dropped at once may lose what it sent
+/// last; a person lost for less keeps them.
+pub const RETIRE_AFTER: std::time::Duration = std::time::Duration::from_secs(2);
+
+/// Bodies given topics of their own over a process's life, at most (see the module docs).
+pub const MAX_BODIES_MADE: u64 = 4096;
 
 /// One body's REP-155 topics.
 struct BodyTopics {
     track_id: u32,
     roi: Publishers<RegionOfInterest>,
     skeleton2d: Publishers<Skeleton2D>,
-    /// When it was used last (orders bodies by recency).
-    used: u64,
+    /// When it was seen last.
+    seen: std::time::Instant,
     /// Made while discovery knew subscribers of its topics: its first messages wait until
     /// then for the new publishers to match them (else they go to nobody).
     settle_until: Option<std::time::Instant>,
@@ -66,7 +73,7 @@ struct BodyTopics {
 
 /// How long a new body's first messages wait for its new publishers to match
 /// subscribers discovery already knows (matching runs in the background).
-const MATCH_SETTLE: std::time::Duration = std::time::Duration::from_millis(200);
+const MATCH_SETTLE: std::time::Duration = std::time::Duration::from_millis(500);
 
 /// REP-155's body topics.
 pub struct HriTopics {
@@ -75,9 +82,10 @@ pub struct HriTopics {
     namespace: String,
     tracked: Publishers<IdsList>,
     bodies: Vec<BodyTopics>,
-    /// Bodies whose tracks ended, and when: dropped [`RETIRE_AFTER`] later.
-    retired: Vec<(BodyTopics, std::time::Instant)>,
-    uses: u64,
+    /// Bodies given topics so far.
+    made: u64,
+    /// Bodies refused topics of their own ([`MAX_BODIES_MADE`]).
+    pub refused: u64,
     /// Sends of dropped bodies' topics that failed, and bodies whose topics could not be
     /// made.
     failed: u64,
@@ -125,8 +133,8 @@ impl Bodies {
                 maker,
                 namespace,
                 bodies: Vec::new(),
-                retired: Vec::new(),
-                uses: 0,
+                made: 0,
+                refused: 0,
                 failed: 0,
             }),
             None => None,
@@ -145,10 +153,12 @@ impl Bodies {
         self.tf.is_empty() && self.hri.is_none()
     }
 
-    /// Publishes what `skeleton` says of its body (nothing unless it is at [`Bodies::lag`]):
-    /// its frames (in metres) and, in images of `image_size` (columns, rows; `None`:
-    /// unknown, no region or 2D skeleton), its REP-155 region and 2D skeleton. A track's
-    /// last estimate drops its body's topics.
+    /// Publishes what `skeleton` says of its body (nothing unless it is at [`Bodies::lag`],
+    /// nor for a track's last estimates, which repeat frames already described): its
+    /// frames (in metres) and, in images of `image_size` (columns, rows; `None`: unknown,
+    /// no region or 2D skeleton), its REP-155 region and 2D skeleton. (A new body whose
+    /// topics a subscriber already waits for is not waited for here, on the estimator's
+    /// thread: see [`Bodies::publish_async`].)
     pub fn publish(
         &mut self,
         skeleton: &Skeleton3D,
@@ -161,9 +171,7 @@ impl Bodies {
         }
         if let (Some((i, roi, points)), Some(hri)) = (body, &mut self.hri) {
             let body = &mut hri.bodies[i];
-            if let Some(wait) = body.settle() {
-                std::thread::sleep(wait);
-            }
+            body.settle_until = None;
             if let Some(roi) = roi {
                 body.roi.publish(&roi, stamp_ns);
             }
@@ -171,7 +179,9 @@ impl Bodies {
         }
     }
 
-    /// [`Bodies::publish`] on a runtime ([`Publishers::publish_async`]).
+    /// [`Bodies::publish`] on a runtime ([`Publishers::publish_async`]); a new body's
+    /// first messages wait (awaited, the input goes on) for its publishers to match
+    /// subscribers discovery already knows.
     pub async fn publish_async(
         &mut self,
         skeleton: &Skeleton3D,
@@ -202,10 +212,10 @@ impl Bodies {
         skeleton: &Skeleton3D,
         image_size: Option<(f64, f64)>,
     ) -> (bool, Option<(usize, Option<RegionOfInterest>, Skeleton2D)>) {
-        if skeleton.lag != self.lag {
+        self.message.transforms.clear();
+        if skeleton.lag != self.lag || skeleton.state == SkeletonState::Lost as u8 {
             return (false, None);
         }
-        self.message.transforms.clear();
         if !self.tf.is_empty() {
             self.frames.transforms(skeleton, &mut self.message);
         }
@@ -245,11 +255,7 @@ impl Bodies {
         self.tf.flush();
         if let Some(hri) = &mut self.hri {
             hri.tracked.flush();
-            for b in hri
-                .bodies
-                .iter_mut()
-                .chain(hri.retired.iter_mut().map(|(b, _)| b))
-            {
+            for b in hri.bodies.iter_mut() {
                 b.roi.flush();
                 b.skeleton2d.flush();
             }
@@ -263,7 +269,6 @@ impl Bodies {
                 + h.tracked.failed
                 + h.bodies
                     .iter()
-                    .chain(h.retired.iter().map(|(b, _)| b))
                     .map(|b| b.roi.failed + b.skeleton2d.failed)
                     .sum::<u64>()
         });
@@ -289,29 +294,21 @@ impl HriTopics {
     ) -> Option<(usize, Option<RegionOfInterest>, Skeleton2D)> {
         let id = skeleton.track_id;
         let now = std::time::Instant::now();
-        let retired = &mut self.retired;
+        // Bodies not seen for a while lose their topics.
         let failed = &mut self.failed;
-        retired.retain(|(b, at)| {
-            let keep = now.duration_since(*at) < RETIRE_AFTER;
+        self.bodies.retain(|b| {
+            let keep = now.duration_since(b.seen) < RETIRE_AFTER || b.track_id == id;
             if !keep {
                 *failed += b.roi.failed + b.skeleton2d.failed;
             }
             keep
         });
-        let found = self.bodies.iter().position(|b| b.track_id == id);
-        if skeleton.state == SkeletonState::Lost as u8 {
-            if let Some(i) = found {
-                self.retired.push((self.bodies.swap_remove(i), now));
-            }
-            return None;
-        }
         let size = image_size?;
-        self.uses += 1;
-        let i = match found {
+        let i = match self.bodies.iter().position(|b| b.track_id == id) {
             Some(i) => i,
             None => self.open(id)?,
         };
-        self.bodies[i].used = self.uses;
+        self.bodies[i].seen = now;
         Some((
             i,
             self.convert.roi(skeleton, size),
@@ -321,12 +318,24 @@ impl HriTopics {
 
     /// Makes body `id`'s topics (room made by the body seen least recently); its index.
     fn open(&mut self, id: u32) -> Option<usize> {
+        if self.made >= MAX_BODIES_MADE {
+            self.refused += 1;
+            if self.refused == 1 {
+                tracing::warn!(
+                    "{MAX_BODIES_MADE} bodies had REP-155 topics of their own: later ones get \
+                     none (counted; /tf and {}/tracked go on)",
+                    self.namespace
+                );
+            }
+            return None;
+        }
         if self.bodies.len() >= MAX_BODY_TOPICS
-            && let Some(oldest) = (0..self.bodies.len()).min_by_key(|&i| self.bodies[i].used)
+            && let Some(oldest) = (0..self.bodies.len()).min_by_key(|&i| self.bodies[i].seen)
         {
             let gone = self.bodies.swap_remove(oldest);
-            self.retired.push((gone, std::time::Instant::now()));
+            self.failed += gone.roi.failed + gone.skeleton2d.failed;
         }
+        self.made += 1;
         let base = format!("{}/{}", self.namespace, body_id(id));
         let (roi_topic, skeleton2d_topic) = (format!("{base}/roi"), format!("{base}/skeleton2d"));
         let made = self
@@ -343,7 +352,7 @@ impl HriTopics {
                     track_id: id,
                     roi,
                     skeleton2d,
-                    used: self.uses,
+                    seen: std::time::Instant::now(),
                     settle_until: awaited.then(|| std::time::Instant::now() + MATCH_SETTLE),
                 });
                 Some(self.bodies.len() - 1)
