@@ -53,7 +53,7 @@ pub fn run(args: &DetectorArgs) -> Result<(), CliError> {
         tap.publish_to(wiring.camera_outputs(&config)?);
     }
     // No lost beginning: the first frames wait (a while) for a subscriber to match.
-    wiring.wait_for_subscribers(&config, &config.topics.heatmaps);
+    wiring.wait_for_subscribers(&config, &config.topics.heatmaps, true);
     // The source and the sinks are dropped in the loop: before the middleware under them.
     let mut report = run_detector_on_runtime(source, sinks, rate, &stop)?;
     if let Some(tap) = &camera {

@@ -308,7 +308,7 @@ pub fn run_pipeline(
     }
     // No lost beginning: the first skeletons wait (a while) for a subscriber, as the
     // detector node's heat maps do.
-    wiring.wait_for_subscribers(config, &config.topics.skeletons);
+    wiring.wait_for_subscribers(config, &config.topics.skeletons, false);
     let mut detector = DetectorSide::spawn(source, heatmaps, rate, stop)?;
     // The estimator reads the calibration of the images (assumed, or a recording's), or
     // a live camera's own topic (recorded as it is read, so that a replay of the

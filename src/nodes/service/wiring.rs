@@ -733,15 +733,21 @@ impl Wiring {
 
     /// Waits up to `[ros] wait_for_subscribers` for DDS discovery to see a subscriber of
     /// `topic` (then for both ends to match), when publishing on ROS 2: so that the first
-    /// messages do not go to nobody. Says so when it stops waiting.
-    pub fn wait_for_subscribers(&self, config: &ServiceConfig, topic: &str) {
+    /// messages do not go to nobody. Says so when it stops waiting: a warning when one
+    /// was `expected` (the detector's estimator), else a note (`run`'s optional
+    /// consumers).
+    pub fn wait_for_subscribers(&self, config: &ServiceConfig, topic: &str, expected: bool) {
         if config.outputs.ros2
             && config.ros.wait_for_subscribers > 0.0
             && let Some(ros) = self.middleware.ros.as_ref()
         {
             let wait = Duration::from_secs_f64(config.ros.wait_for_subscribers);
             if !ros.wait_for_subscriptions(topic, wait) {
-                tracing::warn!("no subscriber of {topic} after {wait:?}: publishing anyway");
+                if expected {
+                    tracing::warn!("no subscriber of {topic} after {wait:?}: publishing anyway");
+                } else {
+                    tracing::info!("no subscriber of {topic} after {wait:?}: publishing anyway");
+                }
             }
         }
     }
