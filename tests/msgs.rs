@@ -123,6 +123,10 @@ fn tf_and_rep155_messages_declare_the_upstream_fields() {
         qualified(hri::NormalizedPointOfInterest2D::DEFINITION),
         fields_of::<hri::NormalizedPointOfInterest2D>()
     );
+    assert_eq!(
+        qualified(hri::NormalizedRegionOfInterest2D::DEFINITION),
+        fields_of::<hri::NormalizedRegionOfInterest2D>()
+    );
     // The keypoint order is the .msg's constants'.
     for (k, name) in hri::SKELETON2D_KEYPOINTS.iter().enumerate() {
         let constant = format!("uint8 {} = {k}\n", name.to_uppercase());

@@ -96,6 +96,17 @@ pub enum Transport {
     Iceoryx2,
 }
 
+/// The type of REP-155's `/humans/bodies/<id>/roi` (`[outputs] hri_roi`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum HriRoi {
+    /// `sensor_msgs/RegionOfInterest`, pixels (REP-155's text).
+    Pixels,
+    /// `hri_msgs/NormalizedRegionOfInterest2D`, fractions of the image (what ROS4HRI's
+    /// libhri 2.x reads).
+    Normalized,
+}
+
 /// `[outputs]`: where the nodes publish what they produce.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -118,6 +129,8 @@ pub struct OutputsConfig {
     /// tracked, and each body's region of interest and 2D skeleton (these two need the
     /// images' size, from the camera's calibration; ROS 2 and recordings).
     pub hri: bool,
+    /// The type of REP-155's `<id>/roi`.
+    pub hri_roi: HriRoi,
     /// Also record everything published to this MCAP file (empty: no recording).
     pub record: PathBuf,
 }
@@ -131,6 +144,7 @@ impl Default for OutputsConfig {
             arrays: true,
             tf: true,
             hri: true,
+            hri_roi: HriRoi::Pixels,
             record: PathBuf::new(),
         }
     }

@@ -7,7 +7,9 @@
 //! it, a region must lie in the image): the caller has it from the camera's calibration.
 
 pub use super::frames::body_id;
-use crate::msgs::hri::{NormalizedPointOfInterest2D, SKELETON2D_KEYPOINTS, Skeleton2D};
+use crate::msgs::hri::{
+    NormalizedPointOfInterest2D, NormalizedRegionOfInterest2D, SKELETON2D_KEYPOINTS, Skeleton2D,
+};
 use crate::msgs::sensor::RegionOfInterest;
 use crate::msgs::{Header, Skeleton3D};
 
@@ -124,6 +126,37 @@ impl HriBodies {
     }
 }
 
+/// [`HriBodies::roi`] as fractions of images of `size` (columns, rows), for ROS4HRI's
+/// libhri 2.x; its confidence is the mean of `points`' observed keypoints' (0 when none).
+pub fn normalized_roi(
+    roi: &RegionOfInterest,
+    points: &Skeleton2D,
+    size: (f64, f64),
+) -> NormalizedRegionOfInterest2D {
+    let (width, height) = size;
+    let seen: Vec<f32> = points
+        .skeleton
+        .iter()
+        .map(|p| p.c)
+        .filter(|&c| c > 0.0)
+        .collect();
+    let c = if seen.is_empty() {
+        0.0
+    } else {
+        seen.iter().sum::<f32>() / seen.len() as f32
+    };
+    let x = |v: u32| (f64::from(v) / width).clamp(0.0, 1.0) as f32;
+    let y = |v: u32| (f64::from(v) / height).clamp(0.0, 1.0) as f32;
+    NormalizedRegionOfInterest2D {
+        header: points.header.clone(),
+        xmin: x(roi.x_offset),
+        ymin: y(roi.y_offset),
+        xmax: x(roi.x_offset.saturating_add(roi.width)),
+        ymax: y(roi.y_offset.saturating_add(roi.height)),
+        c,
+    }
+}
+
 /// The ids of the bodies followed in `skeletons` (one image's), stamped as `header`: a
 /// track's last estimates (`STATE_LOST`) describe a person no longer followed.
 pub fn tracked(header: &Header, skeletons: &[Skeleton3D]) -> crate::msgs::hri::IdsList {
@@ -206,5 +239,12 @@ mod tests {
             ..skeleton()
         };
         assert_eq!(bodies.roi(&nan, (640.0, 480.0)), None);
+        // As fractions, for libhri 2.x: the same corners; the confidence of the joints
+        // seen.
+        let points = bodies.skeleton2d(&skeleton(), (640.0, 480.0));
+        let n = normalized_roi(&roi, &points, (640.0, 480.0));
+        assert_eq!((n.xmin, n.xmax), (29.0 / 640.0, 1.0));
+        assert_eq!((n.ymin, n.ymax), (35.0 / 480.0, 215.0 / 480.0));
+        assert!(n.c > 0.0 && n.c <= 1.0, "{n:?}");
     }
 }

@@ -41,6 +41,26 @@ ros_message! {
     skeleton: [NormalizedPointOfInterest2D; 18],
 }
 
+ros_message! {
+    /// `hri_msgs/NormalizedRegionOfInterest2D`: a part of an image, its corners in
+    /// `[0, 1]` of the image's width and height, with a confidence.
+    NormalizedRegionOfInterest2D = "hri_msgs/msg/NormalizedRegionOfInterest2D",
+        "hri_msgs/NormalizedRegionOfInterest2D",
+        include_str!("../../../msgs/hri_msgs/msg/NormalizedRegionOfInterest2D.msg");
+    /// Capture time of the image and its camera frame id.
+    header: Header,
+    /// Left edge, as a fraction of the width.
+    xmin: f32,
+    /// Top edge, as a fraction of the height.
+    ymin: f32,
+    /// Right edge, as a fraction of the width.
+    xmax: f32,
+    /// Bottom edge, as a fraction of the height.
+    ymax: f32,
+    /// Confidence in `[0, 1]`.
+    c: f32,
+}
+
 /// The keypoints of `Skeleton2D.skeleton`, in order (the `.msg`'s constants, lower case).
 pub const SKELETON2D_KEYPOINTS: [&str; 18] = [
     "nose",

@@ -13,12 +13,13 @@
 
 use super::Publishers;
 use super::ServiceError;
-use crate::msgs::hri::{IdsList, Skeleton2D};
+use crate::msgs::hri::{IdsList, NormalizedRegionOfInterest2D, Skeleton2D};
 use crate::msgs::sensor::RegionOfInterest;
 use crate::msgs::tf::TFMessage;
 use crate::msgs::{Skeleton3D, Skeleton3DArray, SkeletonState};
+use crate::nodes::config::HriRoi;
 use crate::nodes::frames::BodyFrames;
-use crate::nodes::hri::{HriBodies, body_id, tracked};
+use crate::nodes::hri::{HriBodies, body_id, normalized_roi, tracked};
 use crate::transport::Message;
 use crate::transport::mcap::SharedRecorder;
 use crate::transport::ros2::Ros2;
@@ -62,7 +63,7 @@ pub const MAX_BODIES_MADE: u64 = 4096;
 /// One body's REP-155 topics.
 struct BodyTopics {
     track_id: u32,
-    roi: Publishers<RegionOfInterest>,
+    roi: RoiTopic,
     skeleton2d: Publishers<Skeleton2D>,
     /// When it was seen last.
     seen: std::time::Instant,
@@ -75,9 +76,54 @@ struct BodyTopics {
 /// subscribers discovery already knows (matching runs in the background).
 const MATCH_SETTLE: std::time::Duration = std::time::Duration::from_millis(500);
 
+/// A body's `roi` publishers, of the configured type (`[outputs] hri_roi`).
+enum RoiTopic {
+    Pixels(Publishers<RegionOfInterest>),
+    Normalized(Publishers<NormalizedRegionOfInterest2D>),
+}
+
+/// A body's region, as its `roi` topic carries it.
+enum Roi {
+    Pixels(RegionOfInterest),
+    Normalized(NormalizedRegionOfInterest2D),
+}
+
+impl RoiTopic {
+    fn publish(&mut self, roi: &Roi, stamp_ns: u64) {
+        match (self, roi) {
+            (Self::Pixels(p), Roi::Pixels(r)) => p.publish(r, stamp_ns),
+            (Self::Normalized(p), Roi::Normalized(r)) => p.publish(r, stamp_ns),
+            _ => {}
+        }
+    }
+
+    async fn publish_async(&mut self, roi: &Roi, stamp_ns: u64) {
+        match (self, roi) {
+            (Self::Pixels(p), Roi::Pixels(r)) => p.publish_async(r, stamp_ns).await,
+            (Self::Normalized(p), Roi::Normalized(r)) => p.publish_async(r, stamp_ns).await,
+            _ => {}
+        }
+    }
+
+    fn flush(&mut self) {
+        match self {
+            Self::Pixels(p) => p.flush(),
+            Self::Normalized(p) => p.flush(),
+        }
+    }
+
+    fn failed(&self) -> u64 {
+        match self {
+            Self::Pixels(p) => p.failed,
+            Self::Normalized(p) => p.failed,
+        }
+    }
+}
+
 /// REP-155's body topics.
 pub struct HriTopics {
     convert: HriBodies,
+    roi_kind: HriRoi,
     maker: TopicMaker,
     namespace: String,
     tracked: Publishers<IdsList>,
@@ -118,17 +164,18 @@ impl Default for Bodies {
 }
 
 impl Bodies {
-    /// Frames on `tf` and, with `hri` (its namespace and maker), REP-155 topics, for
+    /// Frames on `tf` and, with `hri` (its namespace, maker and roi type), REP-155 topics, for
     /// skeletons of `joint_names` at `lag`.
     pub fn new(
         joint_names: &[String],
         lag: u32,
         tf: Publishers<TFMessage>,
-        hri: Option<(String, TopicMaker)>,
+        hri: Option<(String, TopicMaker, HriRoi)>,
     ) -> Result<Self, ServiceError> {
         let hri = match hri {
-            Some((namespace, maker)) => Some(HriTopics {
+            Some((namespace, maker, roi_kind)) => Some(HriTopics {
                 convert: HriBodies::new(joint_names),
+                roi_kind,
                 tracked: maker.publishers(&format!("{namespace}/tracked"))?,
                 maker,
                 namespace,
@@ -211,7 +258,7 @@ impl Bodies {
         &mut self,
         skeleton: &Skeleton3D,
         image_size: Option<(f64, f64)>,
-    ) -> (bool, Option<(usize, Option<RegionOfInterest>, Skeleton2D)>) {
+    ) -> (bool, Option<(usize, Option<Roi>, Skeleton2D)>) {
         self.message.transforms.clear();
         if skeleton.lag != self.lag || skeleton.state == SkeletonState::Lost as u8 {
             return (false, None);
@@ -269,7 +316,7 @@ impl Bodies {
                 + h.tracked.failed
                 + h.bodies
                     .iter()
-                    .map(|b| b.roi.failed + b.skeleton2d.failed)
+                    .map(|b| b.roi.failed() + b.skeleton2d.failed)
                     .sum::<u64>()
         });
         self.tf.failed + hri
@@ -291,7 +338,7 @@ impl HriTopics {
         &mut self,
         skeleton: &Skeleton3D,
         image_size: Option<(f64, f64)>,
-    ) -> Option<(usize, Option<RegionOfInterest>, Skeleton2D)> {
+    ) -> Option<(usize, Option<Roi>, Skeleton2D)> {
         let id = skeleton.track_id;
         let now = std::time::Instant::now();
         // Bodies not seen for a while lose their topics.
@@ -299,7 +346,7 @@ impl HriTopics {
         self.bodies.retain(|b| {
             let keep = now.duration_since(b.seen) < RETIRE_AFTER || b.track_id == id;
             if !keep {
-                *failed += b.roi.failed + b.skeleton2d.failed;
+                *failed += b.roi.failed() + b.skeleton2d.failed;
             }
             keep
         });
@@ -309,11 +356,15 @@ impl HriTopics {
             None => self.open(id)?,
         };
         self.bodies[i].seen = now;
-        Some((
-            i,
-            self.convert.roi(skeleton, size),
-            self.convert.skeleton2d(skeleton, size),
-        ))
+        let points = self.convert.skeleton2d(skeleton, size);
+        let roi = self
+            .convert
+            .roi(skeleton, size)
+            .map(|r| match self.roi_kind {
+                HriRoi::Pixels => Roi::Pixels(r),
+                HriRoi::Normalized => Roi::Normalized(normalized_roi(&r, &points, size)),
+            });
+        Some((i, roi, points))
     }
 
     /// Makes body `id`'s topics (room made by the body seen least recently); its index.
@@ -333,15 +384,16 @@ impl HriTopics {
             && let Some(oldest) = (0..self.bodies.len()).min_by_key(|&i| self.bodies[i].seen)
         {
             let gone = self.bodies.swap_remove(oldest);
-            self.failed += gone.roi.failed + gone.skeleton2d.failed;
+            self.failed += gone.roi.failed() + gone.skeleton2d.failed;
         }
         self.made += 1;
         let base = format!("{}/{}", self.namespace, body_id(id));
         let (roi_topic, skeleton2d_topic) = (format!("{base}/roi"), format!("{base}/skeleton2d"));
-        let made = self
-            .maker
-            .publishers(&roi_topic)
-            .and_then(|roi| Ok((roi, self.maker.publishers(&skeleton2d_topic)?)));
+        let roi = match self.roi_kind {
+            HriRoi::Pixels => self.maker.publishers(&roi_topic).map(RoiTopic::Pixels),
+            HriRoi::Normalized => self.maker.publishers(&roi_topic).map(RoiTopic::Normalized),
+        };
+        let made = roi.and_then(|roi| Ok((roi, self.maker.publishers(&skeleton2d_topic)?)));
         // Subscribers discovery knows already (a consumer that expected this body).
         let awaited = self.maker.ros.as_ref().is_some_and(|ros| {
             ros.subscriptions(&roi_topic) + ros.subscriptions(&skeleton2d_topic) > 0

@@ -412,7 +412,11 @@ impl EstimatorOutputs {
                 ros: middleware.ros.clone().filter(|_| config.outputs.ros2),
                 recorder: recorder.cloned(),
             };
-            (config.topics.hri_bodies.clone(), maker)
+            (
+                config.topics.hri_bodies.clone(),
+                maker,
+                config.outputs.hri_roi,
+            )
         });
         // The newest estimates when the window publishes them, else the refined ones.
         let settings = node.settings();
