@@ -710,6 +710,13 @@ fn configuration_values_outside_their_domain_are_one_error_naming_the_key() {
             "[ros]\nwait_for_subscribers = nan\n",
             "ros.wait_for_subscribers",
         ),
+        ("[topics]\nhri_bodies = \"/tf\"\n", "topics.hri_bodies"),
+        (
+            "[topics]\nhri_bodies = \"/posestream\"\n",
+            "topics.hri_bodies",
+        ),
+        ("[ros]\nnamespace = \"robot1\"\n", "ros.namespace"),
+        ("[ros]\nnode_name = \"1node\"\n", "ros.node_name"),
         ("[limits]\nmax_map_size = 0\n", "limits.max_map_size"),
         ("[limits]\nmax_joints = 100000\n", "limits.max_joints"),
         (

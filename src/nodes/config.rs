@@ -196,13 +196,12 @@ impl ServiceConfig {
         ];
         // The bodies' namespace: its topics are names of their own (`/humans/bodies/tracked`).
         check_topic_name("hri_bodies", &t.hri_bodies).map_err(|x| x.within("topics"))?;
-        if let Some((other, _)) = topics
-            .iter()
-            .find(|(_, topic)| topic.starts_with(&format!("{}/", t.hri_bodies)))
-        {
+        if let Some((other, _)) = topics.iter().find(|(_, topic)| {
+            topic.starts_with(&format!("{}/", t.hri_bodies)) || **topic == t.hri_bodies
+        }) {
             return Err(crate::error::OutOfDomain::new(
                 "hri_bodies",
-                format!("a namespace no other topic is in (topics.{other} is)"),
+                format!("a namespace of its own (topics.{other} is in it, or is it)"),
                 &t.hri_bodies,
             )
             .within("topics"));

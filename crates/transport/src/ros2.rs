@@ -143,7 +143,13 @@ impl RosSettings {
             ));
         }
         if self.namespace != "/" {
-            check_topic_name("namespace", &self.namespace)?;
+            check_topic_name("namespace", &self.namespace).map_err(|_| {
+                OutOfDomain::new(
+                    "namespace",
+                    "an absolute ROS 2 namespace (/ or /a/b_c: letters, digits, _ and single /)",
+                    format!("{:?}", self.namespace),
+                )
+            })?;
         }
         Ok(())
     }

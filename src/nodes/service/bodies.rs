@@ -148,6 +148,9 @@ pub struct Bodies {
     pub hri: Option<HriTopics>,
     /// The transforms of the skeleton in hand (reused).
     message: TFMessage,
+    /// Whether it was said that skeletons without a camera calibration get no frames
+    /// and no body messages of their own.
+    said_uncalibrated: bool,
 }
 
 impl Default for Bodies {
@@ -159,6 +162,7 @@ impl Default for Bodies {
             tf: Publishers::default(),
             hri: None,
             message: TFMessage::default(),
+            said_uncalibrated: false,
         }
     }
 }
@@ -192,6 +196,7 @@ impl Bodies {
             tf,
             hri,
             message: TFMessage::default(),
+            said_uncalibrated: false,
         })
     }
 
@@ -262,6 +267,16 @@ impl Bodies {
         self.message.transforms.clear();
         if skeleton.lag != self.lag || skeleton.state == SkeletonState::Lost as u8 {
             return (false, None);
+        }
+        if !self.said_uncalibrated
+            && (skeleton.units != crate::msgs::Units::Metres as u8 || image_size.is_none())
+        {
+            self.said_uncalibrated = true;
+            tracing::info!(
+                "no camera calibration (CameraInfo) yet: skeletons in dictionary units get no \
+                 frames on /tf, and bodies no REP-155 roi or skeleton2d (their ids are still \
+                 listed as tracked)"
+            );
         }
         if !self.tf.is_empty() {
             self.frames.transforms(skeleton, &mut self.message);
