@@ -841,6 +841,51 @@ impl Hosts {
     }
 }
 
+impl Hosts {
+    /// One deployment: `posestream record` (heat maps and skeletons into `out`) on host
+    /// c, the estimator on b, then, once both are up, the detector on a replaying `take`
+    /// at its recorded pace; `meanwhile` runs while it plays. Once the detector is done
+    /// and `settle` has passed, Ctrl-C ends the estimator and the recorder. The
+    /// detector's, the estimator's and the recorder's outputs.
+    fn deploy(
+        &self,
+        [det, est, rec]: [&Path; 3],
+        take: &str,
+        out: &Path,
+        meanwhile: impl FnOnce(),
+        settle: Duration,
+    ) -> (Output, Output, Output) {
+        let topics = ["--topics", "heatmaps,skeletons", "--json"];
+        let mut record = vec!["record", s(out), "--config", s(rec)];
+        record.extend(topics);
+        let recorder = self.spawn("c", &record);
+        let estimator = self.spawn("b", &["estimator", "--config", s(est), "--json"]);
+        // The detector waits for one subscriber: both are known to it by then.
+        std::thread::sleep(Duration::from_millis(3000));
+        let detector = self.spawn(
+            "a",
+            &[
+                "detector",
+                "--config",
+                s(det),
+                "--recording",
+                take,
+                "--rate",
+                "recorded",
+                "--json",
+            ],
+        );
+        meanwhile();
+        let detector = detector.wait_with_output().expect("detector");
+        std::thread::sleep(settle);
+        signal(&estimator, "-INT");
+        signal(&recorder, "-INT");
+        let estimator = estimator.wait_with_output().expect("estimator");
+        let recorder = recorder.wait_with_output().expect("recorder");
+        (detector, estimator, recorder)
+    }
+}
+
 impl Drop for Hosts {
     fn drop(&mut self) {
         for n in Self::NAMES.iter().chain(&["x"]) {
@@ -894,42 +939,17 @@ fn a_deployment_over_three_hosts_loses_nothing_and_rides_out_a_cut_link() {
     let recorded = |name: &str| dir.path().join(name);
     // 1. Every frame arrives: 121 heat maps, the estimator takes each, the recorder on
     // the third host keeps every heat map and skeleton.
-    let recorder = hosts.spawn(
-        "c",
-        &[
-            "record",
-            s(&recorded("one.mcap")),
-            "--config",
-            s(&rec),
-            "--topics",
-            "heatmaps,skeletons",
-            "--json",
-        ],
+    let configs = [det.as_path(), est.as_path(), rec.as_path()];
+    let (detector, estimator, recorder) = hosts.deploy(
+        configs,
+        "recordings/byebye.mcap",
+        &recorded("one.mcap"),
+        || (),
+        Duration::from_millis(1500),
     );
-    let estimator = hosts.spawn("b", &["estimator", "--config", s(&est), "--json"]);
-    // The detector waits for one subscriber: both are known to it by then.
-    std::thread::sleep(Duration::from_millis(3000));
-    let detector = hosts.spawn(
-        "a",
-        &[
-            "detector",
-            "--config",
-            s(&det),
-            "--recording",
-            "recordings/byebye.mcap",
-            "--rate",
-            "recorded",
-            "--json",
-        ],
-    );
-    let detector = detector.wait_with_output().expect("detector");
     assert!(detector.status.success());
     assert_eq!(json_of(&detector)["published"], 121);
-    std::thread::sleep(Duration::from_millis(1500));
-    signal(&estimator, "-INT");
-    signal(&recorder, "-INT");
-    let estimator = json_of(&estimator.wait_with_output().expect("estimator"));
-    let recorder = recorder.wait_with_output().expect("recorder");
+    let estimator = json_of(&estimator);
     assert!(recorder.status.success());
     assert_eq!(estimator["frames"], 121, "{estimator}");
     let skeletons = estimator["skeletons"].as_u64().expect("skeletons");
@@ -956,47 +976,22 @@ fn a_deployment_over_three_hosts_loses_nothing_and_rides_out_a_cut_link() {
         }
     }
     twice.finish().expect("finish");
-    let recorder = hosts.spawn(
-        "c",
-        &[
-            "record",
-            s(&recorded("two.mcap")),
-            "--config",
-            s(&rec),
-            "--topics",
-            "heatmaps,skeletons",
-            "--json",
-        ],
+    let (detector, run, recorder) = hosts.deploy(
+        configs,
+        s(&take),
+        &recorded("two.mcap"),
+        || {
+            std::thread::sleep(Duration::from_millis(4000));
+            hosts.plug("b", false);
+            std::thread::sleep(Duration::from_millis(3000));
+            hosts.plug("b", true);
+        },
+        Duration::from_millis(2000),
     );
-    let estimator = hosts.spawn("b", &["estimator", "--config", s(&est), "--json"]);
-    std::thread::sleep(Duration::from_millis(3000));
-    let detector = hosts.spawn(
-        "a",
-        &[
-            "detector",
-            "--config",
-            s(&det),
-            "--recording",
-            s(&take),
-            "--rate",
-            "recorded",
-            "--json",
-        ],
-    );
-    std::thread::sleep(Duration::from_millis(4000));
-    hosts.plug("b", false);
-    std::thread::sleep(Duration::from_millis(3000));
-    hosts.plug("b", true);
-    let detector = detector.wait_with_output().expect("detector");
     assert!(detector.status.success());
     assert_eq!(json_of(&detector)["published"], 300);
-    std::thread::sleep(Duration::from_millis(2000));
-    signal(&estimator, "-INT");
-    signal(&recorder, "-INT");
-    let run = estimator.wait_with_output().expect("estimator");
     assert!(run.status.success(), "the estimator survived the cut");
     let estimator = json_of(&run);
-    let recorder = recorder.wait_with_output().expect("recorder");
     assert!(recorder.status.success());
     // Reliable DDS kept most of what the estimator missed and sent it when the cable was
     // back (measured: 289 to 300 of 300 frames arrived). The 3 s without frames ended the
