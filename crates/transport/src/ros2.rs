@@ -10,6 +10,8 @@
 //! The domain is [`RosSettings::domain_id`] unless `ROS_DOMAIN_ID` is set;
 //! [`RosSettings::localhost_only`] (or `ROS_LOCALHOST_ONLY=1`, or
 //! `ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`) keeps DDS on the loopback interface.
+//! [`SecuritySettings`] joins with DDS Security from an SROS2 keystore (feature
+//! `security`).
 
 use std::net::{IpAddr, Ipv4Addr};
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -28,10 +30,18 @@ use super::runtime::AsyncSource;
 use super::{Message, Received, Sink, Source, TransportError};
 use posestream_math::error::{OutOfDomain, check_range, check_real};
 
+mod security;
+pub use security::{ENCLAVE_FILES, SecuritySettings};
+
 const TRANSPORT: &str = "ros2";
 
 /// After a subscription is discovered, how long until both ends have matched.
 const MATCH_SETTLE: Duration = Duration::from_millis(500);
+
+/// The same under DDS Security: after discovery the two ends still exchange their
+/// endpoints' keys, and a sample sent before they arrive is dropped (RustDDS: "Could not
+/// find a remote EndpointCryptoHandle").
+const SECURE_MATCH_SETTLE: Duration = Duration::from_millis(2000);
 
 /// How long a publish waits for room in a full reliable history before it fails.
 const FULL_WAIT: Duration = Duration::from_millis(100);
@@ -64,6 +74,8 @@ pub struct RosSettings {
     pub wait_for_subscribers: f64,
     /// Quality of service of every topic.
     pub qos: QosSettings,
+    /// DDS Security (SROS2 keystores): off unless asked for.
+    pub security: SecuritySettings,
 }
 
 impl Default for RosSettings {
@@ -75,6 +87,7 @@ impl Default for RosSettings {
             namespace: "/".into(),
             wait_for_subscribers: 2.0,
             qos: QosSettings::default(),
+            security: SecuritySettings::default(),
         }
     }
 }
@@ -272,6 +285,8 @@ pub struct Ros2 {
     node: Arc<Mutex<Node>>,
     qos: QosProfile,
     domain: u16,
+    /// Joined with DDS Security.
+    secure: bool,
     // Dropping the context shuts DDS down: keep it as long as the node.
     _context: Context,
 }
@@ -286,6 +301,23 @@ impl Ros2 {
             DomainParticipantBuilder::new(domain).with_entity_name(settings.full_node_name());
         if settings.effective_localhost_only() {
             builder = builder.with_only_networks([IpAddr::V4(Ipv4Addr::LOCALHOST)]);
+        }
+        let enclave = settings
+            .security
+            .enclave_dir(&settings.full_node_name(), |k| std::env::var(k).ok())?;
+        if let Some(enclave) = &enclave {
+            if settings.effective_localhost_only() {
+                // Measured: a secured subscriber decrypted none of a secured writer's
+                // unfragmented samples on loopback only (vendor/rustdds/PATCHES.md).
+                return Err(setup_error(
+                    "DDS Security",
+                    "not with localhost_only (or ROS_LOCALHOST_ONLY=1 / \
+                     ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST): RustDDS's security loses \
+                     every unfragmented message on loopback only; use ordinary networking",
+                ));
+            }
+            builder = security::secure(builder, enclave)?;
+            tracing::info!(enclave = %enclave.display(), "DDS Security on");
         }
         let participant = builder
             .build()
@@ -305,6 +337,7 @@ impl Ros2 {
             node: Arc::new(Mutex::new(node)),
             qos: settings.qos.profile(),
             domain,
+            secure: enclave.is_some(),
             _context: context,
         })
     }
@@ -325,8 +358,18 @@ impl Ros2 {
         self.node().subscription_count(topic)
     }
 
+    /// How long after discovery sees a new subscription both ends take to match (0.5 s;
+    /// 2 s under DDS Security, which exchanges the endpoints' keys after discovery).
+    pub fn match_settle(&self) -> Duration {
+        if self.secure {
+            SECURE_MATCH_SETTLE
+        } else {
+            MATCH_SETTLE
+        }
+    }
+
     /// Waits up to `timeout` for DDS discovery to see a subscription to `topic`, then
-    /// `MATCH_SETTLE` for both ends to finish matching (the reader must also have
+    /// [`Self::match_settle`] for both ends to finish matching (the reader must also have
     /// matched this writer before it takes samples). Whether one was seen.
     pub fn wait_for_subscriptions(&self, topic: &str, timeout: Duration) -> bool {
         let deadline = std::time::Instant::now() + timeout;
@@ -336,7 +379,7 @@ impl Ros2 {
             }
             std::thread::sleep(Duration::from_millis(20));
         }
-        std::thread::sleep(MATCH_SETTLE);
+        std::thread::sleep(self.match_settle());
         true
     }
 

@@ -75,10 +75,6 @@ struct BodyTopics {
     settle_until: Option<std::time::Instant>,
 }
 
-/// How long a new body's first messages wait for its new publishers to match
-/// subscribers discovery already knows (matching runs in the background).
-const MATCH_SETTLE: std::time::Duration = std::time::Duration::from_millis(500);
-
 /// A body's `roi` publishers, of the configured type (`[outputs] hri_roi`).
 enum RoiTopic {
     Pixels(Publishers<RegionOfInterest>),
@@ -413,8 +409,11 @@ impl HriTopics {
         };
         let made = roi.and_then(|roi| Ok((roi, self.maker.publishers(&skeleton2d_topic)?)));
         // Subscribers discovery knows already (a consumer that expected this body).
-        let awaited = self.maker.ros.as_ref().is_some_and(|ros| {
-            ros.subscriptions(&roi_topic) + ros.subscriptions(&skeleton2d_topic) > 0
+        // A new body's first messages wait for its new publishers to match them
+        // (matching runs in the background).
+        let settle = self.maker.ros.as_ref().and_then(|ros| {
+            (ros.subscriptions(&roi_topic) + ros.subscriptions(&skeleton2d_topic) > 0)
+                .then(|| ros.match_settle())
         });
         match made {
             Ok((roi, skeleton2d)) => {
@@ -423,7 +422,7 @@ impl HriTopics {
                     roi,
                     skeleton2d,
                     seen: std::time::Instant::now(),
-                    settle_until: awaited.then(|| std::time::Instant::now() + MATCH_SETTLE),
+                    settle_until: settle.map(|d| std::time::Instant::now() + d),
                 });
                 Some(self.bodies.len() - 1)
             }

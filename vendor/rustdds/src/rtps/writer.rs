@@ -582,9 +582,18 @@ impl Writer {
   // send, or the writer-wide minimum over all matched readers for a
   // multicast-to-all send (one datagram shared by every reader).
   fn datagram_budget(&self, target_reader_opt: Option<&RtpsReaderProxy>) -> usize {
-    match target_reader_opt {
+    let budget = match target_reader_opt {
       Some(reader) => reader.max_datagram_payload(),
       None => self.min_datagram_payload,
+    };
+    // posestream patch (vendor/rustdds/PATCHES.md): DDS Security grows every submessage
+    // and message it protects (crypto headers, footers, MACs per receiver); leave room
+    // for it, else a datagram packed to a loopback budget (65488) exceeds UDP's 65507
+    // and is never sent ("Message too long"), so fragmented samples never arrive.
+    if self.security_plugins.is_some() {
+      budget.saturating_sub(SECURITY_DATAGRAM_RESERVE).max(FRAGMENT_SIZE + 64)
+    } else {
+      budget
     }
   }
 
@@ -2254,6 +2263,12 @@ const SUBMESSAGE_INFO_TS_INVALIDATE_SIZE: usize = 4;
 // risks a slight overestimate, which degrades to benign IP fragmentation rather
 // than data loss.
 const DATAFRAG_SUBMESSAGE_OVERHEAD: usize = 36;
+
+// posestream patch: the bytes of a datagram's budget left for DDS Security's
+// protection of submessages, payloads and the whole message (prefix and postfix
+// submessages, crypto headers and footers, one 20-byte MAC per receiver; a few
+// hundred bytes for a handful of receivers).
+const SECURITY_DATAGRAM_RESERVE: usize = 1024;
 
 // A fifth of a finite, positive Deadline, clamped to
 // [REPAIR_INTERVAL_MIN, REPAIR_INTERVAL_MAX]. No Deadline, INFINITE, zero or

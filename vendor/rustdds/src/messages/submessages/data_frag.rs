@@ -269,8 +269,13 @@ impl DataFrag {
       _ => {}
     }
 
+    // posestream patch (vendor/rustdds/PATCHES.md): with DDS Security the payload here
+    // may still be encoded (payload protection adds a crypto header and footer), so it
+    // may exceed its fragments; the check is made after decoding
+    // (MessageReceiver::decode_and_handle_datafrag). Without this, every fragmented
+    // sample under data_protection_kind ENCRYPT was refused.
     let max_payload_bytes = (count_u32 as usize) * (fragment_size as usize);
-    if datafrag.serialized_payload.len() > max_payload_bytes {
+    if cfg!(not(feature = "security")) && datafrag.serialized_payload.len() > max_payload_bytes {
       return Err(io::Error::new(
         io::ErrorKind::InvalidData,
         format!(
