@@ -23,10 +23,14 @@ fn s(p: &Path) -> &str {
     p.to_str().expect("utf-8 path")
 }
 
-/// Starts `posestream args`, stdout captured, stderr inherited (shown on failure).
+/// Starts `posestream args`, stdout captured, stderr inherited (shown on failure); DDS
+/// Security only where a test's configuration asks for it.
 fn spawn(args: &[&str]) -> Child {
     Command::new(bin())
         .current_dir(root())
+        .env_remove("ROS_SECURITY_ENABLE")
+        .env_remove("ROS_SECURITY_KEYSTORE")
+        .env_remove("ROS_SECURITY_ENCLAVE_OVERRIDE")
         .args(args)
         .stdout(Stdio::piped())
         .spawn()
@@ -1155,7 +1159,12 @@ fn expose(
         .expect("the subscriber starts (cyclonedds: .ci/run installs it)");
     let hostile = Command::new(python())
         .arg(root().join("tests/python/ros2_hostile_publisher.py"))
-        .args([&domain.to_string(), "/posestream/heatmaps", "5", "40"])
+        .args([
+            &domain.to_string(),
+            "/posestream/heatmaps",
+            &(seconds - 4).to_string(),
+            "40",
+        ])
         .stdout(Stdio::piped())
         .spawn()
         .expect("the hostile publisher starts");
@@ -1192,15 +1201,14 @@ fn expose(
             .success()
     );
     let read = reader.wait_with_output().expect("subscriber");
+    let lines = String::from_utf8_lossy(&read.stdout).to_string();
+    assert!(lines.starts_with("ready"), "the subscriber ran: {lines}");
     Exposure {
         estimator: json_of(&run),
         recorded: read_topic::<Skeleton3D>(&out, SKELETONS)
             .expect("reads")
             .len(),
-        read: String::from_utf8_lossy(&read.stdout)
-            .lines()
-            .filter(|l| l.starts_with('{'))
-            .count(),
+        read: lines.lines().filter(|l| l.starts_with('{')).count(),
         sent: sent["total"].as_u64().expect("total"),
     }
 }
@@ -1289,7 +1297,7 @@ fn dds_security_lets_the_keystore_s_nodes_talk_and_keeps_everyone_else_out() {
 
     // Secured: every frame of the permitted detector reaches the estimator and every
     // skeleton the permitted recorder; the plain participants read nothing and inject
-    // nothing; the detector of another authority injects nothing (no second track).
+    // nothing; the detector of another authority injects nothing (nothing else arrives).
     let secured = nodes(Some(&robot), "secured");
     let outsider = config("outsider.toml", Some(&other), "");
     let seen = expose(
@@ -1302,8 +1310,13 @@ fn dds_security_lets_the_keystore_s_nodes_talk_and_keeps_everyone_else_out() {
     let report = &seen.estimator;
     println!("secured: {report}, read {}, sent {}", seen.read, seen.sent);
     assert!(seen.sent > 100, "{}", seen.sent);
+    // Nothing but the permitted detector's frames arrived at all: the outsider replays
+    // the same recording (its frames would be late, or a second track, or a reset).
+    assert_eq!(report["frames"], 121, "{report}");
     assert_eq!(report["counters"]["frames"], 121, "{report}");
     assert_eq!(report["counters"]["tracks"], 1, "{report}");
+    assert_eq!(report["counters"]["late"], 0, "{report}");
+    assert_eq!(report["counters"]["resets"], 0, "{report}");
     assert_eq!(report["malformed"], 0, "{report}");
     assert_eq!(report["skeletons"], 242, "{report}");
     assert_eq!(

@@ -19,6 +19,7 @@
 // UDP only (no shared memory), reliable, volatile, keep all: as a ROS 2 user with
 // RMW_FASTRTPS and default QoS would subscribe, less the history limit.
 
+#include <cstdlib>
 #include <atomic>
 #include <chrono>
 #include <cstdint>
@@ -66,6 +67,24 @@ std::string json_string(const std::string& s) {
 DomainParticipant* make_participant(int domain, DomainParticipantListener* listener) {
     DomainParticipantQos qos = PARTICIPANT_QOS_DEFAULT;
     qos.name("fastdds_interop");
+    // DDS Security from an SROS2 enclave folder (the files rmw_dds_common names), as a
+    // ROS 2 node on Fast DDS would join with ROS_SECURITY_ENABLE=true.
+    if (const char* enclave = std::getenv("POSESTREAM_FASTDDS_ENCLAVE")) {
+        const std::string dir = std::string("file://") + enclave + "/";
+        auto& props = qos.properties().properties();
+        props.emplace_back("dds.sec.auth.plugin", "builtin.PKI-DH");
+        props.emplace_back("dds.sec.auth.builtin.PKI-DH.identity_ca", dir + "identity_ca.cert.pem");
+        props.emplace_back("dds.sec.auth.builtin.PKI-DH.identity_certificate", dir + "cert.pem");
+        props.emplace_back("dds.sec.auth.builtin.PKI-DH.private_key", dir + "key.pem");
+        props.emplace_back("dds.sec.access.plugin", "builtin.Access-Permissions");
+        props.emplace_back("dds.sec.access.builtin.Access-Permissions.permissions_ca",
+                           dir + "permissions_ca.cert.pem");
+        props.emplace_back("dds.sec.access.builtin.Access-Permissions.governance",
+                           dir + "governance.p7s");
+        props.emplace_back("dds.sec.access.builtin.Access-Permissions.permissions",
+                           dir + "permissions.p7s");
+        props.emplace_back("dds.sec.crypto.plugin", "builtin.AES-GCM-GMAC");
+    }
     qos.transport().use_builtin_transports = false;
     qos.transport().user_transports.push_back(
         std::make_shared<eprosima::fastdds::rtps::UDPv4TransportDescriptor>());

@@ -7,10 +7,12 @@
 //! The ROS 2 conventions are followed: `ROS_SECURITY_ENABLE=true` turns it on,
 //! `ROS_SECURITY_KEYSTORE` names the keystore, `ROS_SECURITY_ENCLAVE_OVERRIDE` the enclave,
 //! and the enclave's folder is `<keystore>/enclaves/<enclave>` holding the files
-//! `rmw_dds_common` names. One difference: security once asked for is always enforced.
-//! ROS's default strategy (`Permissive`) runs an open participant when the files are
-//! missing; a robot that quietly falls back to taking heat maps from anyone is what
-//! access control is there to prevent, so here missing files are an error.
+//! `rmw_dds_common` names. Two differences: the default enclave is the node's full name
+//! (ROS 2's is `/`), so that each node has its own grants; and security once asked for
+//! is always enforced. ROS's default strategy (`Permissive`) runs an open participant
+//! when the files are missing; a robot that quietly falls back to taking heat maps from
+//! anyone is what access control is there to prevent, so here missing files are an
+//! error.
 
 use std::path::{Component, Path, PathBuf};
 

@@ -589,9 +589,11 @@ impl Writer {
     // posestream patch (vendor/rustdds/PATCHES.md): DDS Security grows every submessage
     // and message it protects (crypto headers, footers, MACs per receiver); leave room
     // for it, else a datagram packed to a loopback budget (65488) exceeds UDP's 65507
-    // and is never sent ("Message too long"), so fragmented samples never arrive.
+    // and is never sent ("Message too long"), so fragmented samples never arrive. A
+    // quarter at most of a small (Ethernet) budget: there an overrun is IP
+    // fragmentation, not loss, and 1452 - 1024 would leave one fragment per datagram.
     if self.security_plugins.is_some() {
-      budget.saturating_sub(SECURITY_DATAGRAM_RESERVE).max(FRAGMENT_SIZE + 64)
+      budget.saturating_sub(SECURITY_DATAGRAM_RESERVE.min(budget / 4))
     } else {
       budget
     }
@@ -2266,8 +2268,8 @@ const DATAFRAG_SUBMESSAGE_OVERHEAD: usize = 36;
 
 // posestream patch: the bytes of a datagram's budget left for DDS Security's
 // protection of submessages, payloads and the whole message (prefix and postfix
-// submessages, crypto headers and footers, one 20-byte MAC per receiver; a few
-// hundred bytes for a handful of receivers).
+// submessages, crypto headers and footers, one 20-byte MAC per receiver at each of the
+// three levels: about 160 + 60 x receivers bytes).
 const SECURITY_DATAGRAM_RESERVE: usize = 1024;
 
 // A fifth of a finite, positive Deadline, clamped to

@@ -373,6 +373,8 @@ mod tests {
     assert!(DataFrag::deserialize(&bytes, BitFlags::<DATAFRAG_Flags>::empty()).is_err());
   }
 
+  // posestream patch: with `security` the check moves after decoding (see above).
+  #[cfg(not(feature = "security"))]
   #[test]
   fn deserialize_rejects_oversized_payload_for_fragment_run() {
     let df = DataFrag {
