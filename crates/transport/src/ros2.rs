@@ -38,6 +38,11 @@ const TRANSPORT: &str = "ros2";
 /// After a subscription is discovered, how long until both ends have matched.
 const MATCH_SETTLE: Duration = Duration::from_millis(500);
 
+/// The least wait for a subscriber's discovery under DDS Security: authentication comes
+/// first and takes seconds (a user's trial on 2 busy cores: a detector's default 2 s ran
+/// out ~0.6 s before the match, and 16 of 121 frames went to nobody).
+const SECURE_DISCOVERY_WAIT: Duration = Duration::from_secs(10);
+
 /// The same under DDS Security: after discovery the two ends still exchange their
 /// endpoints' keys, and a sample sent before they arrive is dropped (RustDDS: "Could not
 /// find a remote EndpointCryptoHandle").
@@ -70,7 +75,7 @@ pub struct RosSettings {
     pub namespace: String,
     /// Seconds the detector node waits, before its first frame, for a subscriber of its
     /// heat maps (an estimator) to be discovered, so that the first frames are not
-    /// published to nobody; 0: no wait.
+    /// published to nobody (at least 10 under DDS Security); 0: no wait.
     pub wait_for_subscribers: f64,
     /// Quality of service of every topic.
     pub qos: QosSettings,
@@ -356,6 +361,16 @@ impl Ros2 {
     /// process included).
     pub fn subscriptions(&self, topic: &str) -> usize {
         self.node().subscription_count(topic)
+    }
+
+    /// How long to wait for discovery to see a subscriber, given the configured wait: at
+    /// least 10 s under DDS Security, whose authentication comes first.
+    pub fn discovery_wait(&self, configured: Duration) -> Duration {
+        if self.secure {
+            configured.max(SECURE_DISCOVERY_WAIT)
+        } else {
+            configured
+        }
     }
 
     /// How long after discovery sees a new subscription both ends take to match (0.5 s;

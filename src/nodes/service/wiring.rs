@@ -745,7 +745,7 @@ impl Wiring {
             && config.ros.wait_for_subscribers > 0.0
             && let Some(ros) = self.middleware.ros.as_ref()
         {
-            let wait = Duration::from_secs_f64(config.ros.wait_for_subscribers);
+            let wait = ros.discovery_wait(Duration::from_secs_f64(config.ros.wait_for_subscribers));
             if !ros.wait_for_subscriptions(topic, wait) {
                 if expected {
                     tracing::warn!("no subscriber of {topic} after {wait:?}: publishing anyway");

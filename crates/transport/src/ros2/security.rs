@@ -54,7 +54,12 @@ impl SecuritySettings {
         env: impl Fn(&str) -> Option<String>,
     ) -> Result<Option<PathBuf>, TransportError> {
         let set = |k: &str| env(k).filter(|v| !v.trim().is_empty());
-        let enabled = self.enable || set("ROS_SECURITY_ENABLE").as_deref() == Some("true");
+        let env_enable = set("ROS_SECURITY_ENABLE");
+        let enabled = self.enable || env_enable.as_deref() == Some("true");
+        if !enabled && let Some(v) = env_enable.filter(|v| v != "false") {
+            // ROS 2 takes only `true`: say so rather than run open without a word.
+            tracing::warn!("ROS_SECURITY_ENABLE={v:?} is not \"true\": DDS Security stays off");
+        }
         if !enabled {
             return Ok(None);
         }
@@ -76,10 +81,23 @@ impl SecuritySettings {
         {
             return Err(setup_error(
                 "DDS Security",
-                format!("enclave {enclave:?} is not an absolute path like /posestream_estimator"),
+                format!(
+                    "enclave {enclave:?} is not an absolute path without . or .. \
+                     like /posestream_estimator"
+                ),
             ));
         }
         let dir = Path::new(&keystore).join("enclaves").join(relative);
+        if !dir.is_dir() {
+            return Err(setup_error(
+                format!("DDS Security (enclave {enclave})"),
+                format!(
+                    "no folder {} (make the enclave with tools/sros2-enclave, or check the \
+                     keystore; a relative one is taken from the working directory)",
+                    dir.display()
+                ),
+            ));
+        }
         let missing: Vec<&str> = ENCLAVE_FILES
             .iter()
             .copied()
