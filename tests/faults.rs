@@ -61,6 +61,20 @@ fn signal(child: &Child, sig: &str) {
     assert!(ok, "kill {sig}");
 }
 
+/// Stops `child` with Ctrl-C (SIGINT) and waits: it must exit cleanly.
+fn interrupt(child: Child) -> Output {
+    signal(&child, "-INT");
+    let out = child.wait_with_output().expect("waits");
+    assert!(out.status.success(), "exit after Ctrl-C: {:?}", out.status);
+    out
+}
+
+/// The last line a Python client printed, its JSON summary.
+fn summary(stdout: &[u8]) -> serde_json::Value {
+    let text = String::from_utf8_lossy(stdout);
+    serde_json::from_str(text.lines().last().expect("a summary")).expect("json")
+}
+
 fn json_of(out: &Output) -> serde_json::Value {
     serde_json::from_slice(&out.stdout).unwrap_or_else(|e| {
         panic!(
@@ -277,9 +291,7 @@ fn a_killed_estimator_restarts_on_a_clean_track_and_iceoryx2_reclaims_its_resour
     assert_eq!(json_of(&detector)["published"], 121);
     // The last frames reach the estimator, then Ctrl-C stops it.
     std::thread::sleep(Duration::from_millis(1000));
-    signal(&second_estimator, "-INT");
-    let second_run = second_estimator.wait_with_output().expect("estimator");
-    assert!(second_run.status.success());
+    let second_run = interrupt(second_estimator);
     assert_eq!(
         posestream::transport::shm::dead_nodes().expect("node list"),
         0
@@ -391,9 +403,7 @@ fn the_estimator_ends_the_track_when_its_detector_goes_away_and_takes_the_next_o
     assert!(second.status.success());
     // The last frames reach the estimator, then Ctrl-C stops it.
     std::thread::sleep(Duration::from_millis(2000));
-    signal(&estimator, "-INT");
-    let run = estimator.wait_with_output().expect("waits");
-    assert!(run.status.success());
+    let run = interrupt(estimator);
     let report = json_of(&run);
     assert_eq!(report["counters"]["tracks"], 2, "{report}");
     assert_eq!(report["malformed"], 0, "{report}");
@@ -445,7 +455,7 @@ fn a_hostile_participant_cannot_stop_a_good_track_or_grow_the_estimator() {
         }
     });
     std::thread::sleep(Duration::from_millis(1000));
-    let mut hostile = Command::new(python())
+    let hostile = Command::new(python())
         .arg(root().join("tests/python/ros2_hostile_publisher.py"))
         .args([&domain.to_string(), "/posestream/heatmaps", "6", "40"])
         .stdout(Stdio::piped())
@@ -453,21 +463,9 @@ fn a_hostile_participant_cannot_stop_a_good_track_or_grow_the_estimator() {
         .expect("the hostile publisher starts (cyclonedds: .ci/run installs it)");
     let detector = spawn_detector(&det).wait_with_output().expect("waits");
     assert!(detector.status.success());
-    let hostile_out = {
-        let status = hostile.wait().expect("waits");
-        let mut text = String::new();
-        use std::io::Read;
-        hostile
-            .stdout
-            .take()
-            .expect("stdout")
-            .read_to_string(&mut text)
-            .expect("reads");
-        assert!(status.success(), "{text}");
-        text
-    };
-    let sent: serde_json::Value =
-        serde_json::from_str(hostile_out.lines().last().expect("a summary")).expect("json");
+    let hostile = hostile.wait_with_output().expect("waits");
+    assert!(hostile.status.success());
+    let sent = summary(&hostile.stdout);
     let (code, run, peak_kb) = estimator.join().expect("estimator thread");
     assert_eq!(code, Some(0), "{}", String::from_utf8_lossy(&run.stderr));
     let report = json_of(&run);
@@ -660,9 +658,7 @@ fn a_hand_made_data_frag_cannot_make_the_estimator_allocate() {
     std::thread::sleep(Duration::from_millis(1500));
     let after = resident_kb(estimator.id()).expect("still running");
     let peak = peak_kb(estimator.id()).expect("still running");
-    signal(&estimator, "-INT");
-    let run = estimator.wait_with_output().expect("waits");
-    assert!(run.status.success());
+    interrupt(estimator);
     println!(
         "{}: resident {before} kB before, {after} kB after, peak {peak} kB",
         String::from_utf8_lossy(&attack.stdout).trim()
@@ -751,9 +747,7 @@ fn a_detector_waits_for_its_estimator_so_no_frame_is_lost_over_ros2() {
         assert_eq!(json_of(&detector)["published"], 121);
         // The last frames arrive, then Ctrl-C stops the estimator.
         std::thread::sleep(Duration::from_millis(1500));
-        signal(&estimator, "-INT");
-        let estimator = estimator.wait_with_output().expect("estimator");
-        assert!(estimator.status.success());
+        let estimator = interrupt(estimator);
         frames.push(json_of(&estimator)["frames"].as_u64().expect("frames"));
     }
     assert_eq!(frames[0], 121, "waited: every frame arrives ({frames:?})");
@@ -1071,14 +1065,7 @@ fn run_waits_for_a_recorder_so_no_skeleton_is_lost_over_ros2() {
         assert!(run.status.success());
         assert_eq!(json_of(&run)["estimator"]["skeletons"], 242);
         std::thread::sleep(Duration::from_millis(1000));
-        signal(&recorder, "-INT");
-        assert!(
-            recorder
-                .wait_with_output()
-                .expect("recorder")
-                .status
-                .success()
-        );
+        interrupt(recorder);
         heard.push(
             read_topic::<Skeleton3D>(&out, SKELETONS)
                 .expect("reads")
@@ -1182,24 +1169,11 @@ fn expose(
     }
     let hostile = hostile.wait_with_output().expect("hostile");
     assert!(hostile.status.success());
-    let sent: serde_json::Value = serde_json::from_str(
-        String::from_utf8_lossy(&hostile.stdout)
-            .lines()
-            .last()
-            .expect("a summary"),
-    )
-    .expect("json");
+    let sent = summary(&hostile.stdout);
     let run = estimator.wait_with_output().expect("estimator");
     assert!(run.status.success());
     std::thread::sleep(Duration::from_millis(500));
-    signal(&recorder, "-INT");
-    assert!(
-        recorder
-            .wait_with_output()
-            .expect("recorder")
-            .status
-            .success()
-    );
+    interrupt(recorder);
     let read = reader.wait_with_output().expect("subscriber");
     let lines = String::from_utf8_lossy(&read.stdout).to_string();
     assert!(lines.starts_with("ready"), "the subscriber ran: {lines}");
