@@ -134,17 +134,12 @@ pub fn normalized_roi(
     size: (f64, f64),
 ) -> NormalizedRegionOfInterest2D {
     let (width, height) = size;
-    let seen: Vec<f32> = points
+    let (sum, seen) = points
         .skeleton
         .iter()
-        .map(|p| p.c)
-        .filter(|&c| c > 0.0)
-        .collect();
-    let c = if seen.is_empty() {
-        0.0
-    } else {
-        seen.iter().sum::<f32>() / seen.len() as f32
-    };
+        .filter(|p| p.c > 0.0)
+        .fold((0.0_f32, 0_u32), |(sum, n), p| (sum + p.c, n + 1));
+    let c = if seen == 0 { 0.0 } else { sum / seen as f32 };
     let x = |v: u32| (f64::from(v) / width).clamp(0.0, 1.0) as f32;
     let y = |v: u32| (f64::from(v) / height).clamp(0.0, 1.0) as f32;
     NormalizedRegionOfInterest2D {
