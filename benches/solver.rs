@@ -50,7 +50,8 @@ fn bench(c: &mut Criterion) {
     // As `posestream lift` reads them.
     maps.clip_negatives();
     let frames = maps.frames;
-    let est = Estimator::new(dict.clone(), Params::default()).expect("estimator");
+    // The paper's model: the speed-up is against the authors' release (README, "Parity and speed").
+    let est = Estimator::new(dict.clone(), Params::reference()).expect("estimator");
     let keypoints = Keypoints {
         joints: 17,
         xy: kp.data.clone(),

@@ -26,7 +26,7 @@ fn best(summary: &serde_json::Value, input: &str, key: &str) -> Option<f64> {
 
 fn estimator() -> Estimator {
     let dict = Dictionary::load(k128()).expect("dictionary");
-    Estimator::new(dict, Params::default()).expect("estimator")
+    Estimator::new(dict, Params::reference()).expect("estimator")
 }
 
 fn heatmaps(name: &str) -> HeatMapSequence {

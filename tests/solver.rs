@@ -3,6 +3,7 @@
 mod common;
 
 use common::{fixture, k128, read, small_dictionary, three_basis_sequence};
+use nalgebra::{Rotation3, Vector3};
 use posestream::solver::bcd::{self, BcdWorkspace};
 use posestream::solver::coefficients::{
     CoefficientProblem, CoefficientSolver, CoefficientWorkspace, basis_gram_max, lipschitz_bound,
@@ -340,4 +341,85 @@ fn a_window_part_between_two_anchors_never_raises_its_objective_and_follows_both
     assert!(both_far.0 < 0.9 * free.0.min(near.0), "{to_far:?}");
     assert!(both_far.1 < 0.9 * free.1.min(near.1), "{to_far:?}");
     assert!(after_far.1 < 0.9 * free.1, "{to_far:?}");
+}
+
+/// A person outside the dictionary's span (a pose of three bases plus an offset no
+/// combination of the bases makes), turning in front of an orthographic camera: the
+/// paper's model stays off by the offset, the adapted model finds it.
+#[test]
+fn adaptation_fits_a_person_outside_the_dictionary_s_span() {
+    let dict = small_dictionary(8);
+    let p = dict.num_joints();
+    let mut c = vec![0.0; dict.num_bases()];
+    c[1] = 0.9;
+    c[4] = 0.5;
+    c[6] = 0.7;
+    let mut s = dict.compose(&c);
+    let size = (s.iter().map(|v| v * v).sum::<f64>() / s.len() as f64).sqrt();
+    // Pelvis down, head-top forward, a wrist out: then centred over the joints.
+    let mut offset = vec![0.0; 3 * p];
+    offset[p] = 0.3 * size;
+    offset[2 * p + 10] = 0.4 * size;
+    offset[16] = -0.3 * size;
+    for row in offset.chunks_exact_mut(p) {
+        let m = row.iter().sum::<f64>() / p as f64;
+        row.iter_mut().for_each(|v| *v -= m);
+    }
+    s.iter_mut().zip(&offset).for_each(|(s, d)| *s += d);
+    let frames = 60;
+    let (mut xy, mut truth) = (Vec::new(), Vec::new());
+    for t in 0..frames {
+        let r = Rotation3::from_euler_angles(0.2, 0.5 + 0.04 * t as f64, -0.1);
+        for j in 0..p {
+            let q = r * Vector3::new(s[j], s[p + j], s[2 * p + j]);
+            xy.extend([q.x + 3.0, q.y - 1.0]);
+            truth.extend([q.x, q.y, q.z]);
+        }
+    }
+    let kp = Keypoints {
+        joints: p,
+        xy,
+        confidence: None,
+    };
+    let error = |params: Params| {
+        let est = Estimator::new(dict.clone(), params).expect("estimator");
+        let e = est.lift_keypoints(&kp).expect("lift");
+        (
+            posestream::metrics::p_mpjpe(&e.poses, &truth, p) / size,
+            e.offset,
+        )
+    };
+    // Next to no sparsity: the three bases' pose is in reach exactly.
+    let exact = Params {
+        alpha: 1e-6,
+        tolerance: 1e-8,
+        max_rounds: 30,
+        ..Params::default()
+    };
+    let (paper, none) = error(Params {
+        adaptation: Params::reference().adaptation,
+        ..exact.clone()
+    });
+    let (adapted, _) = error(exact.clone());
+    // A weak prior and more passes: the offset itself.
+    let mut weak = exact;
+    weak.adaptation.prior_frames = 1.0;
+    weak.adaptation.passes = 30;
+    let (fitted, found) = error(weak);
+    println!("relative P-MPJPE: paper {paper:.4}, adapted {adapted:.4}, weak prior {fitted:.4}");
+    assert!(
+        none.iter().all(|&v| v == 0.0),
+        "the paper's model has no offset"
+    );
+    assert!(paper > 0.05, "the offset is outside the span: {paper}");
+    assert!(adapted < 0.9 * paper, "paper {paper}, adapted {adapted}");
+    assert!(fitted < 0.4 * paper, "paper {paper}, weak prior {fitted}");
+    // The offset found is the one put in (up to the scale of the normalised units).
+    let dot: f64 = found.iter().zip(&offset).map(|(a, b)| a * b).sum();
+    let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
+    let cos = dot / (norm(&found) * norm(&offset));
+    assert!(
+        cos > 0.8,
+        "cosine between the offset found and the truth: {cos}"
+    );
 }

@@ -4,7 +4,10 @@ use std::path::PathBuf;
 
 use clap::Args;
 use posestream::Dictionary;
-use posestream::evaluation::{self, Case, Evaluator, Settings};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+
+use posestream::Params;
+use posestream::evaluation::{self, Case, DictionaryResults, Evaluator, Settings};
 use posestream::mocap::split::list_bvh;
 use posestream::mocap::{Bvh, MotionName, SkeletonMapping, Split};
 use posestream::skeleton::same_layout;
@@ -56,6 +59,14 @@ pub struct EvalArgs {
     /// Leave the people-in-the-room scenes out.
     #[arg(long)]
     pub no_scenes: bool,
+    /// Evaluate the split's training files instead of its held-out ones (to calibrate
+    /// settings without looking at the held-out motion).
+    #[arg(long)]
+    pub train: bool,
+    /// Worker threads (each evaluates whole files; ms/frame is per worker, so more
+    /// workers than idle cores inflate it).
+    #[arg(long, default_value_t = std::thread::available_parallelism().map_or(1, |n| n.get()))]
+    pub jobs: usize,
 }
 
 /// Runs `eval`.
@@ -94,7 +105,7 @@ pub fn run(args: &EvalArgs) -> Result<(), CliError> {
     let mut per_action = std::collections::BTreeMap::<String, usize>::new();
     let files: Vec<PathBuf> = list_bvh(&args.data)?
         .into_iter()
-        .filter(|f| split.is_test(f))
+        .filter(|f| split.is_test(f) != args.train)
         .filter(|f| {
             let action = MotionName::parse(f).map_or_else(String::new, |m| m.content);
             let n = per_action.entry(action).or_default();
@@ -103,7 +114,11 @@ pub fn run(args: &EvalArgs) -> Result<(), CliError> {
         })
         .collect();
     if files.is_empty() {
-        return Err(CliError::Nothing("the split holds out no files".into()));
+        return Err(CliError::Nothing(if args.train {
+            "the split has no training files".into()
+        } else {
+            "the split holds out no files".into()
+        }));
     }
     let settings = Settings {
         max_frames: args.max_frames,
@@ -111,34 +126,100 @@ pub fn run(args: &EvalArgs) -> Result<(), CliError> {
             seed: args.seed,
             ..Default::default()
         },
-        actions: split.test_contents.clone(),
+        // A training run's per-action table lists every action it saw.
+        actions: if args.train {
+            Vec::new()
+        } else {
+            split.test_contents.clone()
+        },
+        training: args.train,
         ..Settings::default()
     };
-    let mut evaluators = dicts
+    // Each dictionary under the paper's model (the reference's behaviour) and under
+    // posestream's, in the same run.
+    let models = [
+        ("paper", Params::reference()),
+        ("posestream", Params::default()),
+    ];
+    let specs: Vec<(String, &Dictionary, &Params)> = dicts
         .iter()
-        .map(|(label, d)| Evaluator::new(label, d, &posestream::Params::default(), &settings))
-        .collect::<Result<Vec<_>, _>>()?;
-    // One case at a time: a case's heat maps are large.
-    let bar = progress_bar(files.len(), "evaluating");
-    for (i, file) in files.iter().enumerate() {
-        let bvh = Bvh::load(file)?;
-        let seq = mapping.apply(&bvh, &file.display().to_string())?;
-        let name = file
-            .file_stem()
-            .map_or_else(String::new, |s| s.to_string_lossy().into_owned());
-        let action = MotionName::parse(file).map_or_else(|| name.clone(), |m| m.content);
-        let case = Case::new(name, action, &seq, &mapping.layout, &settings, i)
-            .map_err(|e| CliError::Failed(format!("{}: {e}", file.display())))?;
-        for ev in &mut evaluators {
-            ev.add(&case)?;
-        }
-        bar.inc(1);
-    }
-    bar.finish();
-    let results: Vec<_> = evaluators
-        .into_iter()
-        .map(|e| e.results().clone())
+        .flat_map(|(label, d)| {
+            models
+                .iter()
+                .map(move |(model, params)| (format!("{label}, {model}"), d, params))
+        })
         .collect();
+    let jobs = args.jobs.max(1).min(files.len());
+    let bar = progress_bar(files.len(), "evaluating");
+    let next = AtomicUsize::new(0);
+    let failed = AtomicBool::new(false);
+    // Workers take files in turn; each keeps its own evaluators (one case at a time: a
+    // case's heat maps are large), merged at the end.
+    let per_worker: Vec<Result<Vec<DictionaryResults>, CliError>> = std::thread::scope(|scope| {
+        let workers: Vec<_> = (0..jobs)
+            .map(|_| {
+                scope.spawn(|| {
+                    // A worker that fails stops the others at their next file.
+                    let result: Result<Vec<DictionaryResults>, CliError> = (|| {
+                        let mut evaluators = specs
+                            .iter()
+                            .map(|(label, d, params)| Evaluator::new(label, d, params, &settings))
+                            .collect::<Result<Vec<_>, _>>()?;
+                        loop {
+                            if failed.load(Ordering::Relaxed) {
+                                break;
+                            }
+                            let i = next.fetch_add(1, Ordering::Relaxed);
+                            let Some(file) = files.get(i) else { break };
+                            let bvh = Bvh::load(file)?;
+                            let seq = mapping.apply(&bvh, &file.display().to_string())?;
+                            let name = file
+                                .file_stem()
+                                .map_or_else(String::new, |s| s.to_string_lossy().into_owned());
+                            let action =
+                                MotionName::parse(file).map_or_else(|| name.clone(), |m| m.content);
+                            let case = Case::new(name, action, &seq, &mapping.layout, &settings, i)
+                                .map_err(|e| {
+                                    CliError::Failed(format!("{}: {e}", file.display()))
+                                })?;
+                            for ev in &mut evaluators {
+                                ev.add(&case)?;
+                            }
+                            bar.inc(1);
+                        }
+                        Ok(evaluators
+                            .into_iter()
+                            .map(|e| e.results().clone())
+                            .collect())
+                    })();
+                    if result.is_err() {
+                        failed.store(true, Ordering::Relaxed);
+                    }
+                    result
+                })
+            })
+            .collect();
+        workers
+            .into_iter()
+            .map(|w| {
+                w.join().unwrap_or_else(|_| {
+                    Err(CliError::Failed("an evaluation worker panicked".into()))
+                })
+            })
+            .collect()
+    });
+    bar.finish();
+    let mut results: Vec<DictionaryResults> = Vec::new();
+    for worker in per_worker {
+        let worker = worker?;
+        if results.is_empty() {
+            results = worker;
+        } else {
+            for (mine, theirs) in results.iter_mut().zip(&worker) {
+                mine.merge(theirs);
+            }
+        }
+    }
     let tables = evaluation::markdown(&results, &settings);
     print!("{tables}");
     // The tables are written before the scenes run: a failure there keeps them.
@@ -158,8 +239,9 @@ fn write_results(args: &EvalArgs, split: &Split, text: &str) -> Result<(), CliEr
         let command = format!("posestream {}", options.join(" "));
         let doc = format!(
             "# Results\n\nGenerated by `{command}` (`posestream eval --help` lists the options) \
-from the held-out files of `{}`: contents {} and styles {} are held out entirely (Table 2 \
+from the {} files of `{}`: contents {} and styles {} are held out entirely (Table 2 \
 shows the held-out contents). Dictionaries: {}.\n\n{text}",
+            if args.train { "training" } else { "held-out" },
             args.split.display(),
             split.test_contents.join(", "),
             split.test_styles.join(", "),

@@ -32,7 +32,12 @@ pub struct ParityArgs {
 pub fn run(args: &ParityArgs) -> Result<(), CliError> {
     let dict = Dictionary::load(&args.dict)?;
     let p = dict.num_joints();
-    let estimator = Estimator::new(dict, args.solver.params())?;
+    // Parity is with the authors' release: the paper's model.
+    let params = posestream::Params {
+        adaptation: posestream::solver::adapt::Adaptation::off(),
+        ..args.solver.params()
+    };
+    let estimator = Estimator::new(dict, params)?;
     let mut dirs: Vec<PathBuf> = std::fs::read_dir(&args.fixtures)
         .map_err(|source| ArrayError::Io {
             path: args.fixtures.clone(),

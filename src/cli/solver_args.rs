@@ -60,6 +60,10 @@ pub struct SolverArgs {
     /// Relative tolerance of the stopping rules.
     #[arg(long, default_value_t = Params::default().tolerance)]
     tolerance: f64,
+    /// The paper's model, as the authors' release runs it: no fitting of the person's
+    /// shape beyond the dictionary (`posestream parity` runs it whatever this says).
+    #[arg(long)]
+    paper: bool,
 }
 
 impl SolverArgs {
@@ -82,7 +86,11 @@ impl SolverArgs {
             tolerance: self.tolerance,
             init: self.init,
             coefficient_solver: self.c_solver,
-            ..Params::default()
+            ..if self.paper {
+                Params::reference()
+            } else {
+                Params::default()
+            }
         };
         if self.no_smooth {
             p.without_smoothness()

@@ -875,10 +875,7 @@ fn write_skeleton(
     } else {
         m.units = Units::Dictionary as u8;
         m.positions.clone_from(&e.pose);
-        // The same spread on every axis.
-        m.position_std.clear();
-        m.position_std
-            .extend(e.pose_std.iter().flat_map(|&s| [s, s, s]));
+        m.position_std.clone_from(&e.pose_std);
         to_image(&e.keypoints, &mut m.keypoints);
         m.keypoint_std.clear();
         m.keypoint_std

@@ -2,6 +2,7 @@
 //! sequence to 3D poses. The entry point of the library; the batch `lift` command and the
 //! streaming nodes are thin adapters over it.
 
+use std::borrow::Cow;
 use std::time::Instant;
 
 use nalgebra::Vector3;
@@ -11,6 +12,7 @@ use crate::camera::{Intrinsics, PixelMap};
 use crate::dictionary::Dictionary;
 use crate::error::EstimateError;
 use crate::heatmaps::HeatMapSequence;
+use crate::solver::adapt::{self, ShapeStats};
 use crate::solver::bcd::{self, BcdWorkspace};
 use crate::solver::coefficients::basis_gram_max;
 use crate::solver::em::{self, EmWorkspace, PreparedMaps};
@@ -91,6 +93,9 @@ pub struct Estimate {
     pub pixels_per_unit: f64,
     /// Weight of each joint in the fit (`t*p + j`): the keypoints' confidence, or 1.
     pub weights: Vec<f64>,
+    /// The person's shape beyond the dictionary the fits were composed with (row-major
+    /// 3 x p, [`crate::solver::adapt`]; zero for the paper's model).
+    pub offset: Vec<f64>,
     /// How it was reached.
     pub report: Report,
 }
@@ -153,6 +158,11 @@ impl Estimator {
             cache,
             gram_max,
         })
+    }
+
+    /// The dictionary, to set a track's offset ([`crate::solver::adapt`]).
+    pub(crate) fn dictionary_mut(&mut self) -> &mut Dictionary {
+        &mut self.dict
     }
 
     /// The dictionary.
@@ -288,7 +298,7 @@ impl Estimator {
             ));
         }
         let mut ws = BcdWorkspace::default();
-        let info = bcd::solve(
+        let mut info = bcd::solve(
             &self.dict,
             self.gram_max,
             &obs,
@@ -296,12 +306,35 @@ impl Estimator {
             &self.params,
             &mut ws,
         );
-        let mut est = self.finish(fits, obs, scale, None);
+        let mut dict = Cow::Borrowed(&self.dict);
+        let adaptation = &self.params.adaptation;
+        let mut passes = vec![info.rounds];
+        if adaptation.enabled {
+            let (mut stats, mut offset) = (ShapeStats::default(), Vec::new());
+            for _ in 0..adaptation.passes {
+                let settled = adapt::offset_step(
+                    dict.to_mut(),
+                    &obs,
+                    &fits,
+                    adaptation,
+                    &mut stats,
+                    &mut offset,
+                );
+                let more = bcd::solve(&dict, self.gram_max, &obs, &mut fits, &self.params, &mut ws);
+                // The report counts every pass (one entry of `rounds` each).
+                passes.push(more.rounds);
+                info.objective.extend(&more.objective[1..]);
+                if settled {
+                    break;
+                }
+            }
+        }
+        let mut est = self.finish(&dict, fits, obs, scale, None);
         est.report = Report {
             frames: f,
             init: self.keypoint_init().to_string(),
             em_iterations: 1,
-            rounds: vec![info.rounds],
+            rounds: passes,
             objective_init: info.objective[0],
             objective: info.objective.last().copied().unwrap_or(f64::NAN),
             objective_rounds: info.objective,
@@ -378,7 +411,7 @@ impl Estimator {
         }
         let mut ws = EmWorkspace::default();
         let mut scratch = Observations::new(p, vec![0.0; 2 * p * f]);
-        let (obs, info) = em::run(
+        let (mut obs, mut info) = em::run(
             &self.dict,
             self.gram_max,
             &prepared,
@@ -387,9 +420,43 @@ impl Estimator {
             &self.params,
             &mut ws,
         );
+        let mut dict = Cow::Borrowed(&self.dict);
+        let adaptation = &self.params.adaptation;
+        if adaptation.enabled {
+            let (mut stats, mut offset) = (ShapeStats::default(), Vec::new());
+            for _ in 0..adaptation.passes {
+                let settled = adapt::offset_step(
+                    dict.to_mut(),
+                    &obs,
+                    &fits,
+                    adaptation,
+                    &mut stats,
+                    &mut offset,
+                );
+                let (o, more) = em::run(
+                    &dict,
+                    self.gram_max,
+                    &prepared,
+                    &mut fits,
+                    scale,
+                    &self.params,
+                    &mut ws,
+                );
+                // The report counts every pass's iterations; its objectives are the
+                // adapted model's (with the offset of the last pass).
+                obs = o;
+                info.iterations += more.iterations;
+                info.rounds.extend(&more.rounds);
+                info.objective.extend(&more.objective);
+                info.relative_change.extend(&more.relative_change);
+                if settled {
+                    break;
+                }
+            }
+        }
         let mut variance = vec![0.0; f * p];
         em::e_step(
-            &self.dict,
+            &dict,
             &prepared,
             &fits,
             scale,
@@ -398,7 +465,7 @@ impl Estimator {
             Some(&mut variance),
             &mut ws,
         );
-        let mut est = self.finish(fits, obs, scale, Some(variance));
+        let mut est = self.finish(&dict, fits, obs, scale, Some(variance));
         est.report = Report {
             frames: f,
             init: self.heatmap_init().to_string(),
@@ -461,7 +528,7 @@ impl Estimator {
         seconds_init: f64,
         init: InitMethod,
     ) -> Estimate {
-        let mut est = self.finish(fits, obs, scale, None);
+        let mut est = self.finish(&self.dict, fits, obs, scale, None);
         est.report = Report {
             frames: est.fits.len(),
             init: init.to_string(),
@@ -476,18 +543,19 @@ impl Estimator {
     /// Poses and 2D outputs from the fits and the observations they were fitted to.
     fn finish(
         &self,
+        dict: &Dictionary,
         fits: Vec<FrameFit>,
         obs: Observations,
         scale: f64,
         variance: Option<Vec<f64>>,
     ) -> Estimate {
-        let p = self.dict.num_joints();
+        let p = dict.num_joints();
         let f = fits.len();
         let mut poses = vec![0.0; 3 * p * f];
         let mut projected = vec![0.0; 2 * p * f];
         let mut s = vec![0.0; 3 * p];
         for (t, fit) in fits.iter().enumerate() {
-            self.dict.compose_into(&fit.coefficients, &mut s);
+            dict.compose_into(&fit.coefficients, &mut s);
             for j in 0..p {
                 let q = fit.rotation * Vector3::new(s[j], s[p + j], s[2 * p + j]);
                 poses[3 * (t * p + j)..3 * (t * p + j) + 3].copy_from_slice(q.as_slice());
@@ -504,6 +572,7 @@ impl Estimator {
             fits,
             pixels_per_unit: scale,
             weights: obs.weights,
+            offset: dict.offset().to_vec(),
             report: Report::default(),
         }
     }
@@ -529,6 +598,19 @@ impl Estimator {
                 to_image.len()
             )));
         }
+        let mut dict = Cow::Borrowed(&self.dict);
+        // The offset the fits were composed with (zero for the paper's model, or an
+        // estimate from elsewhere).
+        let zero = vec![0.0; 3 * p];
+        let offset = if est.offset.len() == 3 * p {
+            &est.offset
+        } else {
+            &zero
+        };
+        if offset.as_slice() != dict.offset() {
+            dict.to_mut().set_offset(offset);
+        }
+        let dict = dict.as_ref();
         let mut poses = Vec::with_capacity(3 * p * f);
         let mut keypoints = Vec::with_capacity(2 * p * f);
         let mut projected = Vec::with_capacity(2 * p * f);
@@ -544,10 +626,10 @@ impl Estimator {
                 scale: map.scale.map(|s| s * est.pixels_per_unit),
                 offset: map.offset,
             };
-            let mut pf = start_from_weak_fit(&self.dict, fit, &units_to_image, camera, params)
+            let mut pf = start_from_weak_fit(dict, fit, &units_to_image, camera, params)
                 .ok_or(EstimateError::ZeroSize { frame: t })?;
             perspective::adjust_frame(
-                &self.dict,
+                dict,
                 self.gram_max,
                 camera,
                 &uv,
@@ -556,7 +638,7 @@ impl Estimator {
                 params,
                 &mut ws,
             );
-            let joints = pf.joints(&self.dict);
+            let joints = pf.joints(dict);
             for q in joints.chunks_exact(3) {
                 projected.extend(camera.project(&Vector3::new(q[0], q[1], q[2])));
             }

@@ -188,6 +188,16 @@ impl MetricStep {
         out: &mut MetricPose,
     ) -> Result<(), EstimateError> {
         let p = self.dict.num_joints();
+        if e.offset.len() == 3 * p {
+            if e.offset != self.dict.offset() {
+                // The track's shape beyond the dictionary, as the window composed it.
+                self.dict.set_offset(&e.offset);
+            }
+        } else if self.dict.has_offset() {
+            // An estimate without one: the paper's model.
+            self.shape.fill(0.0);
+            self.dict.set_offset(&self.shape);
+        }
         out.keypoints.clear();
         out.keypoints.extend(
             e.keypoints

@@ -32,6 +32,7 @@ use crate::dictionary::Dictionary;
 use crate::error::{EstimateError, OutOfDomain, check_range, check_real};
 use crate::estimator::Estimator;
 use crate::heatmaps::HeatMapSequence;
+use crate::solver::adapt::ShapeStats;
 use crate::solver::em::{self, EmWorkspace, MapSource};
 use crate::solver::estep::MapMoments;
 use crate::solver::init::InitWorkspace;
@@ -93,6 +94,13 @@ pub struct StreamSettings {
     pub max_gap_frames: u64,
     /// A jump in capture time larger than this (seconds) ends the track.
     pub max_gap_seconds: f64,
+    /// Factor from the E-step's 2D spread (per axis, model units) to a pose
+    /// coordinate's standard deviation: the spread of a heat map's posterior is wider
+    /// than the error of the fit to all maps. Calibrated on the training motions
+    /// (README, "Beyond the paper").
+    pub std_scale: f64,
+    /// The same factor for the depth coordinate.
+    pub depth_std_scale: f64,
 }
 
 impl Default for StreamSettings {
@@ -111,6 +119,8 @@ impl Default for StreamSettings {
             admit_per_frame: 2,
             max_gap_frames: 10,
             max_gap_seconds: 1.0,
+            std_scale: 0.22,
+            depth_std_scale: 0.45,
         }
     }
 }
@@ -139,6 +149,8 @@ impl StreamSettings {
         check_range("admit_per_frame", self.admit_per_frame, 1, 10_000)?;
         check_range("max_gap_frames", self.max_gap_frames, 1, 1_000_000)?;
         check_real("max_gap_seconds", self.max_gap_seconds, 0.0, 3600.0, true)?;
+        check_real("std_scale", self.std_scale, 0.0, 1e3, true)?;
+        check_real("depth_std_scale", self.depth_std_scale, 0.0, 1e3, true)?;
         Ok(())
     }
 }
@@ -271,8 +283,10 @@ pub struct FrameEstimate {
     /// 3D joints `R S`, camera frame (x right, y down, z forward), dictionary units,
     /// centred: `[x, y, z]` per joint.
     pub pose: Vec<f64>,
-    /// Per-joint 3D standard deviation (dictionary units): the E-step's 2D spread moved
-    /// to model units, the same on every axis (depth is not observed separately).
+    /// Standard deviation of each coordinate of `pose` (dictionary units, `[x, y, z]`
+    /// per joint): the E-step's 2D spread moved to model units, times
+    /// [`StreamSettings::std_scale`] (x, y) and [`StreamSettings::depth_std_scale`]
+    /// (z: depth is not observed, only the spread of the image's evidence).
     pub pose_std: Vec<f64>,
     /// The expected 2D joints (heat-map pixels): `[x, y]` per joint.
     pub keypoints: Vec<f64>,
@@ -285,6 +299,9 @@ pub struct FrameEstimate {
     pub fit: FrameFit,
     /// Heat-map pixels per normalised unit of `fit`.
     pub pixels_per_unit: f64,
+    /// The track's shape beyond the dictionary `fit` is composed with (row-major 3 x p,
+    /// [`crate::solver::adapt`]; zero for the paper's model).
+    pub offset: Vec<f64>,
 }
 
 impl Default for FrameEstimate {
@@ -301,6 +318,7 @@ impl Default for FrameEstimate {
             projected: Vec::new(),
             fit: FrameFit::zero(0),
             pixels_per_unit: 0.0,
+            offset: Vec::new(),
         }
     }
 }
@@ -552,15 +570,23 @@ pub struct WindowEstimator {
     argmax: Vec<f64>,
     visible: Vec<bool>,
     spare: Vec<FrameFit>,
+    /// The evidence of the track's shape beyond the dictionary (frames that left the
+    /// window), and the offset it gives ([`crate::solver::adapt`]).
+    shape_stats: ShapeStats,
+    offset: Vec<f64>,
     /// The estimates of the allocating API ([`WindowEstimator::push`]), cloned out.
     released: Estimates,
 }
 
 impl WindowEstimator {
     /// A window over `estimator`'s dictionary and parameters.
-    pub fn new(estimator: Estimator, settings: StreamSettings) -> Result<Self, EstimateError> {
+    pub fn new(mut estimator: Estimator, settings: StreamSettings) -> Result<Self, EstimateError> {
         settings.validate()?;
         let p = estimator.dictionary().num_joints();
+        // A track's shape beyond the dictionary is its own: every window starts without.
+        if estimator.dictionary().has_offset() {
+            estimator.dictionary_mut().set_offset(&vec![0.0; 3 * p]);
+        }
         let capped = |iterations| Params {
             max_em_iterations: iterations,
             admit_per_frame: settings.admit_per_frame,
@@ -594,6 +620,8 @@ impl WindowEstimator {
             argmax: vec![0.0; 2 * p],
             visible: vec![false; p],
             spare: Vec::new(),
+            shape_stats: ShapeStats::new(p),
+            offset: vec![0.0; 3 * p],
             released: Estimates::default(),
             estimator,
             settings,
@@ -822,6 +850,12 @@ impl WindowEstimator {
 
     /// Forgets the track without emitting anything.
     pub fn reset(&mut self) {
+        self.shape_stats.clear();
+        if self.estimator.dictionary().has_offset() {
+            self.offset.iter_mut().for_each(|v| *v = 0.0);
+            let offset = &self.offset;
+            self.estimator.dictionary_mut().set_offset(offset);
+        }
         self.slots.clear();
         self.spare.append(&mut self.fits);
         if let Some(a) = self.anchor.take() {
@@ -888,6 +922,7 @@ impl WindowEstimator {
     fn admit(&mut self, frame: &FrameMaps<'_>) {
         let k = self.dictionary().num_bases();
         if self.slots.len() == self.settings.size {
+            self.learn_shape_from_oldest();
             self.slots.remove(0);
             let frozen = self.fits.remove(0);
             if let Some(old) = self.anchor.replace(frozen) {
@@ -916,6 +951,48 @@ impl WindowEstimator {
             None => self.initialise(&mut fit),
         }
         self.fits.push(fit);
+    }
+
+    /// Adds the evidence of the window's oldest frame (about to freeze) about the
+    /// track's shape beyond the dictionary: its E-step's expected joints under its fit.
+    fn learn_shape_from_oldest(&mut self) {
+        let adaptation = &self.estimator.params().adaptation;
+        if !adaptation.enabled || self.fits.is_empty() {
+            return;
+        }
+        let keep = 1.0 - 1.0 / adaptation.memory_frames;
+        let dict = self.estimator.dictionary();
+        let fit = std::slice::from_ref(&self.fits[0]);
+        let view = Tail {
+            inner: &self.maps,
+            from: 0,
+        };
+        let scale = heatmap_scale(self.maps.height);
+        let sigma = self.estimator.params().sigma;
+        em::e_step(
+            dict,
+            &view,
+            fit,
+            scale,
+            sigma,
+            &mut self.one,
+            None,
+            &mut self.em,
+        );
+        self.shape_stats.decay(keep);
+        self.shape_stats.add_frame(dict, &self.one, 0, &fit[0]);
+    }
+
+    /// Sets the track's offset from the evidence so far (at the start of a window EM,
+    /// which then fits the window to it).
+    fn adapt_offset(&mut self) {
+        let adaptation = &self.estimator.params().adaptation;
+        if !adaptation.enabled || self.shape_stats.is_empty() {
+            return;
+        }
+        self.shape_stats.solve(adaptation, &mut self.offset);
+        let offset = &self.offset;
+        self.estimator.dictionary_mut().set_offset(offset);
     }
 
     /// The batch EM's per-frame initialisation of the newest frame, from its arg-max.
@@ -966,6 +1043,7 @@ impl WindowEstimator {
             // Too few frames for a local EM (or none configured): the whole window, now.
             self.sweep = None;
             self.since_window = 0;
+            self.adapt_offset();
             self.solve_part(0, n);
             return;
         }
@@ -974,6 +1052,7 @@ impl WindowEstimator {
                 return;
             }
             self.since_window = 0;
+            self.adapt_offset();
             self.sweep = Some(Sweep {
                 part: 0,
                 parts: self.settings.window_parts.min(n),
@@ -1060,7 +1139,12 @@ impl WindowEstimator {
         for v in &self.variance {
             let std = (0.5 * v).sqrt();
             e.keypoint_std.push(std);
-            e.pose_std.push(std / scale);
+            let model = std / scale;
+            e.pose_std.extend([
+                model * self.settings.std_scale,
+                model * self.settings.std_scale,
+                model * self.settings.depth_std_scale,
+            ]);
         }
         e.keypoints.clear();
         e.keypoints.extend(self.one.xy.iter().map(|v| v * scale));
@@ -1068,6 +1152,8 @@ impl WindowEstimator {
         e.fit.rotation = fit.rotation;
         e.fit.translation = fit.translation;
         e.pixels_per_unit = scale;
+        e.offset.clear();
+        e.offset.extend_from_slice(dict.offset());
         let slot = &self.slots[t];
         e.sequence = slot.sequence;
         e.stamp_ns = slot.stamp_ns;

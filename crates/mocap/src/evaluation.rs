@@ -22,9 +22,13 @@ use crate::synth::{self, CameraSpec, ErrorModel, Projection, RenderedMaps, View,
 use posestream_math::dictionary::Dictionary;
 use posestream_math::error::EstimateError;
 use posestream_math::estimator::{Estimate, Estimator, Keypoints};
+use posestream_math::heatmaps::HeatMapSequence;
 use posestream_math::metrics;
 use posestream_math::skeleton::Skeleton;
 use posestream_math::solver::Params;
+use posestream_math::streaming::{
+    FrameEstimate, FrameMaps, Outputs, StreamSettings, WindowEstimator,
+};
 
 /// What the evaluation runs on.
 #[derive(Debug, Clone, PartialEq)]
@@ -46,6 +50,9 @@ pub struct Settings {
     pub limb_length: f64,
     /// Actions of the per-action table (the held-out contents); empty = every action.
     pub actions: Vec<String>,
+    /// The sequences are the split's training files, not its held-out ones (`eval
+    /// --train`, to calibrate without looking at the held-out motion).
+    pub training: bool,
 }
 
 impl Default for Settings {
@@ -60,6 +67,7 @@ impl Default for Settings {
             limb_length: posestream_math::solver::perspective::PerspectiveParams::default()
                 .mean_limb_length,
             actions: Vec::new(),
+            training: false,
         }
     }
 }
@@ -167,6 +175,12 @@ impl Mean {
         self.weight += weight;
     }
 
+    /// Adds another mean's sums.
+    pub fn merge(&mut self, other: &Self) {
+        self.sum += other.sum;
+        self.weight += other.weight;
+    }
+
     /// The mean (NaN when empty).
     pub fn get(&self) -> f64 {
         if self.weight > 0.0 {
@@ -190,6 +204,191 @@ pub struct Score {
     pub seconds_per_frame: Mean,
     /// P-MPJPE per action, mm.
     pub per_action: BTreeMap<String, Mean>,
+    /// P-MPJPE of every frame, mm (for percentiles).
+    pub frames_mm: Vec<f64>,
+    /// Calibration of the per-joint standard deviations: how many pose coordinates
+    /// (after the similarity alignment, the deviation scaled with the pose) have
+    /// `|error| / std` in each bin of [`RatioHistogram`].
+    pub ratios: RatioHistogram,
+    /// The same for the lateral coordinates (x, y) alone.
+    pub lateral_ratios: RatioHistogram,
+    /// The same for the depth coordinate (z) alone.
+    pub depth_ratios: RatioHistogram,
+}
+
+/// A histogram of `|error| / std` over log-spaced bins (1e-3 to 1e3, 100 per decade),
+/// for the fraction within any number of deviations and the scale that calibrates.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RatioHistogram {
+    bins: Vec<f64>,
+    total: f64,
+}
+
+impl Default for RatioHistogram {
+    fn default() -> Self {
+        Self {
+            bins: vec![0.0; Self::BINS + 2],
+            total: 0.0,
+        }
+    }
+}
+
+impl RatioHistogram {
+    const BINS: usize = 600;
+    const LOG_MIN: f64 = -3.0;
+    const PER_DECADE: f64 = 100.0;
+
+    fn bin(ratio: f64) -> usize {
+        if ratio.is_nan() {
+            return Self::BINS + 1;
+        }
+        let x = (ratio.log10() - Self::LOG_MIN) * Self::PER_DECADE;
+        if x < 0.0 {
+            0
+        } else if x < Self::BINS as f64 {
+            x.floor() as usize + 1
+        } else {
+            // Beyond the last bin, +inf (a zero deviation) included.
+            Self::BINS + 1
+        }
+    }
+
+    /// Adds one `|error| / std`.
+    pub fn add(&mut self, ratio: f64) {
+        self.bins[Self::bin(ratio)] += 1.0;
+        self.total += 1.0;
+    }
+
+    /// True when nothing was added.
+    pub fn is_empty(&self) -> bool {
+        self.total == 0.0
+    }
+
+    /// The fraction within `z` deviations (to the bins' resolution, 2.3 %).
+    pub fn within(&self, z: f64) -> f64 {
+        let last = Self::bin(z);
+        self.bins[..last].iter().sum::<f64>() / self.total
+    }
+
+    /// The factor on the deviations that puts a fraction `q` within one deviation: the
+    /// `q`-quantile of `|error| / std`.
+    pub fn scale_for(&self, q: f64) -> f64 {
+        let mut sum = 0.0;
+        for (i, n) in self.bins.iter().enumerate() {
+            sum += n;
+            if sum >= q * self.total {
+                return 10f64.powf(Self::LOG_MIN + i as f64 / Self::PER_DECADE);
+            }
+        }
+        f64::INFINITY
+    }
+
+    fn merge(&mut self, other: &Self) {
+        self.bins
+            .iter_mut()
+            .zip(&other.bins)
+            .for_each(|(a, b)| *a += b);
+        self.total += other.total;
+    }
+}
+
+/// The deviations of the calibration table and the fraction of a normal distribution
+/// within each: 50 %, 68.3 %, 90 %, 95.4 %.
+pub const CALIBRATION_Z: [(f64, f64); 4] = [
+    (0.674_49, 50.0),
+    (1.0, 68.27),
+    (1.644_85, 90.0),
+    (2.0, 95.45),
+];
+
+impl Score {
+    /// The `q`-quantile (0..=1) of the per-frame P-MPJPE, mm (NaN without frames): the
+    /// nearest rank.
+    pub fn frame_quantile(&self, q: f64) -> f64 {
+        let mut v: Vec<f64> = self
+            .frames_mm
+            .iter()
+            .copied()
+            .filter(|e| e.is_finite())
+            .collect();
+        if v.is_empty() {
+            return f64::NAN;
+        }
+        v.sort_by(f64::total_cmp);
+        let i = ((q * v.len() as f64).ceil() as usize).clamp(1, v.len()) - 1;
+        v[i]
+    }
+
+    /// Adds another score's sums (the same method on other cases).
+    pub fn merge(&mut self, other: &Self) {
+        self.p_mpjpe_mm.merge(&other.p_mpjpe_mm);
+        self.error_2d.merge(&other.error_2d);
+        self.pck.merge(&other.pck);
+        self.seconds_per_frame.merge(&other.seconds_per_frame);
+        for (a, m) in &other.per_action {
+            self.per_action.entry(a.clone()).or_default().merge(m);
+        }
+        self.frames_mm.extend_from_slice(&other.frames_mm);
+        self.ratios.merge(&other.ratios);
+        self.depth_ratios.merge(&other.depth_ratios);
+        self.lateral_ratios.merge(&other.lateral_ratios);
+    }
+
+    /// Adds `|error| / std` of every coordinate of `poses` (`std`: per frame, joint and
+    /// axis) against the truth, after each frame's similarity alignment (which scales
+    /// the deviations too).
+    fn add_calibration(&mut self, poses: &[f64], std: &[f64], truth: &[f64], joints: usize) {
+        let n = 3 * joints;
+        for ((pred, truth), std) in poses
+            .chunks_exact(n)
+            .zip(truth.chunks_exact(n))
+            .zip(std.chunks_exact(n))
+        {
+            let aligned = metrics::procrustes_align(pred, truth, false);
+            let spread = |v: &[f64]| {
+                let mut c = [0.0; 3];
+                for q in v.chunks_exact(3) {
+                    (0..3).for_each(|i| c[i] += q[i] / joints as f64);
+                }
+                v.chunks_exact(3)
+                    .map(|q| (0..3).map(|i| (q[i] - c[i]).powi(2)).sum::<f64>())
+                    .sum::<f64>()
+                    .sqrt()
+            };
+            let scale = spread(&aligned) / spread(pred);
+            if !scale.is_finite() {
+                continue;
+            }
+            for i in 0..n {
+                let e = (aligned[i] - truth[i]).abs();
+                self.ratios.add(e / (std[i] * scale));
+                if i % 3 == 2 {
+                    self.depth_ratios.add(e / (std[i] * scale));
+                } else {
+                    self.lateral_ratios.add(e / (std[i] * scale));
+                }
+            }
+        }
+    }
+
+    /// Scores poses of `frames` frames against the truth: the mean and every frame's
+    /// P-MPJPE, weighted by frame.
+    fn add_poses(&mut self, poses: &[f64], truth: &[f64], joints: usize, action: &str) -> f64 {
+        let n = 3 * joints;
+        let start = self.frames_mm.len();
+        for (pred, truth) in poses.chunks_exact(n).zip(truth.chunks_exact(n)) {
+            self.frames_mm
+                .push(1000.0 * metrics::p_mpjpe(pred, truth, joints));
+        }
+        let frames = self.frames_mm.len() - start;
+        let e = self.frames_mm[start..].iter().sum::<f64>() / frames.max(1) as f64;
+        self.p_mpjpe_mm.add(e, frames as f64);
+        self.per_action
+            .entry(action.to_string())
+            .or_default()
+            .add(e, frames as f64);
+        e
+    }
 }
 
 /// The results of one dictionary.
@@ -208,6 +407,23 @@ pub struct DictionaryResults {
     pub cases: usize,
 }
 
+impl DictionaryResults {
+    /// Adds the results of the same dictionary and model on other cases.
+    pub fn merge(&mut self, other: &Self) {
+        for (key, sc) in &other.given_2d {
+            self.given_2d.entry(key.clone()).or_default().merge(sc);
+        }
+        for (m, sc) in &other.heatmaps {
+            match self.heatmaps.iter_mut().find(|(n, _)| n == m) {
+                Some((_, mine)) => mine.merge(sc),
+                None => self.heatmaps.push((m.clone(), sc.clone())),
+            }
+        }
+        self.frames += other.frames;
+        self.cases += other.cases;
+    }
+}
+
 fn timed(
     f: impl FnOnce() -> Result<Estimate, EstimateError>,
 ) -> Result<(Estimate, f64), EstimateError> {
@@ -216,38 +432,131 @@ fn timed(
     Ok((e, start.elapsed().as_secs_f64()))
 }
 
+/// What a method gives for a case's frames: poses, the 2D joints it fitted and its
+/// reprojection.
+#[derive(Debug, Clone, Default)]
+struct Output {
+    poses: Vec<f64>,
+    keypoints: Vec<f64>,
+    projected: Vec<f64>,
+    /// Standard deviation of each pose coordinate (the poses' units, `[x, y, z]` per
+    /// joint, frame-major); empty when the method gives none (the batch methods).
+    std: Vec<f64>,
+    /// Frames the method gave nothing for (the sliding window skips frames without
+    /// evidence).
+    filled: Vec<bool>,
+}
+
+impl From<Estimate> for Output {
+    fn from(e: Estimate) -> Self {
+        let f = e.fits.len();
+        Self {
+            poses: e.poses,
+            keypoints: e.keypoints,
+            projected: e.projected,
+            std: Vec::new(),
+            filled: vec![true; f],
+        }
+    }
+}
+
+impl Output {
+    fn empty(p: usize, f: usize) -> Self {
+        Self {
+            poses: vec![0.0; 3 * p * f],
+            keypoints: vec![0.0; 2 * p * f],
+            projected: vec![0.0; 2 * p * f],
+            std: vec![0.0; 3 * p * f],
+            filled: vec![false; f],
+        }
+    }
+
+    fn set_frame(&mut self, t: usize, pose: &[f64], projected: &[f64], std: &[f64]) {
+        let (n3, n2) = (pose.len(), projected.len());
+        self.std[t * n3..(t + 1) * n3].copy_from_slice(std);
+        self.poses[t * n3..(t + 1) * n3].copy_from_slice(pose);
+        self.projected[t * n2..(t + 1) * n2].copy_from_slice(projected);
+        self.keypoints[t * n2..(t + 1) * n2].copy_from_slice(projected);
+        self.filled[t] = true;
+    }
+
+    /// Gives each frame without an estimate the nearest earlier one's (or later, at the
+    /// start).
+    fn fill_forward(&mut self) {
+        let f = self.filled.len();
+        let Some(first) = self.filled.iter().position(|&x| x) else {
+            return;
+        };
+        let (n3, n2) = (self.poses.len() / f, self.projected.len() / f);
+        let mut last = first;
+        for t in 0..f {
+            if self.filled[t] {
+                last = t;
+                continue;
+            }
+            self.poses.copy_within(last * n3..(last + 1) * n3, t * n3);
+            self.projected
+                .copy_within(last * n2..(last + 1) * n2, t * n2);
+            self.keypoints
+                .copy_within(last * n2..(last + 1) * n2, t * n2);
+            self.std.copy_within(last * n3..(last + 1) * n3, t * n3);
+        }
+    }
+}
+
 /// Scores one dictionary case by case (so that cases need not be held in memory).
 #[derive(Debug, Clone)]
 pub struct Evaluator {
     estimator: Estimator,
     flat: Estimator,
+    window: WindowEstimator,
     pck_threshold: f64,
     results: DictionaryResults,
+    estimates: Vec<FrameEstimate>,
 }
 
-/// The heat-map methods of Table 3, in order.
+/// The batch heat-map methods of Table 3, in order; the sliding window's rows
+/// ([`window_methods`]) follow them.
 pub const HEATMAP_METHODS: [&str; 3] = ["init (arg-max)", "EM", "EM, no smoothness"];
 
+/// The names of the sliding window's rows: its refined (lag L) and newest (lag 0)
+/// estimates.
+pub fn window_methods(settings: &StreamSettings) -> [String; 2] {
+    [
+        format!("window, lag {}", settings.lag),
+        "window, lag 0".to_string(),
+    ]
+}
+
 impl Evaluator {
-    /// An evaluator of `dict` under `params` (and the same without smoothness).
+    /// An evaluator of `dict` under `params` (and the same without smoothness, and the
+    /// sliding window with its default settings).
     pub fn new(
         label: &str,
         dict: &Dictionary,
         params: &Params,
         settings: &Settings,
     ) -> Result<Self, EstimateError> {
+        let estimator = Estimator::new(dict.clone(), params.clone())?;
+        let stream = StreamSettings {
+            outputs: Outputs::Both,
+            ..StreamSettings::default()
+        };
+        let names = HEATMAP_METHODS
+            .iter()
+            .map(|m| m.to_string())
+            .chain(window_methods(&stream));
         Ok(Self {
-            estimator: Estimator::new(dict.clone(), params.clone())?,
+            window: WindowEstimator::new(estimator.clone(), stream)?,
+            estimator,
             flat: Estimator::new(dict.clone(), params.clone().without_smoothness())?,
             pck_threshold: settings.pck_threshold,
             results: DictionaryResults {
                 label: label.to_string(),
-                heatmaps: HEATMAP_METHODS
-                    .iter()
-                    .map(|m| (m.to_string(), Score::default()))
-                    .collect(),
+                heatmaps: names.map(|m| (m, Score::default())).collect(),
                 ..Default::default()
             },
+            estimates: Vec::new(),
         })
     }
 
@@ -270,22 +579,27 @@ impl Evaluator {
                     .given_2d
                     .entry((camera.to_string(), method.to_string()))
                     .or_default();
-                let e = 1000.0 * metrics::p_mpjpe(&run.0.poses, &view.camera_3d, p);
-                s.p_mpjpe_mm.add(e, f);
+                s.add_poses(&run.0.poses, &view.camera_3d, p, &case.action);
                 s.seconds_per_frame.add(run.1 / f, f);
             }
         }
         let maps = &case.maps.maps;
-        let runs = [
+        let mut runs: Vec<(Output, f64)> = [
             timed(|| self.estimator.initialise_heatmaps(maps))?,
             timed(|| self.estimator.lift_heatmaps(maps))?,
             timed(|| self.flat.lift_heatmaps(maps))?,
-        ];
+        ]
+        .into_iter()
+        .map(|(e, s)| (Output::from(e), s))
+        .collect();
+        runs.extend(self.stream(maps)?);
         let to_256 = 256.0 / maps.height as f64;
         for (i, (est, seconds)) in runs.iter().enumerate() {
             let s = &mut self.results.heatmaps[i].1;
-            let e = 1000.0 * metrics::p_mpjpe(&est.poses, &case.pinhole.camera_3d, p);
-            s.p_mpjpe_mm.add(e, f);
+            s.add_poses(&est.poses, &case.pinhole.camera_3d, p, &case.action);
+            if !est.std.is_empty() {
+                s.add_calibration(&est.poses, &est.std, &case.pinhole.camera_3d, p);
+            }
             // The baseline's 2D answer is the arg-max itself; the others' is the model's
             // reprojection.
             let xy = if i == 0 {
@@ -298,14 +612,49 @@ impl Evaluator {
             let pck = metrics::pck(xy, &case.maps.truth, self.pck_threshold / to_256);
             s.pck.add(100.0 * pck, f);
             s.seconds_per_frame.add(seconds / f, f);
-            s.per_action
-                .entry(case.action.clone())
-                .or_default()
-                .add(e, f);
         }
         self.results.frames += case.pinhole.frames;
         self.results.cases += 1;
         Ok(())
+    }
+
+    /// The sliding window over a case's heat maps, frame by frame at 30 frames/s: its
+    /// refined and its newest estimates, each as an [`Estimate`] of every frame (poses
+    /// and reprojections), and the time of the whole run.
+    fn stream(&mut self, maps: &HeatMapSequence) -> Result<[(Output, f64); 2], EstimateError> {
+        let (p, f) = (maps.joints, maps.frames);
+        let mut refined = Output::empty(p, f);
+        let mut newest = Output::empty(p, f);
+        self.window.reset();
+        self.estimates.clear();
+        let start = Instant::now();
+        for t in 0..f {
+            let frame = FrameMaps::of(maps, t, t as u64, t as i64 * 33_333_333);
+            self.window.push(&frame, &mut self.estimates)?;
+        }
+        self.window.finish(&mut self.estimates);
+        let seconds = start.elapsed().as_secs_f64();
+        // Each frame's refined estimate is the one made latest (the lag L one, or the
+        // last owed when the track ended); a frame without evidence keeps no pose and
+        // is scored by the nearest earlier one.
+        let mut best_lag = vec![None; f];
+        for e in &self.estimates {
+            let t = usize::try_from(e.sequence).unwrap_or(usize::MAX);
+            if t >= f {
+                continue;
+            }
+            if e.lag == 0 {
+                newest.set_frame(t, &e.pose, &e.projected, &e.pose_std);
+            }
+            if best_lag[t].is_none_or(|l| e.lag >= l) {
+                best_lag[t] = Some(e.lag);
+                refined.set_frame(t, &e.pose, &e.projected, &e.pose_std);
+            }
+        }
+        for est in [&mut refined, &mut newest] {
+            est.fill_forward();
+        }
+        Ok([(refined, seconds), (newest, seconds)])
     }
 
     /// The scores so far.
@@ -335,9 +684,15 @@ pub fn markdown(results: &[DictionaryResults], settings: &Settings) -> String {
     let (cases, frames) = results.first().map_or((0, 0), |r| (r.cases, r.frames));
     let _ = writeln!(
         s,
-        "Held-out sequences: {cases}, {frames} frames (first {} frames of each file at most), \
+        "{} sequences: {cases}, {frames} frames (first {} frames of each file at most), \
 each subject scaled to a mean bone length of {} m.\n",
-        settings.max_frames, settings.limb_length
+        if settings.training {
+            "Training"
+        } else {
+            "Held-out"
+        },
+        settings.max_frames,
+        settings.limb_length
     );
     let _ = writeln!(
         s,
@@ -388,22 +743,64 @@ the arg-max itself, the others the model's reprojection.\n",
     );
     let _ = writeln!(
         s,
-        "| dictionary | method | 3D P-MPJPE (mm) | 2D error (px) | PCK@{} (%) | ms/frame |",
+        "| dictionary | method | 3D P-MPJPE (mm) | median / 90th percentile frame (mm) | 2D error (px) | PCK@{} (%) | ms/frame |",
         settings.pck_threshold
     );
-    let _ = writeln!(s, "|---|---|---:|---:|---:|---:|");
+    let _ = writeln!(s, "|---|---|---:|---:|---:|---:|---:|");
     for r in results {
         for (m, sc) in &r.heatmaps {
             let _ = writeln!(
                 s,
-                "| {} | {} | {:.1} | {:.2} | {:.1} | {:.2} |",
+                "| {} | {} | {:.1} | {:.1} / {:.1} | {:.2} | {:.1} | {:.2} |",
                 r.label,
                 m,
                 sc.p_mpjpe_mm.get(),
+                sc.frame_quantile(0.5),
+                sc.frame_quantile(0.9),
                 sc.error_2d.get(),
                 sc.pck.get(),
                 1000.0 * sc.seconds_per_frame.get()
             );
+        }
+    }
+    let _ = writeln!(
+        s,
+        "\n## Uncertainty: reliability of the per-joint standard deviations\n\nThe fraction of pose \
+coordinates (x, y, z of every joint, after the similarity alignment of P-MPJPE, which scales the \
+deviations too) whose error lies within z standard deviations, against a normal distribution's. \
+Methods without deviations are left out.\n"
+    );
+    let mut heads: Vec<String> = CALIBRATION_Z
+        .iter()
+        .map(|(z, nominal)| format!("within {z:.2} std (normal: {nominal:.1} %)"))
+        .collect();
+    heads.push("x, y: within 1 / 2 std".into());
+    heads.push("z: within 1 / 2 std".into());
+    heads.push("factor on x, y / z std for 68.3 % within 1 std".into());
+    let _ = writeln!(s, "| dictionary | method | {} |", heads.join(" | "));
+    let _ = writeln!(s, "|---|---|{}", "---:|".repeat(heads.len()));
+    for r in results {
+        for (m, sc) in &r.heatmaps {
+            if sc.ratios.is_empty() {
+                continue;
+            }
+            let mut cells: Vec<String> = CALIBRATION_Z
+                .iter()
+                .map(|(z, _)| format!("{:.1} %", 100.0 * sc.ratios.within(*z)))
+                .collect();
+            for h in [&sc.lateral_ratios, &sc.depth_ratios] {
+                cells.push(format!(
+                    "{:.1} % / {:.1} %",
+                    100.0 * h.within(1.0),
+                    100.0 * h.within(2.0)
+                ));
+            }
+            cells.push(format!(
+                "{:.2} / {:.2}",
+                sc.lateral_ratios.scale_for(0.6827),
+                sc.depth_ratios.scale_for(0.6827)
+            ));
+            let _ = writeln!(s, "| {} | {} | {} |", r.label, m, cells.join(" | "));
         }
     }
     let _ = writeln!(

@@ -1,5 +1,6 @@
 //! The pose dictionary: `k` basis poses `B_i` (3 x p each) and a mean shape, over a
-//! [`Skeleton`]. A pose is `S = sum_i c_i B_i` (paper, eq. 1).
+//! [`Skeleton`]. A pose is `S = sum_i c_i B_i` (paper, eq. 1), plus the offset of a
+//! track's shape beyond the bases when one is set ([`crate::solver::adapt`]).
 //!
 //! Two file formats load into it:
 //! - the authors' MATLAB release (`.mat`, variables `B` (3k x p), `mu` (3 x p) and
@@ -27,6 +28,9 @@ pub struct Dictionary {
     bases: Vec<f64>,
     /// Mean shape, row-major 3 x p.
     mean: Vec<f64>,
+    /// The person's shape beyond the bases (row-major 3 x p, centred; zero unless set):
+    /// every composed pose is `offset + sum_i c_i B_i`. See [`crate::solver::adapt`].
+    offset: Vec<f64>,
 }
 
 impl Dictionary {
@@ -55,6 +59,7 @@ impl Dictionary {
             k,
             bases,
             mean,
+            offset: vec![0.0; 3 * p],
         };
         for row in d
             .bases
@@ -126,12 +131,37 @@ impl Dictionary {
         s
     }
 
-    /// Writes `sum_i c_i B_i` into `out` (row-major 3 x p), skipping zero coefficients.
+    /// The person's shape beyond the bases (row-major 3 x p, centred; zero unless set by
+    /// [`Self::set_offset`]).
+    pub fn offset(&self) -> &[f64] {
+        &self.offset
+    }
+
+    /// True when the offset is not zero (false: the paper's model, poses in the bases'
+    /// span).
+    pub fn has_offset(&self) -> bool {
+        self.offset.iter().any(|&v| v != 0.0)
+    }
+
+    /// Sets the offset every composed pose starts from (row-major 3 x p), centred over
+    /// the joints on every axis (a shift of all joints is the translation's).
+    pub fn set_offset(&mut self, offset: &[f64]) {
+        let p = self.num_joints();
+        debug_assert_eq!(offset.len(), 3 * p);
+        self.offset.copy_from_slice(offset);
+        for row in self.offset.chunks_exact_mut(p) {
+            let m = row.iter().sum::<f64>() / p as f64;
+            row.iter_mut().for_each(|v| *v -= m);
+        }
+    }
+
+    /// Writes `offset + sum_i c_i B_i` into `out` (row-major 3 x p), skipping zero
+    /// coefficients.
     pub fn compose_into(&self, c: &[f64], out: &mut [f64]) {
         let n = 3 * self.num_joints();
         debug_assert_eq!(c.len(), self.k);
         debug_assert_eq!(out.len(), n);
-        out.iter_mut().for_each(|v| *v = 0.0);
+        out.copy_from_slice(&self.offset);
         for (ci, b) in c.iter().zip(self.bases.chunks_exact(n)) {
             if *ci != 0.0 {
                 out.iter_mut().zip(b).for_each(|(o, b)| *o += ci * b);
@@ -139,7 +169,7 @@ impl Dictionary {
         }
     }
 
-    /// `sum_i c_i B_i`, row-major 3 x p.
+    /// `offset + sum_i c_i B_i`, row-major 3 x p.
     pub fn compose(&self, c: &[f64]) -> Vec<f64> {
         let mut out = vec![0.0; 3 * self.num_joints()];
         self.compose_into(c, &mut out);

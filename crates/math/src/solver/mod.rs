@@ -21,6 +21,7 @@
 //! Units: every step works in normalised image units (see [`normalise`]); weights are
 //! those of the authors' release (alpha 0.5, beta 20, gamma 2, sigma 0.5).
 
+pub mod adapt;
 pub mod bcd;
 pub mod block_tridiagonal;
 pub mod coefficients;
@@ -96,7 +97,9 @@ pub(crate) fn name_of<T: Serialize>(value: &T) -> String {
     }
 }
 
-/// Every weight, cap and tolerance of the estimator. Defaults are the reference's.
+/// Every weight, cap and tolerance of the estimator. Defaults are the reference's, plus
+/// posestream's additions to the model ([`adapt`]); [`Params::reference`] is the paper's
+/// model alone.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Params {
@@ -147,6 +150,8 @@ pub struct Params {
     /// Coordinate descent also stops when a sweep lowers the C-step objective by less
     /// than this (relative).
     pub cd_objective_tolerance: f64,
+    /// The person's shape beyond the dictionary ([`adapt`]).
+    pub adaptation: adapt::Adaptation,
 }
 
 impl Default for Params {
@@ -170,11 +175,22 @@ impl Default for Params {
             init: None,
             coefficient_solver: coefficients::CoefficientSolver::default(),
             cd_objective_tolerance: 1e-6,
+            adaptation: adapt::Adaptation::default(),
         }
     }
 }
 
 impl Params {
+    /// The paper's model as the authors' release runs it (parity mode, `tests/parity.rs`):
+    /// the default weights and caps without what posestream adds to the model (the
+    /// person's shape beyond the dictionary, [`adapt`]).
+    pub fn reference() -> Self {
+        Self {
+            adaptation: adapt::Adaptation::off(),
+            ..Self::default()
+        }
+    }
+
     /// The paper's "no smoothness" ablation: `beta = gamma = 0`.
     pub fn without_smoothness(mut self) -> Self {
         self.beta = 0.0;
@@ -222,6 +238,7 @@ impl Params {
         check_range("admit_per_frame", self.admit_per_frame, 1, 10_000)?;
         check_range("max_rotation_sweeps", self.max_rotation_sweeps, 0, 100_000)?;
         check_range("max_init_iterations", self.max_init_iterations, 0, 100_000)?;
+        self.adaptation.check()?;
         Ok(())
     }
 }

@@ -9,7 +9,7 @@
 //! ```
 //!
 //! over per-joint depths `z_j`, a rigid motion (`R`, `T`, metres) and `c`, where `q_j` is
-//! the ray of joint `j` (`K^-1 [u_j, v_j, 1]`), `S(c) = sum_i c_i B_i` is in the
+//! the ray of joint `j` (`K^-1 [u_j, v_j, 1]`), `S(c) = sum_i c_i B_i` (plus the dictionary's offset, if set) is in the
 //! dictionary's normalised units and `m` is metres per unit. The metric scale is fixed by
 //! the skeleton's mean limb length: `m` makes the weak fit's mean bone length equal
 //! [`PerspectiveParams::mean_limb_length`], and every C-step is rescaled to keep that

@@ -194,10 +194,17 @@ impl CoefficientProblem {
             let tr = translations[t];
             // Rows in planar order (every joint's x, then every joint's y): the loops
             // below then run over contiguous joints and vectorise.
+            // The data less the translation and the image of the dictionary's offset
+            // (zero but for an adapted dictionary, `super::adapt`).
             let y = &mut self.y[t * rows..(t + 1) * rows];
+            let d = dict.offset();
+            let (dx, rest) = d.split_at(p);
+            let (dy, dz) = rest.split_at(p);
             for j in 0..p {
-                y[j] = sw[j] * (xy[2 * j] - tr.x);
-                y[p + j] = sw[j] * (xy[2 * j + 1] - tr.y);
+                let u = r[(0, 0)] * dx[j] + r[(0, 1)] * dy[j] + r[(0, 2)] * dz[j];
+                let v = r[(1, 0)] * dx[j] + r[(1, 1)] * dy[j] + r[(1, 2)] * dz[j];
+                y[j] = sw[j] * (xy[2 * j] - tr.x - u);
+                y[p + j] = sw[j] * (xy[2 * j + 1] - tr.y - v);
             }
             let y = &self.y[t * rows..(t + 1) * rows];
             for i in 0..k {
