@@ -242,3 +242,106 @@ pub fn offset_step(
         .fold(0.0, f64::max);
     moved <= 0.01 * bone
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::streaming::StreamSettings;
+
+    /// Hostile values of the new configuration keys are refused by name, not used.
+    #[test]
+    fn hostile_settings_are_refused_naming_the_key() {
+        let bad = [
+            (
+                "adaptation.prior_frames",
+                Adaptation {
+                    prior_frames: f64::NAN,
+                    ..Adaptation::default()
+                },
+            ),
+            (
+                "adaptation.prior_frames",
+                Adaptation {
+                    prior_frames: 0.0,
+                    ..Adaptation::default()
+                },
+            ),
+            (
+                "adaptation.max_offset",
+                Adaptation {
+                    max_offset: f64::INFINITY,
+                    ..Adaptation::default()
+                },
+            ),
+            (
+                "adaptation.max_offset",
+                Adaptation {
+                    max_offset: -1.0,
+                    ..Adaptation::default()
+                },
+            ),
+            (
+                "adaptation.passes",
+                Adaptation {
+                    passes: usize::MAX,
+                    ..Adaptation::default()
+                },
+            ),
+            (
+                "adaptation.memory_frames",
+                Adaptation {
+                    memory_frames: 0.5,
+                    ..Adaptation::default()
+                },
+            ),
+        ];
+        for (key, a) in bad {
+            let e = a.check().expect_err(key).to_string();
+            assert!(e.contains(key), "{key}: {e}");
+        }
+        assert!(Adaptation::default().check().is_ok());
+        for (key, s) in [
+            (
+                "depth_std_scale",
+                StreamSettings {
+                    depth_std_scale: f64::NAN,
+                    ..StreamSettings::default()
+                },
+            ),
+            (
+                "std_scale",
+                StreamSettings {
+                    std_scale: 1e300,
+                    ..StreamSettings::default()
+                },
+            ),
+            (
+                "std_scale",
+                StreamSettings {
+                    std_scale: 0.0,
+                    ..StreamSettings::default()
+                },
+            ),
+        ] {
+            let e = s.check().expect_err(key).to_string();
+            assert!(e.contains(key), "{key}: {e}");
+        }
+    }
+
+    /// Evidence that is not finite is left out, and the offset stays finite and capped.
+    #[test]
+    fn non_finite_evidence_leaves_the_offset_finite() {
+        let mut stats = ShapeStats::new(2);
+        stats.a[0] = Matrix3::identity() * 5.0;
+        stats.b[0] = Vector3::new(1e308, 1e308, 1e308);
+        stats.bone_sum = 1.0;
+        stats.bone_count = 1.0;
+        let mut out = vec![0.0; 6];
+        stats.solve(&Adaptation::default(), &mut out);
+        assert!(out.iter().all(|v| v.is_finite()), "{out:?}");
+        let n0 = (0..3).map(|i| out[i * 2].powi(2)).sum::<f64>().sqrt();
+        assert!(n0 <= 0.5 + 1e-12, "{n0}");
+        stats.clear();
+        assert!(stats.is_empty());
+    }
+}
