@@ -89,6 +89,7 @@ fn bench(c: &mut Criterion) {
                     &fitted.fits,
                     scale,
                     0.5,
+                    0.0,
                     &mut obs,
                     None,
                     &mut ws,

@@ -572,6 +572,14 @@ fn configuration_values_outside_their_domain_are_one_error_naming_the_key() {
             "estimator.params.sigma",
         ),
         (
+            "[estimator.params]\nconfidence_spread = 1.5\n",
+            "estimator.params.confidence_spread",
+        ),
+        (
+            "[estimator.window]\nlag_rounds = 0\n",
+            "estimator.window.lag_rounds",
+        ),
+        (
             "[estimator.params]\nmax_apg_steps = 100000000000\n",
             "estimator.params.max_apg_steps",
         ),

@@ -112,6 +112,62 @@ fn streaming_stays_within_5_percent_of_the_batch_em_at_lag_10_and_15_percent_at_
     assert!(n <= 1.15 * b, "lag 0: {n} against batch {b}");
 }
 
+/// The refined estimate has been solved together with every frame after it (the issue's
+/// window schedule: with the window's EM only every `window_every` frames, most refined
+/// estimates had seen at most 3 of their 10 later frames): change only the newest frame
+/// and the estimate `lag` frames back changes with it, on every frame from the first
+/// refined estimate of the track on (the window filling, then full).
+#[test]
+fn every_refined_estimate_has_seen_the_newest_frame() {
+    let _memory = memory_lock();
+    let (maps, _, _) = load("kick.mcap");
+    let settings = StreamSettings::default();
+    assert!(settings.lag_iterations > 0 && settings.window_every > settings.lag);
+    let (size, lag) = (settings.size, settings.lag);
+    assert!(maps.frames > 2 * size, "{} frames", maps.frames);
+    let mut w = WindowEstimator::new(estimator(), settings).expect("window");
+    let frame = |t: usize, s: u64| FrameMaps::of(&maps, t, s, s as i64 * 33_333_333);
+    let refined = |out: &[posestream::streaming::FrameEstimate]| {
+        let e = out
+            .iter()
+            .find(|e| e.lag == lag)
+            .expect("a refined estimate");
+        e.pose.clone()
+    };
+    let (mut out, mut other) = (Vec::new(), Vec::new());
+    let (mut compared, mut unmoved) = (0, Vec::new());
+    for t in 0..maps.frames {
+        let s = t as u64;
+        if t < lag {
+            w.push(&frame(t, s), &mut out).expect("frame");
+            continue;
+        }
+        // The same window, but the newest frame's maps from another moment.
+        let mut changed = w.clone();
+        out.clear();
+        other.clear();
+        w.push(&frame(t, s), &mut out).expect("frame");
+        changed
+            .push(&frame((t + 40) % maps.frames, s), &mut other)
+            .expect("frame");
+        let (a, b) = (refined(&out), refined(&other));
+        let moved = a
+            .iter()
+            .zip(&b)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0, f64::max);
+        compared += 1;
+        if moved < 1e-9 {
+            unmoved.push(t);
+        }
+    }
+    assert_eq!(compared, maps.frames - lag);
+    assert!(
+        unmoved.is_empty(),
+        "refined estimates that did not see the newest frame: {unmoved:?}"
+    );
+}
+
 fn small_window() -> WindowEstimator {
     WindowEstimator::new(
         estimator(),

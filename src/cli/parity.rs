@@ -33,8 +33,10 @@ pub fn run(args: &ParityArgs) -> Result<(), CliError> {
     let dict = Dictionary::load(&args.dict)?;
     let p = dict.num_joints();
     // Parity is with the authors' release: the paper's model.
+    let reference = posestream::Params::reference();
     let params = posestream::Params {
-        adaptation: posestream::solver::adapt::Adaptation::off(),
+        adaptation: reference.adaptation,
+        confidence_spread: reference.confidence_spread,
         ..args.solver.params()
     };
     let estimator = Estimator::new(dict, params)?;

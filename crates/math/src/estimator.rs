@@ -91,7 +91,8 @@ pub struct Estimate {
     pub fits: Vec<FrameFit>,
     /// Input pixels per normalised unit (the fits' units).
     pub pixels_per_unit: f64,
-    /// Weight of each joint in the fit (`t*p + j`): the keypoints' confidence, or 1.
+    /// Weight of each joint in the fit (`t*p + j`): the keypoints' confidence, the last
+    /// EM iteration's E-step weights on heat maps ([`Params::confidence_spread`]), or 1.
     pub weights: Vec<f64>,
     /// The person's shape beyond the dictionary the fits were composed with (row-major
     /// 3 x p, [`crate::solver::adapt`]; zero for the paper's model).
@@ -461,6 +462,7 @@ impl Estimator {
             &fits,
             scale,
             self.params.sigma,
+            self.params.confidence_spread,
             &mut scratch,
             Some(&mut variance),
             &mut ws,

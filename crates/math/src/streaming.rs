@@ -14,9 +14,11 @@
 //!    ([`em::run_anchored`]);
 //! 4. runs [`StreamSettings::local_iterations`] EM iterations over the newest
 //!    [`StreamSettings::local_frames`] frames (anchored on the frame before them), which
-//!    is what makes the lag-0 estimate good, then, every
-//!    [`StreamSettings::window_every`] frames, [`StreamSettings::em_iterations`] over the
-//!    whole window, in [`StreamSettings::window_parts`] parts on consecutive frames;
+//!    is what makes the lag-0 estimate good, then [`StreamSettings::lag_iterations`] over
+//!    the newest `lag + 1` frames, so that the lagged estimate has been refined together
+//!    with every frame after it, and, every [`StreamSettings::window_every`] frames,
+//!    [`StreamSettings::em_iterations`] over the whole window, in
+//!    [`StreamSettings::window_parts`] parts on consecutive frames;
 //! 5. emits the estimate of the newest frame (lag 0) and/or of the frame `lag` frames
 //!    back, which has seen `lag` more frames of evidence ([`StreamSettings::outputs`]).
 //!
@@ -71,6 +73,16 @@ pub struct StreamSettings {
     pub local_frames: usize,
     /// EM iterations over those newest frames per new frame at most (0: none).
     pub local_iterations: usize,
+    /// EM iterations per new frame over the newest `lag + 1` frames (anchored on the
+    /// frame before them), so that every lagged estimate has been solved together with
+    /// all `lag` frames after it (0: none; then only the whole window's EM, every
+    /// `window_every` frames, reaches beyond the newest `local_frames`, and most lagged
+    /// estimates go out without it). Runs whatever [`StreamSettings::outputs`] is: it
+    /// refines the newest frames too.
+    pub lag_iterations: usize,
+    /// Block-coordinate rounds (coefficients, then rotations) per M-step of that EM
+    /// (the batch EM's `max_em_rounds` is 2): one is most of the gain at half the cost.
+    pub lag_rounds: usize,
     /// Start the EM over the whole window on every n-th frame only (1: every frame); the
     /// frames between get only the EM over the newest frames and the window EM's
     /// remaining parts. A window EM starts only once the last one has ended: every
@@ -113,7 +125,9 @@ impl Default for StreamSettings {
             warm_start: false,
             local_frames: 4,
             local_iterations: 2,
-            window_every: 10,
+            lag_iterations: 1,
+            lag_rounds: 1,
+            window_every: 30,
             window_parts: 3,
             init_iterations: 5,
             admit_per_frame: 2,
@@ -143,6 +157,8 @@ impl StreamSettings {
         check_range("em_iterations", self.em_iterations, 1, 100)?;
         check_range("local_frames", self.local_frames, 1, self.size)?;
         check_range("local_iterations", self.local_iterations, 0, 100)?;
+        check_range("lag_iterations", self.lag_iterations, 0, 100)?;
+        check_range("lag_rounds", self.lag_rounds, 1, 100)?;
         check_range("window_every", self.window_every, 1, 10_000)?;
         check_range("window_parts", self.window_parts, 1, Self::MAX_SIZE)?;
         check_range("init_iterations", self.init_iterations, 1, 100_000)?;
@@ -500,6 +516,15 @@ impl<M: MapSource> MapSource for Tail<'_, M> {
     }
 }
 
+/// Which of the EMs over the newest frames.
+#[derive(Debug, Clone, Copy)]
+enum Which {
+    /// [`StreamSettings::local_frames`].
+    Local,
+    /// `lag + 1` frames ([`StreamSettings::lag_iterations`]).
+    Lagged,
+}
+
 /// A window EM running in parts ([`StreamSettings::window_parts`]), one part per frame.
 #[derive(Debug, Clone, Copy)]
 struct Sweep {
@@ -541,6 +566,7 @@ pub struct WindowEstimator {
     /// The estimator's parameters with the EM capped for the newest frames, and for the
     /// whole window.
     local_params: Params,
+    lag_params: Params,
     window_params: Params,
     /// The estimator's parameters with the initialisation capped.
     init_params: Params,
@@ -594,6 +620,10 @@ impl WindowEstimator {
         };
         Ok(Self {
             local_params: capped(settings.local_iterations.max(1)),
+            lag_params: Params {
+                max_em_rounds: settings.lag_rounds,
+                ..capped(settings.lag_iterations.max(1))
+            },
             window_params: capped(settings.em_iterations),
             init_params: Params {
                 max_init_iterations: settings
@@ -975,6 +1005,7 @@ impl WindowEstimator {
             fit,
             scale,
             sigma,
+            self.estimator.params().confidence_spread,
             &mut self.one,
             None,
             &mut self.em,
@@ -1012,33 +1043,14 @@ impl WindowEstimator {
     }
 
     /// EM iterations: first over the newest frames (anchored on the frame before them),
-    /// then, every [`StreamSettings::window_every`] frames, over the whole window
+    /// then over the newest `lag + 1` (the same), then, every
+    /// [`StreamSettings::window_every`] frames, over the whole window
     /// (anchored on the frozen frame), in [`StreamSettings::window_parts`] parts on
     /// consecutive frames.
     fn solve(&mut self) {
-        let scale = heatmap_scale(self.maps.height);
         let n = self.fits.len();
         let local = self.settings.local_frames.min(n);
         let has_local = local < n && self.settings.local_iterations > 0;
-        self.since_window += 1;
-        if has_local {
-            let (before, tail) = self.fits.split_at_mut(n - local);
-            let view = Tail {
-                inner: &self.maps,
-                from: n - local,
-            };
-            em::run_anchored_in(
-                self.estimator.dictionary(),
-                self.estimator.basis_gram_max(),
-                &view,
-                tail,
-                before.last(),
-                scale,
-                &self.local_params,
-                &mut self.obs,
-                &mut self.em,
-            );
-        }
         if !has_local {
             // Too few frames for a local EM (or none configured): the whole window, now.
             self.sweep = None;
@@ -1047,10 +1059,13 @@ impl WindowEstimator {
             self.solve_part(0, n);
             return;
         }
-        if self.sweep.is_none() {
-            if self.since_window < self.settings.window_every {
-                return;
-            }
+        // The newest `lag + 1` frames, unless the local EM already covers them.
+        let lagged = self.settings.lag + 1;
+        let has_lagged = self.settings.lag_iterations > 0 && lagged > local && lagged <= n;
+        self.since_window += 1;
+        if self.sweep.is_none() && self.since_window >= self.settings.window_every {
+            // A window EM begins: the offset first, so that every pass of this frame
+            // fits the same one.
             self.since_window = 0;
             self.adapt_offset();
             self.sweep = Some(Sweep {
@@ -1059,6 +1074,10 @@ impl WindowEstimator {
                 frames: n,
                 dropped: self.dropped,
             });
+        }
+        self.solve_newest(local, Which::Local);
+        if has_lagged {
+            self.solve_newest(lagged, Which::Lagged);
         }
         let Some(sweep) = self.sweep.as_mut() else {
             return;
@@ -1070,6 +1089,37 @@ impl WindowEstimator {
         if !part.is_empty() {
             self.solve_part(part.start, part.end);
         }
+    }
+
+    /// EM over the newest `frames` frames of the window, anchored on the frame before
+    /// (the frozen frame when they are the whole window).
+    fn solve_newest(&mut self, frames: usize, which: Which) {
+        let scale = heatmap_scale(self.maps.height);
+        let n = self.fits.len();
+        let (before, tail) = self.fits.split_at_mut(n - frames);
+        let anchor = if before.is_empty() {
+            self.anchor.as_ref()
+        } else {
+            before.last()
+        };
+        let view = Tail {
+            inner: &self.maps,
+            from: n - frames,
+        };
+        em::run_anchored_in(
+            self.estimator.dictionary(),
+            self.estimator.basis_gram_max(),
+            &view,
+            tail,
+            anchor,
+            scale,
+            match which {
+                Which::Local => &self.local_params,
+                Which::Lagged => &self.lag_params,
+            },
+            &mut self.obs,
+            &mut self.em,
+        );
     }
 
     /// The window's EM over its frames `[from, to)`, between the frames on both sides
@@ -1119,6 +1169,7 @@ impl WindowEstimator {
             std::slice::from_ref(fit),
             scale,
             self.estimator.params().sigma,
+            self.estimator.params().confidence_spread,
             &mut self.one,
             Some(&mut self.variance),
             &mut self.em,

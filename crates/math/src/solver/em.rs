@@ -96,14 +96,16 @@ impl MapSource for PreparedMaps<'_> {
 }
 
 /// The E-step for frames `fits` (frame `t` of `maps` is fit `t`): writes the expected
-/// joints (normalised units) into `obs` and, if given, the variance (pixels^2) into `var`.
-/// `scale` is pixels per unit; `sigma` in normalised units.
+/// joints (normalised units) into `obs`, their weights too when `confidence_spread` is
+/// positive ([`Params::confidence_spread`]; 0 leaves them), and, if given, the variance
+/// (pixels^2) into `var`. `scale` is pixels per unit; `sigma` in normalised units.
 pub fn e_step(
     dict: &Dictionary,
     maps: &impl MapSource,
     fits: &[FrameFit],
     scale: f64,
     sigma: f64,
+    confidence_spread: f64,
     obs: &mut Observations,
     mut var: Option<&mut [f64]>,
     ws: &mut EmWorkspace,
@@ -111,6 +113,11 @@ pub fn e_step(
     let p = dict.num_joints();
     let (h, w) = (maps.height(), maps.width());
     ws.shape.resize(3 * p, 0.0);
+    // The spread (pixels^2) up to which a joint weighs 1.
+    let bound = confidence_spread * 2.0 * (sigma * scale).powi(2);
+    if bound > 0.0 {
+        obs.weights.resize(p * fits.len(), 1.0);
+    }
     for (t, fit) in fits.iter().enumerate() {
         dict.compose_into(&fit.coefficients, &mut ws.shape);
         let s = &ws.shape;
@@ -131,6 +138,13 @@ pub fn e_step(
             );
             obs.xy[2 * (t * p + j)] = e.x / scale;
             obs.xy[2 * (t * p + j) + 1] = e.y / scale;
+            if bound > 0.0 {
+                obs.weights[t * p + j] = if e.variance > bound {
+                    bound / e.variance
+                } else {
+                    1.0
+                };
+            }
             if let Some(var) = var.as_deref_mut() {
                 var[t * p + j] = e.variance;
             }
@@ -252,7 +266,17 @@ pub fn run_between_in<'w>(
     };
     for _ in 0..params.max_em_iterations {
         info.iterations += 1;
-        e_step(dict, maps, fits, scale, params.sigma, obs, None, ws);
+        e_step(
+            dict,
+            maps,
+            fits,
+            scale,
+            params.sigma,
+            params.confidence_spread,
+            obs,
+            None,
+            ws,
+        );
         ws.c_prev.clear();
         for fit in fits.iter() {
             ws.c_prev.extend_from_slice(&fit.coefficients);
@@ -287,4 +311,85 @@ pub fn run_between_in<'w>(
     }
     ws.info = info;
     &ws.info
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::solver::normalise::heatmap_scale;
+
+    /// A joint whose map peaks where it is projected weighs 1; one whose only peak is far
+    /// from its projection (an occluder: the posterior is then the map's faint floor
+    /// under the Gaussian) or whose map is flat weighs less; with `confidence_spread = 0`
+    /// (the paper) every joint weighs 1.
+    #[test]
+    fn joints_weigh_by_how_sure_their_e_step_is() {
+        let skeleton = crate::skeleton::default_layout();
+        let p = skeleton.len();
+        // One basis: joint j at (j / p - 0.5, (j % 3) / 3, 0), in normalised units.
+        let mut basis = vec![0.0; 3 * p];
+        for j in 0..p {
+            basis[j] = j as f64 / p as f64 - 0.5;
+            basis[p + j] = (j % 3) as f64 / 3.0;
+        }
+        let dict = Dictionary::new(skeleton, basis, vec![0.0; 3 * p]).expect("dictionary");
+        let (h, w) = (64, 64);
+        let scale = heatmap_scale(h);
+        let mut fit = FrameFit::zero(1);
+        fit.coefficients[0] = 1.0;
+        fit.translation = nalgebra::Vector2::new(3.0, 3.0);
+        let shape = dict.compose(&fit.coefficients);
+        let pixel = |j: usize| {
+            (
+                (shape[j] + fit.translation.x) * scale,
+                (shape[p + j] + fit.translation.y) * scale,
+            )
+        };
+        let mut values = vec![0.0_f32; p * h * w];
+        for j in 0..p {
+            let map = &mut values[j * h * w..(j + 1) * h * w];
+            let (mut cx, cy) = pixel(j);
+            match j {
+                // An occluder's peak 20 pixels away.
+                1 => cx += 20.0,
+                // Flat: says nothing.
+                2 => {
+                    map.fill(0.5);
+                    continue;
+                }
+                _ => {}
+            }
+            for (i, v) in map.iter_mut().enumerate() {
+                let (r, c) = ((i / w) as f64, (i % w) as f64);
+                let peak = (-((c - cx).powi(2) + (r - cy).powi(2)) / (2.0 * 1.5 * 1.5)).exp();
+                // A CNN's maps are not exactly 0 away from their peak.
+                *v = (0.01 + peak) as f32;
+            }
+        }
+        let maps = HeatMapSequence {
+            frames: 1,
+            joints: p,
+            height: h,
+            width: w,
+            values,
+        };
+        let prepared = PreparedMaps::new(&maps);
+        let mut ws = EmWorkspace::default();
+        let fits = [fit];
+        for confidence in [0.25, 0.0] {
+            let mut obs = Observations::new(p, vec![0.0; 2 * p]);
+            e_step(
+                &dict, &prepared, &fits, scale, 0.5, confidence, &mut obs, None, &mut ws,
+            );
+            let weights = obs.frame_weights(0);
+            if confidence == 0.0 {
+                assert!(weights.iter().all(|&v| v == 1.0), "{weights:?}");
+                continue;
+            }
+            assert_eq!(weights[0], 1.0, "{weights:?}");
+            assert!(weights[3..].iter().all(|&v| v == 1.0), "{weights:?}");
+            assert!(weights[1] < 0.5, "occluded: {weights:?}");
+            assert!((weights[2] - confidence).abs() < 0.05, "flat: {weights:?}");
+        }
+    }
 }

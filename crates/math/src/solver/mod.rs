@@ -3,7 +3,9 @@
 //! Model: frame `t` has coefficients `c_t` (k), a rotation `R_t` in SO(3) and a
 //! translation `T_t` (2). The pose is `S_t = sum_i c_it B_i`; its weak-perspective image
 //! is `Pi R_t S_t + T_t 1'` with `Pi` the first two rows of the identity. The objective
-//! over a [`Window`] of F frames, with per-joint weights `w_tj` (1 by default), is
+//! over a [`Window`] of F frames, with per-joint weights `w_tj` (1 in the paper; the
+//! keypoints' confidence on given 2D joints; from the E-step on heat maps,
+//! [`Params::confidence_spread`]), is
 //!
 //! ```text
 //! J = 1/2 sum_t sum_j w_tj |W_tj - Pi R_t S_tj - T_t|^2
@@ -112,6 +114,13 @@ pub struct Params {
     /// Standard deviation of the Gaussian around the projection in the E-step
     /// (normalised units: a heat map is 6 units high).
     pub sigma: f64,
+    /// Weights of the joints in the EM's M-step from their E-step: a joint weighs 1
+    /// while the spread of its posterior (trace of its covariance) is at most this
+    /// fraction of the E-step Gaussian's own (`2 sigma^2`), and that bound over its
+    /// spread beyond: a map that is flat where the projection is, or whose peak is far
+    /// from it (an occluder, a swapped joint), pulls less. 0: every joint weighs 1 (the
+    /// paper); otherwise at least 1e-3. README, "Beyond the paper".
+    pub confidence_spread: f64,
     /// Outlier threshold of the robust convex initialisation (normalised units).
     pub robust_threshold: f64,
     /// Heat-map joints whose peak is not above this are left out of the initialisation.
@@ -161,6 +170,7 @@ impl Default for Params {
             beta: 20.0,
             gamma: 2.0,
             sigma: 0.5,
+            confidence_spread: 0.25,
             robust_threshold: 1.0,
             visibility_threshold: 0.0,
             max_em_iterations: 10,
@@ -183,10 +193,12 @@ impl Default for Params {
 impl Params {
     /// The paper's model as the authors' release runs it (parity mode, `tests/parity.rs`):
     /// the default weights and caps without what posestream adds to the model (the
-    /// person's shape beyond the dictionary, [`adapt`]).
+    /// person's shape beyond the dictionary, [`adapt`]; the joints' weights from their
+    /// E-step, [`Params::confidence_spread`]).
     pub fn reference() -> Self {
         Self {
             adaptation: adapt::Adaptation::off(),
+            confidence_spread: 0.0,
             ..Self::default()
         }
     }
@@ -215,6 +227,16 @@ impl Params {
             check_real(key, v, 0.0, 1e6, false)?;
         }
         check_real("sigma", self.sigma, 0.0, 1e3, true)?;
+        // 0 (off), or large enough that no weight underflows.
+        if self.confidence_spread != 0.0 {
+            check_real(
+                "confidence_spread",
+                self.confidence_spread,
+                1e-3,
+                1.0,
+                false,
+            )?;
+        }
         check_real(
             "visibility_threshold",
             self.visibility_threshold,
