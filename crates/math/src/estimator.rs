@@ -307,29 +307,14 @@ impl Estimator {
             &self.params,
             &mut ws,
         );
-        let mut dict = Cow::Borrowed(&self.dict);
-        let adaptation = &self.params.adaptation;
         let mut passes = vec![info.rounds];
-        if adaptation.enabled {
-            let (mut stats, mut offset) = (ShapeStats::default(), Vec::new());
-            for _ in 0..adaptation.passes {
-                let settled = adapt::offset_step(
-                    dict.to_mut(),
-                    &obs,
-                    &fits,
-                    adaptation,
-                    &mut stats,
-                    &mut offset,
-                );
-                let more = bcd::solve(&dict, self.gram_max, &obs, &mut fits, &self.params, &mut ws);
-                // The report counts every pass (one entry of `rounds` each).
-                passes.push(more.rounds);
-                info.objective.extend(&more.objective[1..]);
-                if settled {
-                    break;
-                }
-            }
-        }
+        let mut obs = obs;
+        let dict = self.fit_person(&mut obs, &mut fits, |dict, obs, fits| {
+            let more = bcd::solve(dict, self.gram_max, obs, fits, &self.params, &mut ws);
+            // The report counts every pass (one entry of `rounds` each).
+            passes.push(more.rounds);
+            info.objective.extend(&more.objective[1..]);
+        });
         let mut est = self.finish(&dict, fits, obs, scale, None);
         est.report = Report {
             frames: f,
@@ -421,40 +406,24 @@ impl Estimator {
             &self.params,
             &mut ws,
         );
-        let mut dict = Cow::Borrowed(&self.dict);
-        let adaptation = &self.params.adaptation;
-        if adaptation.enabled {
-            let (mut stats, mut offset) = (ShapeStats::default(), Vec::new());
-            for _ in 0..adaptation.passes {
-                let settled = adapt::offset_step(
-                    dict.to_mut(),
-                    &obs,
-                    &fits,
-                    adaptation,
-                    &mut stats,
-                    &mut offset,
-                );
-                let (o, more) = em::run(
-                    &dict,
-                    self.gram_max,
-                    &prepared,
-                    &mut fits,
-                    scale,
-                    &self.params,
-                    &mut ws,
-                );
-                // The report counts every pass's iterations; its objectives are the
-                // adapted model's (with the offset of the last pass).
-                obs = o;
-                info.iterations += more.iterations;
-                info.rounds.extend(&more.rounds);
-                info.objective.extend(&more.objective);
-                info.relative_change.extend(&more.relative_change);
-                if settled {
-                    break;
-                }
-            }
-        }
+        let dict = self.fit_person(&mut obs, &mut fits, |dict, obs, fits| {
+            let (o, more) = em::run(
+                dict,
+                self.gram_max,
+                &prepared,
+                fits,
+                scale,
+                &self.params,
+                &mut ws,
+            );
+            // The report counts every pass's iterations; its objectives are the adapted
+            // model's (with the offset of the last pass).
+            *obs = o;
+            info.iterations += more.iterations;
+            info.rounds.extend(&more.rounds);
+            info.objective.extend(&more.objective);
+            info.relative_change.extend(&more.relative_change);
+        });
         let mut variance = vec![0.0; f * p];
         em::e_step(
             &dict,
@@ -540,6 +509,39 @@ impl Estimator {
             ..Report::default()
         };
         est
+    }
+
+    /// The batch's passes fitting the person ([`adapt`], when enabled): each an offset
+    /// step from the current fits, then `solve` again under the new offset (warm
+    /// started; it may renew the evidence, as the EM's E-step does), until the offset
+    /// settles or `passes` have run. The dictionary with the offset (borrowed without).
+    fn fit_person(
+        &self,
+        obs: &mut Observations,
+        fits: &mut Vec<FrameFit>,
+        mut solve: impl FnMut(&Dictionary, &mut Observations, &mut Vec<FrameFit>),
+    ) -> Cow<'_, Dictionary> {
+        let mut dict = Cow::Borrowed(&self.dict);
+        let adaptation = &self.params.adaptation;
+        if !adaptation.enabled {
+            return dict;
+        }
+        let (mut stats, mut offset) = (ShapeStats::default(), Vec::new());
+        for _ in 0..adaptation.passes {
+            let settled = adapt::offset_step(
+                dict.to_mut(),
+                obs,
+                fits,
+                adaptation,
+                &mut stats,
+                &mut offset,
+            );
+            solve(&dict, obs, fits);
+            if settled {
+                break;
+            }
+        }
+        dict
     }
 
     /// Poses and 2D outputs from the fits and the observations they were fitted to.

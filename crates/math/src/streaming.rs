@@ -78,7 +78,9 @@ pub struct StreamSettings {
     /// all `lag` frames after it (0: none; then only the whole window's EM, every
     /// `window_every` frames, reaches beyond the newest `local_frames`, and most lagged
     /// estimates go out without it). Runs whatever [`StreamSettings::outputs`] is: it
-    /// refines the newest frames too.
+    /// refines the newest frames too. No effect when `local_frames >= lag + 1` or
+    /// `local_iterations = 0` (the local EM, or the whole window's on every frame,
+    /// already covers them), nor before the track has `lag + 1` frames.
     pub lag_iterations: usize,
     /// Block-coordinate rounds (coefficients, then rotations) per M-step of that EM
     /// (the batch EM's `max_em_rounds` is 2): one is most of the gain at half the cost.
@@ -516,13 +518,15 @@ impl<M: MapSource> MapSource for Tail<'_, M> {
     }
 }
 
-/// Which of the EMs over the newest frames.
+/// Which of the window's EMs (each has its parameters).
 #[derive(Debug, Clone, Copy)]
 enum Which {
-    /// [`StreamSettings::local_frames`].
+    /// Over the newest [`StreamSettings::local_frames`].
     Local,
-    /// `lag + 1` frames ([`StreamSettings::lag_iterations`]).
+    /// Over the newest `lag + 1` frames ([`StreamSettings::lag_iterations`]).
     Lagged,
+    /// Over the whole window, or a part of it ([`StreamSettings::window_every`]).
+    Window,
 }
 
 /// A window EM running in parts ([`StreamSettings::window_parts`]), one part per frame.
@@ -1056,7 +1060,7 @@ impl WindowEstimator {
             self.sweep = None;
             self.since_window = 0;
             self.adapt_offset();
-            self.solve_part(0, n);
+            self.solve_part(0, n, Which::Window);
             return;
         }
         // The newest `lag + 1` frames, unless the local EM already covers them.
@@ -1087,44 +1091,21 @@ impl WindowEstimator {
             self.sweep = None;
         }
         if !part.is_empty() {
-            self.solve_part(part.start, part.end);
+            self.solve_part(part.start, part.end, Which::Window);
         }
     }
 
     /// EM over the newest `frames` frames of the window, anchored on the frame before
     /// (the frozen frame when they are the whole window).
     fn solve_newest(&mut self, frames: usize, which: Which) {
-        let scale = heatmap_scale(self.maps.height);
         let n = self.fits.len();
-        let (before, tail) = self.fits.split_at_mut(n - frames);
-        let anchor = if before.is_empty() {
-            self.anchor.as_ref()
-        } else {
-            before.last()
-        };
-        let view = Tail {
-            inner: &self.maps,
-            from: n - frames,
-        };
-        em::run_anchored_in(
-            self.estimator.dictionary(),
-            self.estimator.basis_gram_max(),
-            &view,
-            tail,
-            anchor,
-            scale,
-            match which {
-                Which::Local => &self.local_params,
-                Which::Lagged => &self.lag_params,
-            },
-            &mut self.obs,
-            &mut self.em,
-        );
+        self.solve_part(n - frames, n, which);
     }
 
     /// The window's EM over its frames `[from, to)`, between the frames on both sides
-    /// (the frozen frame before the window when `from` is 0; nothing after the newest).
-    fn solve_part(&mut self, from: usize, to: usize) {
+    /// (the frozen frame before the window when `from` is 0; nothing after the newest),
+    /// with `which` EM's parameters.
+    fn solve_part(&mut self, from: usize, to: usize, which: Which) {
         let scale = heatmap_scale(self.maps.height);
         let (before, rest) = self.fits.split_at_mut(from);
         let (part, after) = rest.split_at_mut(to - from);
@@ -1147,7 +1128,11 @@ impl WindowEstimator {
             part,
             anchors,
             scale,
-            &self.window_params,
+            match which {
+                Which::Local => &self.local_params,
+                Which::Lagged => &self.lag_params,
+                Which::Window => &self.window_params,
+            },
             &mut self.obs,
             &mut self.em,
         );

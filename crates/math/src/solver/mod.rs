@@ -228,14 +228,13 @@ impl Params {
         }
         check_real("sigma", self.sigma, 0.0, 1e3, true)?;
         // 0 (off), or large enough that no weight underflows.
-        if self.confidence_spread != 0.0 {
-            check_real(
+        let c = self.confidence_spread;
+        if c != 0.0 && !(c.is_finite() && (1e-3..=1.0).contains(&c)) {
+            return Err(OutOfDomain::new(
                 "confidence_spread",
-                self.confidence_spread,
-                1e-3,
-                1.0,
-                false,
-            )?;
+                "0 (off), or finite in [0.001, 1]",
+                format!("{c:e}"),
+            ));
         }
         check_real(
             "visibility_threshold",
