@@ -32,6 +32,7 @@ fn bench(c: &mut Criterion) {
         WindowEstimator::new(estimator, config.estimator.window.clone()).expect("window");
     let before = Params {
         confidence_spread: 0.0,
+        swap_prior: 0.0,
         ..config.estimator.params.clone()
     };
     let mut before = WindowEstimator::new(

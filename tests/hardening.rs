@@ -576,6 +576,14 @@ fn configuration_values_outside_their_domain_are_one_error_naming_the_key() {
             "estimator.params.confidence_spread",
         ),
         (
+            "[estimator.params]\nswap_prior = 0.9\n",
+            "estimator.params.swap_prior",
+        ),
+        (
+            "[estimator.params]\nswap_prior = -inf\n",
+            "estimator.params.swap_prior",
+        ),
+        (
             "[estimator.window]\nlag_rounds = 0\n",
             "estimator.window.lag_rounds",
         ),

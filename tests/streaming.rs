@@ -168,6 +168,85 @@ fn every_refined_estimate_has_seen_the_newest_frame() {
     );
 }
 
+/// A detector's left/right swap in the newest frame (the wrists' maps exchanged) is read
+/// as a swap: with the swap model (the default `swap_prior`) the newest estimate's wrists
+/// move less than 40 % as far from those of the maps as they are as in the paper's
+/// E-step, which follows the maps to the other side (measured: 28 %).
+#[test]
+fn a_swapped_pair_of_maps_in_the_newest_frame_is_read_as_a_swap() {
+    let _memory = memory_lock();
+    let (maps, _, _) = load("kick.mcap");
+    let dict = estimator().dictionary().clone();
+    let &(l, r) = dict
+        .left_right_pairs()
+        .iter()
+        .find(|&&(l, _)| dict.skeleton().joints[l].contains("wrist"))
+        .expect("a wrist pair");
+    let cells = maps.height * maps.width;
+    let mut swapped = maps.clone();
+    for t in 0..maps.frames {
+        let at = |j: usize| (t * maps.joints + j) * cells;
+        let (a, b) = (at(l), at(r));
+        let (left, right) = swapped.values.split_at_mut(b);
+        left[a..a + cells].swap_with_slice(&mut right[..cells]);
+    }
+    let mut moved = Vec::new();
+    for prior in [Params::default().swap_prior, 0.0] {
+        assert!(
+            prior > 0.0 || !moved.is_empty(),
+            "the default has the swap model on"
+        );
+        let params = Params {
+            swap_prior: prior,
+            ..Params::default()
+        };
+        let settings = StreamSettings::default();
+        let mut w = WindowEstimator::new(
+            Estimator::new(dict.clone(), params).expect("estimator"),
+            settings.clone(),
+        )
+        .expect("window");
+        let (mut out, mut other) = (Vec::new(), Vec::new());
+        let newest = |out: &[posestream::streaming::FrameEstimate]| {
+            out.iter().find(|e| e.lag == 0).expect("lag 0").pose.clone()
+        };
+        let (mut total, mut frames) = (0.0, 0.0);
+        for t in 0..maps.frames {
+            let s = t as u64;
+            let stamp = s as i64 * 33_333_333;
+            out.clear();
+            if t < settings.size {
+                w.push(&FrameMaps::of(&maps, t, s, stamp), &mut out)
+                    .expect("frame");
+                continue;
+            }
+            let mut changed = w.clone();
+            other.clear();
+            w.push(&FrameMaps::of(&maps, t, s, stamp), &mut out)
+                .expect("frame");
+            changed
+                .push(&FrameMaps::of(&swapped, t, s, stamp), &mut other)
+                .expect("frame");
+            let (a, b) = (newest(&out), newest(&other));
+            // The wrists' mean distance between the two estimates.
+            let d = |j: usize| {
+                (0..3)
+                    .map(|i| (a[3 * j + i] - b[3 * j + i]).powi(2))
+                    .sum::<f64>()
+                    .sqrt()
+            };
+            total += (d(l) + d(r)) / 2.0;
+            frames += 1.0;
+        }
+        moved.push(total / frames);
+    }
+    println!(
+        "wrists moved by the swap: swap model {:.4}, paper's E-step {:.4}",
+        moved[0], moved[1]
+    );
+    assert!(moved[0] < 0.4 * moved[1], "{moved:?}");
+}
+
 fn small_window() -> WindowEstimator {
     WindowEstimator::new(
         estimator(),

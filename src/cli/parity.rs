@@ -37,6 +37,7 @@ pub fn run(args: &ParityArgs) -> Result<(), CliError> {
     let params = posestream::Params {
         adaptation: reference.adaptation,
         confidence_spread: reference.confidence_spread,
+        swap_prior: reference.swap_prior,
         ..args.solver.params()
     };
     let estimator = Estimator::new(dict, params)?;

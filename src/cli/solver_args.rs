@@ -61,8 +61,8 @@ pub struct SolverArgs {
     #[arg(long, default_value_t = Params::default().tolerance)]
     tolerance: f64,
     /// The paper's model, as the authors' release runs it: no fitting of the person's
-    /// shape beyond the dictionary, every joint weighing 1 in the EM (`posestream
-    /// parity` runs it whatever this says).
+    /// shape beyond the dictionary, every joint weighing 1 in the EM, no left/right swap
+    /// hypothesis in the E-step (`posestream parity` runs it whatever this says).
     #[arg(long)]
     paper: bool,
 }

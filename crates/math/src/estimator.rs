@@ -23,6 +23,11 @@ use crate::solver::perspective::{
 };
 use crate::solver::{FrameFit, InitMethod, Observations, Params};
 
+/// Frames running that the sliding window's initialisation swaps a left/right pair's
+/// maps back at most (a third of a second at 30 frames/s): a detector's swap is an
+/// episode, a "swap" that lasts is the fit on the mirrored side.
+pub const MAX_SWAP_FRAMES: u32 = 10;
+
 /// 2D joints of a sequence in pixels, with optional per-joint confidence in [0, 1].
 #[derive(Debug, Clone, PartialEq)]
 pub struct Keypoints {
@@ -375,6 +380,7 @@ impl Estimator {
                 &mut w,
                 &mut visible,
                 &self.params,
+                None,
                 &mut init_ws,
                 &mut fit,
             );
@@ -430,8 +436,7 @@ impl Estimator {
             &prepared,
             &fits,
             scale,
-            self.params.sigma,
-            self.params.confidence_spread,
+            &self.params,
             &mut scratch,
             Some(&mut variance),
             &mut ws,
@@ -456,7 +461,10 @@ impl Estimator {
     /// peak is above the visibility threshold (all, if fewer than two are). Leaves the
     /// arg-max (normalised units) in `xy` and the visibility in `visible`, and the fit
     /// in `fit` (its buffers reused). Shared by the batch EM and the sliding window
-    /// (which caps the iterations in `params`).
+    /// (which caps the iterations in `params`, and gives the `previous` frame's joints,
+    /// normalised units, and per left/right pair the frames its maps have run swapped
+    /// against them: with [`Params::swap_prior`] positive, a pair whose arg-maxes lie
+    /// nearer those swapped than as they are is swapped back, for a while).
     pub(crate) fn initialise_from_argmax<'m>(
         &self,
         map: impl Fn(usize) -> &'m [f32],
@@ -465,6 +473,7 @@ impl Estimator {
         xy: &mut [f64],
         visible: &mut [bool],
         params: &Params,
+        previous: Option<(&[f64], &mut [u32])>,
         ws: &mut InitWorkspace,
         fit: &mut FrameFit,
     ) {
@@ -473,6 +482,33 @@ impl Estimator {
             xy[2 * j] = x / scale;
             xy[2 * j + 1] = y / scale;
             *v = f64::from(peak) > self.params.visibility_threshold;
+        }
+        // A detector's left/right swap (the swap model on): a pair whose peaks lie
+        // nearer the previous frame's joints swapped than as they are is swapped back,
+        // for at most `MAX_SWAP_FRAMES` frames running (a swap that lasts is the fit's,
+        // mirrored, not the detector's: the maps then stand), and not when most pairs
+        // are (the same).
+        if let Some((prev, runs)) = previous.filter(|_| self.params.swap_prior > 0.0) {
+            let d2 = |xy: &[f64], a: usize, b: usize| {
+                (xy[2 * a] - prev[2 * b]).powi(2) + (xy[2 * a + 1] - prev[2 * b + 1]).powi(2)
+            };
+            let pairs = self.dict.left_right_pairs();
+            let mirrored = |xy: &[f64], (l, r): (usize, usize)| {
+                d2(xy, l, r) + d2(xy, r, l) < d2(xy, l, l) + d2(xy, r, r)
+            };
+            let most = 2 * pairs.iter().filter(|&&pair| mirrored(xy, pair)).count() > pairs.len();
+            for (&(l, r), run) in pairs.iter().zip(runs.iter_mut()) {
+                if !mirrored(xy, (l, r)) {
+                    *run = 0;
+                    continue;
+                }
+                *run = run.saturating_add(1);
+                if !most && *run <= MAX_SWAP_FRAMES {
+                    xy.swap(2 * l, 2 * r);
+                    xy.swap(2 * l + 1, 2 * r + 1);
+                    visible.swap(l, r);
+                }
+            }
         }
         if visible.iter().filter(|&&v| v).count() < 2 {
             visible.iter_mut().for_each(|v| *v = true);

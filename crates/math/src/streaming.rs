@@ -7,7 +7,10 @@
 //!    estimates still owed, start again), or late / out of order (drop it and count it);
 //! 2. initialises it from its maps' arg-max, as the batch EM initialises every frame
 //!    ([`StreamSettings::warm_start`] copies the previous frame's fit instead: measured
-//!    worse, because a track then keeps its first frame's depth ambiguity);
+//!    worse, because a track then keeps its first frame's depth ambiguity); with the
+//!    swap model on ([`Params::swap_prior`](crate::solver::Params::swap_prior)), a
+//!    left/right pair whose peaks lie nearer the previous frame's joints swapped than
+//!    as they are is swapped back first (a detector's swap);
 //! 3. if the window is full, freezes its oldest frame: that frame leaves the window and
 //!    becomes the *anchor*, a fixed neighbour whose coefficients and rotation keep
 //!    pulling the first frame of the window through the smoothness terms
@@ -135,8 +138,8 @@ impl Default for StreamSettings {
             admit_per_frame: 2,
             max_gap_frames: 10,
             max_gap_seconds: 1.0,
-            std_scale: 0.22,
-            depth_std_scale: 0.45,
+            std_scale: 0.16,
+            depth_std_scale: 0.37,
         }
     }
 }
@@ -598,6 +601,10 @@ pub struct WindowEstimator {
     em: EmWorkspace,
     init: InitWorkspace,
     argmax: Vec<f64>,
+    /// The previous frame's joints (normalised units), for the initialisation, and per
+    /// left/right pair the frames its maps have run swapped against them.
+    previous: Vec<f64>,
+    swap_runs: Vec<u32>,
     visible: Vec<bool>,
     spare: Vec<FrameFit>,
     /// The evidence of the track's shape beyond the dictionary (frames that left the
@@ -652,6 +659,8 @@ impl WindowEstimator {
             em: EmWorkspace::default(),
             init: InitWorkspace::default(),
             argmax: vec![0.0; 2 * p],
+            previous: vec![0.0; 2 * p],
+            swap_runs: vec![0; estimator.dictionary().left_right_pairs().len()],
             visible: vec![false; p],
             spare: Vec::new(),
             shape_stats: ShapeStats::new(p),
@@ -891,6 +900,7 @@ impl WindowEstimator {
             self.estimator.dictionary_mut().set_offset(offset);
         }
         self.slots.clear();
+        self.swap_runs.fill(0);
         self.spare.append(&mut self.fits);
         if let Some(a) = self.anchor.take() {
             self.spare.push(a);
@@ -1002,14 +1012,12 @@ impl WindowEstimator {
             from: 0,
         };
         let scale = heatmap_scale(self.maps.height);
-        let sigma = self.estimator.params().sigma;
         em::e_step(
             dict,
             &view,
             fit,
             scale,
-            sigma,
-            self.estimator.params().confidence_spread,
+            self.estimator.params(),
             &mut self.one,
             None,
             &mut self.em,
@@ -1030,9 +1038,20 @@ impl WindowEstimator {
         self.estimator.dictionary_mut().set_offset(offset);
     }
 
-    /// The batch EM's per-frame initialisation of the newest frame, from its arg-max.
+    /// The batch EM's per-frame initialisation of the newest frame, from its arg-max (its
+    /// left/right pairs put back in the previous frame's order when the swap model is
+    /// on).
     fn initialise(&mut self, fit: &mut FrameFit) {
         let t = self.maps.len - 1;
+        // The previous frame's joints, where the track was.
+        let previous = self.fits.last().map(|prev| {
+            prev.project_into(
+                self.estimator.dictionary(),
+                &mut self.shape,
+                &mut self.previous,
+            );
+            (&self.previous[..], &mut self.swap_runs[..])
+        });
         let maps = &self.maps;
         self.estimator.initialise_from_argmax(
             |j| maps.map(t, j),
@@ -1041,6 +1060,7 @@ impl WindowEstimator {
             &mut self.argmax,
             &mut self.visible,
             &self.init_params,
+            previous,
             &mut self.init,
             fit,
         );
@@ -1153,8 +1173,7 @@ impl WindowEstimator {
             &view,
             std::slice::from_ref(fit),
             scale,
-            self.estimator.params().sigma,
-            self.estimator.params().confidence_spread,
+            self.estimator.params(),
             &mut self.one,
             Some(&mut self.variance),
             &mut self.em,

@@ -31,6 +31,9 @@ pub struct Dictionary {
     /// The person's shape beyond the bases (row-major 3 x p, centred; zero unless set):
     /// every composed pose is `offset + sum_i c_i B_i`. See [`crate::solver::adapt`].
     offset: Vec<f64>,
+    /// The skeleton's left/right joint pairs, found once (the E-step's swap hypothesis
+    /// reads them every iteration).
+    pairs: Vec<(usize, usize)>,
 }
 
 impl Dictionary {
@@ -54,7 +57,9 @@ impl Dictionary {
             return Err("non-finite value in bases or mean".into());
         }
         let k = bases.len() / (3 * p);
+        let pairs = skeleton.left_right_pairs();
         let mut d = Self {
+            pairs,
             skeleton,
             k,
             bases,
@@ -91,6 +96,11 @@ impl Dictionary {
     /// The joint layout.
     pub fn skeleton(&self) -> &Skeleton {
         &self.skeleton
+    }
+
+    /// The skeleton's left/right joint pairs ([`Skeleton::left_right_pairs`]).
+    pub fn left_right_pairs(&self) -> &[(usize, usize)] {
+        &self.pairs
     }
 
     /// Number of basis poses.

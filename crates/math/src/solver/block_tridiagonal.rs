@@ -84,15 +84,17 @@ impl BlockTridiagonal {
         }
         self.vec_at.push(v);
         let max = self.sizes.iter().copied().max().unwrap_or(0);
-        // Room for the most blocks seen, each of the largest size seen
-        // (`zeroed_with_room`).
+        // Room for the most blocks seen, each twice the largest size seen
+        // (`zeroed_with_room`): an active set that grows a little past the largest of
+        // the warm-up (another track's motion) allocates nothing.
         self.peak.0 = self.peak.0.max(self.sizes.len());
         self.peak.1 = self.peak.1.max(max);
-        let worst = self.peak.0 * self.peak.1 * self.peak.1;
+        let room = 2 * self.peak.1;
+        let worst = self.peak.0 * room * room;
         zeroed_with_room(&mut self.diag, d, worst);
         zeroed_with_room(&mut self.lower, l, worst);
-        if self.backup.capacity() < self.peak.1 * self.peak.1 {
-            self.backup.reserve_exact(2 * self.peak.1 * self.peak.1);
+        if self.backup.capacity() < room * room {
+            self.backup.reserve_exact(room * room);
         }
         if self.scratch.is_none() || self.scratch_dim < max {
             // Room for blocks twice the largest seen, as the blocks' buffers.

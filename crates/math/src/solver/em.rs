@@ -34,6 +34,11 @@ pub struct EmWorkspace {
     pub bcd: BcdWorkspace,
     estep: EStepWorkspace,
     shape: Vec<f64>,
+    /// One frame's projections (pixels) and expectations.
+    projected: Vec<[f64; 2]>,
+    expected: Vec<estep::Expectation>,
+    /// Each left/right pair's probability of swapped maps.
+    swapped: Vec<f64>,
     c_prev: Vec<f64>,
     /// What the last run did (its vectors reused).
     info: EmInfo,
@@ -96,28 +101,33 @@ impl MapSource for PreparedMaps<'_> {
 }
 
 /// The E-step for frames `fits` (frame `t` of `maps` is fit `t`): writes the expected
-/// joints (normalised units) into `obs`, their weights too when `confidence_spread` is
-/// positive ([`Params::confidence_spread`]; 0 leaves them), and, if given, the variance
-/// (pixels^2) into `var`. `scale` is pixels per unit; `sigma` in normalised units.
+/// joints (normalised units) into `obs`, their weights too when
+/// [`Params::confidence_spread`] is positive (0 leaves them), and, if given, the variance
+/// (pixels^2) into `var`. `scale` is pixels per unit; [`Params::sigma`] is in normalised
+/// units. With [`Params::swap_prior`] positive, each left/right pair's expectations are
+/// a mixture of the maps as they are and swapped (module [`super::estep`]).
 pub fn e_step(
     dict: &Dictionary,
     maps: &impl MapSource,
     fits: &[FrameFit],
     scale: f64,
-    sigma: f64,
-    confidence_spread: f64,
+    params: &Params,
     obs: &mut Observations,
     mut var: Option<&mut [f64]>,
     ws: &mut EmWorkspace,
 ) {
     let p = dict.num_joints();
     let (h, w) = (maps.height(), maps.width());
+    let sigma = params.sigma * scale;
     ws.shape.resize(3 * p, 0.0);
+    ws.projected.resize(p, [0.0; 2]);
+    ws.expected.resize(p, estep::Expectation::default());
     // The spread (pixels^2) up to which a joint weighs 1.
-    let bound = confidence_spread * 2.0 * (sigma * scale).powi(2);
+    let bound = params.confidence_spread * 2.0 * sigma.powi(2);
     if bound > 0.0 {
         obs.weights.resize(p * fits.len(), 1.0);
     }
+    let swap_prior = params.swap_prior;
     for (t, fit) in fits.iter().enumerate() {
         dict.compose_into(&fit.coefficients, &mut ws.shape);
         let s = &ws.shape;
@@ -126,16 +136,61 @@ pub fn e_step(
             let (x, y, z) = (s[j], s[p + j], s[2 * p + j]);
             let u = r[(0, 0)] * x + r[(0, 1)] * y + r[(0, 2)] * z + fit.translation.x;
             let v = r[(1, 0)] * x + r[(1, 1)] * y + r[(1, 2)] * z + fit.translation.y;
-            let e = estep::expectation(
+            let [u, v] = [u * scale, v * scale];
+            ws.projected[j] = [u, v];
+            ws.expected[j] = estep::expectation(
                 maps.map(t, j),
                 h,
                 w,
                 maps.moments(t, j),
-                u * scale,
-                v * scale,
-                sigma * scale,
+                u,
+                v,
+                sigma,
                 &mut ws.estep,
             );
+        }
+        if swap_prior > 0.0 {
+            let pairs = dict.left_right_pairs();
+            ws.swapped.clear();
+            for &(l, r) in pairs {
+                // Each joint of the pair under the other's map: how well, first.
+                let cross = |from, [u, v]: [f64; 2], ws: &mut EStepWorkspace| {
+                    let moments = maps.moments(t, from);
+                    estep::mass(maps.map(t, from), h, w, moments, u, v, sigma, ws)
+                };
+                let [pl, pr] = [ws.projected[l], ws.projected[r]];
+                let swapped = cross(r, pl, &mut ws.estep) * cross(l, pr, &mut ws.estep);
+                let as_is = ws.expected[l].mass * ws.expected[r].mass;
+                ws.swapped
+                    .push(estep::swap_probability(swap_prior, as_is, swapped));
+            }
+            // Most pairs "swapped" is the fit mirrored left for right, not the maps:
+            // the maps then stand as they are (or the hypothesis would hold the fit
+            // on its mirrored side).
+            let decided = ws.swapped.iter().filter(|&&q| q > 0.5).count();
+            if 2 * decided > pairs.len() {
+                ws.swapped.fill(0.0);
+            }
+            for (&(l, r), &q) in pairs.iter().zip(&ws.swapped) {
+                // Where, only if the swap is not negligible (it moves a joint by q
+                // times the distance of the hypotheses' means: under 0.1 pixel of a
+                // 64-pixel map below 1e-3).
+                if q < 1e-3 {
+                    continue;
+                }
+                let under = |from, [u, v]: [f64; 2], ws: &mut EStepWorkspace| {
+                    let moments = maps.moments(t, from);
+                    estep::expectation(maps.map(t, from), h, w, moments, u, v, sigma, ws)
+                };
+                let [pl, pr] = [ws.projected[l], ws.projected[r]];
+                let lr = under(r, pl, &mut ws.estep);
+                let rl = under(l, pr, &mut ws.estep);
+                let (el, er) = (ws.expected[l], ws.expected[r]);
+                ws.expected[l] = estep::Expectation::mixture(el, lr, q);
+                ws.expected[r] = estep::Expectation::mixture(er, rl, q);
+            }
+        }
+        for (j, e) in ws.expected.iter().enumerate() {
             obs.xy[2 * (t * p + j)] = e.x / scale;
             obs.xy[2 * (t * p + j) + 1] = e.y / scale;
             if bound > 0.0 {
@@ -266,17 +321,7 @@ pub fn run_between_in<'w>(
     };
     for _ in 0..params.max_em_iterations {
         info.iterations += 1;
-        e_step(
-            dict,
-            maps,
-            fits,
-            scale,
-            params.sigma,
-            params.confidence_spread,
-            obs,
-            None,
-            ws,
-        );
+        e_step(dict, maps, fits, scale, params, obs, None, ws);
         ws.c_prev.clear();
         for fit in fits.iter() {
             ws.c_prev.extend_from_slice(&fit.coefficients);
@@ -318,69 +363,110 @@ mod tests {
     use super::*;
     use crate::solver::normalise::heatmap_scale;
 
+    /// A dictionary of one basis (joint `j` at `(6 (j / p - 0.5), (j % 3) / 3, 0)`,
+    /// normalised units) and a frame of it: the fit, and each joint's projection in map
+    /// pixels (2 to 62 across).
+    fn one_frame() -> (Dictionary, FrameFit, Vec<[f64; 2]>) {
+        let skeleton = crate::skeleton::default_layout();
+        let p = skeleton.len();
+        let mut basis = vec![0.0; 3 * p];
+        for j in 0..p {
+            basis[j] = 6.0 * (j as f64 / p as f64 - 0.5);
+            basis[p + j] = (j % 3) as f64 / 3.0;
+        }
+        let dict = Dictionary::new(skeleton, basis, vec![0.0; 3 * p]).expect("dictionary");
+        let scale = heatmap_scale(64);
+        let mut fit = FrameFit::zero(1);
+        fit.coefficients[0] = 1.0;
+        fit.translation = nalgebra::Vector2::new(3.2, 3.0);
+        let shape = dict.compose(&fit.coefficients);
+        let pixels = (0..p)
+            .map(|j| {
+                [
+                    (shape[j] + fit.translation.x) * scale,
+                    (shape[p + j] + fit.translation.y) * scale,
+                ]
+            })
+            .collect();
+        (dict, fit, pixels)
+    }
+
+    /// 64 x 64 maps of one frame: map `j` peaks at `peaks[j]` (a blob of 1.5 pixels on
+    /// a floor of 0.01, as a CNN's maps are not exactly 0 away from their peak), or is
+    /// flat (0.5) when `None`.
+    fn maps_peaking_at(peaks: &[Option<[f64; 2]>]) -> HeatMapSequence {
+        let (h, w) = (64, 64);
+        let mut values = vec![0.5_f32; peaks.len() * h * w];
+        for (map, peak) in values.chunks_exact_mut(h * w).zip(peaks) {
+            let Some([cx, cy]) = *peak else { continue };
+            for (i, v) in map.iter_mut().enumerate() {
+                let (r, c) = ((i / w) as f64, (i % w) as f64);
+                let blob = (-((c - cx).powi(2) + (r - cy).powi(2)) / (2.0 * 1.5 * 1.5)).exp();
+                *v = (0.01 + blob) as f32;
+            }
+        }
+        HeatMapSequence {
+            frames: 1,
+            joints: peaks.len(),
+            height: h,
+            width: w,
+            values,
+        }
+    }
+
+    /// The E-step's expected joints (map pixels) under `params`.
+    fn expected(
+        dict: &Dictionary,
+        fit: &FrameFit,
+        maps: &HeatMapSequence,
+        params: &Params,
+    ) -> Observations {
+        let p = dict.num_joints();
+        let mut obs = Observations::new(p, vec![0.0; 2 * p]);
+        let scale = heatmap_scale(maps.height);
+        let mut ws = EmWorkspace::default();
+        let prepared = PreparedMaps::new(maps);
+        e_step(
+            dict,
+            &prepared,
+            std::slice::from_ref(fit),
+            scale,
+            params,
+            &mut obs,
+            None,
+            &mut ws,
+        );
+        obs.xy.iter_mut().for_each(|v| *v *= scale);
+        obs
+    }
+
     /// A joint whose map peaks where it is projected weighs 1; one whose only peak is far
     /// from its projection (an occluder: the posterior is then the map's faint floor
     /// under the Gaussian) or whose map is flat weighs less; with `confidence_spread = 0`
     /// (the paper) every joint weighs 1.
     #[test]
     fn joints_weigh_by_how_sure_their_e_step_is() {
-        let skeleton = crate::skeleton::default_layout();
-        let p = skeleton.len();
-        // One basis: joint j at (j / p - 0.5, (j % 3) / 3, 0), in normalised units.
-        let mut basis = vec![0.0; 3 * p];
-        for j in 0..p {
-            basis[j] = j as f64 / p as f64 - 0.5;
-            basis[p + j] = (j % 3) as f64 / 3.0;
-        }
-        let dict = Dictionary::new(skeleton, basis, vec![0.0; 3 * p]).expect("dictionary");
-        let (h, w) = (64, 64);
-        let scale = heatmap_scale(h);
-        let mut fit = FrameFit::zero(1);
-        fit.coefficients[0] = 1.0;
-        fit.translation = nalgebra::Vector2::new(3.0, 3.0);
-        let shape = dict.compose(&fit.coefficients);
-        let pixel = |j: usize| {
-            (
-                (shape[j] + fit.translation.x) * scale,
-                (shape[p + j] + fit.translation.y) * scale,
-            )
-        };
-        let mut values = vec![0.0_f32; p * h * w];
-        for j in 0..p {
-            let map = &mut values[j * h * w..(j + 1) * h * w];
-            let (mut cx, cy) = pixel(j);
-            match j {
+        let (dict, fit, pixels) = one_frame();
+        let peaks: Vec<_> = pixels
+            .iter()
+            .enumerate()
+            .map(|(j, &[x, y])| match j {
                 // An occluder's peak 20 pixels away.
-                1 => cx += 20.0,
+                1 => Some([x + 20.0, y]),
                 // Flat: says nothing.
-                2 => {
-                    map.fill(0.5);
-                    continue;
-                }
-                _ => {}
-            }
-            for (i, v) in map.iter_mut().enumerate() {
-                let (r, c) = ((i / w) as f64, (i % w) as f64);
-                let peak = (-((c - cx).powi(2) + (r - cy).powi(2)) / (2.0 * 1.5 * 1.5)).exp();
-                // A CNN's maps are not exactly 0 away from their peak.
-                *v = (0.01 + peak) as f32;
-            }
-        }
-        let maps = HeatMapSequence {
-            frames: 1,
-            joints: p,
-            height: h,
-            width: w,
-            values,
-        };
-        let prepared = PreparedMaps::new(&maps);
-        let mut ws = EmWorkspace::default();
-        let fits = [fit];
+                2 => None,
+                _ => Some([x, y]),
+            })
+            .collect();
+        let maps = maps_peaking_at(&peaks);
         for confidence in [0.25, 0.0] {
-            let mut obs = Observations::new(p, vec![0.0; 2 * p]);
-            e_step(
-                &dict, &prepared, &fits, scale, 0.5, confidence, &mut obs, None, &mut ws,
-            );
+            let params = Params {
+                sigma: 0.5,
+                confidence_spread: confidence,
+                swap_prior: 0.0,
+                ..Params::default()
+            };
+            let obs = expected(&dict, &fit, &maps, &params);
             let weights = obs.frame_weights(0);
             if confidence == 0.0 {
                 assert!(weights.iter().all(|&v| v == 1.0), "{weights:?}");
@@ -390,6 +476,56 @@ mod tests {
             assert!(weights[3..].iter().all(|&v| v == 1.0), "{weights:?}");
             assert!(weights[1] < 0.5, "occluded: {weights:?}");
             assert!((weights[2] - confidence).abs() < 0.05, "flat: {weights:?}");
+        }
+    }
+
+    /// Maps of a left/right pair swapped (each peaks at the other joint's projection):
+    /// the paper's E-step follows the maps; with the swap hypothesis the pair's joints
+    /// stay near where they are projected (a mixture: the maps as they are keep some
+    /// weight), and maps as they are stay as they are.
+    #[test]
+    fn a_swapped_pair_of_maps_is_read_as_swapped() {
+        let (dict, fit, pixels) = one_frame();
+        let &[(l, r), ..] = dict.left_right_pairs() else {
+            panic!("the layout has left/right pairs");
+        };
+        let gap =
+            ((pixels[l][0] - pixels[r][0]).powi(2) + (pixels[l][1] - pixels[r][1]).powi(2)).sqrt();
+        // Twice the E-step Gaussian's spread (sigma 0.5 units, 5.3 pixels): a swap over
+        // less is hard to tell from the maps, and costs less.
+        assert!(gap > 10.0, "the pair's joints {gap} pixels apart");
+        let as_is: Vec<_> = pixels.iter().map(|&x| Some(x)).collect();
+        let mut swapped = as_is.clone();
+        swapped.swap(l, r);
+        let error = |obs: &Observations, j: usize| {
+            (obs.xy[2 * j] - pixels[j][0]).hypot(obs.xy[2 * j + 1] - pixels[j][1])
+        };
+        for (prior, maps, within) in [
+            (0.0, &swapped, None),
+            (0.05, &swapped, Some(gap / 4.0)),
+            (0.05, &as_is, Some(0.1)),
+        ] {
+            let params = Params {
+                swap_prior: prior,
+                ..Params::default()
+            };
+            let maps = maps_peaking_at(maps);
+            let obs = expected(&dict, &fit, &maps, &params);
+            let paper = expected(&dict, &fit, &maps, &Params::reference());
+            for j in [l, r] {
+                let e = error(&obs, j);
+                match within {
+                    None => assert!(e > gap / 3.0, "prior {prior}: joint {j} {e} px off"),
+                    Some(px) => assert!(e < px, "prior {prior}: joint {j} {e} px off"),
+                }
+            }
+            // Every other joint as in the paper's E-step (the other pairs' maps, as they
+            // are, keep all but a trace of their weight).
+            for j in (0..dict.num_joints()).filter(|&j| j != l && j != r) {
+                let d = (obs.xy[2 * j] - paper.xy[2 * j])
+                    .hypot(obs.xy[2 * j + 1] - paper.xy[2 * j + 1]);
+                assert!(d < 0.05, "prior {prior}: joint {j} {d} px from the paper's");
+            }
         }
     }
 }

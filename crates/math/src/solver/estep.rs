@@ -65,7 +65,7 @@ impl MapMoments {
 }
 
 /// One joint's E-step result, in pixels.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Expectation {
     /// Expected x.
     pub x: f64,
@@ -73,6 +73,43 @@ pub struct Expectation {
     pub y: f64,
     /// Trace of the 2D covariance (pixels^2).
     pub variance: f64,
+    /// `sum (g + eps)(h + eps)` over the grid (`g` the Gaussian with peak 1): how well the
+    /// map explains a joint at the projection, up to a factor common to every map of
+    /// the same size and `sigma` (what the left/right swap hypothesis compares).
+    pub mass: f64,
+}
+
+impl Expectation {
+    /// The expectation under a mixture: `a` with probability `1 - q`, `b` with `q`; the
+    /// variance is the mixture's (each component's spread plus its mean's distance from
+    /// the mixture's), so a joint whose hypotheses disagree is as uncertain as that
+    /// makes it. The mass is `a`'s.
+    pub fn mixture(a: Self, b: Self, q: f64) -> Self {
+        if q <= 0.0 {
+            return a;
+        }
+        let x = a.x + q * (b.x - a.x);
+        let y = a.y + q * (b.y - a.y);
+        let spread = |e: &Self| e.variance + (e.x - x).powi(2) + (e.y - y).powi(2);
+        Self {
+            x,
+            y,
+            variance: (1.0 - q) * spread(&a) + q * spread(&b),
+            mass: a.mass,
+        }
+    }
+}
+
+/// The posterior probability that a left/right pair's maps are swapped: prior `prior`,
+/// the pair's masses ([`Expectation::mass`] multiplied) `as_is` with each joint under its
+/// own map and `swapped` under the other's. 0 when neither explains anything.
+pub fn swap_probability(prior: f64, as_is: f64, swapped: f64) -> f64 {
+    let (a, b) = ((1.0 - prior) * as_is, prior * swapped);
+    if a + b > 0.0 && (a + b).is_finite() {
+        b / (a + b)
+    } else {
+        0.0
+    }
 }
 
 /// Reusable buffers of [`expectation`].
@@ -87,6 +124,11 @@ pub struct EStepWorkspace {
 
 const CUTOFF: f64 = 1e-20;
 
+/// [`mass`]'s cutoff: the Gaussian beyond 4.3 sigma, whose share of the mass is below
+/// 1e-4 of its peak's, is left out (the mass only weighs hypotheses against each other;
+/// this skips most of a map).
+const MASS_CUTOFF: f64 = 1e-4;
+
 /// A sampled Gaussian: where it is not cut off, and its sums.
 struct Profile {
     /// Indices `lo..hi` hold every value at or above the cutoff.
@@ -100,7 +142,7 @@ struct Profile {
 /// set to 0, by the recurrence `g[i+1] = g[i] q_i`, `q_{i+1} = q_i exp(-1/sigma^2)`,
 /// outward from the grid point nearest the mean: four exponentials instead of `n`
 /// (relative error ~ n ulp).
-fn gaussian_profile(mean: f64, sigma: f64, n: usize, g: &mut Vec<f64>) -> Profile {
+fn gaussian_profile(mean: f64, sigma: f64, n: usize, cutoff: f64, g: &mut Vec<f64>) -> Profile {
     g.clear();
     g.resize(n, 0.0);
     let mut profile = Profile {
@@ -132,7 +174,7 @@ fn gaussian_profile(mean: f64, sigma: f64, n: usize, g: &mut Vec<f64>) -> Profil
     profile.lo = n;
     for (i, v) in g.iter_mut().enumerate() {
         // Below the cutoff, or NaN (from an infinite mean).
-        if v.is_nan() || *v < CUTOFF {
+        if v.is_nan() || *v < cutoff {
             *v = 0.0;
             continue;
         }
@@ -162,8 +204,8 @@ pub fn expectation(
     sigma: f64,
     ws: &mut EStepWorkspace,
 ) -> Expectation {
-    let gx = gaussian_profile(px, sigma, w, &mut ws.gx);
-    let gy = gaussian_profile(py, sigma, h, &mut ws.gy);
+    let gx = gaussian_profile(px, sigma, w, CUTOFF, &mut ws.gx);
+    let gy = gaussian_profile(py, sigma, h, CUTOFF, &mut ws.gy);
     // Where both the Gaussian and the map can be non-zero.
     let clip = |(lo, hi): (usize, usize), (s0, s1): (u32, u32)| {
         let lo = lo.max(s0 as usize);
@@ -176,6 +218,9 @@ pub fn expectation(
     // vectorises them); then one pass over the columns with gx, gx c and gx c^2.
     for v in [&mut ws.v0, &mut ws.v1, &mut ws.v2] {
         v.clear();
+        // Room for a whole row at once: the columns in reach vary with the map's
+        // support, and a warm E-step allocates nothing.
+        v.reserve(w);
         v.resize(c1 - c0, 0.0);
     }
     for r in r0..r1 {
@@ -216,7 +261,42 @@ pub fn expectation(
         x,
         y,
         variance: (zr2 / z - x * x - y * y).max(0.0),
+        mass: z,
     }
+}
+
+/// [`Expectation::mass`] alone, approximately (a third of [`expectation`]'s sums, over
+/// the Gaussian's centre, [`MASS_CUTOFF`]): how well `map` explains a joint at `(px, py)`.
+pub fn mass(
+    map: &[f32],
+    h: usize,
+    w: usize,
+    mom: &MapMoments,
+    px: f64,
+    py: f64,
+    sigma: f64,
+    ws: &mut EStepWorkspace,
+) -> f64 {
+    let gx = gaussian_profile(px, sigma, w, MASS_CUTOFF, &mut ws.gx);
+    let gy = gaussian_profile(py, sigma, h, MASS_CUTOFF, &mut ws.gy);
+    let clip = |(lo, hi): (usize, usize), (s0, s1): (u32, u32)| {
+        let lo = lo.max(s0 as usize);
+        (lo, hi.min(s1 as usize).max(lo))
+    };
+    let (r0, r1) = clip((gy.lo, gy.hi), (mom.support[0], mom.support[1]));
+    let (c0, c1) = clip((gx.lo, gx.hi), (mom.support[2], mom.support[3]));
+    ws.v0.clear();
+    ws.v0.reserve(w);
+    ws.v0.resize(c1 - c0, 0.0);
+    for r in r0..r1 {
+        let row = &map[r * w + c0..r * w + c1];
+        let g = ws.gy[r];
+        for (v, &h) in ws.v0.iter_mut().zip(row) {
+            *v += g * f64::from(h);
+        }
+    }
+    let s: f64 = ws.gx[c0..c1].iter().zip(&ws.v0).map(|(g, v)| g * v).sum();
+    s + EPS * gx.sums[0] * gy.sums[0] + EPS * mom.h + EPS * EPS * (h * w) as f64
 }
 
 #[cfg(test)]
@@ -249,6 +329,7 @@ mod tests {
             x,
             y,
             variance: var,
+            mass: z,
         }
     }
 
@@ -281,6 +362,15 @@ mod tests {
             assert!(
                 (fast.variance - slow.variance).abs() < 1e-7 * slow.variance.max(1.0),
                 "{fast:?} vs {slow:?}"
+            );
+            assert!(
+                (fast.mass - slow.mass).abs() < 1e-9 * slow.mass,
+                "{fast:?} vs {slow:?}"
+            );
+            let alone = mass(&clipped, h, w, &mom, px, py, sigma, &mut ws);
+            assert!(
+                (alone - slow.mass).abs() < 1e-3 * slow.mass,
+                "{alone} vs {slow:?}"
             );
         }
     }

@@ -37,6 +37,7 @@ pub mod rotations;
 use nalgebra::{Matrix3, Vector2};
 use serde::{Deserialize, Serialize};
 
+use crate::dictionary::Dictionary;
 use crate::error::{EstimateError, OutOfDomain, check_range, check_real};
 
 /// How each frame is initialised before the joint optimisation.
@@ -121,6 +122,13 @@ pub struct Params {
     /// from it (an occluder, a swapped joint), pulls less. 0: every joint weighs 1 (the
     /// paper); otherwise at least 1e-3. README, "Beyond the paper".
     pub confidence_spread: f64,
+    /// Prior probability that the heat maps of a left/right pair (the dictionary's
+    /// joints named `l...`/`r...` or `left...`/`right...`) are swapped in a frame, as
+    /// detectors swap them: the E-step weighs that hypothesis against the maps as they
+    /// are by how well each explains the pair at its projection, and takes each joint's
+    /// expectation under both (a mixture). 0: the paper's E-step, maps as they are;
+    /// otherwise in [0.001, 0.5]. README, "Beyond the paper".
+    pub swap_prior: f64,
     /// Outlier threshold of the robust convex initialisation (normalised units).
     pub robust_threshold: f64,
     /// Heat-map joints whose peak is not above this are left out of the initialisation.
@@ -171,6 +179,7 @@ impl Default for Params {
             gamma: 2.0,
             sigma: 0.5,
             confidence_spread: 0.25,
+            swap_prior: 0.05,
             robust_threshold: 1.0,
             visibility_threshold: 0.0,
             max_em_iterations: 10,
@@ -194,11 +203,13 @@ impl Params {
     /// The paper's model as the authors' release runs it (parity mode, `tests/parity.rs`):
     /// the default weights and caps without what posestream adds to the model (the
     /// person's shape beyond the dictionary, [`adapt`]; the joints' weights from their
-    /// E-step, [`Params::confidence_spread`]).
+    /// E-step, [`Params::confidence_spread`]; the left/right swap hypothesis,
+    /// [`Params::swap_prior`]).
     pub fn reference() -> Self {
         Self {
             adaptation: adapt::Adaptation::off(),
             confidence_spread: 0.0,
+            swap_prior: 0.0,
             ..Self::default()
         }
     }
@@ -234,6 +245,14 @@ impl Params {
                 "confidence_spread",
                 "0 (off), or finite in [0.001, 1]",
                 format!("{c:e}"),
+            ));
+        }
+        let s = self.swap_prior;
+        if s != 0.0 && !(s.is_finite() && (1e-3..=0.5).contains(&s)) {
+            return Err(OutOfDomain::new(
+                "swap_prior",
+                "0 (off), or finite in [0.001, 0.5]",
+                format!("{s:e}"),
             ));
         }
         check_real(
@@ -282,6 +301,19 @@ impl FrameFit {
             coefficients: vec![0.0; k],
             rotation: Matrix3::identity(),
             translation: Vector2::zeros(),
+        }
+    }
+
+    /// The frame's joints in the image, `[x, y]` per joint (normalised units), into
+    /// `xy`; `shape` is a buffer for the pose (3 x p).
+    pub fn project_into(&self, dict: &Dictionary, shape: &mut [f64], xy: &mut [f64]) {
+        let p = dict.num_joints();
+        dict.compose_into(&self.coefficients, shape);
+        let r = &self.rotation;
+        for (j, out) in xy.chunks_exact_mut(2).enumerate().take(p) {
+            let (x, y, z) = (shape[j], shape[p + j], shape[2 * p + j]);
+            out[0] = r[(0, 0)] * x + r[(0, 1)] * y + r[(0, 2)] * z + self.translation.x;
+            out[1] = r[(1, 0)] * x + r[(1, 1)] * y + r[(1, 2)] * z + self.translation.y;
         }
     }
 }
