@@ -80,23 +80,28 @@ fn bench(c: &mut Criterion) {
     let mut obs = Observations::new(17, vec![0.0; 2 * 17 * frames]);
     let mut ws = EmWorkspace::default();
     let scale = heatmap_scale(maps.height);
-    g.bench_function("E-step (17 joints)", |b| {
-        b.iter_custom(|iters| {
-            per_frame(iters, frames, || {
-                em::e_step(
-                    &dict,
-                    &prepared,
-                    &fitted.fits,
-                    scale,
-                    0.5,
-                    0.0,
-                    &mut obs,
-                    None,
-                    &mut ws,
-                )
+    // The paper's E-step, and posestream's (the joints' weights and the swap model).
+    for (name, params) in [
+        ("E-step (17 joints)", Params::reference()),
+        ("E-step, posestream's model (17 joints)", Params::default()),
+    ] {
+        g.bench_function(name, |b| {
+            b.iter_custom(|iters| {
+                per_frame(iters, frames, || {
+                    em::e_step(
+                        &dict,
+                        &prepared,
+                        &fitted.fits,
+                        scale,
+                        &params,
+                        &mut obs,
+                        None,
+                        &mut ws,
+                    )
+                })
             })
-        })
-    });
+        });
+    }
     // ADMM alone, on the keypoints normalised as the estimator does.
     let factor = &est.init_cache().all_visible;
     let kscale = keypoint_scale(&kp.data, &vec![1.0; 17 * frames], 17);

@@ -483,22 +483,27 @@ impl Estimator {
             xy[2 * j + 1] = y / scale;
             *v = f64::from(peak) > self.params.visibility_threshold;
         }
-        // A detector's left/right swap (the swap model on): a pair whose peaks lie
-        // nearer the previous frame's joints swapped than as they are is swapped back,
-        // for at most `MAX_SWAP_FRAMES` frames running (a swap that lasts is the fit's,
-        // mirrored, not the detector's: the maps then stand), and not when most pairs
-        // are (the same).
+        // A detector's left/right swap (the swap model on): a pair whose peaks (both
+        // seen) lie nearer the previous frame's joints swapped than as they are is
+        // swapped back, for at most `MAX_SWAP_FRAMES` frames running (a swap that lasts
+        // is the fit's, mirrored, not the detector's: the maps then stand), and not
+        // when most pairs are (the same).
         if let Some((prev, runs)) = previous.filter(|_| self.params.swap_prior > 0.0) {
             let d2 = |xy: &[f64], a: usize, b: usize| {
                 (xy[2 * a] - prev[2 * b]).powi(2) + (xy[2 * a + 1] - prev[2 * b + 1]).powi(2)
             };
             let pairs = self.dict.left_right_pairs();
-            let mirrored = |xy: &[f64], (l, r): (usize, usize)| {
-                d2(xy, l, r) + d2(xy, r, l) < d2(xy, l, l) + d2(xy, r, r)
+            // Pairs with both joints seen (an empty map's arg-max says nothing).
+            let mirrored = |xy: &[f64], seen: &[bool], (l, r): (usize, usize)| {
+                seen[l] && seen[r] && d2(xy, l, r) + d2(xy, r, l) < d2(xy, l, l) + d2(xy, r, r)
             };
-            let most = 2 * pairs.iter().filter(|&&pair| mirrored(xy, pair)).count() > pairs.len();
+            let most = 2 * pairs
+                .iter()
+                .filter(|&&pair| mirrored(xy, visible, pair))
+                .count()
+                > pairs.len();
             for (&(l, r), run) in pairs.iter().zip(runs.iter_mut()) {
-                if !mirrored(xy, (l, r)) {
+                if !mirrored(xy, visible, (l, r)) {
                     *run = 0;
                     continue;
                 }

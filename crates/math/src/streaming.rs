@@ -10,7 +10,9 @@
 //!    worse, because a track then keeps its first frame's depth ambiguity); with the
 //!    swap model on ([`Params::swap_prior`](crate::solver::Params::swap_prior)), a
 //!    left/right pair whose peaks lie nearer the previous frame's joints swapped than
-//!    as they are is swapped back first (a detector's swap);
+//!    as they are is swapped back first (a detector's swap; for at most
+//!    [`MAX_SWAP_FRAMES`](crate::estimator::MAX_SWAP_FRAMES) frames running, and not
+//!    when most pairs are: then the fit is the one mirrored);
 //! 3. if the window is full, freezes its oldest frame: that frame leaves the window and
 //!    becomes the *anchor*, a fixed neighbour whose coefficients and rotation keep
 //!    pulling the first frame of the window through the smoothness terms
@@ -1044,7 +1046,8 @@ impl WindowEstimator {
     fn initialise(&mut self, fit: &mut FrameFit) {
         let t = self.maps.len - 1;
         // The previous frame's joints, where the track was.
-        let previous = self.fits.last().map(|prev| {
+        let swaps = self.estimator.params().swap_prior > 0.0;
+        let previous = self.fits.last().filter(|_| swaps).map(|prev| {
             prev.project_into(
                 self.estimator.dictionary(),
                 &mut self.shape,

@@ -93,7 +93,8 @@ impl BlockTridiagonal {
         let worst = self.peak.0 * room * room;
         zeroed_with_room(&mut self.diag, d, worst);
         zeroed_with_room(&mut self.lower, l, worst);
-        if self.backup.capacity() < room * room {
+        // One block at a time.
+        if self.backup.capacity() < self.peak.1 * self.peak.1 {
             self.backup.reserve_exact(room * room);
         }
         if self.scratch.is_none() || self.scratch_dim < max {
