@@ -63,6 +63,11 @@ pub struct EvalArgs {
     /// settings without looking at the held-out motion).
     #[arg(long)]
     pub train: bool,
+    /// Evaluate only the files whose name contains one of these (each keeps its index in
+    /// the whole list, so its camera and error seed are those of the full evaluation:
+    /// reproduces one take's rows).
+    #[arg(long, num_args = 1..)]
+    pub only: Vec<String>,
     /// Worker threads (each evaluates whole files; ms/frame is per worker, so more
     /// workers than idle cores inflate it).
     #[arg(long, default_value_t = std::thread::available_parallelism().map_or(1, |n| n.get()))]
@@ -103,7 +108,8 @@ pub fn run(args: &EvalArgs) -> Result<(), CliError> {
         dicts.push((label, d));
     }
     let mut per_action = std::collections::BTreeMap::<String, usize>::new();
-    let files: Vec<PathBuf> = list_bvh(&args.data)?
+    // Each file with its index in the whole list (its camera and error seed).
+    let files: Vec<(usize, PathBuf)> = list_bvh(&args.data)?
         .into_iter()
         .filter(|f| split.is_test(f) != args.train)
         .filter(|f| {
@@ -112,7 +118,22 @@ pub fn run(args: &EvalArgs) -> Result<(), CliError> {
             *n += 1;
             args.max_files_per_action == 0 || *n <= args.max_files_per_action
         })
+        .enumerate()
+        .filter(|(_, f)| {
+            let name = f
+                .file_name()
+                .map(|n| n.to_string_lossy())
+                .unwrap_or_default();
+            args.only.is_empty() || args.only.iter().any(|o| name.contains(o.as_str()))
+        })
         .collect();
+    if files.is_empty() && !args.only.is_empty() {
+        return Err(CliError::Nothing(format!(
+            "no {} file's name contains {}",
+            if args.train { "training" } else { "held-out" },
+            args.only.join(" or ")
+        )));
+    }
     if files.is_empty() {
         return Err(CliError::Nothing(if args.train {
             "the split has no training files".into()
@@ -169,8 +190,11 @@ pub fn run(args: &EvalArgs) -> Result<(), CliError> {
                             if failed.load(Ordering::Relaxed) {
                                 break;
                             }
-                            let i = next.fetch_add(1, Ordering::Relaxed);
-                            let Some(file) = files.get(i) else { break };
+                            let Some((i, file)) = files.get(next.fetch_add(1, Ordering::Relaxed))
+                            else {
+                                break;
+                            };
+                            let i = *i;
                             let bvh = Bvh::load(file)?;
                             let seq = mapping.apply(&bvh, &file.display().to_string())?;
                             let name = file

@@ -28,6 +28,14 @@ use crate::solver::{FrameFit, InitMethod, Observations, Params};
 /// episode, a "swap" that lasts is the fit on the mirrored side.
 pub const MAX_SWAP_FRAMES: u32 = 10;
 
+/// How much nearer (summed squared distance) a left/right pair's peaks must lie to the
+/// previous frame's swapped than as they are for the sliding window's initialisation to
+/// put them back: at 1, two limbs crossing in the image (a kick seen from the side)
+/// were put back on noise and held the fit on the mirrored side (the held-out kick,
+/// README "Beyond the paper"); on the training files 2 leaves the window's errors as
+/// they were (`posestream eval --train --max-files-per-action 1`).
+pub const SWAP_MARGIN: f64 = 2.0;
+
 /// 2D joints of a sequence in pixels, with optional per-joint confidence in [0, 1].
 #[derive(Debug, Clone, PartialEq)]
 pub struct Keypoints {
@@ -461,10 +469,12 @@ impl Estimator {
     /// peak is above the visibility threshold (all, if fewer than two are). Leaves the
     /// arg-max (normalised units) in `xy` and the visibility in `visible`, and the fit
     /// in `fit` (its buffers reused). Shared by the batch EM and the sliding window
-    /// (which caps the iterations in `params`, and gives the `previous` frame's joints,
-    /// normalised units, and per left/right pair the frames its maps have run swapped
-    /// against them: with [`Params::swap_prior`] positive, a pair whose arg-maxes lie
-    /// nearer those swapped than as they are is swapped back, for a while).
+    /// (which caps the iterations in `params`, and gives the track's `previous`
+    /// arg-maxes, normalised units, each joint where it was last seen, NaN where never,
+    /// and per left/right pair the frames its maps have run swapped against them: with
+    /// [`Params::swap_prior`] positive, a pair whose arg-maxes lie [`SWAP_MARGIN`] times
+    /// nearer those swapped than as they are is swapped back, for a while; `previous`
+    /// is then moved to this frame's arg-maxes, as put back).
     pub(crate) fn initialise_from_argmax<'m>(
         &self,
         map: impl Fn(usize) -> &'m [f32],
@@ -473,7 +483,7 @@ impl Estimator {
         xy: &mut [f64],
         visible: &mut [bool],
         params: &Params,
-        previous: Option<(&[f64], &mut [u32])>,
+        previous: Option<(&mut [f64], &mut [u32])>,
         ws: &mut InitWorkspace,
         fit: &mut FrameFit,
     ) {
@@ -484,10 +494,12 @@ impl Estimator {
             *v = f64::from(peak) > self.params.visibility_threshold;
         }
         // A detector's left/right swap (the swap model on): a pair whose peaks (both
-        // seen) lie nearer the previous frame's joints swapped than as they are is
-        // swapped back, for at most `MAX_SWAP_FRAMES` frames running (a swap that lasts
-        // is the fit's, mirrored, not the detector's: the maps then stand), and not
-        // when most pairs are (the same).
+        // seen) lie clearly nearer the previous frame's peaks (as put back) swapped than
+        // as they are is swapped back, for at most `MAX_SWAP_FRAMES` frames running (a
+        // swap that lasts is the person's own turn, not the detector's: the maps then
+        // stand), and not when most pairs are (the same). Against the maps' own past,
+        // not the fit's projection: a fit on a wrong branch would otherwise reorder
+        // every new frame to its side, and stay there.
         if let Some((prev, runs)) = previous.filter(|_| self.params.swap_prior > 0.0) {
             let d2 = |xy: &[f64], a: usize, b: usize| {
                 (xy[2 * a] - prev[2 * b]).powi(2) + (xy[2 * a + 1] - prev[2 * b + 1]).powi(2)
@@ -495,7 +507,9 @@ impl Estimator {
             let pairs = self.dict.left_right_pairs();
             // Pairs with both joints seen (an empty map's arg-max says nothing).
             let mirrored = |xy: &[f64], seen: &[bool], (l, r): (usize, usize)| {
-                seen[l] && seen[r] && d2(xy, l, r) + d2(xy, r, l) < d2(xy, l, l) + d2(xy, r, r)
+                seen[l]
+                    && seen[r]
+                    && SWAP_MARGIN * (d2(xy, l, r) + d2(xy, r, l)) < d2(xy, l, l) + d2(xy, r, r)
             };
             let most = 2 * pairs
                 .iter()
@@ -513,6 +527,10 @@ impl Estimator {
                     xy.swap(2 * l + 1, 2 * r + 1);
                     visible.swap(l, r);
                 }
+            }
+            // Where the track's joints were last seen.
+            for (j, _) in visible.iter().enumerate().filter(|(_, v)| **v) {
+                prev[2 * j..2 * j + 2].copy_from_slice(&xy[2 * j..2 * j + 2]);
             }
         }
         if visible.iter().filter(|&&v| v).count() < 2 {
@@ -699,5 +717,73 @@ impl Estimator {
             fits,
             seconds: start.elapsed().as_secs_f64(),
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The window's initialisation puts a left/right pair back in the track's order
+    /// when its peaks jumped to each other's places (a detector's swap), not when two
+    /// limbs merely cross in the image (the pair's peaks near each other, a little
+    /// nearer each other's previous place): that put a kick on the mirrored side.
+    #[test]
+    fn a_swap_is_put_back_and_two_limbs_crossing_are_not() {
+        let skeleton = crate::skeleton::default_layout();
+        let p = skeleton.len();
+        let basis: Vec<f64> = (0..3 * p).map(|i| ((i * 7) % 11) as f64 / 11.0).collect();
+        let dict = Dictionary::new(skeleton, basis, vec![0.0; 3 * p]).expect("dictionary");
+        let &(l, r) = dict.left_right_pairs().first().expect("a left/right pair");
+        let est = Estimator::new(dict, Params::default()).expect("estimator");
+        let (h, w) = (64, 64);
+        let scale = heatmap_scale(h);
+        // Every joint in its own column of row 40, the pair at columns 10 and 20.
+        let home = |j: usize| -> usize {
+            if j == l {
+                10
+            } else if j == r {
+                20
+            } else {
+                24 + j
+            }
+        };
+        let previous: Vec<f64> = (0..p)
+            .flat_map(|j| [home(j) as f64 / scale, 40.0 / scale])
+            .collect();
+        // (left's column, right's column, put back?): swapped 0 against 61 as they are;
+        // crossing 41 against 61.
+        for (cl, cr, back) in [(20, 10, true), (16, 15, false)] {
+            let mut maps = vec![0.0_f32; p * h * w];
+            for j in 0..p {
+                let c = if j == l {
+                    cl
+                } else if j == r {
+                    cr
+                } else {
+                    home(j)
+                };
+                maps[j * h * w + 40 * w + c] = 1.0;
+            }
+            let (mut xy, mut visible) = (vec![0.0; 2 * p], vec![false; p]);
+            let pairs = est.dictionary().left_right_pairs().len();
+            let (mut reference, mut runs) = (previous.clone(), vec![0; pairs]);
+            let mut fit = FrameFit::zero(est.dictionary().num_bases());
+            est.initialise_from_argmax(
+                |j| &maps[j * h * w..(j + 1) * h * w],
+                w,
+                scale,
+                &mut xy,
+                &mut visible,
+                est.params(),
+                Some((&mut reference, &mut runs)),
+                &mut InitWorkspace::default(),
+                &mut fit,
+            );
+            let left = (xy[2 * l] * scale).round() as usize;
+            assert_eq!(left, if back { cr } else { cl }, "{cl}, {cr}");
+            // The track's reference follows the frame, as put back.
+            assert_eq!(reference, xy, "{cl}, {cr}");
+        }
     }
 }

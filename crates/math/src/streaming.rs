@@ -9,10 +9,11 @@
 //!    ([`StreamSettings::warm_start`] copies the previous frame's fit instead: measured
 //!    worse, because a track then keeps its first frame's depth ambiguity); with the
 //!    swap model on ([`Params::swap_prior`](crate::solver::Params::swap_prior)), a
-//!    left/right pair whose peaks lie nearer the previous frame's joints swapped than
-//!    as they are is swapped back first (a detector's swap; for at most
+//!    left/right pair whose peaks lie [`SWAP_MARGIN`](crate::estimator::SWAP_MARGIN)
+//!    times nearer the previous frame's peaks (as put back) swapped than as they are is
+//!    swapped back first (a detector's swap; for at most
 //!    [`MAX_SWAP_FRAMES`](crate::estimator::MAX_SWAP_FRAMES) frames running, and not
-//!    when most pairs are: then the fit is the one mirrored);
+//!    when most pairs are: then the person turned);
 //! 3. if the window is full, freezes its oldest frame: that frame leaves the window and
 //!    becomes the *anchor*, a fixed neighbour whose coefficients and rotation keep
 //!    pulling the first frame of the window through the smoothness terms
@@ -120,6 +121,11 @@ pub struct StreamSettings {
     pub std_scale: f64,
     /// The same factor for the depth coordinate.
     pub depth_std_scale: f64,
+    /// A further factor on both for an estimate with no frames after it (lag 0), whose
+    /// error is larger than a refined estimate's for the same E-step spread; an estimate
+    /// with `k` of `lag` later frames gets `1 + (newest_std_scale - 1) (1 - k / lag)`.
+    /// Calibrated on the training motions (README, "Beyond the paper").
+    pub newest_std_scale: f64,
 }
 
 impl Default for StreamSettings {
@@ -140,8 +146,9 @@ impl Default for StreamSettings {
             admit_per_frame: 2,
             max_gap_frames: 10,
             max_gap_seconds: 1.0,
-            std_scale: 0.16,
-            depth_std_scale: 0.37,
+            std_scale: 0.18,
+            depth_std_scale: 0.48,
+            newest_std_scale: 1.18,
         }
     }
 }
@@ -174,7 +181,22 @@ impl StreamSettings {
         check_real("max_gap_seconds", self.max_gap_seconds, 0.0, 3600.0, true)?;
         check_real("std_scale", self.std_scale, 0.0, 1e3, true)?;
         check_real("depth_std_scale", self.depth_std_scale, 0.0, 1e3, true)?;
+        check_real("newest_std_scale", self.newest_std_scale, 0.0, 1e3, true)?;
         Ok(())
+    }
+
+    /// The factor [`StreamSettings::newest_std_scale`] gives an estimate with `later`
+    /// frames after it: the full factor at 0, 1 from `lag` on.
+    pub fn newest_std_factor(&self, later: usize) -> f64 {
+        if self.lag == 0 || later >= self.lag {
+            return if later == 0 {
+                self.newest_std_scale
+            } else {
+                1.0
+            };
+        }
+        let unseen = 1.0 - later as f64 / self.lag as f64;
+        1.0 + (self.newest_std_scale - 1.0) * unseen
     }
 }
 
@@ -309,7 +331,8 @@ pub struct FrameEstimate {
     /// Standard deviation of each coordinate of `pose` (dictionary units, `[x, y, z]`
     /// per joint): the E-step's 2D spread moved to model units, times
     /// [`StreamSettings::std_scale`] (x, y) and [`StreamSettings::depth_std_scale`]
-    /// (z: depth is not observed, only the spread of the image's evidence).
+    /// (z: depth is not observed, only the spread of the image's evidence), and
+    /// [`StreamSettings::newest_std_scale`] the fewer frames came after it.
     pub pose_std: Vec<f64>,
     /// The expected 2D joints (heat-map pixels): `[x, y]` per joint.
     pub keypoints: Vec<f64>,
@@ -603,8 +626,9 @@ pub struct WindowEstimator {
     em: EmWorkspace,
     init: InitWorkspace,
     argmax: Vec<f64>,
-    /// The previous frame's joints (normalised units), for the initialisation, and per
-    /// left/right pair the frames its maps have run swapped against them.
+    /// The track's arg-maxes (normalised units, as put back; each joint where it was
+    /// last seen, NaN before), for the initialisation, and per left/right pair the
+    /// frames its maps have run swapped against them.
     previous: Vec<f64>,
     swap_runs: Vec<u32>,
     visible: Vec<bool>,
@@ -1041,20 +1065,16 @@ impl WindowEstimator {
     }
 
     /// The batch EM's per-frame initialisation of the newest frame, from its arg-max (its
-    /// left/right pairs put back in the previous frame's order when the swap model is
-    /// on).
+    /// left/right pairs put back in the order of the track's previous arg-maxes when the
+    /// swap model is on).
     fn initialise(&mut self, fit: &mut FrameFit) {
         let t = self.maps.len - 1;
-        // The previous frame's joints, where the track was.
+        // The track's arg-maxes, each joint where it was last seen (none at its start).
         let swaps = self.estimator.params().swap_prior > 0.0;
-        let previous = self.fits.last().filter(|_| swaps).map(|prev| {
-            prev.project_into(
-                self.estimator.dictionary(),
-                &mut self.shape,
-                &mut self.previous,
-            );
-            (&self.previous[..], &mut self.swap_runs[..])
-        });
+        if self.fits.is_empty() {
+            self.previous.fill(f64::NAN);
+        }
+        let previous = swaps.then_some((&mut self.previous[..], &mut self.swap_runs[..]));
         let maps = &self.maps;
         self.estimator.initialise_from_argmax(
             |j| maps.map(t, j),
@@ -1194,15 +1214,18 @@ impl WindowEstimator {
         // The variance is the trace of the 2D covariance: per axis, half of it.
         e.keypoint_std.clear();
         e.pose_std.clear();
+        let later = self.slots.len() - 1 - t;
+        let newest = self.settings.newest_std_factor(later);
+        let (lateral, depth) = (
+            newest * self.settings.std_scale,
+            newest * self.settings.depth_std_scale,
+        );
         for v in &self.variance {
             let std = (0.5 * v).sqrt();
             e.keypoint_std.push(std);
             let model = std / scale;
-            e.pose_std.extend([
-                model * self.settings.std_scale,
-                model * self.settings.std_scale,
-                model * self.settings.depth_std_scale,
-            ]);
+            e.pose_std
+                .extend([model * lateral, model * lateral, model * depth]);
         }
         e.keypoints.clear();
         e.keypoints.extend(self.one.xy.iter().map(|v| v * scale));
@@ -1215,14 +1238,30 @@ impl WindowEstimator {
         let slot = &self.slots[t];
         e.sequence = slot.sequence;
         e.stamp_ns = slot.stamp_ns;
-        e.lag = self.slots.len() - 1 - t;
+        e.lag = later;
         e.state = state;
     }
 }
 
 #[cfg(test)]
 mod tests {
-    use super::Sweep;
+    use super::{StreamSettings, Sweep};
+
+    /// The newest estimate's deviations get the whole factor, a refined one none, and
+    /// one with part of the lag's frames after it (a track's end) its share.
+    #[test]
+    fn the_newest_estimate_s_deviations_widen_by_its_factor() {
+        let s = StreamSettings {
+            newest_std_scale: 1.5,
+            lag: 10,
+            ..StreamSettings::default()
+        };
+        assert_eq!(s.newest_std_factor(0), 1.5);
+        assert!((s.newest_std_factor(5) - 1.25).abs() < 1e-12);
+        assert_eq!(s.newest_std_factor(10), 1.0);
+        let no_lag = StreamSettings { lag: 0, ..s };
+        assert_eq!(no_lag.newest_std_factor(0), 1.5);
+    }
 
     /// Every frame in the window when a sweep begins, or arriving before its last part,
     /// is in exactly one part, with a full window (which loses its oldest frame with

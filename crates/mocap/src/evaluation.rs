@@ -777,6 +777,7 @@ Methods without deviations are left out.\n"
     heads.push("x, y: within 1 / 2 std".into());
     heads.push("z: within 1 / 2 std".into());
     heads.push("factor on x, y / z std for 68.3 % within 1 std".into());
+    heads.push("the same for 95.4 % within 2 std".into());
     let _ = writeln!(s, "| dictionary | method | {} |", heads.join(" | "));
     let _ = writeln!(s, "|---|---|{}", "---:|".repeat(heads.len()));
     for r in results {
@@ -795,11 +796,13 @@ Methods without deviations are left out.\n"
                     100.0 * h.within(2.0)
                 ));
             }
-            cells.push(format!(
-                "{:.2} / {:.2}",
-                sc.lateral_ratios.scale_for(0.6827),
-                sc.depth_ratios.scale_for(0.6827)
-            ));
+            for (q, z) in [(0.6827, 1.0), (0.9545, 2.0)] {
+                cells.push(format!(
+                    "{:.2} / {:.2}",
+                    sc.lateral_ratios.scale_for(q) / z,
+                    sc.depth_ratios.scale_for(q) / z
+                ));
+            }
             let _ = writeln!(s, "| {} | {} | {} |", r.label, m, cells.join(" | "));
         }
     }

@@ -322,6 +322,20 @@ mod tests {
                     ..StreamSettings::default()
                 },
             ),
+            (
+                "newest_std_scale",
+                StreamSettings {
+                    newest_std_scale: f64::INFINITY,
+                    ..StreamSettings::default()
+                },
+            ),
+            (
+                "newest_std_scale",
+                StreamSettings {
+                    newest_std_scale: -1.0,
+                    ..StreamSettings::default()
+                },
+            ),
         ] {
             let e = s.check().expect_err(key).to_string();
             assert!(e.contains(key), "{key}: {e}");
