@@ -64,8 +64,9 @@ pub struct EvalArgs {
     #[arg(long)]
     pub train: bool,
     /// Evaluate only the files whose name contains one of these (each keeps its index in
-    /// the whole list, so its camera and error seed are those of the full evaluation:
-    /// reproduces one take's rows).
+    /// the list the other options select, so with the same --data, --train,
+    /// --max-files-per-action and --seed its camera and error seed are those of the run
+    /// without --only: reproduces one take's rows).
     #[arg(long, num_args = 1..)]
     pub only: Vec<String>,
     /// Worker threads (each evaluates whole files; ms/frame is per worker, so more
@@ -127,11 +128,19 @@ pub fn run(args: &EvalArgs) -> Result<(), CliError> {
             args.only.is_empty() || args.only.iter().any(|o| name.contains(o.as_str()))
         })
         .collect();
-    if files.is_empty() && !args.only.is_empty() {
+    if files.is_empty() && !args.only.is_empty() && !per_action.is_empty() {
         return Err(CliError::Nothing(format!(
-            "no {} file's name contains {}",
+            "no {} file's name contains {}{}",
             if args.train { "training" } else { "held-out" },
-            args.only.join(" or ")
+            args.only.join(" or "),
+            if args.max_files_per_action > 0 {
+                format!(
+                    " among the first {} of each action (--max-files-per-action)",
+                    args.max_files_per_action
+                )
+            } else {
+                String::new()
+            }
         )));
     }
     if files.is_empty() {

@@ -25,12 +25,13 @@ use crate::solver::{FrameFit, InitMethod, Observations, Params};
 
 /// Frames running that the sliding window's initialisation swaps a left/right pair's
 /// maps back at most (a third of a second at 30 frames/s): a detector's swap is an
-/// episode, a "swap" that lasts is the fit on the mirrored side.
+/// episode, a "swap" that lasts is the person's own (the maps then stand). Also how
+/// long a joint's last-seen peak stays the track's reference for it.
 pub const MAX_SWAP_FRAMES: u32 = 10;
 
 /// How much nearer (summed squared distance) a left/right pair's peaks must lie to the
-/// previous frame's swapped than as they are for the sliding window's initialisation to
-/// put them back: at 1, two limbs crossing in the image (a kick seen from the side)
+/// track's previous peaks (each joint's last seen, as put back) swapped than as they are
+/// for the sliding window's initialisation to put them back: at 1, two limbs crossing in the image (a kick seen from the side)
 /// were put back on noise and held the fit on the mirrored side (the held-out kick,
 /// README "Beyond the paper"); on the training files 2 leaves the window's errors as
 /// they were (`posestream eval --train --max-files-per-action 1`).
@@ -494,10 +495,11 @@ impl Estimator {
             *v = f64::from(peak) > self.params.visibility_threshold;
         }
         // A detector's left/right swap (the swap model on): a pair whose peaks (both
-        // seen) lie clearly nearer the previous frame's peaks (as put back) swapped than
-        // as they are is swapped back, for at most `MAX_SWAP_FRAMES` frames running (a
-        // swap that lasts is the person's own turn, not the detector's: the maps then
-        // stand), and not when most pairs are (the same). Against the maps' own past,
+        // seen) lie clearly nearer the track's previous peaks (each joint's last seen,
+        // as put back) swapped than as they are is swapped back, for at most
+        // `MAX_SWAP_FRAMES` frames running (a swap that lasts is the person's own, not
+        // the detector's: the maps then stand), and not when most pairs are (a
+        // whole-body flip of the detector's: the maps stand). Against the maps' own past,
         // not the fit's projection: a fit on a wrong branch would otherwise reorder
         // every new frame to its side, and stay there.
         if let Some((prev, runs)) = previous.filter(|_| self.params.swap_prior > 0.0) {
@@ -751,9 +753,11 @@ mod tests {
         let previous: Vec<f64> = (0..p)
             .flat_map(|j| [home(j) as f64 / scale, 40.0 / scale])
             .collect();
-        // (left's column, right's column, put back?): swapped 0 against 61 as they are;
-        // crossing 41 against 61.
-        for (cl, cr, back) in [(20, 10, true), (16, 15, false)] {
+        // (left's column, right's column, put back?), summed squared distances swapped
+        // against as they are: a clean swap 0 against 200; a swap with noise 25 against
+        // 85 (put back under a margin up to 3.4); crossing 41 against 61 (put back under
+        // a margin of 1).
+        for (cl, cr, back) in [(20, 10, true), (17, 14, true), (16, 15, false)] {
             let mut maps = vec![0.0_f32; p * h * w];
             for j in 0..p {
                 let c = if j == l {

@@ -13,7 +13,7 @@
 //!    times nearer the previous frame's peaks (as put back) swapped than as they are is
 //!    swapped back first (a detector's swap; for at most
 //!    [`MAX_SWAP_FRAMES`](crate::estimator::MAX_SWAP_FRAMES) frames running, and not
-//!    when most pairs are: then the person turned);
+//!    when most pairs are: a whole-body flip of the detector's, the maps stand);
 //! 3. if the window is full, freezes its oldest frame: that frame leaves the window and
 //!    becomes the *anchor*, a fixed neighbour whose coefficients and rotation keep
 //!    pulling the first frame of the window through the smoothness terms
@@ -685,7 +685,7 @@ impl WindowEstimator {
             em: EmWorkspace::default(),
             init: InitWorkspace::default(),
             argmax: vec![0.0; 2 * p],
-            previous: vec![0.0; 2 * p],
+            previous: vec![f64::NAN; 2 * p],
             swap_runs: vec![0; estimator.dictionary().left_right_pairs().len()],
             visible: vec![false; p],
             spare: Vec::new(),
@@ -927,6 +927,7 @@ impl WindowEstimator {
         }
         self.slots.clear();
         self.swap_runs.fill(0);
+        self.previous.fill(f64::NAN);
         self.spare.append(&mut self.fits);
         if let Some(a) = self.anchor.take() {
             self.spare.push(a);

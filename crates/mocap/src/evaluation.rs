@@ -777,7 +777,7 @@ Methods without deviations are left out.\n"
     heads.push("x, y: within 1 / 2 std".into());
     heads.push("z: within 1 / 2 std".into());
     heads.push("factor on x, y / z std for 68.3 % within 1 std".into());
-    heads.push("the same for 95.4 % within 2 std".into());
+    heads.push("the same for 95.45 % within 2 std".into());
     let _ = writeln!(s, "| dictionary | method | {} |", heads.join(" | "));
     let _ = writeln!(s, "|---|---|{}", "---:|".repeat(heads.len()));
     for r in results {

@@ -239,22 +239,8 @@ impl Params {
         }
         check_real("sigma", self.sigma, 0.0, 1e3, true)?;
         // 0 (off), or large enough that no weight underflows.
-        let c = self.confidence_spread;
-        if c != 0.0 && !(c.is_finite() && (1e-3..=1.0).contains(&c)) {
-            return Err(OutOfDomain::new(
-                "confidence_spread",
-                "0 (off), or finite in [0.001, 1]",
-                format!("{c:e}"),
-            ));
-        }
-        let s = self.swap_prior;
-        if s != 0.0 && !(s.is_finite() && (1e-3..=0.5).contains(&s)) {
-            return Err(OutOfDomain::new(
-                "swap_prior",
-                "0 (off), or finite in [0.001, 0.5]",
-                format!("{s:e}"),
-            ));
-        }
+        check_off_or_in("confidence_spread", self.confidence_spread, 1e-3, 1.0)?;
+        check_off_or_in("swap_prior", self.swap_prior, 1e-3, 0.5)?;
         check_real(
             "visibility_threshold",
             self.visibility_threshold,
@@ -458,6 +444,19 @@ pub(crate) fn soft(x: f64, tau: f64) -> f64 {
     } else {
         0.0
     }
+}
+
+/// A switch with a value: 0 (off), or finite in `[lo, hi]` (the error prints the value in
+/// exponent form: a tiny one shows as what it is).
+fn check_off_or_in(key: &str, v: f64, lo: f64, hi: f64) -> Result<(), OutOfDomain> {
+    if v != 0.0 && !(v.is_finite() && (lo..=hi).contains(&v)) {
+        return Err(OutOfDomain::new(
+            key,
+            format!("0 (off), or finite in [{lo}, {hi}]"),
+            format!("{v:e}"),
+        ));
+    }
+    Ok(())
 }
 
 #[cfg(test)]
