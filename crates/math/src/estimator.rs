@@ -25,16 +25,17 @@ use crate::solver::{FrameFit, InitMethod, Observations, Params};
 
 /// Frames running that the sliding window's initialisation swaps a left/right pair's
 /// maps back at most (a third of a second at 30 frames/s): a detector's swap is an
-/// episode, a "swap" that lasts is the person's own (the maps then stand). Also how
-/// long a joint's last-seen peak stays the track's reference for it.
+/// episode, a "swap" that lasts is the person's own (the maps then stand).
 pub const MAX_SWAP_FRAMES: u32 = 10;
 
 /// How much nearer (summed squared distance) a left/right pair's peaks must lie to the
 /// track's previous peaks (each joint's last seen, as put back) swapped than as they are
-/// for the sliding window's initialisation to put them back: at 1, two limbs crossing in the image (a kick seen from the side)
-/// were put back on noise and held the fit on the mirrored side (the held-out kick,
-/// README "Beyond the paper"); on the training files 2 leaves the window's errors as
-/// they were (`posestream eval --train --max-files-per-action 1`).
+/// for the sliding window's initialisation to put them back: at 1, two limbs crossing
+/// in the image (a kick seen from the side) were put back on noise and held the fit on
+/// the mirrored side (the held-out kick, README "Beyond the paper"); on the training
+/// files 2 leaves the window's errors as they were (`posestream eval --train
+/// --max-files-per-action 1`). A joint unseen for a while keeps its last peak as the
+/// reference (no expiry yet).
 pub const SWAP_MARGIN: f64 = 2.0;
 
 /// 2D joints of a sequence in pixels, with optional per-joint confidence in [0, 1].
