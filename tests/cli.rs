@@ -308,7 +308,8 @@ fn a_duration_out_of_its_domain_is_refused_before_anything_starts() {
 }
 
 /// `eval --only` with a name no held-out file has: one error line naming it (and the
-/// `--max-files-per-action` cap that may have hidden the file), no evaluation, no panic.
+/// `--max-files-per-action` cap that may have hidden the file), no evaluation, no panic;
+/// an empty name (every file) is refused.
 #[test]
 fn eval_only_a_name_no_file_has_is_one_clear_error() {
     for (extra, cap) in [(vec![], false), (vec!["--max-files-per-action", "1"], true)] {
@@ -325,4 +326,14 @@ fn eval_only_a_name_no_file_has_is_one_clear_error() {
         assert!(!stderr.contains("panicked"), "{stderr}");
         assert!(output.stdout.is_empty(), "no tables");
     }
+    // An empty name would match every file: refused, not a full evaluation.
+    let output = Command::new(env!("CARGO_BIN_EXE_posestream"))
+        .args(["eval", "--no-scenes", "--only", ""])
+        .current_dir(common::root())
+        .output()
+        .expect("posestream");
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success(), "{stderr}");
+    assert!(stderr.contains("--only"), "{stderr}");
+    assert!(output.stdout.is_empty(), "no tables");
 }

@@ -128,11 +128,20 @@ pub fn run(args: &EvalArgs) -> Result<(), CliError> {
             args.only.is_empty() || args.only.iter().any(|o| name.contains(o.as_str()))
         })
         .collect();
+    if args.only.iter().any(String::is_empty) {
+        return Err(CliError::Usage(
+            "--only \"\" would match every file: name part of a take".into(),
+        ));
+    }
     if files.is_empty() && !args.only.is_empty() && !per_action.is_empty() {
         return Err(CliError::Nothing(format!(
             "no {} file's name contains {}{}",
             if args.train { "training" } else { "held-out" },
-            args.only.join(" or "),
+            args.only
+                .iter()
+                .map(|o| format!("{:?}", o.chars().take(80).collect::<String>()))
+                .collect::<Vec<_>>()
+                .join(" or "),
             if args.max_files_per_action > 0 {
                 format!(
                     " among the first {} of each action (--max-files-per-action)",

@@ -181,7 +181,9 @@ impl StreamSettings {
         check_real("max_gap_seconds", self.max_gap_seconds, 0.0, 3600.0, true)?;
         check_real("std_scale", self.std_scale, 0.0, 1e3, true)?;
         check_real("depth_std_scale", self.depth_std_scale, 0.0, 1e3, true)?;
-        check_real("newest_std_scale", self.newest_std_scale, 0.0, 1e3, true)?;
+        // Not so small that a newest estimate's deviations round to 0 (a consumer
+        // weighting by 1 / std^2 would get infinities).
+        check_real("newest_std_scale", self.newest_std_scale, 1e-3, 1e3, false)?;
         Ok(())
     }
 

@@ -336,6 +336,13 @@ mod tests {
                     ..StreamSettings::default()
                 },
             ),
+            (
+                "newest_std_scale",
+                StreamSettings {
+                    newest_std_scale: 1e-308,
+                    ..StreamSettings::default()
+                },
+            ),
         ] {
             let e = s.check().expect_err(key).to_string();
             assert!(e.contains(key), "{key}: {e}");
