@@ -121,8 +121,15 @@ fn streaming_stays_within_5_percent_of_the_batch_em_at_lag_10_and_15_percent_at_
 fn every_refined_estimate_has_seen_the_newest_frame() {
     let _memory = memory_lock();
     let (maps, _, _) = load("kick.mcap");
-    let settings = StreamSettings::default();
-    assert!(settings.lag_iterations > 0 && settings.window_every > settings.lag);
+    // The lag pass (off by default since 4 local iterations over the newest 3 frames gave
+    // about the same refined error without it at two thirds of the time; README,
+    // "Beyond the paper").
+    let settings = StreamSettings {
+        lag_iterations: 1,
+        ..StreamSettings::default()
+    };
+    assert!(settings.window_every > settings.lag);
+    assert!(settings.local_frames < settings.lag + 1);
     let (size, lag) = (settings.size, settings.lag);
     assert!(maps.frames > 2 * size, "{} frames", maps.frames);
     let mut w = WindowEstimator::new(estimator(), settings).expect("window");
