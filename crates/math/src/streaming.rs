@@ -82,14 +82,15 @@ pub struct StreamSettings {
     pub local_iterations: usize,
     /// EM iterations per new frame over the newest `lag + 1` frames (anchored on the
     /// frame before them), so that every lagged estimate has been solved together with
-    /// all `lag` frames after it. Off by default: beside 4 local iterations over the newest
-    /// 3 frames it bought 0.7 mm at lag 10 on the training motion (47.1 -> 46.4 mm) for
-    /// 46 % more time per frame (README, "Beyond the paper"). (0: none; then only the whole window's EM, every
+    /// all `lag` frames after it (0: none; then only the whole window's EM, every
     /// `window_every` frames, reaches beyond the newest `local_frames`, and most lagged
-    /// estimates go out without it). Runs whatever [`StreamSettings::outputs`] is: it
-    /// refines the newest frames too. No effect when `local_frames >= lag + 1` or
-    /// `local_iterations = 0` (the local EM, or the whole window's on every frame,
-    /// already covers them), nor before the track has `lag + 1` frames.
+    /// estimates go out without it). Off by default: beside 4 local iterations over the
+    /// newest 3 frames it bought 0.7 mm at lag 10 on the training motion (47.1 -> 46.4
+    /// mm) for 46 % more time per frame (README, "Beyond the paper"). Runs whatever
+    /// [`StreamSettings::outputs`] is: it refines the newest frames too. No effect when
+    /// `local_frames >= lag + 1` or `local_iterations = 0` (the local EM, or the whole
+    /// window's on every frame, already covers them), nor before the track has `lag + 1`
+    /// frames.
     pub lag_iterations: usize,
     /// Block-coordinate rounds (coefficients, then rotations) per M-step of that EM
     /// (the batch EM's `max_em_rounds` is 2): one is most of the gain at half the cost.
