@@ -38,6 +38,7 @@ pub fn run(args: &ParityArgs) -> Result<(), CliError> {
         adaptation: reference.adaptation,
         confidence_spread: reference.confidence_spread,
         swap_prior: reference.swap_prior,
+        start_from_window: reference.start_from_window,
         ..args.solver.params()
     };
     let estimator = Estimator::new(dict, params)?;

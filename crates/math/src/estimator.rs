@@ -22,6 +22,7 @@ use crate::solver::perspective::{
     self, PerspectiveFit, PerspectiveParams, PerspectiveWorkspace, start_from_weak_fit,
 };
 use crate::solver::{FrameFit, InitMethod, Observations, Params};
+use crate::streaming::{Estimates, FrameMaps, Outputs, StreamSettings, WindowEstimator};
 
 /// Frames running that the sliding window's initialisation swaps a left/right pair's
 /// maps back at most (a third of a second at 30 frames/s): a detector's swap is an
@@ -411,6 +412,10 @@ impl Estimator {
                 self.heatmap_init(),
             ));
         }
+        if self.params.start_from_window {
+            self.start_from_window(maps, &mut fits)?;
+        }
+        let seconds_init = start.elapsed().as_secs_f64();
         let mut ws = EmWorkspace::default();
         let mut scratch = Observations::new(p, vec![0.0; 2 * p * f]);
         let (mut obs, mut info) = em::run(
@@ -454,7 +459,11 @@ impl Estimator {
         let mut est = self.finish(&dict, fits, obs, scale, Some(variance));
         est.report = Report {
             frames: f,
-            init: self.heatmap_init().to_string(),
+            init: if self.params.start_from_window {
+                format!("{}, then the window", self.heatmap_init())
+            } else {
+                self.heatmap_init().to_string()
+            },
             em_iterations: info.iterations,
             rounds: info.rounds,
             objective_init: info.objective_start,
@@ -464,6 +473,46 @@ impl Estimator {
             seconds: start.elapsed().as_secs_f64(),
         };
         Ok(est)
+    }
+
+    /// The batch EM's start with [`Params::start_from_window`]: each frame's fit as a
+    /// sliding window (the default [`StreamSettings`], lag 10) refined it, over the
+    /// frames' arg-max initialisation in `fits` (kept for a frame the window gave no
+    /// estimate of: its maps hold no evidence). The window's estimates are reused from
+    /// frame to frame: memory stays that of one window whatever the sequence's length.
+    fn start_from_window(
+        &self,
+        maps: &HeatMapSequence,
+        fits: &mut [FrameFit],
+    ) -> Result<(), EstimateError> {
+        let settings = StreamSettings {
+            outputs: Outputs::Lagged,
+            ..StreamSettings::default()
+        };
+        let mut window = WindowEstimator::new(self.clone(), settings)?;
+        let mut out = Estimates::default();
+        // Frames 1/30 s apart: the window's gap rules see consecutive frames.
+        const FRAME_NS: i64 = 33_333_333;
+        let mut take = |out: &Estimates| {
+            for e in out.iter() {
+                if let Some(fit) = usize::try_from(e.sequence)
+                    .ok()
+                    .and_then(|t| fits.get_mut(t))
+                {
+                    fit.clone_from(&e.fit);
+                }
+            }
+        };
+        for t in 0..maps.frames {
+            out.clear();
+            let stamp = i64::try_from(t).map_or(i64::MAX, |t| t.saturating_mul(FRAME_NS));
+            window.push_into(&FrameMaps::of(maps, t, t as u64, stamp), &mut out)?;
+            take(&out);
+        }
+        out.clear();
+        window.finish_into(&mut out);
+        take(&out);
+        Ok(())
     }
 
     /// The per-frame initialisation from heat maps (`map(j)`: joint j's map, `width`
