@@ -62,7 +62,8 @@ pub struct SolverArgs {
     tolerance: f64,
     /// The paper's model, as the authors' release runs it: no fitting of the person's
     /// shape beyond the dictionary, every joint weighing 1 in the EM, no left/right swap
-    /// hypothesis in the E-step (`posestream parity` runs it whatever this says).
+    /// hypothesis in the E-step, the EM from each frame's own initialisation instead of
+    /// a sliding window's pass (`posestream parity` runs it whatever this says).
     #[arg(long)]
     paper: bool,
 }

@@ -476,15 +476,14 @@ impl MapRing {
         (self.start + t) % self.capacity
     }
 
+    /// A ring of `capacity` frames of `joints` maps of `height` x `width`. Its buffers
+    /// grow with the frames pushed ([`MapRing::push_back`]), so a short track costs its
+    /// own frames, not a whole window's; once full it allocates nothing.
     fn configure(&mut self, capacity: usize, joints: usize, height: usize, width: usize) {
-        let n = joints * height * width;
         self.capacity = capacity;
         self.joints = joints;
         self.height = height;
         self.width = width;
-        self.values.resize(capacity * n, 0.0);
-        self.moments
-            .resize(capacity * joints, MapMoments::default());
         self.start = 0;
         self.len = 0;
     }
@@ -504,6 +503,17 @@ impl MapRing {
         let n = self.joints * self.height * self.width;
         let m = self.height * self.width;
         let slot = self.slot(self.len);
+        // Room for the slot: doubling (amortised) up to the capacity, never beyond it.
+        if self.values.len() < (slot + 1) * n {
+            let frames =
+                (2 * (self.values.len() / n.max(1))).clamp(slot + 1, self.capacity.max(slot + 1));
+            self.values.resize(frames * n, 0.0);
+        }
+        if self.moments.len() < (slot + 1) * self.joints {
+            let frames = (self.values.len() / n.max(1)).max(slot + 1);
+            self.moments
+                .resize(frames * self.joints, MapMoments::default());
+        }
         let dst = &mut self.values[slot * n..(slot + 1) * n];
         values.clipped_into(dst);
         for j in 0..self.joints {
@@ -1252,7 +1262,37 @@ impl WindowEstimator {
 
 #[cfg(test)]
 mod tests {
-    use super::{StreamSettings, Sweep};
+    use super::{MapRing, MapSource, Scores, StreamSettings, Sweep};
+
+    /// The ring holds the frames it has been given, not its capacity: a short track (a
+    /// batch EM's start over a one-frame sequence of large maps) must not cost a whole
+    /// window of maps. Full, it keeps its size; cleared and filled again, it grows no
+    /// further.
+    #[test]
+    fn the_map_ring_grows_with_its_frames_up_to_its_capacity() {
+        let (joints, h, w) = (2, 4, 5);
+        let n = joints * h * w;
+        let mut ring = MapRing::default();
+        ring.configure(30, joints, h, w);
+        let frame: Vec<f32> = (0..n).map(|i| i as f32).collect();
+        ring.push_back(&Scores::F32(&frame));
+        assert_eq!(ring.values.len(), n, "one frame");
+        assert_eq!(ring.moments.len(), joints);
+        assert_eq!(ring.map(0, 1), &frame[h * w..2 * h * w]);
+        for _ in 1..30 {
+            ring.push_back(&Scores::F32(&frame));
+        }
+        assert_eq!(ring.values.len(), 30 * n);
+        for _ in 0..40 {
+            ring.pop_front();
+            ring.push_back(&Scores::F32(&frame));
+        }
+        assert_eq!(ring.values.len(), 30 * n, "full: no growth");
+        assert_eq!(ring.map(29, 0), &frame[..h * w]);
+        ring.clear();
+        ring.push_back(&Scores::F32(&frame));
+        assert_eq!(ring.values.len(), 30 * n, "cleared: buffers kept");
+    }
 
     /// The newest estimate's deviations get the whole factor, a refined one none, and
     /// one with part of the lag's frames after it (a track's end) its share.

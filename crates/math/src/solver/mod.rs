@@ -168,12 +168,14 @@ pub struct Params {
     /// than this (relative).
     pub cd_objective_tolerance: f64,
     /// The batch EM on heat maps starts from a sliding window's pass over the sequence
-    /// (each frame's fit as the default window refined it, lag 10) instead of from each
+    /// (each frame's fit as the default window refined it, with
+    /// [`START_LAG`](crate::estimator::START_LAG) frames after it) instead of from each
     /// frame's own initialisation. The window's EMs over few frames, warm-started and
     /// with its left/right reordering of the maps, reach a start the whole sequence's EM
     /// from the arg-maxes does not find: on the training motions the EM's P-MPJPE fell
-    /// 53.0 -> 46.3 mm (README, "Beyond the paper"). It costs the window's time on top
-    /// of the EM's. false: the paper's start.
+    /// 53.0 -> 45.6 mm (README, "Beyond the paper"). It costs the window's time on top
+    /// of the EM's. false: the paper's start. The batch estimator's only (`lift`,
+    /// `eval`): the streaming service has no batch EM.
     pub start_from_window: bool,
     /// The person's shape beyond the dictionary ([`adapt`]).
     pub adaptation: adapt::Adaptation,
