@@ -183,10 +183,10 @@ impl StreamSettings {
         check_range("admit_per_frame", self.admit_per_frame, 1, 10_000)?;
         check_range("max_gap_frames", self.max_gap_frames, 1, 1_000_000)?;
         check_real("max_gap_seconds", self.max_gap_seconds, 0.0, 3600.0, true)?;
-        check_real("std_scale", self.std_scale, 0.0, 1e3, true)?;
-        check_real("depth_std_scale", self.depth_std_scale, 0.0, 1e3, true)?;
-        // Not so small that a newest estimate's deviations round to 0 (a consumer
-        // weighting by 1 / std^2 would get infinities).
+        // None so small that a deviation rounds to 0 (a consumer weighting by 1 / std^2
+        // would get infinities): the calibrated factors are 0.18 / 0.48 / 1.07.
+        check_real("std_scale", self.std_scale, 1e-3, 1e3, false)?;
+        check_real("depth_std_scale", self.depth_std_scale, 1e-3, 1e3, false)?;
         check_real("newest_std_scale", self.newest_std_scale, 1e-3, 1e3, false)?;
         Ok(())
     }

@@ -343,6 +343,20 @@ mod tests {
                     ..StreamSettings::default()
                 },
             ),
+            (
+                "std_scale",
+                StreamSettings {
+                    std_scale: 1e-308,
+                    ..StreamSettings::default()
+                },
+            ),
+            (
+                "depth_std_scale",
+                StreamSettings {
+                    depth_std_scale: 1e-308,
+                    ..StreamSettings::default()
+                },
+            ),
         ] {
             let e = s.check().expect_err(key).to_string();
             assert!(e.contains(key), "{key}: {e}");
