@@ -362,6 +362,9 @@ mod tests {
             "[detector.images]\nmodel = \"huge\"\n",
             "[detector.images]\nperson = [1, 2, 3, 4]\n",
             "[estimator]\ninput = \"zenoh\"\n",
+            "[estimator.params]\nstart_from_window = \"yes\"\n",
+            "[estimator.params]\nstart_from_window = 1\n",
+            "[estimator.params]\nstart_from_windows = false\n",
         ] {
             assert!(toml::from_str::<ServiceConfig>(bad).is_err(), "{bad}");
         }

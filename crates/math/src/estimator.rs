@@ -386,13 +386,21 @@ impl Estimator {
         let f = maps.frames;
         let scale = heatmap_scale(maps.height);
         let prepared = PreparedMaps::new(maps);
-        // Initialise each frame from the arg-max of each map.
-        let mut fits = Vec::with_capacity(f);
+        let mut fits = vec![FrameFit::zero(self.dict.num_bases()); f];
+        // The window's pass first, if the EM starts from it: each frame it fits needs no
+        // initialisation of its own.
+        let mut started = vec![false; f];
+        if solve && self.params.start_from_window {
+            self.start_from_window(maps, &mut fits, &mut started)?;
+        }
+        // Initialise every other frame from the arg-max of each map.
         let mut init_ws = InitWorkspace::default();
         let mut argmax = Observations::new(p, vec![0.0; 2 * p * f]);
         let (mut w, mut visible) = (vec![0.0; 2 * p], vec![false; p]);
-        for t in 0..f {
-            let mut fit = FrameFit::zero(self.dict.num_bases());
+        for (t, fit) in fits.iter_mut().enumerate() {
+            if started[t] {
+                continue;
+            }
             self.initialise_from_argmax(
                 |j| maps.map(t, j),
                 maps.width,
@@ -402,13 +410,12 @@ impl Estimator {
                 &self.params,
                 None,
                 &mut init_ws,
-                &mut fit,
+                fit,
             );
             argmax.xy[2 * p * t..2 * p * (t + 1)].copy_from_slice(&w);
             for (j, &v) in visible.iter().enumerate() {
                 argmax.weights[t * p + j] = if v { 1.0 } else { 0.0 };
             }
-            fits.push(fit);
         }
         let seconds_init = start.elapsed().as_secs_f64();
         if !solve {
@@ -421,10 +428,6 @@ impl Estimator {
                 self.heatmap_init(),
             ));
         }
-        if self.params.start_from_window {
-            self.start_from_window(maps, &mut fits)?;
-        }
-        let seconds_init = start.elapsed().as_secs_f64();
         let mut ws = EmWorkspace::default();
         let mut scratch = Observations::new(p, vec![0.0; 2 * p * f]);
         let (mut obs, mut info) = em::run(
@@ -486,14 +489,15 @@ impl Estimator {
 
     /// The batch EM's start with [`Params::start_from_window`]: each frame's fit as a
     /// sliding window (the default [`StreamSettings`] at lag [`START_LAG`]) refined it,
-    /// over the frames' arg-max initialisation in `fits` (kept for a frame the window
-    /// gave no estimate of: its maps hold no evidence). The window's estimates are
-    /// reused from frame to frame: memory stays that of one window (at most the
-    /// sequence's own frames) whatever the sequence's length.
+    /// into `fits`, with `started` set for each frame the window fitted (a frame whose
+    /// maps hold no evidence gets no estimate: it keeps its own initialisation). The
+    /// window's estimates are reused from frame to frame: memory stays that of one
+    /// window (at most the sequence's own frames) whatever the sequence's length.
     fn start_from_window(
         &self,
         maps: &HeatMapSequence,
         fits: &mut [FrameFit],
+        started: &mut [bool],
     ) -> Result<(), EstimateError> {
         let settings = StreamSettings {
             outputs: Outputs::Lagged,
@@ -506,11 +510,9 @@ impl Estimator {
         const FRAME_NS: i64 = 33_333_333;
         let mut take = |out: &Estimates| {
             for e in out.iter() {
-                if let Some(fit) = usize::try_from(e.sequence)
-                    .ok()
-                    .and_then(|t| fits.get_mut(t))
-                {
-                    fit.clone_from(&e.fit);
+                if let Some(t) = usize::try_from(e.sequence).ok().filter(|&t| t < fits.len()) {
+                    fits[t].clone_from(&e.fit);
+                    started[t] = true;
                 }
             }
         };
