@@ -1,6 +1,6 @@
 """Google's LiteRT (PyPI `ai-edge-litert`, XNNPACK on CPU) on the BlazePose models that
 posestream runs with tract: milliseconds per run, one and two threads, to set beside
-`cargo bench --bench detector` (README, "Image detector").
+`cargo bench --bench detector` (docs/speed.md, "The image detector").
 
 usage: python benches/litert.py MODELS_DIR   (the folder `posestream models fetch` fills)
 """

@@ -2,7 +2,7 @@
 LiteRT (PyPI `ai-edge-litert`) on the BlazePose models, in one run: the models converted
 from TFLite to ONNX by `tf2onnx` (which needs TensorFlow: `pip install tensorflow-cpu
 tf2onnx onnxruntime 'ai-edge-litert==2.3.*'`), milliseconds per run on one and two
-threads, and the largest difference of their outputs (README, "Runtimes").
+threads, and the largest difference of their outputs (docs/image-detector.md, "Runtimes").
 
 usage: python benches/ort_vs_litert.py MODELS_DIR WORK_DIR
 """

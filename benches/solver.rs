@@ -50,7 +50,7 @@ fn bench(c: &mut Criterion) {
     // As `posestream lift` reads them.
     maps.clip_negatives();
     let frames = maps.frames;
-    // The paper's model: the speed-up is against the authors' release (README, "Parity and speed").
+    // The paper's model: the speed-up is against the authors' release (docs/speed.md).
     let est = Estimator::new(dict.clone(), Params::reference()).expect("estimator");
     let keypoints = Keypoints {
         joints: 17,

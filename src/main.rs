@@ -11,7 +11,14 @@ fn main() -> ExitCode {
         .with_writer(std::io::stderr)
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
+                // A Foxglove viewer's misbehaviour (a message on no channel, a connection
+                // reset) is the viewer's, and a remote one could fill the log with it: the
+                // server's per-client lines only when asked for (RUST_LOG).
+                .unwrap_or_else(|_| {
+                    tracing_subscriber::EnvFilter::new(
+                        "warn,foxglove::websocket::connected_client=off",
+                    )
+                }),
         )
         .init();
     cli::process::install_panic_hook();

@@ -1225,7 +1225,7 @@ fn dds_security_lets_the_keystore_s_nodes_talk_and_keeps_everyone_else_out() {
 
     // Not localhost_only: RustDDS's DDS Security loses the keys of unfragmented samples
     // when it routes by loopback only (the recorder got none of 242 skeletons, every
-    // one failing to decrypt; README, "Access control").
+    // one failing to decrypt; docs/access-control.md).
     let domain = test_domain(11);
     let config = |name: &str, keystore: Option<&Path>, node: &str| {
         let security = keystore

@@ -463,7 +463,7 @@ fn refused_frames_and_an_idle_track(on_runtime: bool) {
     use std::time::Duration;
 
     use posestream::nodes::service::{
-        EstimatorOutputs, Middleware, run_estimator, run_estimator_on_runtime,
+        EstimatorOutputs, Middleware, Taps, run_estimator, run_estimator_on_runtime,
     };
     use posestream::transport::memory;
     use posestream::transport::runtime::Blocking;
@@ -479,8 +479,16 @@ fn refused_frames_and_an_idle_track(on_runtime: bool) {
     let recorder = posestream::nodes::service::output_recording(&c)
         .expect("recording")
         .expect("configured");
-    let mut outputs =
-        EstimatorOutputs::open(&c, &mut middleware, Some(&recorder), &node).expect("outputs");
+    let mut outputs = EstimatorOutputs::open(
+        &c,
+        &mut middleware,
+        &Taps {
+            recorder: Some(recorder.clone()),
+            live: None,
+        },
+        &node,
+    )
+    .expect("outputs");
     let (mut sink, source) = memory::channel::<HeatMaps>(256);
     let all = frames("kick.mcap");
     let stop = AtomicBool::new(false);
@@ -867,7 +875,7 @@ fn a_file_that_is_not_a_recording_of_heat_maps_is_one_error() {
         );
     }
     // A cut-short recording: everything complete is replayed, a warning says where it
-    // was cut, and the exit status is 0 (README, "Limits and failure behaviour").
+    // was cut, and the exit status is 0 (docs/limits.md).
     let (_, bytes) = chunked(dir.path());
     let cut = dir.path().join("cut.mcap");
     let third = records(&bytes)

@@ -734,6 +734,13 @@ fn what_a_new_user_gets_wrong_is_one_clear_error() {
         &[],
         "not a video",
     );
+    // No ffmpeg on the PATH: the error names the package to install.
+    let video = s(&f.video);
+    expect_error(
+        &["run", "--video", video, "--ros2", "false"],
+        &[("PATH", dir.path())],
+        "apt install ffmpeg",
+    );
     // LiteRT asked for, without its library, or with a file that is not it.
     let run_litert = [
         "run",
@@ -830,7 +837,7 @@ fn camera_images_on_a_ros2_topic_become_heat_maps() {
     let mut middleware = Middleware::open(&c, detector_transport(&c)).expect("ros");
     let DetectorInput {
         mut source, stats, ..
-    } = detector_input(&c, &mut middleware).expect("input");
+    } = detector_input(&c, &mut middleware, None).expect("input");
     // A camera node publishes the photos, scaled down, as rgb8 and bgr8 images.
     let mut camera_settings = c.ros.clone();
     camera_settings.node_name = "camera".into();

@@ -198,7 +198,7 @@ fn with_the_camera_known_skeletons_are_metres_where_the_person_stands() {
     assert_eq!(again, skeletons);
     let e = errors_of(&skeletons, &truth, 0);
     eprintln!("{e:?}");
-    // Measured when written (README, "Metres"): 348 frames, MPJPE 0.347 m, root-aligned
+    // Measured when written (docs/metric.md): 348 frames, MPJPE 0.347 m, root-aligned
     // 0.127 m, pelvis 0.302 m off, depth 6.0 %, 93 % / 99 % within 1 / 2 std. The
     // bounds leave room for run-to-run changes of the solver, not for a lost metric
     // step (dictionary units, or a body at the wrong depth, are off by metres).
@@ -236,8 +236,8 @@ fn without_a_camera_skeletons_stay_in_dictionary_units_and_say_so() {
     for s in &skeletons {
         assert_eq!(s.units, Units::Dictionary as u8);
         assert_eq!(s.position_std.len(), s.positions.len());
-        // One spread per joint, the same on x and y, wider in depth (README, "Beyond the
-        // paper": the calibrated factors).
+        // One spread per joint, the same on x and y, wider in depth
+        // (docs/beyond-the-paper.md: the calibrated factors).
         assert!(
             s.position_std.chunks_exact(3).all(|v| v[0] == v[1]
                 && v[2] > v[0]
@@ -338,8 +338,16 @@ fn the_estimator_takes_the_camera_from_a_ros2_camera_info_topic() {
     let mut node = EstimatorNode::from_config(&c.estimator).expect("node");
     let mut middleware = Middleware::open(&c, Some(Transport::Ros2)).expect("middleware");
     let recorder = service::output_recording(&c).expect("recording");
-    let mut outputs =
-        EstimatorOutputs::open(&c, &mut middleware, recorder.as_ref(), &node).expect("outputs");
+    let mut outputs = EstimatorOutputs::open(
+        &c,
+        &mut middleware,
+        &service::Taps {
+            recorder: recorder.clone(),
+            live: None,
+        },
+        &node,
+    )
+    .expect("outputs");
     let source = middleware
         .estimator_input(&c, Transport::Ros2)
         .expect("source");
@@ -438,7 +446,7 @@ fn two_people_crossing_a_room_are_two_tracks_in_metres_that_never_mix() {
             .collect();
         assert_eq!(mine, theirs, "track {track}");
     }
-    // Measured when written (README, "Metres"): person 0 (kick) 0.347 m MPJPE, 0.098 m
+    // Measured when written (docs/metric.md): person 0 (kick) 0.347 m MPJPE, 0.098 m
     // root-aligned, pelvis 0.313 m, depth 6.3 %; person 1 (byebye, 6 m away, walking)
     // 0.246 m, 0.064 m, 0.241 m, 4.0 % (partly hidden by person 0). The bounds are
     // those of one person.
@@ -625,7 +633,7 @@ fn the_scenes_command_reports_every_person_and_the_tracker_s_ids() {
         assert!(overlap > 0.3, "{line}");
     }
     // Seven people in all, each with 111 refined frames and errors within the bounds
-    // of one person alone (README, "Metres").
+    // of one person alone (docs/metric.md).
     let rows: Vec<Vec<&str>> = text
         .lines()
         .filter(|l| l.starts_with("| ") && !l.starts_with("| person"))

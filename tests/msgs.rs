@@ -65,6 +65,10 @@ fn every_msg_file_declares_exactly_the_fields_of_its_rust_type() {
         parse_definition(v::MeshFile::DEFINITION),
         fields_of::<v::MeshFile>()
     );
+    assert_eq!(
+        parse_definition(v::ImageMarker::DEFINITION),
+        fields_of::<v::ImageMarker>()
+    );
     // The files on disk are the ones compiled in (msgs/ is a ROS 2 package).
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
     for (file, text) in [

@@ -94,8 +94,16 @@ fn spawn_estimator(
     let mut node = EstimatorNode::from_config(&c.estimator).expect("node");
     let mut middleware = Middleware::open(&c, Some(input)).expect("middleware");
     let recorder = service::output_recording(&c).expect("recording");
-    let mut outputs =
-        EstimatorOutputs::open(&c, &mut middleware, recorder.as_ref(), &node).expect("outputs");
+    let mut outputs = EstimatorOutputs::open(
+        &c,
+        &mut middleware,
+        &service::Taps {
+            recorder: recorder.clone(),
+            live: None,
+        },
+        &node,
+    )
+    .expect("outputs");
     let source = middleware.estimator_input(&c, input).expect("source");
     common::spawn("estimator", move || {
         let report = serve_estimator(&mut node, source, &mut outputs, stop).expect("serves");
@@ -110,7 +118,8 @@ fn spawn_estimator(
 
 fn detector(c: &ServiceConfig) -> (Middleware, service::Publishers<posestream::msgs::HeatMaps>) {
     let mut middleware = Middleware::open(c, None).expect("middleware");
-    let sinks = service::detector_outputs(c, &mut middleware, None).expect("outputs");
+    let sinks =
+        service::detector_outputs(c, &mut middleware, &service::Taps::default()).expect("outputs");
     (middleware, sinks)
 }
 

@@ -132,8 +132,8 @@ fn every_refined_estimate_has_seen_the_newest_frame() {
     let _memory = memory_lock();
     let (maps, _, _) = load("kick.mcap");
     // The lag pass (off by default since 4 local iterations over the newest 3 frames gave
-    // about the same refined error without it at two thirds of the time; README,
-    // "Beyond the paper").
+    // about the same refined error without it at two thirds of the time;
+    // docs/beyond-the-paper.md).
     let settings = StreamSettings {
         lag_iterations: 1,
         ..StreamSettings::default()

@@ -1,9 +1,6 @@
 //! `posestream detector`: the detector node as a service.
 
-use std::path::PathBuf;
-
 use clap::Args;
-use posestream::nodes::ServiceConfig;
 use posestream::nodes::service::{self, Wiring, run_detector_on_runtime};
 
 use super::CliError;
@@ -12,12 +9,15 @@ use super::service::{SourceArgs, print, stop_flag};
 /// Options of `detector`.
 #[derive(Debug, Args)]
 pub struct DetectorArgs {
-    /// Service configuration.
-    #[arg(long, default_value = "config/default.toml")]
-    pub config: PathBuf,
+    /// The service configuration (`--config FILE`).
+    #[command(flatten)]
+    pub config: super::config::ConfigArgs,
     /// The source.
     #[command(flatten)]
     pub source: SourceArgs,
+    /// The live view (`--foxglove`).
+    #[command(flatten)]
+    pub live: super::config::LiveArgs,
     /// Print the report as JSON.
     #[arg(long)]
     pub json: bool,
@@ -26,7 +26,8 @@ pub struct DetectorArgs {
 /// Runs `detector`: heat maps from the configured source (a recording replayed, or the
 /// image detector on images) published to `[outputs]`.
 pub fn run(args: &DetectorArgs) -> Result<(), CliError> {
-    let mut config = ServiceConfig::load(&args.config)?;
+    let mut config = args.config.load()?;
+    args.live.apply(&mut config);
     args.source.apply(&mut config);
     config.ros.or_named("posestream_detector");
     let stop = stop_flag();

@@ -1,12 +1,11 @@
 //! `posestream estimator`: the estimator node as a service.
 
-use std::path::PathBuf;
 use std::time::Duration;
 
 use clap::Args;
+use posestream::nodes::EstimatorNode;
 use posestream::nodes::config::Transport;
 use posestream::nodes::service::{Wiring, serve_estimator};
-use posestream::nodes::{EstimatorNode, ServiceConfig};
 
 use super::CliError;
 use super::service::{print, stop_after, stop_flag};
@@ -14,9 +13,12 @@ use super::service::{print, stop_after, stop_flag};
 /// Options of `estimator`.
 #[derive(Debug, Args)]
 pub struct EstimatorArgs {
-    /// Service configuration.
-    #[arg(long, default_value = "config/default.toml")]
-    pub config: PathBuf,
+    /// The service configuration (`--config FILE`).
+    #[command(flatten)]
+    pub config: super::config::ConfigArgs,
+    /// The live view (`--foxglove`).
+    #[command(flatten)]
+    pub live: super::config::LiveArgs,
     /// Where to read heat maps (overrides `estimator.input`).
     #[arg(long, value_enum)]
     pub input: Option<Transport>,
@@ -30,7 +32,8 @@ pub struct EstimatorArgs {
 
 /// Runs `estimator`: heat maps from ROS 2 or iceoryx2, skeletons to `[outputs]`.
 pub fn run(args: &EstimatorArgs) -> Result<(), CliError> {
-    let mut config = ServiceConfig::load(&args.config)?;
+    let mut config = args.config.load()?;
+    args.live.apply(&mut config);
     config.ros.or_named("posestream_estimator");
     let stop = stop_flag();
     let input = args.input.unwrap_or(config.estimator.input);

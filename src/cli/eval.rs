@@ -18,10 +18,10 @@ use super::{CliError, progress_bar};
 #[derive(Debug, Args)]
 pub struct EvalArgs {
     /// Skeleton mapping of the BVH files.
-    #[arg(long, default_value = "config/skeletons/bandai-namco.toml")]
+    #[arg(long, default_value = "builtin:skeletons/bandai-namco.toml")]
     pub mapping: PathBuf,
     /// Train/test split: its held-out files are evaluated.
-    #[arg(long, default_value = "config/splits/bandai-namco.toml")]
+    #[arg(long, default_value = "builtin:splits/bandai-namco.toml")]
     pub split: PathBuf,
     /// BVH files or folders.
     #[arg(
@@ -35,7 +35,7 @@ pub struct EvalArgs {
         long,
         num_args = 1..,
         default_values = [
-            "ours K128=config/dictionaries/default-k128.json",
+            "ours K128=builtin:dictionaries/default-k128.json",
             "authors' K128=../shared/reference/monocap-dicts/poseDict-all-K128.mat"
         ]
     )]
@@ -80,6 +80,9 @@ pub fn run(args: &EvalArgs) -> Result<(), CliError> {
     if args.max_frames == 0 {
         return Err(CliError::Usage("--max-frames must be at least 1".into()));
     }
+    for data in &args.data {
+        super::data_at(data, "the motion capture (BVH) to evaluate on", "--data")?;
+    }
     // The scenes run after the tables: their takes are checked first.
     let scenes = if args.no_scenes {
         None
@@ -97,7 +100,7 @@ pub fn run(args: &EvalArgs) -> Result<(), CliError> {
             Some((l, p)) => (l.to_string(), PathBuf::from(p)),
             None => (spec.clone(), PathBuf::from(spec)),
         };
-        let d = Dictionary::load(&path)?;
+        let d = posestream::msgs::shipped::load_dictionary(&path)?;
         if !same_layout(&d.skeleton().joints, &mapping.layout.joints) {
             return Err(CliError::Usage(format!(
                 "{}: its joints ({}) are not the mapping's layout ({})",

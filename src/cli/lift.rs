@@ -6,8 +6,8 @@ use clap::Args;
 use posestream::npy::{self, Array};
 use posestream::solver::perspective::PerspectiveParams;
 use posestream::{
-    ArrayError, CropBox, Dictionary, Estimate, EstimateError, Estimator, HeatMapSequence,
-    Intrinsics, Keypoints, PixelMap, metrics,
+    ArrayError, CropBox, Estimate, EstimateError, Estimator, HeatMapSequence, Intrinsics,
+    Keypoints, PixelMap, metrics,
 };
 
 use super::CliError;
@@ -134,7 +134,7 @@ pub(super) fn read_heatmaps(path: &Path, p: usize) -> Result<HeatMapSequence, Cl
 
 /// Runs `lift`.
 pub fn run(args: &LiftArgs) -> Result<(), CliError> {
-    let dict = Dictionary::load(&args.dict)?;
+    let dict = posestream::msgs::shipped::load_dictionary(&args.dict)?;
     let p = dict.num_joints();
     let estimator = Estimator::new(dict, args.solver.params())?;
     // Read everything before the (long) solve, so bad input fails at once.

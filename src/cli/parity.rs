@@ -1,11 +1,11 @@
 //! `posestream parity`: the estimator on the reference parity fixtures, compared with
-//! the authors' MATLAB results (README, "Parity and speed").
+//! the authors' MATLAB results (docs/speed.md).
 
 use std::path::PathBuf;
 
 use clap::Args;
 use posestream::npy::{self, Array};
-use posestream::{ArrayError, Dictionary, Estimator, Keypoints, metrics};
+use posestream::{ArrayError, Estimator, Keypoints, metrics};
 
 use super::CliError;
 use super::lift::{read_heatmaps, read_keypoints};
@@ -30,7 +30,17 @@ pub struct ParityArgs {
 
 /// Runs `parity`.
 pub fn run(args: &ParityArgs) -> Result<(), CliError> {
-    let dict = Dictionary::load(&args.dict)?;
+    super::data_at(
+        &args.fixtures,
+        "the parity fixtures (inputs and the authors' outputs)",
+        "--fixtures",
+    )?;
+    super::data_at(
+        &args.dict,
+        "the authors' dictionary the fixtures were made with",
+        "--dict",
+    )?;
+    let dict = posestream::msgs::shipped::load_dictionary(&args.dict)?;
     let p = dict.num_joints();
     // Parity is with the authors' release: the paper's model.
     let reference = posestream::Params::reference();

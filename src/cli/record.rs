@@ -5,7 +5,6 @@ use std::time::Duration;
 
 use clap::Args;
 use posestream::msgs::{HeatMaps, MarkerArray, Skeleton3D};
-use posestream::nodes::ServiceConfig;
 use posestream::nodes::service::{self, record_step};
 use posestream::recording::write_rosbag2_metadata;
 use posestream::transport::mcap::SharedRecorder;
@@ -20,9 +19,9 @@ use super::service::{Summary, print, stop_flag};
 pub struct RecordArgs {
     /// Output recording (MCAP).
     pub out: PathBuf,
-    /// Service configuration (topics, ROS 2 domain and QoS).
-    #[arg(long, default_value = "config/default.toml")]
-    pub config: PathBuf,
+    /// The service configuration (`--config FILE`).
+    #[command(flatten)]
+    pub config: super::config::ConfigArgs,
     /// Topics to record.
     #[arg(long, value_enum, value_delimiter = ',', default_values = ["skeletons", "markers"])]
     pub topics: Vec<RecordTopic>,
@@ -59,7 +58,7 @@ struct RecordReport {
 
 /// Runs `record`: ROS 2 topics into an MCAP recording.
 pub fn run(args: &RecordArgs) -> Result<(), CliError> {
-    let mut config = ServiceConfig::load(&args.config)?;
+    let mut config = args.config.load()?;
     config.ros.or_named("posestream_recorder");
     let stop = stop_flag();
     let ros = Ros2::new(&config.ros)?;

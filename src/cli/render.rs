@@ -9,7 +9,6 @@ use clap::Args;
 use image::codecs::gif::{GifEncoder, Repeat};
 use image::{Delay, Frame};
 use posestream::msgs::{HeatMaps, Skeleton3D};
-use posestream::nodes::ServiceConfig;
 use posestream::nodes::config::DetectorSource;
 use posestream::nodes::images::image_frames;
 use posestream::recording::read_topic;
@@ -32,9 +31,9 @@ pub struct RenderArgs {
     /// The run's images: a video file.
     #[arg(long, group = "frames")]
     pub video: Option<PathBuf>,
-    /// Service configuration (topics, dictionary, image source).
-    #[arg(long, default_value = "config/default.toml")]
-    pub config: PathBuf,
+    /// The service configuration (`--config FILE`).
+    #[command(flatten)]
+    pub config: super::config::ConfigArgs,
     /// The frame of a PNG (sequence number; default: the middle frame with a skeleton).
     #[arg(long)]
     pub frame: Option<u64>,
@@ -57,7 +56,7 @@ pub struct RenderArgs {
 
 /// Runs `render`.
 pub fn run(args: &RenderArgs) -> Result<(), CliError> {
-    let mut config = ServiceConfig::load(&args.config)?;
+    let mut config = args.config.load()?;
     if let Some(p) = &args.images {
         config.detector.source = DetectorSource::Images;
         config.detector.images.path = p.clone();
@@ -80,7 +79,7 @@ pub fn run(args: &RenderArgs) -> Result<(), CliError> {
         Some(e) if e.eq_ignore_ascii_case("png") => false,
         _ => return Err(CliError::Usage("--output must end in .png or .gif".into())),
     };
-    let dictionary = posestream::Dictionary::load(&config.estimator.dictionary)?;
+    let dictionary = posestream::msgs::shipped::load_dictionary(&config.estimator.dictionary)?;
     let bones: Vec<(usize, usize)> = dictionary.skeleton().bones().collect();
     // Per frame and person, the estimate to draw: the most refined one unless --newest.
     let mut skeletons: BTreeMap<u64, BTreeMap<u32, Skeleton3D>> = BTreeMap::new();

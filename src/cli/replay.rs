@@ -4,7 +4,6 @@
 use std::path::PathBuf;
 
 use clap::Args;
-use posestream::nodes::ServiceConfig;
 use posestream::nodes::config::ReplayRate;
 use posestream::nodes::replay::{ReplayOptions, replay};
 
@@ -14,18 +13,24 @@ use super::service::stop_flag;
 /// Options of `replay`.
 #[derive(Debug, Args)]
 pub struct ReplayArgs {
-    /// The recording (MCAP) holding heat-map messages.
+    /// The recording (MCAP) holding heat-map messages (default: the demo recording
+    /// built into the binary).
+    #[arg(default_value = "builtin:recordings/byebye.mcap")]
     pub input: PathBuf,
-    /// Service configuration.
-    #[arg(long, default_value = "config/default.toml")]
-    pub config: PathBuf,
+    /// The service configuration (`--config FILE`).
+    #[command(flatten)]
+    pub config: super::config::ConfigArgs,
+    /// The live view (`--foxglove`).
+    #[command(flatten)]
+    pub live: super::config::LiveArgs,
     /// Record the skeletons (and the input's ground truth) to this MCAP file.
     #[arg(long)]
     pub record: Option<PathBuf>,
     /// Also write a rosbag2 `metadata.yaml` next to the recording.
     #[arg(long, requires = "record")]
     pub rosbag2: bool,
-    /// Pace (overrides the configuration's `replay.rate`).
+    /// Pace (overrides the configuration's `replay.rate`; with `--foxglove`, recorded
+    /// unless given).
     #[arg(long, value_enum)]
     pub rate: Option<ReplayRate>,
     /// Print the report as JSON.
@@ -35,12 +40,20 @@ pub struct ReplayArgs {
 
 /// Runs `replay`. Ctrl-C stops it and still finalises the output.
 pub fn run(args: &ReplayArgs) -> Result<(), CliError> {
-    let config = ServiceConfig::load(&args.config)?;
+    let mut config = args.config.load()?;
+    args.live.apply(&mut config);
     let stop = stop_flag();
     let options = ReplayOptions {
         record: args.record.clone(),
         rosbag2: args.rosbag2,
-        rate: args.rate.unwrap_or(config.replay.rate),
+        // A live view is watched: at the recorded pace unless asked otherwise.
+        rate: args
+            .rate
+            .unwrap_or(if config.outputs.foxglove.trim().is_empty() {
+                config.replay.rate
+            } else {
+                ReplayRate::Recorded
+            }),
     };
     let report = replay(&config, &args.input, &options, &stop)?;
     if args.json {

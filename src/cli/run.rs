@@ -3,7 +3,6 @@
 use std::path::PathBuf;
 
 use clap::Args;
-use posestream::nodes::ServiceConfig;
 use posestream::nodes::service;
 
 use super::CliError;
@@ -12,12 +11,15 @@ use super::service::{SourceArgs, print, stop_flag};
 /// Options of `run`.
 #[derive(Debug, Args)]
 pub struct RunArgs {
-    /// Service configuration.
-    #[arg(long, default_value = "config/default.toml")]
-    pub config: PathBuf,
+    /// The service configuration (`--config FILE`).
+    #[command(flatten)]
+    pub config: super::config::ConfigArgs,
     /// The source.
     #[command(flatten)]
     pub source: SourceArgs,
+    /// The live view (`--foxglove`).
+    #[command(flatten)]
+    pub live: super::config::LiveArgs,
     /// Record the outputs (and the heat maps) to this MCAP file (overrides
     /// `outputs.record`).
     #[arg(long)]
@@ -32,7 +34,8 @@ pub struct RunArgs {
 
 /// Runs `run`: detector and estimator in one process.
 pub fn run(args: &RunArgs) -> Result<(), CliError> {
-    let mut config = ServiceConfig::load(&args.config)?;
+    let mut config = args.config.load()?;
+    args.live.apply(&mut config);
     args.source.apply(&mut config);
     if let Some(r) = &args.record {
         config.outputs.record = r.clone();

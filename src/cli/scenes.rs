@@ -20,7 +20,6 @@ use posestream::detector::tracker::{Observation, Tracker, TrackingSettings, iou}
 use posestream::metrics::p_mpjpe;
 use posestream::msgs::sensor::CameraInfo;
 use posestream::msgs::{HeatMaps, Skeleton3D, SkeletonState, Units};
-use posestream::nodes::ServiceConfig;
 use posestream::nodes::config::{ReplayRate, Topics};
 use posestream::nodes::replay::{ReplayOptions, replay};
 use posestream::recording::{Recorder, read_topic};
@@ -31,11 +30,11 @@ use super::synth::SynthArgs;
 /// Options of `scenes`.
 #[derive(Debug, Args)]
 pub struct ScenesArgs {
-    /// Service configuration (its estimator runs the scenes).
-    #[arg(long, default_value = "config/default.toml")]
-    pub config: PathBuf,
+    /// The service configuration (`--config FILE`).
+    #[command(flatten)]
+    pub config: super::config::ConfigArgs,
     /// Skeleton mapping of the BVH files.
-    #[arg(long, default_value = "config/skeletons/bandai-namco.toml")]
+    #[arg(long, default_value = "builtin:skeletons/bandai-namco.toml")]
     pub mapping: PathBuf,
     /// Folder of the held-out takes (Bandai-Namco dataset 1).
     #[arg(long, default_value = "../shared/data/mocap/bandai-namco-1")]
@@ -269,6 +268,11 @@ fn errors(
 
 /// Runs `scenes`.
 pub fn run(args: &ScenesArgs) -> Result<(), CliError> {
+    super::data_at(
+        &args.data,
+        "the held-out takes the scenes are made of",
+        "--data",
+    )?;
     let text = markdown(args)?;
     print!("{text}");
     if let Some(out) = &args.out {
@@ -314,7 +318,7 @@ impl ScenesArgs {
                 posestream::mocap::Bvh::load(&take)?;
             }
         }
-        ServiceConfig::load(&args.config)?;
+        args.config.load()?;
         std::fs::create_dir_all(&args.work).map_err(|source| CliError::File {
             path: args.work.clone(),
             source,
@@ -325,7 +329,7 @@ impl ScenesArgs {
 
 /// The scenes evaluated: a markdown section (`## People in the room`).
 pub fn markdown(args: &ScenesArgs) -> Result<String, CliError> {
-    let mut config = ServiceConfig::load(&args.config)?;
+    let mut config = args.config.load()?;
     config.estimator.metric.mean_limb_length = args.mean_limb_length;
     config.outputs.ros2 = false;
     config

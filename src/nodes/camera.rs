@@ -1,7 +1,7 @@
 //! The calibration an image source without one is assumed to have: a pinhole camera of
 //! `[detector.images] field_of_view` (horizontal, degrees) centred on each image, as
 //! `sensor_msgs/CameraInfo`, so that skeletons of folders and videos come out in metres
-//! (under that assumption, which the README states). A real camera (`ros2` and
+//! (under that assumption, which docs/metric.md states). A real camera (`ros2` and
 //! `image-recording` sources) has its own calibration on `topics.camera_info`.
 //!
 //! The detector's thread writes the calibration of each image into a [`CameraTap`]

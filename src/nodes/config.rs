@@ -1,6 +1,11 @@
 //! The service configuration (`config/default.toml`): every parameter of the estimator,
 //! the window, the detector's replay source, topics, ROS 2 (domain, QoS), iceoryx2
 //! services, outputs and replay. Unknown keys are errors.
+//!
+//! The defaults are built into the binary ([`ServiceConfig::default`], the same values
+//! as the shipped file); a file given with `--config` overlays only the keys it sets
+//! ([`ServiceConfig::load_or_default`]), and [`ServiceConfig::annotated`] writes the
+//! effective configuration with where each value came from (`posestream config`).
 
 use std::path::{Path, PathBuf};
 
@@ -62,7 +67,7 @@ impl Default for DetectorConfig {
     fn default() -> Self {
         Self {
             source: DetectorSource::Recording,
-            recording: PathBuf::from("recordings/byebye.mcap"),
+            recording: PathBuf::from("builtin:recordings/byebye.mcap"),
             rate: ReplayRate::Recorded,
             repeat: 1,
             images: ImageSettings::default(),
@@ -133,6 +138,9 @@ pub struct OutputsConfig {
     pub hri_roi: HriRoi,
     /// Also record everything published to this MCAP file (empty: no recording).
     pub record: PathBuf,
+    /// Also serve everything published to the Foxglove app, live (the Foxglove WebSocket
+    /// protocol, read-only for its clients), on this address (`HOST:PORT`; empty: no).
+    pub foxglove: String,
 }
 
 impl Default for OutputsConfig {
@@ -146,11 +154,85 @@ impl Default for OutputsConfig {
             hri: true,
             hri_roi: HriRoi::Pixels,
             record: PathBuf::new(),
+            foxglove: String::new(),
         }
     }
 }
 
+/// The environment variables that override configuration keys when a node starts (ROS 2's
+/// conventions), with the key each overrides.
+pub const ENVIRONMENT_OVERRIDES: &[(&str, &str)] = &[
+    ("ROS_DOMAIN_ID", "ros.domain_id"),
+    ("ROS_LOCALHOST_ONLY", "ros.localhost_only (when 1)"),
+    (
+        "ROS_AUTOMATIC_DISCOVERY_RANGE",
+        "ros.localhost_only (when LOCALHOST)",
+    ),
+    ("ROS_SECURITY_ENABLE", "ros.security.enable (when true)"),
+    ("ROS_SECURITY_KEYSTORE", "ros.security.keystore"),
+    ("ROS_SECURITY_ENCLAVE_OVERRIDE", "ros.security.enclave"),
+    (
+        "POSESTREAM_LITERT",
+        "detector.images.litert_library (when empty)",
+    ),
+    (
+        "POSESTREAM_MODELS",
+        "detector.images.models_dir (when empty)",
+    ),
+];
+
 impl ServiceConfig {
+    /// The built-in defaults overlaid with the keys `path` sets (`None`: the defaults),
+    /// every value checked.
+    pub fn load_or_default(path: Option<&Path>) -> Result<Self, ConfigError> {
+        match path {
+            Some(path) => Self::load(path),
+            None => Ok(Self::default()),
+        }
+    }
+
+    /// The configuration as TOML, every key with where its value came from: `# default`
+    /// (built in), or `# FILE` for the keys `file` (the overlay's path and its parsed
+    /// text) sets. Sections and keys in the order of the shipped file.
+    pub fn annotated(&self, file: Option<(&Path, &toml::Table)>) -> Result<String, String> {
+        let full = toml::to_string(self).map_err(|e| e.to_string())?;
+        let origin = file.map(|(p, _)| p.display().to_string());
+        let mut section: Vec<String> = Vec::new();
+        let mut out = String::new();
+        for line in full.lines().filter(|l| !l.trim().is_empty()) {
+            if let Some(header) = line.strip_prefix('[').and_then(|l| l.strip_suffix(']')) {
+                section = header.split('.').map(str::to_string).collect();
+                if !out.is_empty() {
+                    out.push('\n');
+                }
+                out.push_str(line);
+                out.push('\n');
+                continue;
+            }
+            let Some((key, _)) = line.split_once(" = ") else {
+                out.push_str(line);
+                out.push('\n');
+                continue;
+            };
+            let set_in_file = file.is_some_and(|(_, table)| {
+                let mut t = table;
+                for name in &section {
+                    match t.get(name).and_then(toml::Value::as_table) {
+                        Some(inner) => t = inner,
+                        None => return false,
+                    }
+                }
+                t.contains_key(key.trim().trim_matches('"'))
+            });
+            let from = match (&origin, set_in_file) {
+                (Some(path), true) => path.as_str(),
+                _ => "default",
+            };
+            out.push_str(&format!("{line:<40} # {from}\n"));
+        }
+        Ok(out)
+    }
+
     /// Reads a configuration file and checks every value is in its domain.
     pub fn load(path: impl AsRef<Path>) -> Result<Self, ConfigError> {
         Self::checked(load_toml(path.as_ref())?, path.as_ref())
@@ -190,6 +272,7 @@ impl ServiceConfig {
             ("skeletons", &t.skeletons),
             ("skeleton_arrays", &t.skeleton_arrays),
             ("markers", &t.markers),
+            ("image_markers", &t.image_markers),
             ("ground_truth", &t.ground_truth),
             ("camera_info", &t.camera_info),
             ("tf", &t.tf),
@@ -219,10 +302,40 @@ impl ServiceConfig {
                 .within("topics"));
             }
         }
+        if !self.outputs.foxglove.trim().is_empty() {
+            socket_address(&self.outputs.foxglove).map_err(|domain| {
+                crate::error::OutOfDomain::new(
+                    "foxglove",
+                    domain,
+                    format!("{:?}", self.outputs.foxglove),
+                )
+                .within("outputs")
+            })?;
+        }
         self.ros.check().map_err(|x| x.within("ros"))?;
         self.iceoryx2.check().map_err(|x| x.within("iceoryx2"))?;
         self.limits.check().map_err(|x| x.within("limits"))?;
         Ok(())
+    }
+}
+
+/// An address to serve on: `HOST:PORT` with an IP address or `localhost` (IPv6 in
+/// brackets); the error says what is expected.
+pub fn socket_address(text: &str) -> Result<std::net::SocketAddr, String> {
+    let expected = || {
+        "HOST:PORT with an IP address or localhost (127.0.0.1:8765, 0.0.0.0:8765, [::1]:8765)"
+            .to_string()
+    };
+    let text = text.trim();
+    if let Ok(address) = text.parse::<std::net::SocketAddr>() {
+        return Ok(address);
+    }
+    match text.rsplit_once(':') {
+        Some((host, port)) if host.eq_ignore_ascii_case("localhost") => port
+            .parse::<u16>()
+            .map(|p| std::net::SocketAddr::from(([127, 0, 0, 1], p)))
+            .map_err(|_| expected()),
+        _ => Err(expected()),
     }
 }
 
@@ -248,7 +361,7 @@ pub struct EstimatorConfig {
 impl Default for EstimatorConfig {
     fn default() -> Self {
         Self {
-            dictionary: PathBuf::from("config/dictionaries/default-k128.json"),
+            dictionary: PathBuf::from("builtin:dictionaries/default-k128.json"),
             params: Params::default(),
             window: StreamSettings::default(),
             input: Transport::Ros2,
@@ -270,6 +383,9 @@ pub struct Topics {
     pub skeleton_arrays: String,
     /// The skeletons as markers for RViz2 and Foxglove.
     pub markers: String,
+    /// Each image's skeletons drawn over it (`visualization_msgs/ImageMarker`, image
+    /// pixels), with `[outputs] markers`.
+    pub image_markers: String,
     /// Ground-truth skeletons in synthetic recordings.
     pub ground_truth: String,
     /// The camera's calibration (`sensor_msgs/CameraInfo`) beside the heat maps: the
@@ -289,6 +405,7 @@ impl Default for Topics {
             skeletons: "/posestream/skeletons".into(),
             skeleton_arrays: "/posestream/skeleton_arrays".into(),
             markers: "/posestream/markers".into(),
+            image_markers: "/posestream/image_markers".into(),
             ground_truth: "/posestream/ground_truth".into(),
             camera_info: "/camera/camera_info".into(),
             tf: "/tf".into(),

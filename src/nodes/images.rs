@@ -14,10 +14,60 @@ use crate::detector::{DetectorStats, ImageDetector};
 use crate::images::{DecodedImages, FolderSource, ImageFrame, VideoSource};
 use crate::msgs::sensor::CameraInfo;
 use crate::msgs::{CompressedImage, Header, HeatMapEncoding, HeatMaps, Image, Time};
+use crate::transport::Sink;
+use crate::transport::foxglove::LiveSink;
 use crate::transport::mcap::McapSource;
 use crate::transport::read_ahead::ReadAhead;
 use crate::transport::ros2::Ros2;
 use crate::transport::{Received, Source, TransportError};
+
+/// How long a live camera may send nothing before the detector says so.
+pub const QUIET_CAMERA: Duration = Duration::from_secs(5);
+
+/// A live camera's images, saying once (a warning naming the commands that find out why)
+/// when none has come for [`QUIET_CAMERA`]: a camera driver not running, another topic
+/// name or domain; again after images came and stopped.
+struct QuietCamera {
+    images: Box<dyn Source<ImageFrame>>,
+    topic: String,
+    since: std::time::Instant,
+    warned: bool,
+}
+
+impl QuietCamera {
+    fn new(images: Box<dyn Source<ImageFrame>>, topic: &str) -> Self {
+        Self {
+            images,
+            topic: topic.to_string(),
+            since: std::time::Instant::now(),
+            warned: false,
+        }
+    }
+}
+
+impl Source<ImageFrame> for QuietCamera {
+    fn recv(&mut self, timeout: Duration) -> Result<Received<ImageFrame>, TransportError> {
+        let received = self.images.recv(timeout)?;
+        match &received {
+            Received::Message(..) => {
+                self.since = std::time::Instant::now();
+                self.warned = false;
+            }
+            Received::Idle if !self.warned && self.since.elapsed() >= QUIET_CAMERA => {
+                self.warned = true;
+                tracing::warn!(
+                    "no camera images on {topic} for {s} s: is the camera driver running? \
+                     `ros2 topic list` and `ros2 topic hz {topic}` (same ROS_DOMAIN_ID) tell; \
+                     another topic goes in [detector.images] topic (--config FILE)",
+                    topic = self.topic,
+                    s = QUIET_CAMERA.as_secs()
+                );
+            }
+            _ => {}
+        }
+        Ok(received)
+    }
+}
 
 /// The detector's counters, readable while it runs on another thread.
 pub type SharedStats = Arc<Mutex<DetectorStats>>;
@@ -38,6 +88,51 @@ pub struct ImageHeatMaps {
     joint_names: Vec<String>,
     encoding: HeatMapEncoding,
     stats: SharedStats,
+    /// The live view's images, if one is served.
+    shown: Option<ShownImages>,
+}
+
+/// The images as the live view shows them: JPEG (`sensor_msgs/CompressedImage`),
+/// compressed only while a viewer is subscribed; the message reused.
+struct ShownImages {
+    sink: LiveSink<CompressedImage>,
+    message: CompressedImage,
+}
+
+/// JPEG quality of the live view's images.
+const SHOWN_JPEG_QUALITY: u8 = 80;
+
+/// The topic the live view shows the camera's images on: `detector.images.topic` as
+/// `image_transport` names its compressed form (`.../compressed`).
+pub fn shown_images_topic(config: &ServiceConfig) -> String {
+    let topic = config.detector.images.topic.trim_end_matches('/');
+    if topic.ends_with("/compressed") {
+        topic.to_string()
+    } else {
+        format!("{topic}/compressed")
+    }
+}
+
+impl ShownImages {
+    fn show(&mut self, frame: &ImageFrame, stamp: u64) {
+        if !self.sink.wanted() {
+            return;
+        }
+        let m = &mut self.message;
+        m.header.stamp = Time::from_nanos(i64::try_from(frame.stamp_ns).unwrap_or(i64::MAX));
+        m.header.frame_id.clone_from(&frame.frame_id);
+        m.format = "jpeg".into();
+        m.data.clear();
+        let encoder =
+            image::codecs::jpeg::JpegEncoder::new_with_quality(&mut m.data, SHOWN_JPEG_QUALITY);
+        if let Err(e) = frame.rgb.write_with_encoder(encoder) {
+            tracing::debug!("live view: cannot compress {}: {e}", frame.name);
+            return;
+        }
+        if let Err(e) = self.sink.send(m, stamp) {
+            tracing::debug!("live view: {e}");
+        }
+    }
 }
 
 impl ImageHeatMaps {
@@ -57,7 +152,17 @@ impl ImageHeatMaps {
             detector,
             encoding,
             stats: SharedStats::default(),
+            shown: None,
         }
+    }
+
+    /// The same source, showing each image on `sink` (a live view) as it comes in.
+    pub fn with_shown_images(mut self, sink: LiveSink<CompressedImage>) -> Self {
+        self.shown = Some(ShownImages {
+            sink,
+            message: CompressedImage::default(),
+        });
+        self
     }
 
     /// The same source, giving each image the calibration of a camera with horizontal
@@ -118,6 +223,9 @@ impl Source<HeatMaps> for ImageHeatMaps {
         }
         if let Some(recorded) = &mut self.recorded {
             recorded.up_to(stamp, frame.rgb.dimensions());
+        }
+        if let Some(shown) = &mut self.shown {
+            shown.show(&frame, stamp);
         }
         let header = Header {
             stamp: Time::from_nanos(i64::try_from(frame.stamp_ns).unwrap_or(i64::MAX)),
@@ -294,7 +402,7 @@ pub fn image_frames(
             // A live camera: each image as it comes (reading ahead would only queue
             // older ones in front of the newest).
             let ros = ros.ok_or_else(|| setup("ROS 2 is not opened"))?;
-            return Ok(if is_compressed_topic(topic) {
+            let camera: Box<dyn Source<ImageFrame>> = if is_compressed_topic(topic) {
                 Box::new(DecodedImages::new(
                     ros.source::<CompressedImage>(topic)?,
                     topic,
@@ -306,7 +414,8 @@ pub fn image_frames(
                     topic,
                     limits,
                 ))
-            });
+            };
+            return Ok(Box::new(QuietCamera::new(camera, topic)));
         }
         DetectorSource::Recording => return Err(setup("not an image source")),
     };

@@ -4,12 +4,17 @@
 //! skeleton's frame and units, namespace `posestream/lag<L>` (the newest and the refined
 //! estimate side by side), ids and colour from the track (each person a hue of their
 //! own; the newest estimate lighter than the refined one; a lost track grey).
+//!
+//! And each image's skeletons over the image ([`image_markers`]): one
+//! `visualization_msgs/ImageMarker`, a `LINE_LIST` of every person's bones where the
+//! model reprojects them (image pixels), each person in the colour of their 3D markers,
+//! so an image view (the Foxglove app's Image panel) shows the 2D overlay.
 
 use crate::msgs::visualization::{
-    ADD, ColorRGBA, Duration, LINE_LIST, Marker, MarkerArray, Point, Pose, Quaternion, SPHERE_LIST,
-    TEXT_VIEW_FACING, Vector3,
+    ADD, ColorRGBA, Duration, IMAGE_LINE_LIST, ImageMarker, LINE_LIST, Marker, MarkerArray, Point,
+    Pose, Quaternion, SPHERE_LIST, TEXT_VIEW_FACING, Vector3,
 };
-use crate::msgs::{Skeleton3D, SkeletonState};
+use crate::msgs::{Skeleton3D, Skeleton3DArray, SkeletonState};
 
 /// How long a marker stays without an update.
 const LIFETIME_NS: u32 = 500_000_000;
@@ -111,6 +116,42 @@ pub fn skeleton_markers(skeleton: &Skeleton3D, bones: &[(usize, usize)]) -> Mark
     }
 }
 
+/// The skeletons of one image drawn over it, written into `out` (its vectors reused):
+/// every person's bones (`bones`, index pairs) between the model's reprojected joints
+/// (`Skeleton3D::projected`, image pixels), each person in their track's colour; lost
+/// tracks and joints that are not finite are left out. Stamped and framed as the image.
+pub fn image_markers(array: &Skeleton3DArray, bones: &[(usize, usize)], out: &mut ImageMarker) {
+    out.header.clone_from(&array.header);
+    out.ns = "posestream".into();
+    out.id = 0;
+    out.r#type = IMAGE_LINE_LIST;
+    out.action = ADD;
+    out.scale = 2.0;
+    out.outline_color = rgba(1.0, 1.0, 1.0);
+    out.lifetime = Duration {
+        sec: 0,
+        nanosec: LIFETIME_NS,
+    };
+    out.points.clear();
+    out.outline_colors.clear();
+    for s in &array.skeletons {
+        if s.state == SkeletonState::Lost as u8 {
+            continue;
+        }
+        let color = track_color(s.track_id, 0.6);
+        let at = |j: usize| {
+            let (u, v) = (*s.projected.get(2 * j)?, *s.projected.get(2 * j + 1)?);
+            (u.is_finite() && v.is_finite()).then_some(Point { x: u, y: v, z: 0.0 })
+        };
+        for &(a, b) in bones {
+            if let (Some(pa), Some(pb)) = (at(a), at(b)) {
+                out.points.extend([pa, pb]);
+                out.outline_colors.extend([color.clone(), color.clone()]);
+            }
+        }
+    }
+}
+
 fn rgba(r: f32, g: f32, b: f32) -> ColorRGBA {
     ColorRGBA { r, g, b, a: 1.0 }
 }
@@ -154,6 +195,39 @@ fn bounding_diagonal(points: &[Point]) -> f64 {
 mod tests {
     use super::*;
     use crate::msgs::{self, RosMessage};
+
+    #[test]
+    fn an_image_s_people_are_drawn_over_it_in_their_colours() {
+        let person = |track_id, state: SkeletonState, u: f64| Skeleton3D {
+            track_id,
+            state: state as u8,
+            projected: vec![u, 10.0, u + 5.0, 20.0, f64::NAN, 30.0],
+            ..Skeleton3D::default()
+        };
+        let mut array = Skeleton3DArray::default();
+        array.header.frame_id = "camera".into();
+        array.skeletons = vec![
+            person(1, SkeletonState::Tracking, 100.0),
+            person(2, SkeletonState::Tracking, 300.0),
+            person(3, SkeletonState::Lost, 500.0),
+        ];
+        let mut m = ImageMarker::default();
+        // Bone 1-2 has a joint that is not finite: left out.
+        image_markers(&array, &[(0, 1), (1, 2)], &mut m);
+        assert_eq!(m.r#type, IMAGE_LINE_LIST);
+        assert_eq!(m.header.frame_id, "camera");
+        let xs: Vec<f64> = m.points.iter().map(|p| p.x).collect();
+        assert_eq!(xs, [100.0, 105.0, 300.0, 305.0]);
+        assert_eq!(m.outline_colors.len(), m.points.len());
+        assert_ne!(m.outline_colors[0], m.outline_colors[2]);
+        assert_eq!(m.outline_colors[0], track_color(1, 0.6));
+        let bytes = msgs::encode(&m).expect("encode");
+        assert_eq!(msgs::decode::<ImageMarker>(&bytes).expect("decode"), m);
+        // Reused: the next image replaces the points.
+        array.skeletons.truncate(1);
+        image_markers(&array, &[(0, 1)], &mut m);
+        assert_eq!(m.points.len(), 2);
+    }
 
     #[test]
     fn a_skeleton_becomes_bones_and_joints() {

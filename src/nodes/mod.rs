@@ -294,7 +294,7 @@ impl EstimatorNode {
 
     /// A node from the configuration's estimator section.
     pub fn from_config(config: &config::EstimatorConfig) -> Result<Self, SetupError> {
-        let dict = crate::Dictionary::load(&config.dictionary)?;
+        let dict = crate::msgs::shipped::load_dictionary(&config.dictionary)?;
         let estimator = Estimator::new(dict, config.params.clone())?;
         let window = WindowEstimator::new(estimator, config.window.clone())?;
         Self::new(window)

@@ -16,13 +16,14 @@ use serde::Serialize;
 
 use super::config::{ReplayRate, ServiceConfig};
 use super::latency::LatencySummary;
-use super::service::{EstimatorOutputs, Publishers, pace, run_estimator};
+use super::service::{EstimatorOutputs, Publishers, Taps, live_view, pace, run_estimator};
 use super::{EstimatorNode, Refusals, SetupError};
 use crate::files::{OutputIsInput, check_output};
 use crate::msgs::sensor::CameraInfo;
-use crate::msgs::{self, HeatMaps, HeatMapsView, RosMessage, Skeleton3D, Skeleton3DArray};
+use crate::msgs::{self, HeatMaps, HeatMapsView, RosMessage, Skeleton3D};
 use crate::recording::{RecordingError, RecordingReader, write_rosbag2_metadata};
 use crate::streaming::StreamCounters;
+use crate::transport::foxglove::LiveView;
 use crate::transport::mcap::SharedRecorder;
 use crate::transport::{FrameSource, Received, TransportError};
 
@@ -69,6 +70,12 @@ pub enum ReplayError {
     /// The output is the input.
     #[error(transparent)]
     OutputIsInput(#[from] OutputIsInput),
+    /// The live view could not start.
+    #[error(transparent)]
+    Live(#[from] TransportError),
+    /// The live view's outputs could not be set up.
+    #[error(transparent)]
+    Service(#[from] super::service::ServiceError),
     /// The input holds no heat maps.
     #[error("{path}: no messages on {topic} (the recording has {found})")]
     NoHeatMaps {
@@ -122,29 +129,48 @@ pub fn replay(
         .map(SharedRecorder::create)
         .transpose()?;
     let topics = &config.topics;
-    let mut skeletons = Publishers::default();
-    if let Some(r) = &recorder {
-        skeletons.add(
-            format!("mcap {}", topics.skeletons),
-            Box::new(r.sink::<Skeleton3D>(&topics.skeletons)),
-        );
-    }
-    // Skeletons, and each image's together (`[outputs] arrays`): a replay records no
-    // markers.
+    // The recording takes the skeletons, and each image's together (`[outputs] arrays`);
+    // the live view everything the estimator node publishes (markers, /tf, REP-155 as
+    // configured) and the input's heat maps, truth and calibration.
+    let live = live_view(config)?;
+    let recorded = Taps {
+        recorder: recorder.clone(),
+        live: None,
+    };
+    let shown = Taps {
+        recorder: None,
+        live: live.clone(),
+    };
+    let mut skeletons = recorded.publishers::<Skeleton3D>(&topics.skeletons)?;
+    shown.add_to(&mut skeletons, &topics.skeletons)?;
     let mut arrays = Publishers::default();
-    if let (Some(r), true) = (&recorder, config.outputs.arrays) {
-        arrays.add(
-            format!("mcap {}", topics.skeleton_arrays),
-            Box::new(r.sink::<Skeleton3DArray>(&topics.skeleton_arrays)),
-        );
+    if config.outputs.arrays {
+        recorded.add_to(&mut arrays, &topics.skeleton_arrays)?;
+        shown.add_to(&mut arrays, &topics.skeleton_arrays)?;
     }
-    let mut outputs = EstimatorOutputs::new(skeletons, Publishers::default(), node.bones())
-        .with_arrays(arrays)
-        .stamped_at_release();
+    let mut outputs = if live.is_some() {
+        let mut shown_only = config.clone();
+        shown_only.outputs.ros2 = false;
+        shown_only.outputs.iceoryx2 = false;
+        let mut none = super::service::Middleware::default();
+        let mut o = EstimatorOutputs::open(&shown_only, &mut none, &shown, &node)?;
+        o.skeletons = skeletons;
+        o.arrays = arrays;
+        o
+    } else {
+        EstimatorOutputs::new(skeletons, Publishers::default(), node.bones()).with_arrays(arrays)
+    }
+    .stamped_at_release();
+    let passed_on = Taps {
+        recorder: recorder.clone(),
+        live: live.clone(),
+    };
     let mut source = RecordingFrames {
         reader,
         heatmaps_topic: &topics.heatmaps,
-        ground_truth: recorder.as_ref().map(|r| (r, topics.ground_truth.as_str())),
+        ground_truth: (passed_on.recorder.is_some() || passed_on.live.is_some())
+            .then_some((&passed_on, topics.ground_truth.as_str())),
+        live: live.as_ref(),
         camera_topic: &topics.camera_info,
         camera: None,
         pace: (options.rate == ReplayRate::Recorded).then(|| (Instant::now(), None)),
@@ -156,6 +182,9 @@ pub fn replay(
     let start = Instant::now();
     let report = run_estimator(&mut node, &mut source, &mut outputs, stop);
     drop(outputs);
+    if let Some(live) = &live {
+        live.stop();
+    }
     let RecordingFrames {
         reader,
         heatmaps: frames,
@@ -218,8 +247,11 @@ pub fn replay(
 struct RecordingFrames<'a> {
     reader: RecordingReader,
     heatmaps_topic: &'a str,
-    /// The output recording and the ground-truth topic, when recording.
-    ground_truth: Option<(&'a SharedRecorder, &'a str)>,
+    /// The output recording and live view, and the ground-truth topic, when recording
+    /// or showing.
+    ground_truth: Option<(&'a Taps, &'a str)>,
+    /// The live view, which is shown the heat maps as they are read.
+    live: Option<&'a LiveView>,
     /// The camera-info topic, and the calibration read last (not yet taken).
     camera_topic: &'a str,
     camera: Option<CameraInfo>,
@@ -251,7 +283,10 @@ impl FrameSource for RecordingFrames<'_> {
         while let Some(next) = self.reader.next_message() {
             // A failed write (a full disk) ends the replay: its only output is the
             // recording, whose finishing then reports it.
-            let failed = self.ground_truth.is_some_and(|(r, _)| r.failed());
+            let failed = self
+                .ground_truth
+                .and_then(|(taps, _)| taps.recorder.as_ref())
+                .is_some_and(SharedRecorder::failed);
             if failed || self.stop.load(Ordering::Relaxed) {
                 break;
             }
@@ -280,6 +315,15 @@ impl FrameSource for RecordingFrames<'_> {
             }
             if msg.topic == self.heatmaps_topic {
                 self.heatmaps += 1;
+                if let Some(live) = self.live
+                    && msg.schema == HeatMaps::NAME
+                {
+                    let _ = live.send_encoded::<HeatMaps>(
+                        self.heatmaps_topic,
+                        msg.log_time_ns,
+                        &msg.data,
+                    );
+                }
                 return match msgs::decode::<HeatMaps>(&msg.data) {
                     Ok(m) => {
                         take(&m.view(), msg.log_time_ns);
@@ -303,8 +347,8 @@ impl FrameSource for RecordingFrames<'_> {
             if msg.topic == self.camera_topic {
                 // Recorded as it came (the output holds the calibration it was made
                 // with), then handed to the estimator before the frames after it.
-                if let Some((recorder, _)) = self.ground_truth {
-                    let _ = recorder.write_encoded::<CameraInfo>(
+                if let Some((taps, _)) = self.ground_truth {
+                    let _ = taps.send_encoded::<CameraInfo>(
                         self.camera_topic,
                         msg.log_time_ns,
                         &msg.data,
@@ -322,11 +366,11 @@ impl FrameSource for RecordingFrames<'_> {
                     }),
                 };
             }
-            if let Some((recorder, topic)) = self.ground_truth {
+            if let Some((taps, topic)) = self.ground_truth {
                 if msg.topic == topic && msg.schema == Skeleton3D::NAME {
                     // A failed write marks the recording failed: the next message ends
                     // the replay, and finishing the recording reports it.
-                    let _ = recorder.write_encoded::<Skeleton3D>(topic, msg.log_time_ns, &msg.data);
+                    let _ = taps.send_encoded::<Skeleton3D>(topic, msg.log_time_ns, &msg.data);
                 }
             }
         }

@@ -162,7 +162,7 @@ impl Default for ImageSettings {
             runtime: Runtime::Tract,
             litert_library: PathBuf::new(),
             models_dir: PathBuf::new(),
-            mapping: PathBuf::from("config/detectors/blazepose.toml"),
+            mapping: PathBuf::from("builtin:detectors/blazepose.toml"),
             person_box: Vec::new(),
             presence_threshold: 0.5,
             person_detector: true,

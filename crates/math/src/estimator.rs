@@ -42,7 +42,7 @@ pub const START_LAG: usize = 3;
 /// track's previous peaks (each joint's last seen, as put back) swapped than as they are
 /// for the sliding window's initialisation to put them back: at 1, two limbs crossing
 /// in the image (a kick seen from the side) were put back on noise and held the fit on
-/// the mirrored side (the held-out kick, README "Beyond the paper"); on the training
+/// the mirrored side (the held-out kick, docs/beyond-the-paper.md); on the training
 /// files 2 leaves the window's errors as they were (`posestream eval --train
 /// --max-files-per-action 1`). A joint unseen for a while keeps its last peak as the
 /// reference (no expiry yet).

@@ -21,7 +21,7 @@
 //!
 //! `s_x^2 = s_l^2 + (x_j r)^2`, `s_y^2 = s_l^2 + (y_j r)^2`, `s_z^2 = s_l^2 + (z_j r)^2`
 //! with `r = scale_std`. How often the true error lies within 1 and 2 of these is
-//! measured on synthetic data (`tests/metric.rs`, README).
+//! measured on synthetic data (`tests/metric.rs`, docs/metric.md).
 
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};

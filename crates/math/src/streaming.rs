@@ -74,7 +74,7 @@ pub struct StreamSettings {
     pub em_iterations: usize,
     /// Start each new frame from the previous frame's fit instead of its own
     /// initialisation. Off by default: on held-out motion it tracks a wrong start for the
-    /// whole track (README, "Streaming").
+    /// whole track (docs/streaming.md).
     pub warm_start: bool,
     /// Newest frames refined on their own first (anchored on the frame before them).
     pub local_frames: usize,
@@ -86,7 +86,7 @@ pub struct StreamSettings {
     /// `window_every` frames, reaches beyond the newest `local_frames`, and most lagged
     /// estimates go out without it). Off by default: beside 4 local iterations over the
     /// newest 3 frames it bought 0.7 mm at lag 10 on the training motion (47.1 -> 46.4
-    /// mm) for 46 % more time per frame (README, "Beyond the paper"). Runs whatever
+    /// mm) for 46 % more time per frame (docs/beyond-the-paper.md). Runs whatever
     /// [`StreamSettings::outputs`] is: it refines the newest frames too. No effect when
     /// `local_frames >= lag + 1` or `local_iterations = 0` (the local EM, or the whole
     /// window's on every frame, already covers them), nor before the track has `lag + 1`
@@ -121,14 +121,14 @@ pub struct StreamSettings {
     /// Factor from the E-step's 2D spread (per axis, model units) to a pose
     /// coordinate's standard deviation: the spread of a heat map's posterior is wider
     /// than the error of the fit to all maps. Calibrated on the training motions
-    /// (README, "Beyond the paper").
+    /// (docs/beyond-the-paper.md).
     pub std_scale: f64,
     /// The same factor for the depth coordinate.
     pub depth_std_scale: f64,
     /// A further factor on both for an estimate with no frames after it (lag 0), whose
     /// error is larger than a refined estimate's for the same E-step spread; an estimate
     /// with `k` of `lag` later frames gets `1 + (newest_std_scale - 1) (1 - k / lag)`.
-    /// Calibrated on the training motions (README, "Beyond the paper").
+    /// Calibrated on the training motions (docs/beyond-the-paper.md).
     pub newest_std_scale: f64,
 }
 

@@ -17,14 +17,16 @@
 //!
 //! Besides the messages, this crate holds the files they are kept in and read from:
 //! [`recording`] (rosbag2-compatible MCAP), [`npy`] arrays, [`toml_file`] (TOML
-//! documents read into typed structs), [`files`] (outputs that never replace an input)
-//! and [`limits`], the largest sizes taken from a peer or a file.
+//! documents read into typed structs), [`files`] (outputs that never replace an input),
+//! [`limits`], the largest sizes taken from a peer or a file, and [`shipped`], the
+//! files built into the binary (`builtin:NAME` paths).
 
 pub mod error;
 pub mod files;
 pub mod limits;
 pub mod npy;
 pub mod recording;
+pub mod shipped;
 pub mod toml_file;
 
 mod heatmaps;
@@ -257,12 +259,18 @@ pub struct EncodeError {
 
 /// Serialises a message to CDR little-endian with the encapsulation header.
 pub fn encode<M: RosMessage>(msg: &M) -> Result<Vec<u8>, EncodeError> {
-    let mut out = CDR_LE_HEADER.to_vec();
-    cdr_encoding::to_writer::<M, LittleEndian, _>(&mut out, msg).map_err(|e| EncodeError {
+    let mut out = Vec::new();
+    encode_into(msg, &mut out)?;
+    Ok(out)
+}
+
+/// [`encode`] appended to `out` (a buffer reused from message to message).
+pub fn encode_into<M: RosMessage>(msg: &M, out: &mut Vec<u8>) -> Result<(), EncodeError> {
+    out.extend_from_slice(&CDR_LE_HEADER);
+    cdr_encoding::to_writer::<M, LittleEndian, _>(&mut *out, msg).map_err(|e| EncodeError {
         message: M::NAME,
         reason: e.to_string(),
-    })?;
-    Ok(out)
+    })
 }
 
 /// Decodes a CDR message with its encapsulation header.

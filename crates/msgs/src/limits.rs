@@ -4,7 +4,7 @@
 //! record's length, an image's width and height) is checked against these limits, with
 //! checked arithmetic, before anything of that size is allocated. A frame beyond them is
 //! refused and counted and the stream goes on; a file record beyond them ends reading with
-//! one error, keeping everything before it. README, "Limits and failure behaviour", lists
+//! one error, keeping everything before it. docs/limits.md ("Size limits") lists
 //! the defaults and what each costs.
 
 use serde::{Deserialize, Serialize};

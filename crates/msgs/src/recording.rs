@@ -420,7 +420,7 @@ pub struct RecordedMessage {
 /// ([`crate::limits::Limits::max_record_bytes`]), and every chunk's CRC is checked before
 /// any message of it is yielded: a corrupt chunk ends reading with
 /// [`RecordingError::Corrupt`], never yields its messages.
-pub struct RecordingReader<R = File> {
+pub struct RecordingReader<R = RecordingInput> {
     path: PathBuf,
     file: R,
     reader: LinearReader,
@@ -438,23 +438,58 @@ pub struct RecordingReader<R = File> {
 /// The MCAP magic every recording starts with.
 const MAGIC: &[u8; 8] = b"\x89MCAP0\r\n";
 
+/// Where [`RecordingReader::open`] reads: a file, or a recording shipped in the binary
+/// (`builtin:recordings/NAME.mcap`, [`crate::shipped`]).
+#[derive(Debug)]
+pub enum RecordingInput {
+    /// A file.
+    File(File),
+    /// A shipped recording.
+    Shipped(std::io::Cursor<&'static [u8]>),
+}
+
+impl Read for RecordingInput {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        match self {
+            RecordingInput::File(f) => f.read(buf),
+            RecordingInput::Shipped(c) => c.read(buf),
+        }
+    }
+}
+
+impl Seek for RecordingInput {
+    fn seek(&mut self, pos: SeekFrom) -> std::io::Result<u64> {
+        match self {
+            RecordingInput::File(f) => f.seek(pos),
+            RecordingInput::Shipped(c) => c.seek(pos),
+        }
+    }
+}
+
 impl RecordingReader {
     /// Opens `path` with the default record limit.
     pub fn open(path: impl AsRef<Path>) -> Result<Self, RecordingError> {
         Self::open_with_limit(path, crate::limits::Limits::default().max_record_bytes)
     }
 
-    /// Opens `path`; records (and chunks, compressed or decompressed) longer than
+    /// Opens `path` (a file, or a shipped recording: `builtin:recordings/NAME.mcap`);
+    /// records (and chunks, compressed or decompressed) longer than
     /// `max_record_bytes` end reading with [`RecordingError::Corrupt`].
     pub fn open_with_limit(
         path: impl AsRef<Path>,
         max_record_bytes: usize,
     ) -> Result<Self, RecordingError> {
         let path = path.as_ref().to_path_buf();
-        let file = File::open(&path).map_err(|source| RecordingError::Io {
+        let io = |source| RecordingError::Io {
             path: path.clone(),
             source,
-        })?;
+        };
+        let file = match crate::shipped::find(&path) {
+            Some(shipped) => RecordingInput::Shipped(std::io::Cursor::new(
+                shipped.map_err(|e| io(e.into()))?.bytes,
+            )),
+            None => RecordingInput::File(File::open(&path).map_err(io)?),
+        };
         Self::from_reader(file, path, max_record_bytes)
     }
 }

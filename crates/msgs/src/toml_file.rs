@@ -1,4 +1,5 @@
-//! Reading the project's TOML configuration files (skeleton mappings, splits).
+//! Reading the project's TOML configuration files (skeleton mappings, splits); a
+//! `builtin:NAME` path reads the file shipped in the binary ([`crate::shipped`]).
 
 use std::path::{Path, PathBuf};
 
@@ -33,9 +34,9 @@ pub enum ConfigError {
     },
 }
 
-/// Reads and deserialises a TOML file.
+/// Reads and deserialises a TOML file (or a shipped one, `builtin:NAME`).
 pub fn load_toml<T: DeserializeOwned>(path: &Path) -> Result<T, ConfigError> {
-    let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Io {
+    let text = crate::shipped::read_to_string(path).map_err(|source| ConfigError::Io {
         path: path.to_path_buf(),
         source,
     })?;

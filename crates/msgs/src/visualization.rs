@@ -152,6 +152,42 @@ ros_message! {
     markers: Vec<Marker>,
 }
 
+ros_message! {
+    /// `visualization_msgs/ImageMarker`: a shape drawn over an image, in its pixels (the
+    /// Foxglove app's Image panel and `rqt`'s image overlays draw it).
+    ImageMarker = "visualization_msgs/msg/ImageMarker", "visualization_msgs/ImageMarker",
+        "int32 CIRCLE=0\nint32 LINE_STRIP=1\nint32 LINE_LIST=2\nint32 POLYGON=3\nint32 POINTS=4\n\nint32 ADD=0\nint32 REMOVE=1\n\nstd_msgs/Header header\nstring ns\nint32 id\nint32 type\nint32 action\ngeometry_msgs/Point position\nfloat32 scale\nstd_msgs/ColorRGBA outline_color\nuint8 filled\nstd_msgs/ColorRGBA fill_color\nbuiltin_interfaces/Duration lifetime\ngeometry_msgs/Point[] points\nstd_msgs/ColorRGBA[] outline_colors\n";
+    /// Stamp (the image's) and frame.
+    header: Header,
+    /// Namespace (with `id`, identifies the marker).
+    ns: String,
+    /// Id within the namespace.
+    id: i32,
+    /// Shape (`IMAGE_LINE_LIST` = 2, ...).
+    r#type: i32,
+    /// `ADD` (0) or `REMOVE` (1).
+    action: i32,
+    /// Position of a `CIRCLE`, pixels.
+    position: Point,
+    /// Line width, or a circle's diameter, pixels.
+    scale: f32,
+    /// Colour of the lines.
+    outline_color: ColorRGBA,
+    /// Whether to fill the shape (1) or not (0).
+    filled: u8,
+    /// Fill colour.
+    fill_color: ColorRGBA,
+    /// How long the marker stays (0: until replaced).
+    lifetime: Duration,
+    /// Points of lists and strips, pixels (z unused).
+    points: Vec<Point>,
+    /// Per-point colours (empty: `outline_color`).
+    outline_colors: Vec<ColorRGBA>,
+}
+
+/// `ImageMarker::type` of a list of line segments.
+pub const IMAGE_LINE_LIST: i32 = 2;
+
 /// `Marker::type` of a list of line segments.
 pub const LINE_LIST: i32 = 5;
 /// `Marker::type` of a list of spheres.

@@ -8,12 +8,15 @@
 //! - [`mcap`]: a topic of a recording (write: [`posestream_msgs::recording::Recorder`]; read:
 //!   [`posestream_msgs::recording::RecordingReader`]);
 //! - [`ros2`]: a ROS 2 topic over DDS (`ros2-client`, no ROS installation needed);
-//! - [`shm`]: iceoryx2 shared memory.
+//! - [`shm`]: iceoryx2 shared memory;
+//! - [`foxglove`]: a live view in the Foxglove app (the Foxglove WebSocket protocol;
+//!   sinks only).
 //!
 //! [`runtime`] has the same sources awaited on a tokio runtime ([`runtime::AsyncSource`]).
 //!
 //! Messages are the ROS 2 types of [`posestream_msgs`], whatever the transport.
 
+pub mod foxglove;
 pub mod mcap;
 pub mod memory;
 pub mod read_ahead;

@@ -21,21 +21,20 @@ use crate::nodes::config::HriRoi;
 use crate::nodes::frames::BodyFrames;
 use crate::nodes::hri::{HriBodies, body_id, normalized_roi, tracked};
 use crate::transport::Message;
-use crate::transport::mcap::SharedRecorder;
 use crate::transport::ros2::Ros2;
 
 /// Bodies whose topics are kept at once; past it, the one seen least recently loses
 /// them (they are made again when it is seen again).
 pub const MAX_BODY_TOPICS: usize = 64;
 
-/// Makes publishers while the loop runs: a ROS 2 node shared with the wiring and the
-/// output recording, as configured.
+/// Makes publishers while the loop runs: a ROS 2 node shared with the wiring, and the
+/// output recording and live view, as configured.
 #[derive(Clone, Default)]
 pub struct TopicMaker {
     /// The ROS 2 node, when publishing on ROS 2.
     pub ros: Option<Ros2>,
-    /// The output recording, if any.
-    pub recorder: Option<SharedRecorder>,
+    /// The output recording and the live view, if any.
+    pub taps: super::wiring::Taps,
 }
 
 impl TopicMaker {
@@ -45,9 +44,7 @@ impl TopicMaker {
         if let Some(ros) = &self.ros {
             out.add_ros2(format!("ros2 {topic}"), ros.sink::<M>(topic)?);
         }
-        if let Some(r) = &self.recorder {
-            out.add(format!("mcap {topic}"), Box::new(r.sink::<M>(topic)));
-        }
+        self.taps.add_to(&mut out, topic)?;
         Ok(out)
     }
 }

@@ -299,13 +299,10 @@ pub fn run_pipeline(
     if let Some(tap) = &camera {
         tap.publish_to(wiring.camera_outputs(config)?);
     }
-    let mut heatmaps = Publishers::default();
-    if let Some(r) = &wiring.recorder {
-        heatmaps.add(
-            "mcap heat maps",
-            Box::new(r.sink::<HeatMaps>(&config.topics.heatmaps)),
-        );
-    }
+    // The heat maps stay in the process: recorded and shown live, not published.
+    let heatmaps = wiring
+        .taps
+        .publishers::<HeatMaps>(&config.topics.heatmaps)?;
     // No lost beginning: the first skeletons wait (a while) for a subscriber, as the
     // detector node's heat maps do.
     wiring.wait_for_subscribers(config, &config.topics.skeletons, false);
@@ -313,12 +310,15 @@ pub fn run_pipeline(
     // The estimator reads the calibration of the images (assumed, or a recording's), or
     // a live camera's own topic (recorded as it is read, so that a replay of the
     // recording is in metres too).
-    let calibration = wiring.camera_calibration(config)?.map(|source| {
-        let sink = wiring.recorder.as_ref().map(|r| {
-            Box::new(r.sink::<CameraInfo>(&config.topics.camera_info)) as Box<dyn Sink<CameraInfo>>
-        });
-        Box::new(RecordedCalibration { source, sink }) as Box<dyn Source<CameraInfo>>
-    });
+    let calibration = match wiring.camera_calibration(config)? {
+        Some(source) => {
+            let sink = wiring
+                .taps
+                .publishers::<CameraInfo>(&config.topics.camera_info)?;
+            Some(Box::new(RecordedCalibration { source, sink }) as Box<dyn Source<CameraInfo>>)
+        }
+        None => None,
+    };
     let estimator = run_estimator_with_camera(
         &mut node,
         &mut detector,
@@ -362,18 +362,15 @@ pub fn run_pipeline(
 /// A camera's calibration as the estimator reads it, written to the recording too.
 struct RecordedCalibration {
     source: Box<dyn Source<CameraInfo>>,
-    sink: Option<Box<dyn Sink<CameraInfo>>>,
+    sink: Publishers<CameraInfo>,
 }
 
 impl Source<CameraInfo> for RecordedCalibration {
     fn recv(&mut self, timeout: Duration) -> Result<Received<CameraInfo>, TransportError> {
         let received = self.source.recv(timeout)?;
-        if let (Received::Message(info, stamp), Some(sink)) = (&received, &mut self.sink)
-            && let Err(e) = sink.send(info, *stamp)
-        {
-            // Reported once; the estimator still reads the calibration.
-            tracing::warn!("recording the camera's calibration: {e}");
-            self.sink = None;
+        if let Received::Message(info, stamp) = &received {
+            // A failure is logged once and counted; the estimator still reads it.
+            self.sink.publish(info, *stamp);
         }
         Ok(received)
     }

@@ -15,7 +15,8 @@
 //! slow output slows the solver, as the blocking loop ([`run_estimator`]) does. What
 //! the runtime adds is a place for more than one thing to wait on (inputs, timers,
 //! publishers that wait for room without blocking); what it costs is one hand-over
-//! between threads per frame and per batch of skeletons (README, "Where the I/O runs").
+//! between threads per frame and per batch of skeletons (docs/services.md, "Where the
+//! I/O runs").
 //!
 //! The detector ([`run_detector_on_runtime`]): its source (the image detector with its
 //! frames, or a recording) runs on a thread of its own ([`Blocking`]); the runtime

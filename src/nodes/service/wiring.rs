@@ -11,16 +11,18 @@ use super::ServiceError;
 pub use super::bodies::{Bodies, TopicMaker};
 use crate::detector::{DetectorStats, ImageDetector};
 use crate::msgs::sensor::CameraInfo;
+use crate::msgs::visualization::ImageMarker;
 use crate::msgs::{HeatMaps, MarkerArray, Skeleton3D, Skeleton3DArray, SkeletonState};
 use crate::nodes::EstimatorNode;
 use crate::nodes::SetupError;
 use crate::nodes::arrays::ImageArrays;
 use crate::nodes::camera::CameraTap;
 use crate::nodes::config::{DetectorSource, ReplayRate, ServiceConfig, Transport};
-use crate::nodes::images::{ImageHeatMaps, SharedStats, image_frames};
+use crate::nodes::images::{ImageHeatMaps, SharedStats, image_frames, shown_images_topic};
 use crate::nodes::latency::FrameClock;
-use crate::nodes::markers::skeleton_markers;
+use crate::nodes::markers::{image_markers, skeleton_markers};
 use crate::recording::RecordingSummary;
+use crate::transport::foxglove::LiveView;
 use crate::transport::mcap::{McapSource, SharedRecorder};
 use crate::transport::ros2::{Ros2, Ros2Sink, Ros2Source};
 use crate::transport::shm::Shm;
@@ -56,7 +58,7 @@ impl Middleware {
 
     /// The estimator's heat maps from `transport`: a ROS 2 subscription awaited on a
     /// runtime; iceoryx2 samples lent where they are, their scores read in shared
-    /// memory by a blocking loop (README, "Where the I/O runs").
+    /// memory by a blocking loop (docs/services.md, "Where the I/O runs").
     pub fn estimator_input(
         &mut self,
         config: &ServiceConfig,
@@ -245,11 +247,88 @@ pub fn output_recording(config: &ServiceConfig) -> Result<Option<SharedRecorder>
     Ok(Some(SharedRecorder::create(path)?))
 }
 
+/// What sees every message a process publishes, besides the middleware: the output
+/// recording (`[outputs] record`) and the live view (`[outputs] foxglove`).
+#[derive(Clone, Default)]
+pub struct Taps {
+    /// The output recording, once started.
+    pub recorder: Option<SharedRecorder>,
+    /// The Foxglove WebSocket server.
+    pub live: Option<LiveView>,
+}
+
+impl Taps {
+    /// Adds each tap's sink of `M` on `topic` to `out`.
+    pub fn add_to<M: Message>(
+        &self,
+        out: &mut Publishers<M>,
+        topic: &str,
+    ) -> Result<(), TransportError> {
+        if let Some(r) = &self.recorder {
+            out.add(format!("mcap {topic}"), Box::new(r.sink::<M>(topic)));
+        }
+        if let Some(live) = &self.live {
+            out.add(
+                format!("foxglove {topic}"),
+                Box::new(live.sink::<M>(topic)?),
+            );
+        }
+        Ok(())
+    }
+
+    /// Each tap's sink of `M` on `topic`, as one.
+    pub fn publishers<M: Message>(&self, topic: &str) -> Result<Publishers<M>, TransportError> {
+        let mut out = Publishers::default();
+        self.add_to(&mut out, topic)?;
+        Ok(out)
+    }
+
+    /// Sends an encoded message of type `M` (CDR, as read from a recording) on `topic`
+    /// to each tap, without decoding it; the first failure is returned, after every tap
+    /// was tried.
+    pub fn send_encoded<M: Message>(
+        &self,
+        topic: &str,
+        stamp_ns: u64,
+        data: &[u8],
+    ) -> Result<(), TransportError> {
+        let recorded = self
+            .recorder
+            .as_ref()
+            .map_or(Ok(()), |r| r.write_encoded::<M>(topic, stamp_ns, data));
+        let live = self
+            .live
+            .as_ref()
+            .map_or(Ok(()), |l| l.send_encoded::<M>(topic, stamp_ns, data));
+        recorded.and(live)
+    }
+}
+
+/// The live view of `[outputs] foxglove`, if configured: serving from now on.
+pub fn live_view(config: &ServiceConfig) -> Result<Option<LiveView>, TransportError> {
+    let address = config.outputs.foxglove.trim();
+    if address.is_empty() {
+        return Ok(None);
+    }
+    let address =
+        crate::nodes::config::socket_address(address).map_err(|reason| TransportError::Setup {
+            transport: "foxglove",
+            what: format!("a Foxglove WebSocket server on {address}"),
+            reason,
+        })?;
+    let live = LiveView::serve(address)?;
+    tracing::info!(
+        "Foxglove live view on ws://{} (Foxglove app: Open connection, Foxglove WebSocket)",
+        live.address()
+    );
+    Ok(Some(live))
+}
+
 /// Publishers of `M` on `topic` / `service` for every configured output.
 fn publishers<M: Message>(
     config: &ServiceConfig,
     middleware: &mut Middleware,
-    recorder: Option<&SharedRecorder>,
+    taps: &Taps,
     topic: &str,
     shm: Option<Result<Box<dyn Sink<M>>, TransportError>>,
 ) -> Result<Publishers<M>, ServiceError> {
@@ -261,9 +340,7 @@ fn publishers<M: Message>(
     if let Some(sink) = shm {
         out.add(format!("iceoryx2 {topic}"), sink?);
     }
-    if let Some(r) = recorder {
-        out.add(format!("mcap {topic}"), Box::new(r.sink::<M>(topic)));
-    }
+    taps.add_to(&mut out, topic)?;
     Ok(out)
 }
 
@@ -275,6 +352,11 @@ pub struct EstimatorOutputs {
     pub markers: Publishers<MarkerArray>,
     /// The skeletons of each image together (empty when `[outputs] arrays` is off).
     pub arrays: Publishers<Skeleton3DArray>,
+    /// Each image's skeletons drawn over it (empty when `[outputs] markers` is off), of
+    /// the arrays of lag `overlay_lag`; the message reused.
+    pub image_markers: Publishers<ImageMarker>,
+    overlay_lag: u32,
+    overlay: ImageMarker,
     /// Frames on `/tf` and REP-155 body topics.
     pub bodies: Bodies,
     /// Groups the skeletons into arrays, when there are array publishers or REP-155's
@@ -304,6 +386,9 @@ impl EstimatorOutputs {
             skeletons,
             markers,
             arrays: Publishers::default(),
+            image_markers: Publishers::default(),
+            overlay_lag: 0,
+            overlay: ImageMarker::default(),
             bodies: Bodies::default(),
             grouping: ImageArrays::default(),
             ready: Vec::new(),
@@ -327,6 +412,15 @@ impl EstimatorOutputs {
         self
     }
 
+    /// The same outputs, also drawing the skeletons of each image over it
+    /// ([`image_markers`]), those of lag `lag` (the image's newest estimate, or the
+    /// refined one when only those are published).
+    pub fn with_image_markers(mut self, markers: Publishers<ImageMarker>, lag: u32) -> Self {
+        self.image_markers = markers;
+        self.overlay_lag = lag;
+        self
+    }
+
     /// The same outputs, also describing bodies ([`Bodies`]: frames, REP-155 topics).
     pub fn with_bodies(mut self, bodies: Bodies) -> Self {
         self.bodies = bodies;
@@ -335,7 +429,7 @@ impl EstimatorOutputs {
 
     /// Whether skeletons are grouped by image (for arrays, or REP-155's tracked ids).
     fn grouped(&self) -> bool {
-        !self.arrays.is_empty() || self.bodies.hri.is_some()
+        !self.arrays.is_empty() || !self.image_markers.is_empty() || self.bodies.hri.is_some()
     }
 
     /// Flushes every output.
@@ -343,12 +437,17 @@ impl EstimatorOutputs {
         self.skeletons.flush();
         self.markers.flush();
         self.arrays.flush();
+        self.image_markers.flush();
         self.bodies.flush();
     }
 
     /// Sends that failed, on every output.
     pub fn failed_sends(&self) -> u64 {
-        self.skeletons.failed + self.markers.failed + self.arrays.failed + self.bodies.failed()
+        self.skeletons.failed
+            + self.markers.failed
+            + self.arrays.failed
+            + self.image_markers.failed
+            + self.bodies.failed()
     }
 
     /// The same outputs, sending each skeleton stamped with the time of the frame that
@@ -369,7 +468,7 @@ impl EstimatorOutputs {
     pub fn open(
         config: &ServiceConfig,
         middleware: &mut Middleware,
-        recorder: Option<&SharedRecorder>,
+        taps: &Taps,
         node: &EstimatorNode,
     ) -> Result<Self, ServiceError> {
         let shm_sink = match (&middleware.shm, config.outputs.iceoryx2) {
@@ -379,23 +478,20 @@ impl EstimatorOutputs {
             ),
             _ => None,
         };
-        let skeletons = publishers(
-            config,
-            middleware,
-            recorder,
-            &config.topics.skeletons,
-            shm_sink,
-        )?;
-        let markers = if config.outputs.markers {
-            publishers(config, middleware, recorder, &config.topics.markers, None)?
+        let skeletons = publishers(config, middleware, taps, &config.topics.skeletons, shm_sink)?;
+        let (markers, overlay) = if config.outputs.markers {
+            (
+                publishers(config, middleware, taps, &config.topics.markers, None)?,
+                publishers(config, middleware, taps, &config.topics.image_markers, None)?,
+            )
         } else {
-            Publishers::default()
+            (Publishers::default(), Publishers::default())
         };
         let arrays = if config.outputs.arrays {
             publishers(
                 config,
                 middleware,
-                recorder,
+                taps,
                 &config.topics.skeleton_arrays,
                 None,
             )?
@@ -403,14 +499,14 @@ impl EstimatorOutputs {
             Publishers::default()
         };
         let tf = if config.outputs.tf {
-            publishers(config, middleware, recorder, &config.topics.tf, None)?
+            publishers(config, middleware, taps, &config.topics.tf, None)?
         } else {
             Publishers::default()
         };
         let hri = config.outputs.hri.then(|| {
             let maker = TopicMaker {
                 ros: middleware.ros.clone().filter(|_| config.outputs.ros2),
-                recorder: recorder.cloned(),
+                taps: taps.clone(),
             };
             (
                 config.topics.hri_bodies.clone(),
@@ -427,6 +523,7 @@ impl EstimatorOutputs {
         let bodies = Bodies::new(node.joint_names(), lag, tf, hri)?;
         Ok(Self::new(skeletons, markers, node.bones())
             .with_arrays(arrays)
+            .with_image_markers(overlay, lag)
             .with_bodies(bodies))
     }
 
@@ -488,6 +585,10 @@ impl EstimatorOutputs {
             if !self.arrays.is_empty() {
                 self.arrays.publish(a, stamp);
             }
+            if !self.image_markers.is_empty() && a.lag == self.overlay_lag {
+                image_markers(a, &self.bones, &mut self.overlay);
+                self.image_markers.publish(&self.overlay, stamp);
+            }
             self.bodies.tracked(a, stamp);
         }
         self.grouping.recycle(&mut self.ready);
@@ -499,6 +600,10 @@ impl EstimatorOutputs {
             let stamp = self.array_stamp(a);
             if !self.arrays.is_empty() {
                 self.arrays.publish_async(a, stamp).await;
+            }
+            if !self.image_markers.is_empty() && a.lag == self.overlay_lag {
+                image_markers(a, &self.bones, &mut self.overlay);
+                self.image_markers.publish_async(&self.overlay, stamp).await;
             }
             self.bodies.tracked_async(a, stamp).await;
         }
@@ -560,7 +665,7 @@ impl EstimatorOutputs {
 pub fn detector_outputs(
     config: &ServiceConfig,
     middleware: &mut Middleware,
-    recorder: Option<&SharedRecorder>,
+    taps: &Taps,
 ) -> Result<Publishers<HeatMaps>, ServiceError> {
     let shm_sink = match (&middleware.shm, config.outputs.iceoryx2) {
         (Some(shm), true) => Some(
@@ -569,13 +674,7 @@ pub fn detector_outputs(
         ),
         _ => None,
     };
-    publishers(
-        config,
-        middleware,
-        recorder,
-        &config.topics.heatmaps,
-        shm_sink,
-    )
+    publishers(config, middleware, taps, &config.topics.heatmaps, shm_sink)
 }
 
 /// The replay source of the detector: the heat maps of a recording, played
@@ -639,6 +738,7 @@ impl DetectorInput {
 pub fn detector_input(
     config: &ServiceConfig,
     middleware: &mut Middleware,
+    live: Option<&LiveView>,
 ) -> Result<DetectorInput, ServiceError> {
     if config.detector.source == DetectorSource::Recording {
         return Ok(DetectorInput {
@@ -649,13 +749,16 @@ pub fn detector_input(
             clock: None,
         });
     }
-    let dictionary =
-        crate::Dictionary::load(&config.estimator.dictionary).map_err(SetupError::Dictionary)?;
+    let dictionary = crate::msgs::shipped::load_dictionary(&config.estimator.dictionary)
+        .map_err(SetupError::Dictionary)?;
     let detector = ImageDetector::load(&config.detector.images, &dictionary.skeleton().joints)
         .map_err(SetupError::Detector)?;
     let frames = image_frames(config, middleware.ros.as_mut())?;
     let encoding = config.detector.images.encoding.message_encoding();
     let mut source = ImageHeatMaps::new(frames, detector, encoding);
+    if let Some(live) = live {
+        source = source.with_shown_images(live.sink(&shown_images_topic(config))?);
+    }
     // Files carry no calibration: a camera is assumed (a real one has its own).
     let fov = config.detector.images.field_of_view;
     let from_files = matches!(
@@ -698,7 +801,7 @@ pub fn detector_transport(config: &ServiceConfig) -> Option<Transport> {
 /// one with messages is kept under its temporary name, which a warning names.
 impl Drop for Wiring {
     fn drop(&mut self) {
-        let Some(recorder) = self.recorder.take() else {
+        let Some(recorder) = self.taps.recorder.take() else {
             return;
         };
         if recorder.messages() == 0 {
@@ -716,13 +819,15 @@ impl Drop for Wiring {
 }
 
 /// What a service process is wired to: its middleware (ROS 2, iceoryx2, each only if
-/// used) and its output recording (`[outputs] record`). Each node's ends come from it;
-/// when the loop is over, [`Wiring::conclude`] finishes the recording.
+/// used), its output recording (`[outputs] record`) and live view (`[outputs]
+/// foxglove`). Each node's ends come from it; when the loop is over,
+/// [`Wiring::conclude`] finishes the recording.
 pub struct Wiring {
     /// The middleware.
     pub middleware: Middleware,
-    /// The output recording, once started ([`Wiring::start_recording`]).
-    pub recorder: Option<SharedRecorder>,
+    /// The output recording, once started ([`Wiring::start_recording`]), and the live
+    /// view.
+    pub taps: Taps,
 }
 
 impl Wiring {
@@ -731,7 +836,10 @@ impl Wiring {
     pub fn open(config: &ServiceConfig, extra: Option<Transport>) -> Result<Self, ServiceError> {
         Ok(Self {
             middleware: Middleware::open(config, extra)?,
-            recorder: None,
+            taps: Taps {
+                recorder: None,
+                live: live_view(config)?,
+            },
         })
     }
 
@@ -748,7 +856,11 @@ impl Wiring {
             let wait = ros.discovery_wait(Duration::from_secs_f64(config.ros.wait_for_subscribers));
             if !ros.wait_for_subscriptions(topic, wait) {
                 if expected {
-                    tracing::warn!("no subscriber of {topic} after {wait:?}: publishing anyway");
+                    tracing::warn!(
+                        "no subscriber of {topic} after {wait:?}: publishing anyway \
+                         (start `posestream estimator` with the same ROS_DOMAIN_ID to \
+                         receive them; `ros2 topic info {topic}` lists who does)"
+                    );
                 } else {
                     tracing::info!("no subscriber of {topic} after {wait:?}: publishing anyway");
                 }
@@ -759,7 +871,7 @@ impl Wiring {
     /// Starts the output recording, if one is configured (after the inputs are set up;
     /// a setup that fails later drops the wiring, which removes the empty recording).
     pub fn start_recording(&mut self, config: &ServiceConfig) -> Result<(), ServiceError> {
-        self.recorder = output_recording(config)?;
+        self.taps.recorder = output_recording(config)?;
         Ok(())
     }
 
@@ -769,7 +881,7 @@ impl Wiring {
         config: &ServiceConfig,
         node: &EstimatorNode,
     ) -> Result<EstimatorOutputs, ServiceError> {
-        EstimatorOutputs::open(config, &mut self.middleware, self.recorder.as_ref(), node)
+        EstimatorOutputs::open(config, &mut self.middleware, &self.taps, node)
     }
 
     /// The detector node's heat-map publishers.
@@ -777,7 +889,7 @@ impl Wiring {
         &mut self,
         config: &ServiceConfig,
     ) -> Result<Publishers<HeatMaps>, ServiceError> {
-        detector_outputs(config, &mut self.middleware, self.recorder.as_ref())
+        detector_outputs(config, &mut self.middleware, &self.taps)
     }
 
     /// The detector node's configured input.
@@ -785,7 +897,7 @@ impl Wiring {
         &mut self,
         config: &ServiceConfig,
     ) -> Result<DetectorInput, ServiceError> {
-        detector_input(config, &mut self.middleware)
+        detector_input(config, &mut self.middleware, self.taps.live.as_ref())
     }
 
     /// A live camera's own calibration (the `ros2` source's `topics.camera_info`), for
@@ -812,7 +924,7 @@ impl Wiring {
         publishers(
             config,
             &mut self.middleware,
-            self.recorder.as_ref(),
+            &self.taps,
             &config.topics.camera_info,
             None,
         )
@@ -835,7 +947,10 @@ impl Wiring {
         mut self,
         input_error: Option<&str>,
     ) -> Result<Option<RecordingSummary>, ServiceError> {
-        match (input_error, self.recorder.take()) {
+        if let Some(live) = self.taps.live.take() {
+            live.stop();
+        }
+        match (input_error, self.taps.recorder.take()) {
             (None, Some(r)) => Ok(Some(r.finish()?)),
             (None, None) => Ok(None),
             (Some(reason), recorder) => Err(ServiceError::Input {

@@ -3,7 +3,7 @@
 //! (`libloading`), on the original model files (no rewrite).
 //!
 //! Why: on this project's 2-core machine tract runs the full landmark model in 40-75 ms
-//! and LiteRT in 18-25 ms (README, "Image detector": `cargo bench --bench detector`
+//! and LiteRT in 18-25 ms (docs/speed.md: `cargo bench --bench detector`
 //! beside `benches/litert.py`); the real-time goals need the latter. Why by hand: no
 //! maintained crate binds LiteRT's C API without building TensorFlow from source. The
 //! binding is the few calls of a compiled model with host-memory buffers; the C API is

@@ -120,14 +120,14 @@ pub struct Params {
     /// fraction of the E-step Gaussian's own (`2 sigma^2`), and that bound over its
     /// spread beyond: a map that is flat where the projection is, or whose peak is far
     /// from it (an occluder, a swapped joint), pulls less. 0: every joint weighs 1 (the
-    /// paper); otherwise at least 1e-3. README, "Beyond the paper".
+    /// paper); otherwise at least 1e-3. docs/beyond-the-paper.md.
     pub confidence_spread: f64,
     /// Prior probability that the heat maps of a left/right pair (the dictionary's
     /// joints named `l...`/`r...` or `left...`/`right...`) are swapped in a frame, as
     /// detectors swap them: the E-step weighs that hypothesis against the maps as they
     /// are by how well each explains the pair at its projection, and takes each joint's
     /// expectation under both (a mixture). 0: the paper's E-step, maps as they are;
-    /// otherwise in [0.001, 0.5]. README, "Beyond the paper".
+    /// otherwise in [0.001, 0.5]. docs/beyond-the-paper.md.
     pub swap_prior: f64,
     /// Outlier threshold of the robust convex initialisation (normalised units).
     pub robust_threshold: f64,
@@ -140,14 +140,15 @@ pub struct Params {
     /// Block-coordinate rounds per M-step of the EM at most. Fewer than the reference's
     /// 10 make a partial M-step (generalised EM: every round still lowers the objective,
     /// and the next E-step moves the data anyway); 2 gives the same accuracy on the
-    /// parity fixtures in about 65 % of the time of 10 (README, "How it works").
+    /// parity fixtures in about 65 % of the time of 10 (docs/architecture.md, "How it
+    /// works").
     pub max_em_rounds: usize,
     /// APG steps (or coordinate-descent sweeps) per C-step at most.
     pub max_apg_steps: usize,
     /// Newton steps of the active-set C-step per round over a window at most. One step
     /// already lowers the objective, and the next round continues from there (inexact
     /// block coordinate descent); more steps solve each C-step more exactly for little
-    /// gain in accuracy (README, "How it works").
+    /// gain in accuracy (docs/architecture.md, "How it works").
     pub max_newton_steps: usize,
     /// Coefficients the active-set C-step admits per frame and Newton step at most. Many
     /// make a cold start fast (a frame's active set grows by this much per step); few
@@ -173,7 +174,7 @@ pub struct Params {
     /// frame's own initialisation. The window's EMs over few frames, warm-started and
     /// with its left/right reordering of the maps, reach a start the whole sequence's EM
     /// from the arg-maxes does not find: on the training motions the EM's P-MPJPE fell
-    /// 53.0 -> 45.6 mm (README, "Beyond the paper"). It costs the window's time on top
+    /// 53.0 -> 45.6 mm (docs/beyond-the-paper.md). It costs the window's time on top
     /// of the EM's. false: the paper's start. The batch estimator's only (`lift`,
     /// `eval`): the streaming service has no batch EM.
     pub start_from_window: bool,
