@@ -11,7 +11,7 @@ use posestream::msgs;
 use posestream::nodes::ServiceConfig;
 use posestream::recording::read_topic;
 use posestream::streaming::{Estimates, FrameMaps, StreamSettings, WindowEstimator};
-use posestream::{Dictionary, Estimator, Params};
+use posestream::{Estimator, Params};
 
 fn bench(c: &mut Criterion) {
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
@@ -26,7 +26,8 @@ fn bench(c: &mut Criterion) {
             v
         })
         .collect();
-    let dict = Dictionary::load(root.join(&config.estimator.dictionary)).expect("dictionary");
+    let dict = posestream::msgs::shipped::load_dictionary(&config.estimator.dictionary)
+        .expect("dictionary");
     let estimator =
         Estimator::new(dict.clone(), config.estimator.params.clone()).expect("estimator");
     let mut window =

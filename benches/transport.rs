@@ -97,7 +97,6 @@ fn bench(c: &mut Criterion) {
 fn node(c: &mut Criterion, on_runtime: bool) {
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
     let mut config = ServiceConfig::load(root.join("config/default.toml")).expect("config");
-    config.estimator.dictionary = root.join(&config.estimator.dictionary);
     let frames: Vec<HeatMaps> =
         read_topic::<HeatMaps>(&root.join("recordings/byebye.mcap"), "/posestream/heatmaps")
             .expect("reads")

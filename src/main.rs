@@ -11,13 +11,12 @@ fn main() -> ExitCode {
         .with_writer(std::io::stderr)
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
-                // A Foxglove viewer's misbehaviour (a message on no channel, a connection
-                // reset) is the viewer's, and a remote one could fill the log with it: the
-                // server's per-client lines only when asked for (RUST_LOG).
+                // A Foxglove viewer's misbehaviour (a failed handshake, a message on no
+                // channel, a connection reset) is the viewer's, and a remote one could fill
+                // the log with it: the server's lines only when asked for (RUST_LOG); the
+                // live view says where it serves (`posestream::live`).
                 .unwrap_or_else(|_| {
-                    tracing_subscriber::EnvFilter::new(
-                        "warn,foxglove::websocket::connected_client=off",
-                    )
+                    tracing_subscriber::EnvFilter::new("warn,foxglove=off,posestream::live=info")
                 }),
         )
         .init();

@@ -20,7 +20,6 @@ const MEMORY_BUDGET_KB: u64 = 200 * 1024;
 
 fn config() -> ServiceConfig {
     let mut c = ServiceConfig::load(root().join("config/default.toml")).expect("config");
-    c.estimator.dictionary = root().join(&c.estimator.dictionary);
     c.outputs.ros2 = false;
     c
 }

@@ -827,8 +827,6 @@ fn camera_images_on_a_ros2_topic_become_heat_maps() {
     let f = fixtures();
     let root = common::root();
     let mut c = ServiceConfig::load(root.join("config/default.toml")).expect("config");
-    c.estimator.dictionary = root.join(&c.estimator.dictionary);
-    c.detector.images.mapping = root.join(&c.detector.images.mapping);
     c.detector.images.models_dir = f.models.clone();
     c.detector.source = DetectorSource::Ros2;
     c.outputs.ros2 = false;
@@ -924,8 +922,6 @@ fn run_on_a_ros2_camera_reads_its_calibration_topic_and_records_it() {
     let dir = tempfile::tempdir().expect("dir");
     let out = dir.path().join("run.mcap");
     let mut c = ServiceConfig::load(root.join("config/default.toml")).expect("config");
-    c.estimator.dictionary = root.join(&c.estimator.dictionary);
-    c.detector.images.mapping = root.join(&c.detector.images.mapping);
     c.detector.images.models_dir = f.models.clone();
     c.detector.source = DetectorSource::Ros2;
     c.outputs.ros2 = false;

@@ -174,6 +174,10 @@ fn the_configuration_is_built_in_and_a_file_overlays_what_it_sets() {
             "no such built-in file",
         ),
         (vec!["run", "--foxglove", "somewhere"], "HOST:PORT"),
+        (
+            vec!["replay", "--record", "builtin:out.mcap"],
+            "built into the binary",
+        ),
     ] {
         let out = run(&args);
         assert_eq!(
@@ -326,9 +330,65 @@ fn a_replay_is_shown_live_to_the_foxglove_client() {
         topic(&seen, "/posestream/heatmaps")["schema"],
         HeatMaps::NAME
     );
-    // What the client tried to publish went nowhere: the run saw only its own frames.
-    let report = String::from_utf8_lossy(&out.stdout);
-    assert!(report.contains("0 malformed"), "{report}");
+}
+
+#[test]
+fn a_replay_shows_its_input_and_results_live_and_records_as_without() {
+    let port = free_port();
+    // kick.mcap: 150 frames at 30 per second, its truth beside the heat maps.
+    let kick = common::recording("kick.mcap");
+    let mut child = command(
+        &[
+            "replay",
+            kick.to_str().expect("utf-8"),
+            "--record",
+            "kick-live.mcap",
+            "--foxglove",
+            &format!("127.0.0.1:{port}"),
+        ],
+        None,
+    )
+    .stdout(Stdio::piped())
+    .stderr(Stdio::piped())
+    .spawn()
+    .expect("starts");
+    wait_for_port(port, &mut child);
+    let seen = watch(port, 3.0);
+    let out = child.wait_with_output().expect("waits");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    // Where it serves and at what pace, said on stderr.
+    assert!(err.contains(&format!("ws://127.0.0.1:{port}")), "{err}");
+    assert!(err.contains("recorded pace"), "{err}");
+    all_decoded(&seen);
+    for name in [
+        "/posestream/heatmaps",
+        "/posestream/ground_truth",
+        "/posestream/skeletons",
+        "/posestream/markers",
+    ] {
+        assert!(
+            topic(&seen, name)["received"].as_u64() > Some(10),
+            "{name}: {seen}"
+        );
+    }
+    // The recording is what a replay without a viewer records.
+    let live = common::messages::<Skeleton3D>(
+        &installed().work.join("kick-live.mcap"),
+        "/posestream/skeletons",
+    );
+    ok(&[
+        "replay",
+        kick.to_str().expect("utf-8"),
+        "--record",
+        "kick.mcap",
+    ]);
+    let alone = common::messages::<Skeleton3D>(
+        &installed().work.join("kick.mcap"),
+        "/posestream/skeletons",
+    );
+    assert_eq!(live.len(), alone.len());
+    assert_eq!(live.len(), 300);
 }
 
 #[test]

@@ -18,7 +18,6 @@ use posestream::transport::Sink;
 
 fn config() -> ServiceConfig {
     let mut c = ServiceConfig::load(root().join("config/default.toml")).expect("config");
-    c.estimator.dictionary = root().join(&c.estimator.dictionary);
     c.outputs.ros2 = false;
     c
 }
@@ -75,6 +74,7 @@ fn replayed(config: &ServiceConfig, input: &Path, output: &Path) -> Vec<Skeleton
         record: Some(output.to_path_buf()),
         rosbag2: false,
         rate: ReplayRate::Fast,
+        paced_for_live: false,
     };
     let stop = std::sync::atomic::AtomicBool::new(false);
     replay(config, input, &options, &stop).expect("replay");
@@ -414,6 +414,7 @@ fn two_people_crossing_a_room_are_two_tracks_in_metres_that_never_mix() {
         record: Some(output.clone()),
         rosbag2: false,
         rate: ReplayRate::Fast,
+        paced_for_live: false,
     };
     let stop = std::sync::atomic::AtomicBool::new(false);
     let report = replay(&c, &input, &options, &stop).expect("replay");
@@ -493,6 +494,7 @@ fn a_recording_s_broken_camera_info_is_refused_and_counted_and_the_replay_goes_o
             record: None,
             rosbag2: false,
             rate: ReplayRate::Fast,
+            paced_for_live: false,
         };
         let stop = std::sync::atomic::AtomicBool::new(false);
         let report = replay(&config(), &input, &options, &stop).expect("replay");

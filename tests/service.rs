@@ -20,7 +20,6 @@ use posestream::transport::{Received, Source};
 
 fn config() -> ServiceConfig {
     let mut c = ServiceConfig::load(root().join("config/default.toml")).expect("config");
-    c.estimator.dictionary = root().join(&c.estimator.dictionary);
     c.outputs.ros2 = false;
     c
 }
@@ -54,6 +53,7 @@ fn the_pipeline_publishes_what_replay_computes_and_markers_that_python_decodes()
             record: Some(replayed.clone()),
             rosbag2: false,
             rate: ReplayRate::Fast,
+            paced_for_live: false,
         },
         &AtomicBool::new(false),
     )

@@ -9,7 +9,6 @@ use posestream::nodes::{EstimatorNode, ServiceConfig};
 
 fn config() -> ServiceConfig {
     let mut c = ServiceConfig::load(root().join("config/default.toml")).expect("config");
-    c.estimator.dictionary = root().join(&c.estimator.dictionary);
     c.outputs.ros2 = false;
     c
 }
@@ -202,6 +201,7 @@ fn each_image_s_people_are_recorded_together_and_independent_clients_read_them()
         record: Some(output.clone()),
         rosbag2: false,
         rate: ReplayRate::Fast,
+        paced_for_live: false,
     };
     let stop = std::sync::atomic::AtomicBool::new(false);
     let report = replay(&config(), &input, &options, &stop).expect("replay");

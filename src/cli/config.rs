@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use clap::Args;
 use posestream::msgs::shipped;
-use posestream::msgs::toml_file::{ConfigError, parse_toml};
+use posestream::msgs::toml_file::{ConfigError, parse_toml, read_toml};
 use posestream::nodes::ServiceConfig;
 use posestream::nodes::config::ENVIRONMENT_OVERRIDES;
 
@@ -54,7 +54,14 @@ impl LiveArgs {
 
 /// `--foxglove`'s parser: an address to serve on, checked before the command starts.
 fn live_address(text: &str) -> Result<String, String> {
-    posestream::nodes::config::socket_address(text).map(|_| text.trim().to_string())
+    posestream::nodes::config::socket_address(text)
+        .map(|_| text.trim().to_string())
+        .map_err(|expected| {
+            format!(
+                "{expected}; a path after --foxglove is taken for its address: put the path \
+                 first, or write --foxglove=127.0.0.1:8765"
+            )
+        })
 }
 
 /// Options of `config`.
@@ -88,10 +95,7 @@ pub fn run(args: &ConfigCommandArgs) -> Result<(), CliError> {
     let config = args.config.load()?;
     let file = match &args.config.config {
         Some(path) => {
-            let text = shipped::read_to_string(path).map_err(|source| ConfigError::Io {
-                path: path.clone(),
-                source,
-            })?;
+            let text = read_toml(path)?;
             let table: toml::Table = parse_toml(&text, path)?;
             Some((path.clone(), table))
         }

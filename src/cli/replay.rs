@@ -30,7 +30,7 @@ pub struct ReplayArgs {
     #[arg(long, requires = "record")]
     pub rosbag2: bool,
     /// Pace (overrides the configuration's `replay.rate`; with `--foxglove`, recorded
-    /// unless given).
+    /// unless given here).
     #[arg(long, value_enum)]
     pub rate: Option<ReplayRate>,
     /// Print the report as JSON.
@@ -46,15 +46,15 @@ pub fn run(args: &ReplayArgs) -> Result<(), CliError> {
     let options = ReplayOptions {
         record: args.record.clone(),
         rosbag2: args.rosbag2,
-        // A live view is watched: at the recorded pace unless asked otherwise.
-        rate: args
-            .rate
-            .unwrap_or(if config.outputs.foxglove.trim().is_empty() {
-                config.replay.rate
-            } else {
-                ReplayRate::Recorded
-            }),
+        rate: args.rate.unwrap_or(config.replay.rate),
+        paced_for_live: false,
     };
+    let mut options = options;
+    if args.rate.is_none() && args.live.foxglove.is_some() && options.rate != ReplayRate::Recorded {
+        // A live view is watched: at the recorded pace unless asked otherwise.
+        options.rate = ReplayRate::Recorded;
+        options.paced_for_live = true;
+    }
     let report = replay(&config, &args.input, &options, &stop)?;
     if args.json {
         let text = serde_json::to_string_pretty(&report).map_err(|source| CliError::Json {

@@ -376,6 +376,7 @@ pub fn markdown(args: &ScenesArgs) -> Result<String, CliError> {
             record: Some(dir.join("skeletons.mcap")),
             rosbag2: false,
             rate: ReplayRate::Fast,
+            paced_for_live: false,
         };
         let began = Instant::now();
         let report = replay(&config, &tracked, &options, &AtomicBool::new(false))?;

@@ -19,7 +19,7 @@ use crate::streaming::StreamSettings;
 use crate::transport::ros2::RosSettings;
 use crate::transport::ros2::check_topic_name;
 use crate::transport::shm::ShmSettings;
-use posestream_msgs::toml_file::{ConfigError, load_toml, parse_toml};
+use posestream_msgs::toml_file::{ConfigError, parse_toml, read_toml};
 
 /// The whole configuration.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
@@ -193,53 +193,38 @@ impl ServiceConfig {
 
     /// The configuration as TOML, every key with where its value came from: `# default`
     /// (built in), or `# FILE` for the keys `file` (the overlay's path and its parsed
-    /// text) sets. Sections and keys in the order of the shipped file.
+    /// text) sets. Section by section, keys in the order of the configuration's types.
     pub fn annotated(&self, file: Option<(&Path, &toml::Table)>) -> Result<String, String> {
-        let full = toml::to_string(self).map_err(|e| e.to_string())?;
+        let table = toml::Table::try_from(self).map_err(|e| e.to_string())?;
         let origin = file.map(|(p, _)| p.display().to_string());
-        let mut section: Vec<String> = Vec::new();
         let mut out = String::new();
-        for line in full.lines().filter(|l| !l.trim().is_empty()) {
-            if let Some(header) = line.strip_prefix('[').and_then(|l| l.strip_suffix(']')) {
-                section = header.split('.').map(str::to_string).collect();
-                if !out.is_empty() {
-                    out.push('\n');
-                }
-                out.push_str(line);
-                out.push('\n');
-                continue;
-            }
-            let Some((key, _)) = line.split_once(" = ") else {
-                out.push_str(line);
-                out.push('\n');
-                continue;
-            };
-            let set_in_file = file.is_some_and(|(_, table)| {
-                let mut t = table;
-                for name in &section {
-                    match t.get(name).and_then(toml::Value::as_table) {
-                        Some(inner) => t = inner,
-                        None => return false,
-                    }
-                }
-                t.contains_key(key.trim().trim_matches('"'))
-            });
-            let from = match (&origin, set_in_file) {
-                (Some(path), true) => path.as_str(),
-                _ => "default",
-            };
-            out.push_str(&format!("{line:<40} # {from}\n"));
-        }
+        annotate(
+            &mut out,
+            &[],
+            &table,
+            file.map(|(_, t)| t),
+            origin.as_deref(),
+        );
         Ok(out)
     }
 
     /// Reads a configuration file and checks every value is in its domain.
     pub fn load(path: impl AsRef<Path>) -> Result<Self, ConfigError> {
-        Self::checked(load_toml(path.as_ref())?, path.as_ref())
+        let path = path.as_ref();
+        Self::parse(&read_toml(path)?, path)
     }
 
     /// Parses configuration text (`path` names it in errors) and checks every value.
     pub fn parse(text: &str, path: &Path) -> Result<Self, ConfigError> {
+        // The shape first, where the text is a TOML table (a value TOML's integers cannot
+        // hold is left to the typed parse, which names it).
+        if let Ok(table) = toml::from_str::<toml::Table>(text) {
+            let defaults = toml::Table::try_from(Self::default()).unwrap_or_default();
+            check_sections(&table, &defaults, "").map_err(|reason| ConfigError::Shape {
+                path: path.to_path_buf(),
+                reason,
+            })?;
+        }
         Self::checked(parse_toml(text, path)?, path)
     }
 
@@ -317,6 +302,111 @@ impl ServiceConfig {
         self.limits.check().map_err(|x| x.within("limits"))?;
         Ok(())
     }
+}
+
+/// Writes `table`'s keys (section `path`) and then its sections into `out`, each key
+/// with its origin: `origin` when `file` (the same section of the overlay) sets it.
+fn annotate(
+    out: &mut String,
+    path: &[&str],
+    table: &toml::Table,
+    file: Option<&toml::Table>,
+    origin: Option<&str>,
+) {
+    let leaves: Vec<_> = table.iter().filter(|(_, v)| !v.is_table()).collect();
+    if !leaves.is_empty() && !path.is_empty() {
+        if !out.is_empty() {
+            out.push('\n');
+        }
+        out.push_str(&format!("[{}]\n", path.join(".")));
+    }
+    for (key, value) in leaves {
+        let line = format!("{key} = {}", inline(value));
+        let from = match (origin, file.is_some_and(|f| f.contains_key(key))) {
+            (Some(o), true) => o,
+            _ => "default",
+        };
+        out.push_str(&format!("{line:<40} # {from}\n"));
+    }
+    for (key, value) in table {
+        if let Some(inner) = value.as_table() {
+            let mut sub = path.to_vec();
+            sub.push(key);
+            let in_file = file
+                .and_then(|f| f.get(key))
+                .and_then(toml::Value::as_table);
+            annotate(out, &sub, inner, in_file, origin);
+        }
+    }
+}
+
+/// A value on one line as TOML writes it: strings as basic strings with every control
+/// character escaped (so no value spans lines), arrays and tables inline.
+fn inline(value: &toml::Value) -> String {
+    match value {
+        toml::Value::String(s) => {
+            let mut q = String::with_capacity(s.len() + 2);
+            q.push('"');
+            for c in s.chars() {
+                match c {
+                    '"' => q.push_str("\\\""),
+                    '\\' => q.push_str("\\\\"),
+                    '\n' => q.push_str("\\n"),
+                    '\t' => q.push_str("\\t"),
+                    '\r' => q.push_str("\\r"),
+                    c if c.is_control() => q.push_str(&format!("\\u{:04X}", c as u32)),
+                    c => q.push(c),
+                }
+            }
+            q.push('"');
+            q
+        }
+        toml::Value::Array(items) => {
+            let items: Vec<String> = items.iter().map(inline).collect();
+            format!("[{}]", items.join(", "))
+        }
+        toml::Value::Table(t) => {
+            let items: Vec<String> = t
+                .iter()
+                .map(|(k, v)| {
+                    format!(
+                        "{} = {}",
+                        inline(&toml::Value::String(k.clone())),
+                        inline(v)
+                    )
+                })
+                .collect();
+            format!("{{ {} }}", items.join(", "))
+        }
+        other => other.to_string(),
+    }
+}
+
+/// Checks that every section of the configuration that `text` (a file's, already parsed
+/// as `table`) has is a table (`[detector]`), not an array of tables or a value: serde
+/// would otherwise take an array for a struct's fields and say something unhelpful.
+fn check_sections(table: &toml::Table, defaults: &toml::Table, path: &str) -> Result<(), String> {
+    for (key, default) in defaults {
+        let (Some(inner_default), Some(given)) = (default.as_table(), table.get(key)) else {
+            continue;
+        };
+        let name = if path.is_empty() {
+            key.clone()
+        } else {
+            format!("{path}.{key}")
+        };
+        match given.as_table() {
+            Some(inner) => check_sections(inner, inner_default, &name)?,
+            None => {
+                let what = match given {
+                    toml::Value::Array(_) => format!("an array (write [{name}], not [[{name}]])"),
+                    _ => format!("a value ({})", given.type_str()),
+                };
+                return Err(format!("[{name}] must be a section (a table), not {what}"));
+            }
+        }
+    }
+    Ok(())
 }
 
 /// An address to serve on: `HOST:PORT` with an IP address or `localhost` (IPv6 in
@@ -464,6 +554,52 @@ mod tests {
                 // `init` is optional (None): listed commented out.
                 assert!(listed || key == "init", "{section} {key} missing");
             }
+        }
+    }
+
+    #[test]
+    fn the_annotated_configuration_says_where_each_value_came_from_and_reads_back() {
+        let text = "[detector.images]\npath = \"a\\nb\\n[topics]\\nheatmaps = 1\"\n\
+                    [estimator.window]\nlag = 5\n";
+        let path = Path::new("mine.toml");
+        let config = ServiceConfig::parse(text, path).expect("parses");
+        let file: toml::Table = toml::from_str(text).expect("table");
+        let out = config.annotated(Some((path, &file))).expect("writes");
+        let line = |key: &str| {
+            out.lines()
+                .find(|l| l.starts_with(&format!("{key} = ")))
+                .unwrap_or_else(|| panic!("{key}: {out}"))
+        };
+        assert!(line("lag").ends_with("# mine.toml"), "{out}");
+        assert!(line("size").ends_with("# default"), "{out}");
+        assert!(line("path").ends_with("# mine.toml"), "{out}");
+        // A value holding newlines stays on its line; the whole reads back as it was.
+        assert!(!out.lines().any(|l| l.starts_with("heatmaps = 1")), "{out}");
+        assert!(line("path").contains("\\n[topics]\\nheatmaps = 1"), "{out}");
+        let back = ServiceConfig::parse(&out, path).expect("reads back");
+        assert_eq!(back, config);
+        assert_eq!(
+            ServiceConfig::parse(&ServiceConfig::default().annotated(None).expect("w"), path)
+                .expect("reads back"),
+            ServiceConfig::default()
+        );
+    }
+
+    #[test]
+    fn a_section_written_as_an_array_or_a_value_is_said_so() {
+        for (bad, says) in [
+            (
+                "[[detector]]\nsource = \"video\"\n",
+                "[detector] must be a section",
+            ),
+            ("estimator = [1, 2]\n", "[estimator] must be a section"),
+            (
+                "[estimator]\nwindow = 3\n",
+                "[estimator.window] must be a section",
+            ),
+        ] {
+            let e = ServiceConfig::parse(bad, Path::new("c.toml")).expect_err(bad);
+            assert!(e.to_string().contains(says), "{bad}: {e}");
         }
     }
 

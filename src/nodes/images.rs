@@ -10,11 +10,11 @@ use std::time::Duration;
 use super::camera::{CameraTap, assumed_camera_info};
 use super::config::{DetectorSource, ServiceConfig};
 use super::latency::FrameClock;
+use super::shown_images::ShownImages;
 use crate::detector::{DetectorStats, ImageDetector};
 use crate::images::{DecodedImages, FolderSource, ImageFrame, VideoSource};
 use crate::msgs::sensor::CameraInfo;
 use crate::msgs::{CompressedImage, Header, HeatMapEncoding, HeatMaps, Image, Time};
-use crate::transport::Sink;
 use crate::transport::foxglove::LiveSink;
 use crate::transport::mcap::McapSource;
 use crate::transport::read_ahead::ReadAhead;
@@ -92,49 +92,6 @@ pub struct ImageHeatMaps {
     shown: Option<ShownImages>,
 }
 
-/// The images as the live view shows them: JPEG (`sensor_msgs/CompressedImage`),
-/// compressed only while a viewer is subscribed; the message reused.
-struct ShownImages {
-    sink: LiveSink<CompressedImage>,
-    message: CompressedImage,
-}
-
-/// JPEG quality of the live view's images.
-const SHOWN_JPEG_QUALITY: u8 = 80;
-
-/// The topic the live view shows the camera's images on: `detector.images.topic` as
-/// `image_transport` names its compressed form (`.../compressed`).
-pub fn shown_images_topic(config: &ServiceConfig) -> String {
-    let topic = config.detector.images.topic.trim_end_matches('/');
-    if topic.ends_with("/compressed") {
-        topic.to_string()
-    } else {
-        format!("{topic}/compressed")
-    }
-}
-
-impl ShownImages {
-    fn show(&mut self, frame: &ImageFrame, stamp: u64) {
-        if !self.sink.wanted() {
-            return;
-        }
-        let m = &mut self.message;
-        m.header.stamp = Time::from_nanos(i64::try_from(frame.stamp_ns).unwrap_or(i64::MAX));
-        m.header.frame_id.clone_from(&frame.frame_id);
-        m.format = "jpeg".into();
-        m.data.clear();
-        let encoder =
-            image::codecs::jpeg::JpegEncoder::new_with_quality(&mut m.data, SHOWN_JPEG_QUALITY);
-        if let Err(e) = frame.rgb.write_with_encoder(encoder) {
-            tracing::debug!("live view: cannot compress {}: {e}", frame.name);
-            return;
-        }
-        if let Err(e) = self.sink.send(m, stamp) {
-            tracing::debug!("live view: {e}");
-        }
-    }
-}
-
 impl ImageHeatMaps {
     /// `detector` on the frames of `frames`, its maps sent as `encoding`.
     pub fn new(
@@ -158,10 +115,9 @@ impl ImageHeatMaps {
 
     /// The same source, showing each image on `sink` (a live view) as it comes in.
     pub fn with_shown_images(mut self, sink: LiveSink<CompressedImage>) -> Self {
-        self.shown = Some(ShownImages {
-            sink,
-            message: CompressedImage::default(),
-        });
+        self.shown = ShownImages::start(sink)
+            .map_err(|e| tracing::warn!("live view: the images cannot be shown: {e}"))
+            .ok();
         self
     }
 
@@ -224,7 +180,7 @@ impl Source<HeatMaps> for ImageHeatMaps {
         if let Some(recorded) = &mut self.recorded {
             recorded.up_to(stamp, frame.rgb.dimensions());
         }
-        if let Some(shown) = &mut self.shown {
+        if let Some(shown) = &self.shown {
             shown.show(&frame, stamp);
         }
         let header = Header {

@@ -121,8 +121,12 @@ pub fn skeleton_markers(skeleton: &Skeleton3D, bones: &[(usize, usize)]) -> Mark
 /// (`Skeleton3D::projected`, image pixels), each person in their track's colour; lost
 /// tracks and joints that are not finite are left out. Stamped and framed as the image.
 pub fn image_markers(array: &Skeleton3DArray, bones: &[(usize, usize)], out: &mut ImageMarker) {
-    out.header.clone_from(&array.header);
-    out.ns = "posestream".into();
+    // Field by field: a derived clone_from of the header would allocate its frame id.
+    out.header.stamp = array.header.stamp.clone();
+    out.header.frame_id.clone_from(&array.header.frame_id);
+    if out.ns != "posestream" {
+        out.ns = "posestream".into();
+    }
     out.id = 0;
     out.r#type = IMAGE_LINE_LIST;
     out.action = ADD;

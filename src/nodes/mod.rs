@@ -6,11 +6,12 @@
 //!   recording;
 //! - [`service`]: the detector, estimator, pipeline and recorder loops over any
 //!   transport ([`crate::transport`]), and their wiring from the configuration;
-//! - [`markers`]: skeletons as `visualization_msgs/MarkerArray`;
+//! - [`markers`]: skeletons as `visualization_msgs/MarkerArray`, and over each image;
 //! - [`arrays`]: the skeletons of one image together (`Skeleton3DArray`);
 //! - [`camera`]: the calibration assumed for images without one (`CameraInfo`);
 //! - [`frames`]: each person's body and joint frames for `/tf`;
-//! - [`hri`]: skeletons as REP-155 (ROS4HRI) bodies: ids, regions, 2D skeletons.
+//! - [`hri`]: skeletons as REP-155 (ROS4HRI) bodies: ids, regions, 2D skeletons;
+//! - [`shown_images`]: the camera images as the Foxglove live view shows them.
 
 pub mod arrays;
 pub mod camera;
@@ -22,6 +23,7 @@ pub mod latency;
 pub mod markers;
 pub mod replay;
 pub mod service;
+pub mod shown_images;
 
 use std::collections::{BTreeMap, VecDeque};
 use std::panic::AssertUnwindSafe;

@@ -106,6 +106,8 @@ pub struct ReplayOptions {
     pub rosbag2: bool,
     /// Pace.
     pub rate: ReplayRate,
+    /// The pace is the recorded one because a live view is served (said when it starts).
+    pub paced_for_live: bool,
 }
 
 /// Replays `input` through an estimator node set up from `config`: the estimator
@@ -123,44 +125,32 @@ pub fn replay(
     }
     let mut node = EstimatorNode::from_service_config(config)?;
     let reader = RecordingReader::open_with_limit(input, config.limits.max_record_bytes)?;
+    // The recording takes the skeletons, and each image's together (`[outputs] arrays`);
+    // the live view everything the estimator node publishes (markers, /tf, REP-155 as
+    // configured) and the input's heat maps, truth and calibration. The live view first,
+    // and a recording that was started is removed when what follows cannot start.
+    let live = live_view(config)?;
+    if live.is_some() && options.paced_for_live {
+        tracing::info!(
+            target: "posestream::live",
+            "replaying at the recorded pace for the live view (--rate fast: as fast as it goes)"
+        );
+    }
     let recorder = options
         .record
         .as_ref()
         .map(SharedRecorder::create)
         .transpose()?;
+    let mut outputs = match replay_outputs(config, &node, recorder.as_ref(), live.as_ref()) {
+        Ok(o) => o,
+        Err(e) => {
+            if let Some(r) = recorder {
+                r.abandon();
+            }
+            return Err(e);
+        }
+    };
     let topics = &config.topics;
-    // The recording takes the skeletons, and each image's together (`[outputs] arrays`);
-    // the live view everything the estimator node publishes (markers, /tf, REP-155 as
-    // configured) and the input's heat maps, truth and calibration.
-    let live = live_view(config)?;
-    let recorded = Taps {
-        recorder: recorder.clone(),
-        live: None,
-    };
-    let shown = Taps {
-        recorder: None,
-        live: live.clone(),
-    };
-    let mut skeletons = recorded.publishers::<Skeleton3D>(&topics.skeletons)?;
-    shown.add_to(&mut skeletons, &topics.skeletons)?;
-    let mut arrays = Publishers::default();
-    if config.outputs.arrays {
-        recorded.add_to(&mut arrays, &topics.skeleton_arrays)?;
-        shown.add_to(&mut arrays, &topics.skeleton_arrays)?;
-    }
-    let mut outputs = if live.is_some() {
-        let mut shown_only = config.clone();
-        shown_only.outputs.ros2 = false;
-        shown_only.outputs.iceoryx2 = false;
-        let mut none = super::service::Middleware::default();
-        let mut o = EstimatorOutputs::open(&shown_only, &mut none, &shown, &node)?;
-        o.skeletons = skeletons;
-        o.arrays = arrays;
-        o
-    } else {
-        EstimatorOutputs::new(skeletons, Publishers::default(), node.bones()).with_arrays(arrays)
-    }
-    .stamped_at_release();
     let passed_on = Taps {
         recorder: recorder.clone(),
         live: live.clone(),
@@ -238,6 +228,45 @@ pub fn replay(
         update: report.update,
         output,
     })
+}
+
+/// A replay's outputs: the skeletons (and each image's together) to the recording, and
+/// everything the estimator node publishes to the live view.
+fn replay_outputs(
+    config: &ServiceConfig,
+    node: &EstimatorNode,
+    recorder: Option<&SharedRecorder>,
+    live: Option<&LiveView>,
+) -> Result<EstimatorOutputs, ReplayError> {
+    let topics = &config.topics;
+    let recorded = Taps {
+        recorder: recorder.cloned(),
+        live: None,
+    };
+    let shown = Taps {
+        recorder: None,
+        live: live.cloned(),
+    };
+    let mut skeletons = recorded.publishers::<Skeleton3D>(&topics.skeletons)?;
+    shown.add_to(&mut skeletons, &topics.skeletons)?;
+    let mut arrays = Publishers::default();
+    if config.outputs.arrays {
+        recorded.add_to(&mut arrays, &topics.skeleton_arrays)?;
+        shown.add_to(&mut arrays, &topics.skeleton_arrays)?;
+    }
+    let outputs = if live.is_some() {
+        let mut shown_only = config.clone();
+        shown_only.outputs.ros2 = false;
+        shown_only.outputs.iceoryx2 = false;
+        let mut none = super::service::Middleware::default();
+        let mut o = EstimatorOutputs::open(&shown_only, &mut none, &shown, node)?;
+        o.skeletons = skeletons;
+        o.arrays = arrays;
+        o
+    } else {
+        EstimatorOutputs::new(skeletons, Publishers::default(), node.bones()).with_arrays(arrays)
+    };
+    Ok(outputs.stamped_at_release())
 }
 
 /// A replay's input as a [`FrameSource`]: the heat maps of a recording, decoded and

@@ -42,6 +42,13 @@ pub fn check_output(output: &Path, inputs: &[&Path]) -> Result<(), OutputIsInput
 /// `NAME.PID.partial` (or `NAME.PID-N.partial` if that exists), created empty. A file
 /// left by an earlier run that was killed is never reused.
 pub fn create_partial(path: &Path) -> std::io::Result<(PathBuf, std::fs::File)> {
+    if crate::shipped::find(path).is_some() {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            "a builtin: path names a file built into the binary, which is read-only: \
+             write the output to a file",
+        ));
+    }
     let name = path
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
@@ -83,6 +90,10 @@ mod tests {
         let other = dir.path().join("other");
         std::fs::write(&other, b"y").expect("write");
         assert!(check_output(&other, &[&input]).is_ok());
+        // A built-in file is no place to write to.
+        let e = create_partial(Path::new("builtin:recordings/byebye.mcap")).expect_err("refused");
+        assert!(e.to_string().contains("built into the binary"), "{e}");
+        assert!(create_partial(Path::new("builtin:out.mcap")).is_err());
     }
 
     #[test]

@@ -24,6 +24,15 @@ pub enum ConfigError {
         /// The parser's message (with the offending line).
         source: toml::de::Error,
     },
+    /// The document's shape is wrong where serde would say something unhelpful (a
+    /// section written as an array of tables).
+    #[error("{path}: {reason}")]
+    Shape {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong and how to write it.
+        reason: String,
+    },
     /// A value is outside its domain.
     #[error("{path}: {source}")]
     Domain {
@@ -34,13 +43,35 @@ pub enum ConfigError {
     },
 }
 
+/// The largest TOML file read: configuration is small, and a path to something endless
+/// (`/dev/zero`) must not be read into memory.
+pub const MAX_TOML_BYTES: u64 = 4 << 20;
+
 /// Reads and deserialises a TOML file (or a shipped one, `builtin:NAME`).
 pub fn load_toml<T: DeserializeOwned>(path: &Path) -> Result<T, ConfigError> {
-    let text = crate::shipped::read_to_string(path).map_err(|source| ConfigError::Io {
+    parse_toml(&read_toml(path)?, path)
+}
+
+/// Reads a TOML file's text (or a shipped one's), at most [`MAX_TOML_BYTES`].
+pub fn read_toml(path: &Path) -> Result<std::borrow::Cow<'static, str>, ConfigError> {
+    let io = |source| ConfigError::Io {
         path: path.to_path_buf(),
         source,
-    })?;
-    parse_toml(&text, path)
+    };
+    if crate::shipped::find(path).is_some() {
+        return crate::shipped::read_to_string(path).map_err(io);
+    }
+    use std::io::Read;
+    let mut text = String::new();
+    std::fs::File::open(path)
+        .and_then(|f| f.take(MAX_TOML_BYTES + 1).read_to_string(&mut text))
+        .map_err(io)?;
+    if text.len() as u64 > MAX_TOML_BYTES {
+        return Err(io(std::io::Error::other(format!(
+            "longer than {MAX_TOML_BYTES} bytes: not a configuration file"
+        ))));
+    }
+    Ok(std::borrow::Cow::Owned(text))
 }
 
 /// Deserialises TOML text (`path` names it in errors).

@@ -6,14 +6,20 @@
 //!
 //! The server is read-only for its clients: it advertises none of the protocol's
 //! capabilities (no client publishing, parameters or services), so a viewer can
-//! subscribe to channels and nothing else. A message is encoded only while a client is
-//! subscribed to its channel. Each client has a bounded backlog
-//! ([`LiveView::BACKLOG`] messages); a client that falls further behind is disconnected
-//! by the server, so a slow or stalled viewer never holds up a node. The crate's server
-//! takes any number of clients, so the address a user names is ours: connections are
-//! accepted there and passed to the server (listening on the loopback interface) while
-//! fewer than [`LiveView::MAX_VIEWERS`] are open; more are closed at once and counted
-//! ([`LiveView::refused`]), so the viewers' backlogs are bounded together.
+//! subscribe to channels and nothing else. The `foxglove` crate names the protocol
+//! `foxglove.sdk.v1` (as foxglove_bridge 3.x does; the messages are those of
+//! `foxglove.websocket.v1`).
+//!
+//! What a viewer costs is bounded: a message is encoded only while a viewer is subscribed
+//! to its channel, and none over [`LiveView::MAX_MESSAGE_BYTES`] is shown (counted);
+//! each viewer has a queue of [`LiveView::BACKLOG`] messages, and when a viewer falls
+//! behind the server drops its oldest ones (the viewer stays connected and is not told).
+//! The crate's server takes any number of clients, so the address a user names is ours
+//! ([`pass_viewers`]): a connection is passed on to the server (listening on the loopback
+//! interface) once it has sent its whole WebSocket upgrade request within
+//! [`LiveView::HANDSHAKE`], while fewer than [`LiveView::MAX_VIEWERS`] viewers are
+//! connected; the others are closed and counted ([`LiveView::refused`]). So at most
+//! `MAX_VIEWERS x BACKLOG x MAX_MESSAGE_BYTES` are queued for viewers, whatever they do.
 
 use std::collections::BTreeMap;
 use std::marker::PhantomData;
@@ -41,14 +47,25 @@ struct Inner {
     channels: Mutex<BTreeMap<String, Arc<RawChannel>>>,
     address: SocketAddr,
     refused: Arc<AtomicU64>,
+    /// Messages not shown for their size.
+    oversized: Arc<AtomicU64>,
     server: Mutex<Option<foxglove::WebSocketServerHandle>>,
     // The server's tasks run here; dropped last.
     runtime: Mutex<Option<tokio::runtime::Runtime>>,
 }
 
 impl LiveView {
-    /// Messages queued for one client at most before the server disconnects it.
-    pub const BACKLOG: usize = 256;
+    /// Messages queued for one viewer at most (the oldest are dropped beyond).
+    pub const BACKLOG: usize = 32;
+
+    /// The largest message shown (encoded); larger ones are counted and not shown.
+    pub const MAX_MESSAGE_BYTES: usize = 2 << 20;
+
+    /// How long a new connection may take to send its WebSocket upgrade request.
+    pub const HANDSHAKE: std::time::Duration = std::time::Duration::from_secs(5);
+
+    /// Connections waiting for their upgrade request at once, at most (more are closed).
+    pub const MAX_PENDING: usize = 64;
 
     /// Viewers connected at once at most; more are closed at once and counted.
     pub const MAX_VIEWERS: usize = 8;
@@ -65,18 +82,7 @@ impl LiveView {
         // The address the user named: ours, so that viewers are counted.
         let front = runtime
             .block_on(tokio::net::TcpListener::bind(address))
-            .map_err(|e| match e.kind() {
-                std::io::ErrorKind::AddrInUse => setup(
-                    address,
-                    format!(
-                        "the address is in use (another posestream or Foxglove bridge?): \
-                         choose another port, e.g. --foxglove {}:{}",
-                        address.ip(),
-                        address.port().wrapping_add(1).max(1024)
-                    ),
-                ),
-                _ => setup(address, e.to_string()),
-            })?;
+            .map_err(|e| setup(address, bind_error(address, &e)))?;
         let bound = front
             .local_addr()
             .map_err(|e| setup(address, e.to_string()))?;
@@ -92,21 +98,29 @@ impl LiveView {
         let inner = SocketAddr::from(([127, 0, 0, 1], handle.port()));
         let refused = Arc::new(AtomicU64::new(0));
         runtime.spawn(pass_viewers(front, inner, refused.clone()));
+        let oversized = Arc::new(AtomicU64::new(0));
         Ok(Self {
             inner: Arc::new(Inner {
                 context,
                 channels: Mutex::new(BTreeMap::new()),
                 address: bound,
                 refused,
+                oversized,
                 server: Mutex::new(Some(handle)),
                 runtime: Mutex::new(Some(runtime)),
             }),
         })
     }
 
-    /// Connections closed at once because [`LiveView::MAX_VIEWERS`] were open.
+    /// Connections closed because [`LiveView::MAX_VIEWERS`] were open, or that sent no
+    /// upgrade request in time.
     pub fn refused(&self) -> u64 {
         self.inner.refused.load(Ordering::Relaxed)
+    }
+
+    /// Messages not shown because they were over [`LiveView::MAX_MESSAGE_BYTES`].
+    pub fn oversized(&self) -> u64 {
+        self.inner.oversized.load(Ordering::Relaxed)
     }
 
     /// Where it serves (the port chosen when asked for port 0).
@@ -169,6 +183,7 @@ impl LiveView {
         Ok(LiveSink {
             channel: self.channel::<M>(topic)?,
             buffer: Vec::new(),
+            oversized: self.inner.oversized.clone(),
             _message: PhantomData,
         })
     }
@@ -182,9 +197,14 @@ impl LiveView {
         data: &[u8],
     ) -> Result<(), TransportError> {
         let channel = self.channel::<M>(topic)?;
-        if channel.has_sinks() {
-            channel.log_with_meta(data, PartialMetadata::with_log_time(stamp_ns));
+        if !channel.has_sinks() {
+            return Ok(());
         }
+        if data.len() > Self::MAX_MESSAGE_BYTES {
+            self.inner.oversized.fetch_add(1, Ordering::Relaxed);
+            return Ok(());
+        }
+        channel.log_with_meta(data, PartialMetadata::with_log_time(stamp_ns));
         Ok(())
     }
 
@@ -228,10 +248,35 @@ impl Drop for Inner {
     }
 }
 
-/// Accepts viewers on `front` and passes each to the server on `server` while fewer than
-/// [`LiveView::MAX_VIEWERS`] are connected; closes (and counts) the others.
+/// What binding `address` failed with, said so that the fix is plain.
+fn bind_error(address: SocketAddr, e: &std::io::Error) -> String {
+    match e.kind() {
+        std::io::ErrorKind::AddrInUse => format!(
+            "the address is in use (another posestream or Foxglove bridge?): choose another \
+             port, e.g. --foxglove {}",
+            SocketAddr::new(address.ip(), address.port().wrapping_add(1).max(1024))
+        ),
+        std::io::ErrorKind::AddrNotAvailable => format!(
+            "{} is not an address of this machine: --foxglove 0.0.0.0:{} serves on all of \
+             them (`ip -brief addr` lists them)",
+            address.ip(),
+            address.port()
+        ),
+        std::io::ErrorKind::PermissionDenied => format!(
+            "{e}: ports below 1024 need privileges; choose another, e.g. --foxglove {}",
+            SocketAddr::new(address.ip(), 8765)
+        ),
+        _ => e.to_string(),
+    }
+}
+
+/// Accepts viewers on `front` and passes each to the server on `server` once it has sent
+/// its whole upgrade request within [`LiveView::HANDSHAKE`], while fewer than
+/// [`LiveView::MAX_VIEWERS`] are connected; closes (and counts) the others. Connections
+/// still sending their request are [`LiveView::MAX_PENDING`] at most.
 async fn pass_viewers(front: tokio::net::TcpListener, server: SocketAddr, refused: Arc<AtomicU64>) {
-    let open = Arc::new(tokio::sync::Semaphore::new(LiveView::MAX_VIEWERS));
+    let viewers = Arc::new(tokio::sync::Semaphore::new(LiveView::MAX_VIEWERS));
+    let pending = Arc::new(tokio::sync::Semaphore::new(LiveView::MAX_PENDING));
     loop {
         let (mut viewer, from) = match front.accept().await {
             Ok(v) => v,
@@ -242,23 +287,66 @@ async fn pass_viewers(front: tokio::net::TcpListener, server: SocketAddr, refuse
                 continue;
             }
         };
-        let Ok(permit) = open.clone().try_acquire_owned() else {
-            if refused.fetch_add(1, Ordering::Relaxed) == 0 {
-                tracing::warn!(
-                    "live view: {} viewers connected already: {from} and later ones are \
-                     closed (counted)",
-                    LiveView::MAX_VIEWERS
-                );
-            }
-            drop(viewer);
+        let Ok(waiting) = pending.clone().try_acquire_owned() else {
+            refuse(
+                &refused,
+                from,
+                "too many connections are still to say what they are",
+            );
             continue;
         };
+        let (viewers, refused) = (viewers.clone(), refused.clone());
         tokio::spawn(async move {
+            let asked = tokio::time::timeout(LiveView::HANDSHAKE, upgrade_request(&mut viewer));
+            let complete = matches!(asked.await, Ok(Ok(true)));
+            drop(waiting);
+            if !complete {
+                refuse(
+                    &refused,
+                    from,
+                    "it sent no WebSocket upgrade request in time",
+                );
+                return;
+            }
+            let Ok(_slot) = viewers.try_acquire_owned() else {
+                let why = format!("{} viewers are connected", LiveView::MAX_VIEWERS);
+                refuse(&refused, from, &why);
+                return;
+            };
             if let Ok(mut upstream) = tokio::net::TcpStream::connect(server).await {
                 let _ = tokio::io::copy_bidirectional(&mut viewer, &mut upstream).await;
             }
-            drop(permit);
         });
+    }
+}
+
+/// Waits until `viewer` has sent a whole HTTP request head (up to a blank line), at most
+/// 16 kB, without taking it off the socket (the server reads it). True when it came.
+async fn upgrade_request(viewer: &mut tokio::net::TcpStream) -> std::io::Result<bool> {
+    let mut head = vec![0_u8; 16 << 10];
+    loop {
+        let n = viewer.peek(&mut head).await?;
+        if n == 0 {
+            return Ok(false);
+        }
+        if head[..n].windows(4).any(|w| w == b"\r\n\r\n") {
+            return Ok(true);
+        }
+        if n == head.len() {
+            return Ok(false);
+        }
+        // More is on its way: wait a little instead of peeking at the same bytes again.
+        tokio::time::sleep(std::time::Duration::from_millis(10)).await;
+    }
+}
+
+/// Counts a refused connection; says so (with why) the first time.
+fn refuse(refused: &AtomicU64, from: SocketAddr, why: &str) {
+    if refused.fetch_add(1, Ordering::Relaxed) == 0 {
+        tracing::warn!(
+            "live view: closed the connection of {from}: {why} (further ones are counted, \
+             not logged)"
+        );
     }
 }
 
@@ -275,14 +363,31 @@ fn setup(address: SocketAddr, reason: String) -> TransportError {
 pub struct LiveSink<M> {
     channel: Arc<RawChannel>,
     buffer: Vec<u8>,
+    oversized: Arc<AtomicU64>,
     _message: PhantomData<fn(M)>,
 }
 
 impl<M> LiveSink<M> {
-    /// Whether a client is subscribed now (what is sent otherwise goes nowhere): a
-    /// message costly to make (an image to compress) is made only then.
+    /// Whether a viewer is subscribed now (what is sent otherwise goes nowhere).
     pub fn wanted(&self) -> bool {
         self.channel.has_sinks()
+    }
+
+    /// A handle that tells [`LiveSink::wanted`] from elsewhere (another thread), so a
+    /// message costly to make (an image to compress) is made only while watched.
+    pub fn watcher(&self) -> Watcher {
+        Watcher(self.channel.clone())
+    }
+}
+
+/// Whether a viewer watches a channel now ([`LiveSink::watcher`]).
+#[derive(Clone)]
+pub struct Watcher(Arc<RawChannel>);
+
+impl Watcher {
+    /// Whether a viewer is subscribed now.
+    pub fn wanted(&self) -> bool {
+        self.0.has_sinks()
     }
 }
 
@@ -299,6 +404,10 @@ impl<M: Message> Sink<M> for LiveSink<M> {
                 reason: e.to_string(),
             }
         })?;
+        if self.buffer.len() > LiveView::MAX_MESSAGE_BYTES {
+            self.oversized.fetch_add(1, Ordering::Relaxed);
+            return Ok(());
+        }
         self.channel
             .log_with_meta(&self.buffer, PartialMetadata::with_log_time(stamp_ns));
         Ok(())
@@ -309,36 +418,74 @@ impl<M: Message> Sink<M> for LiveSink<M> {
 mod tests {
     use super::*;
 
+    use std::io::Write;
+
+    /// Polls `f` for up to 5 s until it holds.
+    fn eventually(f: impl Fn() -> bool) -> bool {
+        (0..250).any(|_| {
+            std::thread::sleep(std::time::Duration::from_millis(20));
+            f()
+        })
+    }
+
+    fn upgrade(address: SocketAddr) -> std::net::TcpStream {
+        let mut s = std::net::TcpStream::connect(address).expect("connects");
+        write!(
+            s,
+            "GET / HTTP/1.1\r\nHost: {address}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n\
+             Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\
+             Sec-WebSocket-Protocol: foxglove.sdk.v1\r\n\r\n"
+        )
+        .expect("writes");
+        s
+    }
+
     #[test]
-    fn viewers_beyond_the_cap_are_closed_and_counted() {
+    fn viewers_beyond_the_cap_and_silent_connections_are_closed_and_counted() {
         let live = LiveView::serve("127.0.0.1:0".parse().expect("address")).expect("serves");
         let address = live.address();
         assert_ne!(address.port(), 0);
-        let held: Vec<std::net::TcpStream> = (0..LiveView::MAX_VIEWERS + 3)
+        // Connections that never say what they are do not hold the viewers' places.
+        let silent: Vec<std::net::TcpStream> = (0..LiveView::MAX_VIEWERS)
             .map(|_| std::net::TcpStream::connect(address).expect("connects"))
             .collect();
-        for _ in 0..100 {
-            if live.refused() == 3 {
-                break;
-            }
-            std::thread::sleep(std::time::Duration::from_millis(20));
-        }
-        assert_eq!(live.refused(), 3);
-        // One closed: room for one more.
-        drop(held);
-        std::thread::sleep(std::time::Duration::from_millis(200));
-        let _again = std::net::TcpStream::connect(address).expect("connects");
-        std::thread::sleep(std::time::Duration::from_millis(100));
-        assert_eq!(live.refused(), 3);
+        let viewers: Vec<std::net::TcpStream> = (0..LiveView::MAX_VIEWERS + 2)
+            .map(|_| upgrade(address))
+            .collect();
+        assert!(eventually(|| live.refused() == 2), "{}", live.refused());
+        assert!(eventually(|| live.clients() == LiveView::MAX_VIEWERS));
+        // The silent ones are closed once the handshake's time is up.
+        std::thread::sleep(LiveView::HANDSHAKE);
+        let all = 2 + LiveView::MAX_VIEWERS as u64;
+        assert!(eventually(|| live.refused() == all), "{}", live.refused());
+        // A viewer gone makes room for another.
+        drop(viewers);
+        assert!(eventually(|| live.clients() == 0));
+        let _again = upgrade(address);
+        assert!(eventually(|| live.clients() == 1));
+        assert_eq!(live.refused(), all);
+        drop(silent);
         live.stop();
     }
 
     #[test]
-    fn a_port_in_use_names_the_option_that_moves_it() {
+    fn binding_errors_name_the_fix() {
         let taken = std::net::TcpListener::bind("127.0.0.1:0").expect("bind");
         let e = LiveView::serve(taken.local_addr().expect("address"))
             .err()
             .expect("in use");
         assert!(e.to_string().contains("--foxglove 127.0.0.1:"), "{e}");
+        let v6 = bind_error(
+            "[::1]:9000".parse().expect("address"),
+            &std::io::Error::from(std::io::ErrorKind::AddrInUse),
+        );
+        assert!(v6.contains("--foxglove [::1]:9001"), "{v6}");
+        let elsewhere = LiveView::serve("10.253.254.1:8765".parse().expect("address"))
+            .err()
+            .expect("not ours");
+        assert!(
+            elsewhere.to_string().contains("0.0.0.0:8765"),
+            "{elsewhere}"
+        );
     }
 }

@@ -18,9 +18,10 @@ use crate::nodes::SetupError;
 use crate::nodes::arrays::ImageArrays;
 use crate::nodes::camera::CameraTap;
 use crate::nodes::config::{DetectorSource, ReplayRate, ServiceConfig, Transport};
-use crate::nodes::images::{ImageHeatMaps, SharedStats, image_frames, shown_images_topic};
+use crate::nodes::images::{ImageHeatMaps, SharedStats, image_frames};
 use crate::nodes::latency::FrameClock;
 use crate::nodes::markers::{image_markers, skeleton_markers};
+use crate::nodes::shown_images::shown_images_topic;
 use crate::recording::RecordingSummary;
 use crate::transport::foxglove::LiveView;
 use crate::transport::mcap::{McapSource, SharedRecorder};
@@ -318,7 +319,9 @@ pub fn live_view(config: &ServiceConfig) -> Result<Option<LiveView>, TransportEr
         })?;
     let live = LiveView::serve(address)?;
     tracing::info!(
-        "Foxglove live view on ws://{} (Foxglove app: Open connection, Foxglove WebSocket)",
+        target: "posestream::live",
+        "Foxglove live view on ws://{} (Foxglove app: Open connection, Foxglove WebSocket; \
+         layout: docs/foxglove-layout.json)",
         live.address()
     );
     Ok(Some(live))
