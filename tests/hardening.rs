@@ -8,7 +8,7 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use common::{peak_memory_run, recording, root};
+use common::{peak_memory_run, python_client, recording, root};
 use posestream::msgs::{self, HeatMaps, Skeleton3D};
 use posestream::nodes::{EstimatorNode, ServiceConfig};
 use posestream::recording::{Recorder, RecordingError, RecordingReader, read_topic};
@@ -219,8 +219,20 @@ fn frames_beyond_the_limits_are_refused_within_the_memory_budget() {
         r.stderr
     );
     // 17 x 2048 x 2048 (a 68 MiB message): its chunk is beyond `limits.max_record_bytes`,
-    // so reading the file ends there with one error, nothing of that size allocated.
-    let r = run(&["replay", s(&recording_with(2048))]);
+    // so it is skipped, nothing of that size allocated, and the frames after it (their
+    // own chunk) replayed, with a warning; strict, reading ends there with one error.
+    let huge = recording_with(2048);
+    let r = run(&["replay", "--json", s(&huge)]);
+    assert_eq!(r.code, Some(0), "{}", r.stderr);
+    let report = r.report();
+    assert_eq!(report["frames"], 19, "{report}");
+    assert_eq!(report["skipped"]["counts"]["over-limit"], 1, "{report}");
+    assert!(
+        r.stderr.contains("damaged parts skipped") && r.stderr.contains("1 over the limit"),
+        "{}",
+        r.stderr
+    );
+    let r = run(&["replay", "--strict", s(&huge)]);
     r.assert_one_error("limits.max_record_bytes");
     // The limits are configuration: 64 x 64 maps are refused under a 32 limit.
     let mut node_config = config();
@@ -330,7 +342,7 @@ fn hostile_record_lengths_end_reading_with_one_error_and_keep_what_came_before()
     for (name, at, with, frames_before) in cases {
         let input = patched(dir.path(), name, &bytes, at, &with);
         let out = dir.path().join(format!("{name}.out.mcap"));
-        let r = run(&["replay", s(&input), "--record", s(&out)]);
+        let r = run(&["replay", "--strict", s(&input), "--record", s(&out)]);
         r.assert_one_error(name);
         // The output is not written (the run failed); everything before the bad record
         // was replayed and its skeletons kept in the output's `.partial` file, which the
@@ -393,7 +405,7 @@ fn a_corrupt_chunk_is_reported_and_never_used() {
     for input in [wrong_crc, flipped] {
         let name = input.file_name().and_then(|n| n.to_str()).expect("name");
         let out = dir.path().join(format!("{name}.out.mcap"));
-        let r = run(&["replay", s(&input), "--record", s(&out)]);
+        let r = run(&["replay", "--strict", s(&input), "--record", s(&out)]);
         r.assert_one_error(name);
         assert!(!out.exists());
         let kept = partial_of(&out).expect("the skeletons before are kept");
@@ -412,6 +424,176 @@ fn a_corrupt_chunk_is_reported_and_never_used() {
             "{err:?}"
         );
     }
+}
+
+// Issue 41: a damaged part of a recording costs only that part.
+
+/// `replay --json` of `input` (reading on past damage): its report, checked to be a
+/// success with one warning line naming what was skipped.
+fn salvaged(input: &Path, out: &Path) -> serde_json::Value {
+    let r = run(&["replay", "--json", s(input), "--record", s(out)]);
+    assert_eq!(r.code, Some(0), "{}", r.stderr);
+    let warnings: Vec<&str> = r.stderr.lines().collect();
+    assert_eq!(warnings.len(), 1, "{}", r.stderr);
+    assert!(
+        warnings[0].starts_with("posestream: warning: ")
+            && warnings[0].contains("damaged parts skipped")
+            && warnings[0].contains("bytes "),
+        "{}",
+        r.stderr
+    );
+    r.report()
+}
+
+#[test]
+fn each_kind_of_damage_costs_only_its_part_and_the_good_frames_around_it_are_replayed() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (_, bytes) = chunked(dir.path());
+    let recs = records(&bytes);
+    let chunks: Vec<usize> = recs
+        .iter()
+        .filter(|(_, op)| *op == CHUNK)
+        .map(|(at, _)| *at)
+        .collect();
+    let all = frames("byebye.mcap").len();
+    let tib = (1_u64 << 40).to_le_bytes();
+    let third = chunks[2];
+    let middle = (chunks[2] + chunks[3]) / 2;
+    // (name, bytes, frames replayed, kind of skip)
+    let cases: Vec<(&str, Vec<u8>, usize, &str)> = vec![
+        // A header whose length lies: scanned past, every chunk read.
+        (
+            "header-1tib",
+            patch(&bytes, recs[0].0 + 1, &tib),
+            all,
+            "lying-length",
+        ),
+        // A chunk's lengths that lie: corrected from the chunk's own sizes.
+        (
+            "chunk5-1tib",
+            patch(&bytes, chunks[4] + 1, &tib),
+            all,
+            "lying-length",
+        ),
+        (
+            "chunk5-max",
+            patch(&bytes, chunks[4] + 1, &u64::MAX.to_le_bytes()),
+            all,
+            "lying-length",
+        ),
+        // A chunk whose CRC fails, one with a byte flipped (zstd keeps no checksum of its
+        // own here, so the CRC finds it): that chunk's 10 frames.
+        (
+            "wrong-crc",
+            patch(&bytes, third + 9 + 24, &[0xde, 0xad]),
+            all - PER_CHUNK,
+            "bad-crc",
+        ),
+        (
+            "flipped",
+            patch(&bytes, middle, &[bytes[middle] ^ 0x10]),
+            all - PER_CHUNK,
+            "bad-crc",
+        ),
+        // A chunk whose zstd frame is broken: it does not decompress.
+        (
+            "bad-zstd",
+            patch(&bytes, third + 53, &[0, 0, 0, 0]),
+            all - PER_CHUNK,
+            "not-decompressed",
+        ),
+        // Garbage over a chunk's start: scanned past.
+        (
+            "garbage",
+            patch(&bytes, third, &[0xee; 64]),
+            all - PER_CHUNK,
+            "unparsable",
+        ),
+        // A file cut short in its fourth chunk: the three before.
+        (
+            "cut",
+            bytes[..chunks[3] + 100].to_vec(),
+            3 * PER_CHUNK,
+            "cut-short",
+        ),
+    ];
+    for (name, damaged, frames, kind) in cases {
+        let input = dir.path().join(format!("{name}.mcap"));
+        std::fs::write(&input, &damaged).expect("write");
+        let out = dir.path().join(format!("{name}.out.mcap"));
+        let report = salvaged(&input, &out);
+        assert_eq!(report["frames"], frames, "{name}: {report}");
+        assert_eq!(report["skipped"]["counts"][kind], 1, "{name}: {report}");
+        // The output is in place, and holds the skeletons of every frame replayed.
+        let kept: Vec<(u64, Skeleton3D)> = read_topic(&out, SKELETONS).expect("complete");
+        assert_eq!(newest_estimates(&kept), frames, "{name}");
+        // `recover` writes a clean, indexed copy of the same frames, which Python `mcap`
+        // reads through its index and `rosbags` as a rosbag2 bag.
+        let bag = dir.path().join(format!("{name}-bag"));
+        std::fs::create_dir_all(&bag).expect("bag");
+        let copy = bag.join("recovered.mcap");
+        let r = run(&["recover", s(&input), s(&copy), "--rosbag2", "--json"]);
+        assert_eq!(r.code, Some(0), "{name}: {}", r.stderr);
+        assert_eq!(r.report()["messages"], frames, "{name}");
+        assert!(
+            r.stderr.contains("damaged parts skipped"),
+            "{name}: {}",
+            r.stderr
+        );
+        let indexed = python_client("read_indexed.py", &[s(&copy)]);
+        assert_eq!(indexed["topics"][HEATMAPS], frames, "{name}: {indexed}");
+        assert_eq!(indexed["decoded"], frames, "{name}: {indexed}");
+        assert!(
+            indexed["chunk_indexes"].as_u64() > Some(0),
+            "{name}: {indexed}"
+        );
+        let bag_read = python_client("read_recording.py", &["--rosbag2", s(&bag)]);
+        assert_eq!(bag_read["topics"][HEATMAPS], frames, "{name}: {bag_read}");
+        // And the copy reads strictly, whole.
+        let strict: Vec<(u64, HeatMaps)> = read_topic(&copy, HEATMAPS).expect("clean");
+        assert_eq!(strict.len(), frames, "{name}");
+    }
+    // The service reads on past damage too: `run --recording` publishes every readable
+    // frame and warns; strict, the input ends at the damage with one error.
+    let input = dir.path().join("wrong-crc.mcap");
+    let r = run(&["run", "--recording", s(&input), "--ros2", "false", "--json"]);
+    assert_eq!(r.code, Some(0), "{}", r.stderr);
+    assert_eq!(
+        r.report()["detector"]["published"],
+        all - PER_CHUNK,
+        "{}",
+        r.stdout
+    );
+    assert!(
+        r.stderr.contains("damaged parts skipped") && r.stderr.contains("1 CRC mismatch"),
+        "{}",
+        r.stderr
+    );
+    let r = run(&[
+        "run",
+        "--recording",
+        s(&input),
+        "--ros2",
+        "false",
+        "--strict",
+    ]);
+    assert_eq!(r.code, Some(1), "{}", r.stderr);
+    assert!(r.stderr.contains("corrupt recording"), "{}", r.stderr);
+    // Nothing readable at all: one error.
+    let mut random = b"\x89MCAP0\r\n".to_vec();
+    random.extend((0..4096_u32).map(|i| (i.wrapping_mul(2_654_435_761) >> 13) as u8));
+    let input = dir.path().join("random.mcap");
+    std::fs::write(&input, random).expect("write");
+    run(&["replay", s(&input)]).assert_one_error("nothing could be read");
+    let copy = dir.path().join("random-copy.mcap");
+    run(&["recover", s(&input), s(&copy)]).assert_one_error("nothing could be read");
+    assert!(!copy.exists());
+}
+
+fn patch(bytes: &[u8], at: usize, with: &[u8]) -> Vec<u8> {
+    let mut b = bytes.to_vec();
+    b[at..at + with.len()].copy_from_slice(with);
+    b
 }
 
 // Defect 6: a frame with another map size wedged the track.

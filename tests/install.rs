@@ -480,6 +480,45 @@ fn images_are_shown_live_with_their_skeletons_over_them_and_render_from_anywhere
             .len()
             > 10_000
     );
+    // A damaged part of the recording costs only that part: a chunk's CRC broken, the
+    // picture is drawn from the rest, with a warning.
+    let mut bytes = std::fs::read(installed().work.join("bikes.mcap")).expect("read");
+    let chunk = chunks(&bytes)[1];
+    bytes[chunk + 9 + 24] ^= 0xff;
+    std::fs::write(installed().work.join("bikes-damaged.mcap"), bytes).expect("write");
+    let rendered = command(
+        &[
+            "render",
+            "bikes-damaged.mcap",
+            "--video",
+            &video,
+            "-o",
+            "damaged.png",
+        ],
+        Some(models),
+    )
+    .output()
+    .expect("runs");
+    let err = String::from_utf8_lossy(&rendered.stderr);
+    assert!(rendered.status.success(), "{err}");
+    assert!(
+        err.contains("damaged parts skipped") && err.contains("CRC mismatch"),
+        "{err}"
+    );
+}
+
+/// The offsets of the chunks of an MCAP file.
+fn chunks(bytes: &[u8]) -> Vec<usize> {
+    let mut out = Vec::new();
+    let mut at = 8;
+    while at + 9 <= bytes.len() && bytes[at] != 0x02 {
+        if bytes[at] == 0x06 {
+            out.push(at);
+        }
+        let len = u64::from_le_bytes(bytes[at + 1..at + 9].try_into().expect("8 bytes"));
+        at += 9 + len as usize;
+    }
+    out
 }
 
 #[test]

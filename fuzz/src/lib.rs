@@ -221,7 +221,9 @@ pub fn shm_sample(data: &[u8]) {
     }
 }
 
-/// A recording: every message read, heat maps decoded, until the end or the first error.
+/// A recording: every message read, heat maps decoded, until the end or the first error
+/// (strict); then again reading on past damage (`posestream_msgs::salvage`), which must
+/// never fail nor skip more bytes than the file has.
 pub fn mcap(data: &[u8]) {
     let Ok(reader) = RecordingReader::from_reader(Cursor::new(data), name("mcap").into(), 1 << 20)
     else {
@@ -232,6 +234,19 @@ pub fn mcap(data: &[u8]) {
         let Ok(m) = m else { break };
         let _ = msgs::decode::<HeatMaps>(&m.data);
     }
+    let Ok(reader) = RecordingReader::from_reader(Cursor::new(data), name("mcap").into(), 1 << 20)
+    else {
+        return;
+    };
+    let Ok(mut reader) = reader.salvaging() else {
+        return;
+    };
+    for m in reader.by_ref() {
+        let m = m.expect("reading on past damage never fails");
+        let _ = msgs::decode::<HeatMaps>(&m.data);
+    }
+    let skipped = reader.skips().expect("salvaging");
+    assert!(skipped.bytes <= data.len() as u64, "{skipped:?}");
 }
 
 /// An NPY array, as f64 and as f32.

@@ -12,6 +12,7 @@ pub mod models;
 pub mod parity;
 pub mod process;
 pub mod record;
+pub mod recover;
 pub mod render;
 pub mod replay;
 pub mod run;
@@ -70,6 +71,8 @@ enum Command {
     Run(run::RunArgs),
     /// Record ROS 2 topics to an MCAP file (rosbag2-compatible).
     Record(record::RecordArgs),
+    /// Write a clean, indexed copy of everything readable in a damaged recording.
+    Recover(recover::RecoverArgs),
     /// The image detector's models (MediaPipe BlazePose): fetch, check, rewrite.
     Models(models::ModelsArgs),
     /// Pictures of a run on images: each image with its heat maps and 2D skeleton,
@@ -95,6 +98,7 @@ impl Cli {
             Command::Estimator(args) => estimator::run(&args),
             Command::Run(args) => run::run(&args),
             Command::Record(args) => record::run(&args),
+            Command::Recover(args) => recover::run(&args),
             Command::Models(args) => models::run(&args),
             Command::Render(args) => render::run(&args),
             Command::Config(args) => config::run(&args),

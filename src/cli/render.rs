@@ -11,7 +11,7 @@ use image::{Delay, Frame};
 use posestream::msgs::{HeatMaps, Skeleton3D};
 use posestream::nodes::config::DetectorSource;
 use posestream::nodes::images::image_frames;
-use posestream::recording::read_topic;
+use posestream::recording::{read_topic, salvage_topic};
 use posestream::render::{Person, RenderSettings, render_frame};
 use posestream::transport::{Received, Source, TransportError};
 
@@ -49,14 +49,41 @@ pub struct RenderArgs {
     /// Picture height, pixels (16 to 4096).
     #[arg(long, default_value_t = 360, value_parser = clap::value_parser!(u32).range(16..=4096))]
     pub height: u32,
+    /// Stop at the recording's first damaged part, with an error (default: skip what
+    /// cannot be read and draw the rest; sets `replay.strict`).
+    #[arg(long)]
+    pub strict: bool,
     /// The 3D view's azimuth, degrees.
     #[arg(long, default_value_t = 60.0, allow_negative_numbers = true)]
     pub azimuth: f64,
 }
 
+/// The messages of `topic` in `recording`: every readable one, what was skipped said in
+/// a warning (strict: up to the first damage, an error).
+fn read<M: posestream::msgs::RosMessage>(
+    recording: &std::path::Path,
+    topic: &str,
+    config: &posestream::nodes::ServiceConfig,
+) -> Result<Vec<(u64, M)>, posestream::recording::RecordingError> {
+    if config.replay.strict {
+        return read_topic::<M>(recording, topic);
+    }
+    let (messages, skipped) = salvage_topic::<M>(recording, topic, config.limits.max_record_bytes)?;
+    if !skipped.is_empty() {
+        eprintln!(
+            "posestream: warning: {} ({topic}): damaged parts skipped, every readable message \
+             used: {} (--strict stops at the first)",
+            recording.display(),
+            skipped.summary()
+        );
+    }
+    Ok(messages)
+}
+
 /// Runs `render`.
 pub fn run(args: &RenderArgs) -> Result<(), CliError> {
     let mut config = args.config.load()?;
+    config.replay.strict |= args.strict;
     if let Some(p) = &args.images {
         config.detector.source = DetectorSource::Images;
         config.detector.images.path = p.clone();
@@ -83,8 +110,8 @@ pub fn run(args: &RenderArgs) -> Result<(), CliError> {
     let bones: Vec<(usize, usize)> = dictionary.skeleton().bones().collect();
     // Per frame and person, the estimate to draw: the most refined one unless --newest.
     let mut skeletons: BTreeMap<u64, BTreeMap<u32, Skeleton3D>> = BTreeMap::new();
-    let recorded = read_topic::<Skeleton3D>(&args.recording, &config.topics.skeletons);
-    for (_, s) in recorded? {
+    let recorded = read::<Skeleton3D>(&args.recording, &config.topics.skeletons, &config)?;
+    for (_, s) in recorded {
         let in_range =
             args.from.is_none_or(|f| s.sequence >= f) && args.to.is_none_or(|t| s.sequence <= t);
         if gif && !in_range {
@@ -108,7 +135,7 @@ pub fn run(args: &RenderArgs) -> Result<(), CliError> {
         )));
     }
     let maps: BTreeMap<(u64, u32), HeatMaps> =
-        match read_topic::<HeatMaps>(&args.recording, &config.topics.heatmaps) {
+        match read::<HeatMaps>(&args.recording, &config.topics.heatmaps, &config) {
             Ok(all) => all
                 .into_iter()
                 .map(|(_, m)| ((m.sequence, m.track_id), m))

@@ -33,6 +33,10 @@ pub struct ReplayArgs {
     /// unless given here).
     #[arg(long, value_enum)]
     pub rate: Option<ReplayRate>,
+    /// Stop at the recording's first damaged part, with an error (default: skip what
+    /// cannot be read and replay the rest; sets `replay.strict`).
+    #[arg(long)]
+    pub strict: bool,
     /// Print the report as JSON.
     #[arg(long)]
     pub json: bool,
@@ -42,6 +46,7 @@ pub struct ReplayArgs {
 pub fn run(args: &ReplayArgs) -> Result<(), CliError> {
     let mut config = args.config.load()?;
     args.live.apply(&mut config);
+    config.replay.strict |= args.strict;
     let stop = stop_flag();
     let options = ReplayOptions {
         record: args.record.clone(),
@@ -87,6 +92,14 @@ pub fn run(args: &ReplayArgs) -> Result<(), CliError> {
     }
     if let Some(t) = &report.truncated {
         eprintln!("posestream: warning: {t}");
+    }
+    if let Some(skips) = &report.skipped {
+        eprintln!(
+            "posestream: warning: {}: damaged parts skipped, every readable message replayed: {} \
+             (--strict stops at the first; `posestream recover` writes a clean copy)",
+            args.input.display(),
+            skips.summary()
+        );
     }
     Ok(())
 }

@@ -189,6 +189,10 @@ pub struct SourceArgs {
     /// Times a replayed recording is played, 0 for ever (overrides `detector.repeat`).
     #[arg(long)]
     pub repeat: Option<u64>,
+    /// Stop at a recording's first damaged part, with an error (default: skip what
+    /// cannot be read, use the rest and warn; sets `replay.strict`).
+    #[arg(long)]
+    pub strict: bool,
 }
 
 impl SourceArgs {
@@ -222,5 +226,6 @@ impl SourceArgs {
         if let Some(times) = self.repeat {
             d.repeat = times;
         }
+        config.replay.strict |= self.strict;
     }
 }

@@ -510,12 +510,32 @@ impl Default for Topics {
 pub struct ReplayConfig {
     /// `fast`: as fast as possible; `recorded`: at the recorded pace.
     pub rate: ReplayRate,
+    /// Stop reading a recording at its first damaged part, with an error (false: skip
+    /// what cannot be read, use everything else, and say what was skipped). Every
+    /// command reading a recording (`replay`, `detector`/`run --recording`, an
+    /// `image-recording` source, `render`); `--strict` sets it.
+    pub strict: bool,
 }
 
 impl Default for ReplayConfig {
     fn default() -> Self {
         Self {
             rate: ReplayRate::Fast,
+            strict: false,
+        }
+    }
+}
+
+impl ReplayConfig {
+    /// A recording source as configured: reading on past damage unless strict.
+    pub fn source<M: crate::transport::Message>(
+        &self,
+        source: crate::transport::mcap::McapSource<M>,
+    ) -> Result<crate::transport::mcap::McapSource<M>, crate::transport::TransportError> {
+        if self.strict {
+            Ok(source)
+        } else {
+            source.salvaging()
         }
     }
 }

@@ -344,13 +344,19 @@ pub fn image_frames(
         DetectorSource::Video => Box::new(VideoSource::open(path, &images.frame_id, limits)?),
         DetectorSource::ImageRecording if is_compressed_topic(topic) => {
             Box::new(DecodedImages::new(
-                McapSource::<CompressedImage>::open_with_limit(path, topic, max_record)?,
+                config
+                    .replay
+                    .source(McapSource::<CompressedImage>::open_with_limit(
+                        path, topic, max_record,
+                    )?)?,
                 topic,
                 limits,
             ))
         }
         DetectorSource::ImageRecording => Box::new(DecodedImages::new(
-            McapSource::<Image>::open_with_limit(path, topic, max_record)?,
+            config.replay.source(McapSource::<Image>::open_with_limit(
+                path, topic, max_record,
+            )?)?,
             topic,
             limits,
         )),

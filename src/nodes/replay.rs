@@ -1,12 +1,15 @@
 //! Replay: a recording's heat maps through the estimator node, as fast as possible or at
 //! the recorded pace; skeletons (and any ground truth in the input) to a new recording.
 //!
-//! What a replay does with a bad input: a recording cut short (a recorder killed) is
+//! What a replay does with a bad input: by default it reads on past every damaged part
+//! (`posestream_msgs::salvage`), replays every readable message and reports what it
+//! skipped in [`ReplayReport::skipped`]; nothing readable is [`ReplayError::Unreadable`].
+//! Strict (`[replay] strict`, `--strict`): a recording cut short (a recorder killed) is
 //! replayed up to its last complete message and reported in
 //! [`ReplayReport::truncated`]; a corrupt record ends the replay with
 //! [`ReplayError::Input`], the skeletons of everything before it kept in the output's
-//! `.partial` file and the output left as it was; a file that is not a recording, or
-//! holds no heat maps, is one error and nothing is written.
+//! `.partial` file and the output left as it was. Either way, a file that is not a
+//! recording, or holds no heat maps, is one error and nothing is written.
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -56,6 +59,8 @@ pub struct ReplayReport {
     pub update: LatencySummary,
     /// The output recording, if any.
     pub output: Option<PathBuf>,
+    /// The damaged parts of the input skipped (reading on past damage), if any.
+    pub skipped: Option<crate::msgs::salvage::Skips>,
 }
 
 /// Why a replay failed.
@@ -76,6 +81,14 @@ pub enum ReplayError {
     /// The live view's outputs could not be set up.
     #[error(transparent)]
     Service(#[from] super::service::ServiceError),
+    /// Nothing of the input could be read (reading on past damage).
+    #[error("{path}: nothing could be read: {skipped}")]
+    Unreadable {
+        /// The input.
+        path: PathBuf,
+        /// What was skipped.
+        skipped: String,
+    },
     /// The input holds no heat maps.
     #[error("{path}: no messages on {topic} (the recording has {found})")]
     NoHeatMaps {
@@ -125,6 +138,12 @@ pub fn replay(
     }
     let mut node = EstimatorNode::from_service_config(config)?;
     let reader = RecordingReader::open_with_limit(input, config.limits.max_record_bytes)?;
+    // Past damage unless strict: what cannot be read is skipped, and said.
+    let reader = if config.replay.strict {
+        reader
+    } else {
+        reader.salvaging()?
+    };
     // The recording takes the skeletons, and each image's together (`[outputs] arrays`);
     // the live view everything the estimator node publishes (markers, /tf, REP-155 as
     // configured) and the input's heat maps, truth and calibration. The live view first,
@@ -193,9 +212,16 @@ pub fn replay(
         let kept = recorder.map(|r| r.finish_partial()).transpose()?;
         return Err(ReplayError::Input { source, kept });
     }
+    let skipped = reader.skips().filter(|s| !s.is_empty()).cloned();
     if frames == 0 && !stop.load(Ordering::Relaxed) {
         if let Some(r) = recorder {
             r.abandon();
+        }
+        if let Some(skips) = skipped.filter(|_| reader.messages_read() == 0) {
+            return Err(ReplayError::Unreadable {
+                path: input.to_path_buf(),
+                skipped: skips.summary(),
+            });
         }
         return Err(ReplayError::NoHeatMaps {
             path: input.to_path_buf(),
@@ -227,6 +253,7 @@ pub fn replay(
         frames_per_second: frames as f64 / seconds.max(1e-9),
         update: report.update,
         output,
+        skipped,
     })
 }
 

@@ -26,6 +26,7 @@ pub mod files;
 pub mod limits;
 pub mod npy;
 pub mod recording;
+pub mod salvage;
 pub mod shipped;
 pub mod toml_file;
 

@@ -102,6 +102,8 @@ pub struct Recorder {
     partial: PathBuf,
     writer: Writer<BufWriter<File>>,
     channels: BTreeMap<String, u16>,
+    /// Channels of [`Recorder::write_raw`]: by topic and schema name.
+    raw_channels: BTreeMap<(String, String), u16>,
     counts: BTreeMap<String, (String, u64)>,
     sequence: u32,
     first_ns: Option<u64>,
@@ -146,6 +148,7 @@ impl Recorder {
             partial,
             writer,
             channels: BTreeMap::new(),
+            raw_channels: BTreeMap::new(),
             counts: BTreeMap::new(),
             sequence: 0,
             first_ns: None,
@@ -249,6 +252,71 @@ impl Recorder {
         {
             self.flush()?;
         }
+        Ok(())
+    }
+
+    /// Appends a message of a channel as another recording declared it (its schema, its
+    /// topic, encoding and metadata), whatever its type: for copying what was read of a
+    /// recording (`posestream recover`). Channels are told apart by topic and schema.
+    pub fn write_raw(
+        &mut self,
+        schema: Option<&crate::salvage::SchemaInfo>,
+        channel: &crate::salvage::ChannelInfo,
+        message: &crate::salvage::Salvaged,
+    ) -> Result<(), RecordingError> {
+        if let Some(reason) = &self.failed {
+            return Err(self.failure(reason.clone()));
+        }
+        let name = schema.map(|s| s.name.clone()).unwrap_or_default();
+        let key = (channel.topic.clone(), name.clone());
+        let id = match self.raw_channels.get(&key) {
+            Some(&id) => id,
+            None => {
+                let schema_id = match schema {
+                    Some(s) => self
+                        .writer
+                        .add_schema(&s.name, &s.encoding, &s.data)
+                        .map_err(|source| self.mcap_error(source))?,
+                    None => 0,
+                };
+                let id = self
+                    .writer
+                    .add_channel(
+                        schema_id,
+                        &channel.topic,
+                        &channel.message_encoding,
+                        &channel.metadata,
+                    )
+                    .map_err(|source| self.mcap_error(source))?;
+                self.raw_channels.insert(key, id);
+                self.counts
+                    .entry(channel.topic.clone())
+                    .or_insert((name, 0));
+                id
+            }
+        };
+        let written = self.writer.write_to_known_channel(
+            &MessageHeader {
+                channel_id: id,
+                sequence: message.sequence,
+                log_time: message.log_time,
+                publish_time: message.publish_time,
+            },
+            &message.data,
+        );
+        if let Err(source) = written {
+            let e = self.mcap_error(source);
+            self.failed = Some(e.to_string());
+            return Err(e);
+        }
+        if let Some(c) = self.counts.get_mut(&channel.topic) {
+            c.1 += 1;
+        }
+        self.first_ns = Some(
+            self.first_ns
+                .map_or(message.log_time, |f| f.min(message.log_time)),
+        );
+        self.last_ns = self.last_ns.max(message.log_time);
         Ok(())
     }
 
@@ -433,6 +501,8 @@ pub struct RecordingReader<R = RecordingInput> {
     fed: u64,
     max_record_bytes: usize,
     done: bool,
+    /// Reading on past damage ([`RecordingReader::salvaging`]).
+    salvage: Option<crate::salvage::Salvager>,
 }
 
 /// The MCAP magic every recording starts with.
@@ -551,7 +621,28 @@ impl<R: Read + Seek> RecordingReader<R> {
             fed: 0,
             max_record_bytes,
             done: false,
+            salvage: None,
         })
+    }
+
+    /// The same reader, reading on past what it cannot or must not read
+    /// ([`crate::salvage`]): a damaged chunk, a record over the limit, a lying length, an
+    /// end cut short are skipped and counted ([`RecordingReader::skips`]), and
+    /// [`RecordingReader::next_message`] never fails. Without it (strict), reading ends
+    /// at the first damage with its error.
+    pub fn salvaging(mut self) -> Result<Self, RecordingError> {
+        let salvager = crate::salvage::Salvager::new(&mut self.file, self.max_record_bytes)
+            .map_err(|source| RecordingError::Io {
+                path: self.path.clone(),
+                source,
+            })?;
+        self.salvage = Some(salvager);
+        Ok(self)
+    }
+
+    /// What reading on past damage skipped so far (`None`: a strict reader).
+    pub fn skips(&self) -> Option<&crate::salvage::Skips> {
+        self.salvage.as_ref().map(crate::salvage::Salvager::skips)
     }
 
     /// Messages read so far.
@@ -591,6 +682,35 @@ impl<R: Read + Seek> RecordingReader<R> {
     pub fn next_message(&mut self) -> Option<Result<RecordedMessage, RecordingError>> {
         if self.done {
             return None;
+        }
+        if let Some(salvage) = &mut self.salvage {
+            let Some(m) = salvage.next_message(&mut self.file) else {
+                self.done = true;
+                return None;
+            };
+            let channel = salvage.channel(m.channel).cloned().unwrap_or_else(|| {
+                crate::salvage::ChannelInfo {
+                    topic: String::new(),
+                    schema_id: 0,
+                    message_encoding: String::new(),
+                    metadata: BTreeMap::new(),
+                }
+            });
+            let schema = salvage
+                .schema(channel.schema_id)
+                .map(|s| s.name.clone())
+                .unwrap_or_default();
+            if let std::collections::btree_map::Entry::Vacant(e) = self.channels.entry(m.channel) {
+                e.insert((channel.topic.clone(), channel.schema_id));
+                self.schemas.insert(channel.schema_id, schema.clone());
+            }
+            self.messages += 1;
+            return Some(Ok(RecordedMessage {
+                topic: channel.topic,
+                schema,
+                log_time_ns: m.log_time,
+                data: m.data,
+            }));
         }
         // The mcap crate's calls are contained (`reader_failed`): a panic there is a
         // corrupt file, not the end of the process.
@@ -753,6 +873,28 @@ impl<R: Read + Seek> Iterator for RecordingReader<R> {
     fn next(&mut self) -> Option<Self::Item> {
         self.next_message()
     }
+}
+
+/// [`read_topic`] reading on past damage ([`RecordingReader::salvaging`]): every
+/// readable message of `topic`, and what was skipped.
+pub fn salvage_topic<M: RosMessage>(
+    path: &Path,
+    topic: &str,
+    max_record_bytes: usize,
+) -> Result<(Vec<(u64, M)>, crate::salvage::Skips), RecordingError> {
+    let mut reader = RecordingReader::open_with_limit(path, max_record_bytes)?.salvaging()?;
+    let mut out = Vec::new();
+    for msg in reader.by_ref() {
+        let msg = msg?;
+        if msg.topic == topic {
+            match crate::decode::<M>(&msg.data) {
+                Ok(m) => out.push((msg.log_time_ns, m)),
+                Err(e) => tracing::warn!("{}: {e}", path.display()),
+            }
+        }
+    }
+    let skipped = reader.skips().cloned().unwrap_or_default();
+    Ok((out, skipped))
 }
 
 /// Decodes every message of `topic` in a recording as `M` (for tests and tools).

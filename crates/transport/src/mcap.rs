@@ -167,6 +167,8 @@ pub struct McapSource<M> {
     yielded: bool,
     /// Passes started before this one.
     pass: u64,
+    /// Read on past damage ([`McapSource::salvaging`]).
+    salvage: bool,
     _message: PhantomData<fn() -> M>,
 }
 
@@ -188,7 +190,7 @@ impl<M: Message> McapSource<M> {
         topic: &str,
         max_record_bytes: usize,
     ) -> Result<Self, TransportError> {
-        let reader = Self::reader(path.as_ref(), max_record_bytes)?;
+        let reader = Self::reader(path.as_ref(), max_record_bytes, false)?;
         Ok(Self {
             reader,
             path: path.as_ref().to_path_buf(),
@@ -200,6 +202,7 @@ impl<M: Message> McapSource<M> {
             span: None,
             yielded: false,
             pass: 0,
+            salvage: false,
             _message: PhantomData,
         })
     }
@@ -213,14 +216,42 @@ impl<M: Message> McapSource<M> {
         self
     }
 
-    fn reader(path: &Path, max_record_bytes: usize) -> Result<RecordingReader, TransportError> {
-        RecordingReader::open_with_limit(path, max_record_bytes).map_err(|e| {
-            TransportError::Setup {
-                transport: TRANSPORT,
-                what: path.display().to_string(),
-                reason: e.to_string(),
-            }
+    fn reader(
+        path: &Path,
+        max_record_bytes: usize,
+        salvage: bool,
+    ) -> Result<RecordingReader, TransportError> {
+        let reader = RecordingReader::open_with_limit(path, max_record_bytes);
+        let reader = if salvage {
+            reader.and_then(RecordingReader::salvaging)
+        } else {
+            reader
+        };
+        reader.map_err(|e| TransportError::Setup {
+            transport: TRANSPORT,
+            what: path.display().to_string(),
+            reason: e.to_string(),
         })
+    }
+
+    /// The same source, reading on past what it cannot or must not read of the file
+    /// (`posestream_msgs::salvage`): each pass's skips are said in one warning at its
+    /// end (counts and byte ranges).
+    pub fn salvaging(mut self) -> Result<Self, TransportError> {
+        self.salvage = true;
+        self.reader = Self::reader(&self.path, self.max_record_bytes, true)?;
+        Ok(self)
+    }
+
+    /// Says what this pass skipped, if anything.
+    fn report_skips(&self) {
+        if let Some(skips) = self.reader.skips().filter(|s| !s.is_empty()) {
+            tracing::warn!(
+                "{}: damaged parts skipped, every readable message used: {}",
+                self.path.display(),
+                skips.summary()
+            );
+        }
     }
 
     /// Starts the next pass, if there is one.
@@ -237,7 +268,7 @@ impl<M: Message> McapSource<M> {
         let messages = self.reader.messages_read().max(2);
         let interval = (last - first) / (messages - 1);
         self.offset_ns = self.offset_ns.saturating_add(last - first + interval);
-        self.reader = Self::reader(&self.path, self.max_record_bytes)?;
+        self.reader = Self::reader(&self.path, self.max_record_bytes, self.salvage)?;
         self.closed = false;
         self.pass += 1;
         Ok(true)
@@ -296,6 +327,7 @@ impl<M: Message> McapSource<M> {
         while !self.closed {
             let Some(next) = self.reader.next_message() else {
                 self.closed = true;
+                self.report_skips();
                 break;
             };
             let msg = match next {

@@ -687,12 +687,14 @@ pub fn recording_source(
     path: &Path,
 ) -> Result<RecordedHeatMaps, TransportError> {
     Ok(RecordedHeatMaps(
-        McapSource::open_with_limit(
-            path,
-            &config.topics.heatmaps,
-            config.limits.max_record_bytes,
-        )?
-        .repeat(config.detector.repeat),
+        config
+            .replay
+            .source(McapSource::open_with_limit(
+                path,
+                &config.topics.heatmaps,
+                config.limits.max_record_bytes,
+            )?)?
+            .repeat(config.detector.repeat),
     ))
 }
 
@@ -775,11 +777,13 @@ pub fn detector_input(
     // A recording of a camera: its own calibration channel, read beside the images.
     if config.detector.source == DetectorSource::ImageRecording {
         let tap = CameraTap::default();
-        let recorded = McapSource::<CameraInfo>::open_with_limit(
-            &config.detector.images.path,
-            &config.topics.camera_info,
-            config.limits.max_record_bytes,
-        )?;
+        let recorded = config
+            .replay
+            .source(McapSource::<CameraInfo>::open_with_limit(
+                &config.detector.images.path,
+                &config.topics.camera_info,
+                config.limits.max_record_bytes,
+            )?)?;
         source = source.with_recorded_camera(Box::new(recorded), tap.clone());
         camera = Some(tap);
     }
