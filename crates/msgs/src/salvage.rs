@@ -571,9 +571,15 @@ impl Salvager {
                 Ok(n) => n,
             };
             for i in 0..n {
-                if known(block[i]) && self.holds_together(file, base + i as u64) {
-                    self.skips.add(kind, from, base + i as u64);
-                    self.at = base + i as u64;
+                // What the block already shows rules out most positions without a read.
+                let at = base + i as u64;
+                let fits = block.get(i + 1..i + 9).is_none_or(|len| {
+                    let len = u64::from_le_bytes(len.try_into().unwrap_or([0xff; 8]));
+                    len <= self.limit && at.saturating_add(9).saturating_add(len) <= self.len
+                });
+                if known(block[i]) && fits && self.holds_together(file, at) {
+                    self.skips.add(kind, from, at);
+                    self.at = at;
                     return;
                 }
             }
