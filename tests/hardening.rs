@@ -234,6 +234,15 @@ fn frames_beyond_the_limits_are_refused_within_the_memory_budget() {
     );
     let r = run(&["replay", "--strict", s(&huge)]);
     r.assert_one_error("limits.max_record_bytes");
+    // `recover` copies the frames after it, and the copy reads whole.
+    let copy = dir.path().join("huge-recovered.mcap");
+    let r = run(&["recover", s(&huge), s(&copy), "--json"]);
+    assert_eq!(r.code, Some(0), "{}", r.stderr);
+    assert_eq!(r.report()["skipped"]["counts"]["over-limit"], 1);
+    let kept: Vec<(u64, HeatMaps)> = read_topic(&copy, HEATMAPS).expect("clean");
+    assert_eq!(kept.len(), 19);
+    let indexed = python_client("read_indexed.py", &[s(&copy)]);
+    assert_eq!(indexed["topics"][HEATMAPS], 19, "{indexed}");
     // The limits are configuration: 64 x 64 maps are refused under a 32 limit.
     let mut node_config = config();
     node_config.limits.max_map_size = 32;
@@ -465,6 +474,12 @@ fn each_kind_of_damage_costs_only_its_part_and_the_good_frames_around_it_are_rep
         (
             "header-1tib",
             patch(&bytes, recs[0].0 + 1, &tib),
+            all,
+            "lying-length",
+        ),
+        (
+            "header-max",
+            patch(&bytes, recs[0].0 + 1, &u64::MAX.to_le_bytes()),
             all,
             "lying-length",
         ),
