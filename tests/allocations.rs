@@ -172,7 +172,7 @@ fn a_warm_estimator_node_allocates_nothing_over_1000_messages() {
             .map(|m| {
                 let mut values = Vec::new();
                 m.values_into(&mut values).expect("values");
-                msgs::HeatMaps::from_values(
+                let mut made = msgs::HeatMaps::from_values(
                     m.header.clone(),
                     m.sequence,
                     m.joint_names.clone(),
@@ -181,7 +181,11 @@ fn a_warm_estimator_node_allocates_nothing_over_1000_messages() {
                     m.crop().expect("crop"),
                     &values,
                     encoding,
-                )
+                );
+                // A tracked person's id (0 is an unknown id, which the node's tracker
+                // assigns: that path allocates, docs/streaming.md).
+                made.track_id = m.track_id;
+                made
             })
             .collect();
         let window = window();

@@ -327,16 +327,16 @@ fn a_new_track_id_after_a_loss_ends_the_old_track_with_its_owed_estimates() {
     for m in &maps[..20] {
         node.handle(m, &mut out).expect("frame");
     }
-    // Frames 0..20 of track 0: each gives its newest estimate, and those 10 back their
-    // refined one.
+    // Frames 0..20 of track 1 (the recording's): each gives its newest estimate, and
+    // those 10 back their refined one.
     assert_eq!(out.len(), 20 + 10);
     out.clear();
-    // The detector lost the person and found someone (track 1) 31 frames later, more
-    // than the window's max_gap_seconds (1 s) after track 0's last frame.
+    // The detector lost the person and found someone (track 2) 31 frames later, more
+    // than the window's max_gap_seconds (1 s) after track 1's last frame.
     let mut next = maps[51].clone();
-    next.track_id = 1;
+    next.track_id = 2;
     node.handle(&next, &mut out).expect("frame");
-    let (old, new): (Vec<_>, Vec<_>) = out.iter().partition(|s| s.track_id == 0);
+    let (old, new): (Vec<_>, Vec<_>) = out.iter().partition(|s| s.track_id == 1);
     // The old track's owed refined estimates (frames 10..20, lag < L), then the new
     // track's first newest estimate.
     assert_eq!(

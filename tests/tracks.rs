@@ -65,8 +65,9 @@ fn summary(out: &[Skeleton3D]) -> Vec<(u32, u64, u32, u8)> {
 
 #[test]
 fn two_people_in_the_same_images_never_reset_each_others_windows() {
-    // Track ids at both ends of their range: a detector's numbering that wrapped.
-    let (a, b) = (u32::MAX, 0);
+    // Track ids at both ends of their range (0 is an unknown id): a detector's
+    // numbering that wrapped.
+    let (a, b) = (u32::MAX, 1);
     let (one, two) = two_people(a, b, 80);
     let mut node = node();
     let mut out = Vec::new();
@@ -255,7 +256,7 @@ fn a_person_found_again_and_again_never_fills_the_tracks() {
     let mut frames = frames("byebye.mcap");
     frames.truncate(40);
     for (i, m) in frames.iter_mut().enumerate() {
-        m.track_id = (i / 2) as u32;
+        m.track_id = (i / 2) as u32 + 1;
     }
     let mut node = node();
     let mut out = Vec::new();
@@ -290,4 +291,129 @@ fn a_late_duplicate_from_another_time_ends_no_one() {
     let c = node.counters();
     assert_eq!((c.tracks, c.late), (2, 1), "{c:?}");
     assert_eq!(of_track(&out, 2), alone(&two));
+}
+
+// Issue 46: heat maps from a detector without tracking (every person's `track_id` 0).
+
+/// [`two_people`] with the second person's crop boxes 600 px to the right of the
+/// first's (two people apart in the image), both with id `id`.
+fn two_people_apart(id: u32, n: usize) -> (Vec<HeatMaps>, Vec<HeatMaps>) {
+    let (one, mut two) = two_people(id, id, n);
+    for m in &mut two {
+        m.crop_x += 600.0;
+    }
+    (one, two)
+}
+
+/// Each person's skeletons in `out`, by the track that published the first frame of
+/// `first` (the positions of its first newest estimate).
+fn track_of(out: &[Skeleton3D], want: &[Skeleton3D]) -> u32 {
+    let first = want.iter().find(|s| s.lag == 0).expect("a newest estimate");
+    out.iter()
+        .find(|s| s.lag == 0 && s.sequence == first.sequence && s.positions == first.positions)
+        .map(|s| s.track_id)
+        .expect("the person's first estimate")
+}
+
+/// Strips the id of both people's messages and feeds them to a node, the two of each
+/// image in the order `order(i)` gives (true: the first person first); returns the
+/// node's skeletons with each person's track id put back to its true one (`a` for the
+/// first, `b` for the second), and the node.
+fn without_ids(order: impl Fn(usize) -> bool) -> (EstimatorNode, Vec<Skeleton3D>, u32, u32) {
+    let (one, two) = two_people_apart(0, 80);
+    let mut node = node();
+    let mut out = Vec::new();
+    for (i, (x, y)) in one.iter().zip(&two).enumerate() {
+        let (first, second) = if order(i) { (x, y) } else { (y, x) };
+        node.handle(first, &mut out).expect("first");
+        node.handle(second, &mut out).expect("second");
+    }
+    node.finish(&mut out);
+    let (want_a, want_b) = (alone(&with_id(&one, 1)), alone(&with_id(&two, 2)));
+    let (a, b) = (track_of(&out, &want_a), track_of(&out, &want_b));
+    (node, out, a, b)
+}
+
+fn with_id(frames: &[HeatMaps], id: u32) -> Vec<HeatMaps> {
+    frames
+        .iter()
+        .map(|m| HeatMaps {
+            track_id: id,
+            ..m.clone()
+        })
+        .collect()
+}
+
+/// The skeletons of `track` as a node alone with them gives them, its id replaced by
+/// `id` for comparison.
+fn as_track(out: &[Skeleton3D], track: u32, id: u32) -> Vec<Skeleton3D> {
+    of_track(out, track)
+        .into_iter()
+        .map(|s| Skeleton3D { track_id: id, ..s })
+        .collect()
+}
+
+#[test]
+fn two_people_without_ids_are_two_tracks_in_either_order_with_the_estimates_of_true_ids() {
+    let (one, two) = two_people_apart(0, 80);
+    let want_a = alone(&with_id(&one, 1));
+    let want_b = alone(&with_id(&two, 2));
+    for (name, order) in [
+        (
+            "first person first",
+            Box::new(|_| true) as Box<dyn Fn(usize) -> bool>,
+        ),
+        ("alternating", Box::new(|i| i % 2 == 0)),
+    ] {
+        let (node, out, a, b) = without_ids(order);
+        assert_ne!(a, b, "{name}");
+        // Two tracks, made by the node, with the ids it gives (from 2^31).
+        assert_eq!(node.tracks_from_unknown_ids(), 2, "{name}");
+        assert!(a >= 1 << 31 && b >= 1 << 31, "{name}: {a} {b}");
+        assert_eq!(node.counters().late, 0, "{name}");
+        assert_eq!(node.malformed(), 0, "{name}");
+        // Each person's skeletons are exactly those of a node that saw only them under
+        // a true id: the errors of true ids.
+        assert_eq!(as_track(&out, a, 1), want_a, "{name}");
+        assert_eq!(as_track(&out, b, 2), want_b, "{name}");
+        assert_eq!(out.len(), want_a.len() + want_b.len(), "{name}");
+    }
+}
+
+#[test]
+fn a_second_message_of_one_image_with_the_same_id_is_refused_by_name() {
+    // A detector that gives both people id 5: the second of each image is refused as
+    // a duplicate (before: taken as a late frame of the first), the first estimated.
+    let (one, two) = two_people_apart(5, 30);
+    let mut node = node();
+    let mut out = Vec::new();
+    for (x, y) in one.iter().zip(&two) {
+        node.handle(x, &mut out).expect("first");
+        let e = node.handle(y, &mut out).expect_err("a duplicate");
+        assert!(e.to_string().contains("duplicate id in one image"), "{e}");
+    }
+    node.finish(&mut out);
+    assert_eq!(node.refused().of("duplicate-id"), 30);
+    assert_eq!(node.counters().late, 0);
+    assert_eq!(out, alone(&one));
+}
+
+#[test]
+fn a_stream_mixing_ids_and_no_ids_keeps_the_given_ids_and_tracks_the_rest() {
+    // Person 1 with id 7, person 2 without: two tracks, 7 and the node's first.
+    let (one, two) = two_people_apart(7, 60);
+    let two = with_id(&two, 0);
+    let mut node = node();
+    let mut out = Vec::new();
+    for (x, y) in one.iter().zip(&two) {
+        // The one without an id first: held until its image is complete.
+        node.handle(y, &mut out).expect("without an id");
+        node.handle(x, &mut out).expect("with an id");
+    }
+    node.finish(&mut out);
+    assert_eq!(node.tracks_from_unknown_ids(), 1);
+    let ids: std::collections::BTreeSet<u32> = out.iter().map(|s| s.track_id).collect();
+    assert_eq!(ids, [7, (1 << 31) + 1].into());
+    assert_eq!(of_track(&out, 7), alone(&one));
+    assert_eq!(as_track(&out, (1 << 31) + 1, 2), alone(&with_id(&two, 2)));
 }

@@ -81,6 +81,12 @@ pub fn run(args: &ReplayArgs) -> Result<(), CliError> {
             c.empty,
             c.resets
         );
+        if report.unknown_id_tracks > 0 {
+            println!(
+                "{} tracks made for people whose heat maps came without an id (track_id 0)",
+                report.unknown_id_tracks
+            );
+        }
         let u = report.update;
         println!(
             "estimator update per frame: median {:.2} ms, p99 {:.2} ms, max {:.2} ms",

@@ -423,7 +423,8 @@ pub fn markdown(args: &ScenesArgs) -> Result<String, CliError> {
             let take = file
                 .trim_start_matches("dataset-1_")
                 .trim_end_matches(".bvh");
-            match per_person.get(&(person as u32)) {
+            // synth numbers people from 1.
+            match per_person.get(&(person as u32 + 1)) {
                 Some(e) if e.frames > 0 => {
                     let f = e.frames as f64;
                     let axes = e.axes.max(1) as f64;

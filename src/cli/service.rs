@@ -77,6 +77,12 @@ impl Summary for service::EstimatorReport {
             c.resets,
             self.failed_sends
         );
+        if self.unknown_id_tracks > 0 {
+            text.push_str(&format!(
+                "; {} tracks made for people without an id (track_id 0)",
+                self.unknown_id_tracks
+            ));
+        }
         if let Some(e) = &self.input_error {
             text.push_str(&format!("\ninput ended early: {e}"));
         }

@@ -425,11 +425,12 @@ fn write_recording(
                 &person.rendered.maps.values[t * n..(t + 1) * n],
                 encoding,
             );
-            maps.track_id = i as u32;
+            // People numbered from 1: 0 is an unknown id (HeatMaps.msg).
+            maps.track_id = i as u32 + 1;
             let truth = Skeleton3D {
                 header: header.clone(),
                 sequence: t as u64,
-                track_id: i as u32,
+                track_id: i as u32 + 1,
                 joint_names: skel.joints.clone(),
                 units: Units::Metres as u8,
                 positions: view.camera_3d[3 * p * t..3 * p * (t + 1)].to_vec(),

@@ -11,7 +11,8 @@
 //! - [`camera`]: the calibration assumed for images without one (`CameraInfo`);
 //! - [`frames`]: each person's body and joint frames for `/tf`;
 //! - [`hri`]: skeletons as REP-155 (ROS4HRI) bodies: ids, regions, 2D skeletons;
-//! - [`shown_images`]: the camera images as the Foxglove live view shows them.
+//! - [`shown_images`]: the camera images as the Foxglove live view shows them;
+//! - [`unknown_ids`]: ids for people whose heat maps came without one.
 
 pub mod arrays;
 pub mod camera;
@@ -24,6 +25,7 @@ pub mod markers;
 pub mod replay;
 pub mod service;
 pub mod shown_images;
+pub mod unknown_ids;
 
 use std::collections::{BTreeMap, VecDeque};
 use std::panic::AssertUnwindSafe;
@@ -111,6 +113,26 @@ pub enum NodeError {
         /// The bound.
         max_tracks: usize,
     },
+    /// A second message of one image (the same capture time and frame number) with the
+    /// same track id: refused, not taken for a later frame.
+    #[error(
+        "frame {sequence}: track {track_id} came twice in one image (duplicate id in one image); the second is refused"
+    )]
+    DuplicateId {
+        /// The frame.
+        sequence: u64,
+        /// The id given twice.
+        track_id: u32,
+    },
+    /// A person without an id whom the tracker gave none: a box on a person already in
+    /// the image, or no room.
+    #[error(
+        "frame {sequence}: a person without an id got none from the tracker (a box on someone already in the image, or estimator.max_tracks people already)"
+    )]
+    NoTrack {
+        /// The frame.
+        sequence: u64,
+    },
 }
 
 impl NodeError {
@@ -129,6 +151,8 @@ impl NodeError {
             Self::Panic { .. } => "panic",
             Self::NonFiniteOutput { .. } => "non-finite-output",
             Self::TooManyTracks { .. } => "too-many-tracks",
+            Self::DuplicateId { .. } => "duplicate-id",
+            Self::NoTrack { .. } => "no-track",
             Self::CameraInfo { .. } => "camera-info",
         }
     }
@@ -200,6 +224,8 @@ struct Track {
     last_sequence: u64,
     /// When it took it, in frames the node took (the least recent one makes room).
     last_taken: u64,
+    /// A duplicate of its id in one image was warned about.
+    duplicate_warned: bool,
 }
 
 /// Heat-map messages in, skeleton messages out, through one [`WindowEstimator`] per
@@ -244,6 +270,9 @@ pub struct EstimatorNode {
     /// next ones.
     spare: Vec<Skeleton3D>,
     refused: Refusals,
+    /// People without ids: their messages of the image in hand, and their tracker
+    /// (taken out while their messages are handled).
+    unknown: Option<unknown_ids::UnknownIds>,
     /// Test builds (`--features fault-injection`): the sequence number whose handling
     /// panics, from `POSESTREAM_INJECT_PANIC_AT`.
     #[cfg(feature = "fault-injection")]
@@ -287,6 +316,7 @@ impl EstimatorNode {
             estimates: Estimates::default(),
             spare: Vec::new(),
             refused: Refusals::default(),
+            unknown: Some(unknown_ids::UnknownIds::new(DEFAULT_MAX_TRACKS)),
             #[cfg(feature = "fault-injection")]
             panic_at: std::env::var("POSESTREAM_INJECT_PANIC_AT")
                 .ok()
@@ -396,7 +426,15 @@ impl EstimatorNode {
     /// The same node, running at most `max_tracks` tracks at once (at least one).
     pub fn with_max_tracks(mut self, max_tracks: usize) -> Self {
         self.max_tracks = max_tracks.max(1);
+        self.unknown = Some(unknown_ids::UnknownIds::new(self.max_tracks));
         self
+    }
+
+    /// Tracks the node started for people whose heat maps came without an id.
+    pub fn tracks_from_unknown_ids(&self) -> u64 {
+        self.unknown
+            .as_ref()
+            .map_or(0, unknown_ids::UnknownIds::tracks_made)
     }
 
     /// The windows' counters, summed over every track so far.
@@ -474,7 +512,80 @@ impl EstimatorNode {
 
     /// [`EstimatorNode::handle`] of a frame borrowed from where it arrived (a message, an
     /// iceoryx2 sample): its scores are read there and copied once, into the window.
+    ///
+    /// A message without an id ([`unknown_ids::UNKNOWN_TRACK`]) is held until its image
+    /// is complete, then given an id by the node's tracker ([`unknown_ids`]); its
+    /// skeletons come then.
     pub fn handle_view(
+        &mut self,
+        msg: &msgs::HeatMapsView<'_>,
+        out: &mut Vec<Skeleton3D>,
+    ) -> Result<(), NodeError> {
+        if self.unknown.as_ref().is_some_and(|u| u.held_before(msg)) {
+            self.complete_image(out);
+        }
+        if msg.track_id == unknown_ids::UNKNOWN_TRACK {
+            let held = self.hold_unknown(msg);
+            if let Err(e) = &held {
+                self.refused.note(e.kind(), e);
+            }
+            return held;
+        }
+        self.handle_known(msg, out)
+    }
+
+    /// The image in hand is complete (the input went quiet): the messages without an
+    /// id held for it are given ids and handled, their skeletons appended to `out`.
+    pub fn complete_image(&mut self, out: &mut Vec<Skeleton3D>) {
+        let Some(mut unknown) = self.unknown.take() else {
+            return;
+        };
+        unknown.release(|m, id| match id {
+            Some(_) => {
+                // Counted and logged by the node if refused.
+                let _ = self.handle_known(&m.view(), out);
+            }
+            None => {
+                let e = NodeError::NoTrack {
+                    sequence: m.sequence,
+                };
+                self.refused.note(e.kind(), &e);
+            }
+        });
+        self.unknown = Some(unknown);
+    }
+
+    /// Checks a message without an id as far as it can be without its track, and holds
+    /// a copy of it for its image's end.
+    fn hold_unknown(&mut self, msg: &msgs::HeatMapsView<'_>) -> Result<(), NodeError> {
+        self.limits
+            .heatmap_values(
+                msg.joint_names.len() as u64,
+                u64::from(msg.height),
+                u64::from(msg.width),
+            )
+            .map_err(|source| NodeError::Limit {
+                sequence: msg.sequence,
+                source,
+            })?;
+        msg.crop()?;
+        let max_tracks = self.max_tracks;
+        let held = self
+            .unknown
+            .as_mut()
+            .is_some_and(|u| u.hold(msg, max_tracks));
+        match held {
+            true => Ok(()),
+            false => Err(NodeError::TooManyTracks {
+                sequence: msg.sequence,
+                track_id: msg.track_id,
+                max_tracks,
+            }),
+        }
+    }
+
+    /// [`EstimatorNode::handle_view`] of a message with its id.
+    fn handle_known(
         &mut self,
         msg: &msgs::HeatMapsView<'_>,
         out: &mut Vec<Skeleton3D>,
@@ -569,6 +680,27 @@ impl EstimatorNode {
         // Only a well-formed frame with evidence starts a track (or, once taken, ends
         // others: below).
         let index = match self.tracks.iter().position(|t| t.id == msg.track_id) {
+            Some(i)
+                if self.tracks[i].last_taken > 0
+                    && self.tracks[i].last_sequence == msg.sequence
+                    && self.tracks[i].last_stamp_ns == msg.stamp_ns =>
+            {
+                // Said once per track: the node's refusals log the first of the kind.
+                let track = &mut self.tracks[i];
+                if !track.duplicate_warned && self.refused.of("duplicate-id") > 0 {
+                    tracing::warn!(
+                        "frame {}: track {} came twice in one image (duplicate id in one image); \
+                         its second messages are refused",
+                        msg.sequence,
+                        msg.track_id
+                    );
+                }
+                track.duplicate_warned = true;
+                return Err(NodeError::DuplicateId {
+                    sequence: msg.sequence,
+                    track_id: msg.track_id,
+                });
+            }
             Some(i) => i,
             None if !checked.has_evidence() => {
                 // Nothing seen of a person not tracked: counted as the window would.
@@ -666,6 +798,7 @@ impl EstimatorNode {
             last_stamp_ns: 0,
             last_sequence: 0,
             last_taken: 0,
+            duplicate_warned: false,
         });
         Ok(self.tracks.len() - 1)
     }
@@ -748,6 +881,7 @@ impl EstimatorNode {
     /// boundary as [`EstimatorNode::handle`]: a panic is counted and logged, and the
     /// track dropped.
     pub fn finish(&mut self, out: &mut Vec<Skeleton3D>) {
+        self.complete_image(out);
         while !self.tracks.is_empty() {
             let finished = self.isolated(out, |node, out| node.end_track(0, out));
             if let Err(message) = finished {

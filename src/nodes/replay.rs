@@ -61,6 +61,8 @@ pub struct ReplayReport {
     pub output: Option<PathBuf>,
     /// The damaged parts of the input skipped (reading on past damage), if any.
     pub skipped: Option<crate::msgs::salvage::Skips>,
+    /// Tracks made for people whose heat maps came without an id.
+    pub unknown_id_tracks: u64,
 }
 
 /// Why a replay failed.
@@ -254,6 +256,7 @@ pub fn replay(
         update: report.update,
         output,
         skipped,
+        unknown_id_tracks: report.unknown_id_tracks,
     })
 }
 

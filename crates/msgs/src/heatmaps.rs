@@ -39,7 +39,7 @@ ros_message! {
     header: Header,
     /// The detector's frame number.
     sequence: u64,
-    /// The person tracked.
+    /// The person tracked, from 1; 0: unknown (the estimator gives the person an id).
     track_id: u32,
     /// Joint of each map.
     joint_names: Vec<String>,

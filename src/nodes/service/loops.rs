@@ -61,6 +61,8 @@ pub struct EstimatorReport {
     pub update: LatencySummary,
     /// Why the input ended early, if it did.
     pub input_error: Option<String>,
+    /// Tracks the node made for people whose heat maps came without an id.
+    pub unknown_id_tracks: u64,
 }
 
 /// Heat maps from `source` through `node` to `outputs`, until the source closes or
@@ -114,7 +116,12 @@ pub fn run_estimator(
                     let _ = node.camera_info(&info);
                     continue;
                 }
-                // A quiet input: the image handled last is complete.
+                // A quiet input: the image handled last is complete (its people without
+                // ids are given theirs and estimated).
+                node.complete_image(&mut out);
+                if !out.is_empty() {
+                    outputs.publish(None, &mut out, node);
+                }
                 outputs.flush_arrays();
                 if live && open_track && last_frame.elapsed() > idle_limit {
                     node.finish(&mut out);
@@ -147,6 +154,7 @@ pub fn run_estimator(
         metric_failures: node.metric_failures(),
         update: latency.summary(),
         input_error,
+        unknown_id_tracks: node.tracks_from_unknown_ids(),
     }
 }
 

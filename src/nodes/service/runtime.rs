@@ -209,6 +209,7 @@ pub fn run_estimator_with_camera(
         metric_failures: node.metric_failures(),
         update: solved.latency.summary(),
         input_error,
+        unknown_id_tracks: node.tracks_from_unknown_ids(),
     })
 }
 
@@ -258,7 +259,12 @@ fn solve(
                 }
             }
             Work::Refused(e) => node.count_refused(&e),
-            Work::Tick => image = None,
+            Work::Tick => {
+                // A quiet input: the image handled last is complete (its people without
+                // ids are given theirs and estimated).
+                node.complete_image(&mut out);
+                image = None;
+            }
         }
         if open_track && last_frame.elapsed() > idle_limit {
             node.finish(&mut out);
