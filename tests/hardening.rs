@@ -517,12 +517,13 @@ fn each_kind_of_damage_costs_only_its_part_and_the_good_frames_around_it_are_rep
             all - PER_CHUNK,
             "not-decompressed",
         ),
-        // Garbage over a chunk's start: scanned past.
+        // Garbage over a chunk's start: scanned past (the record before it, whose length
+        // now leads nowhere, is where the skip starts: a lying length).
         (
             "garbage",
             patch(&bytes, third, &[0xee; 64]),
             all - PER_CHUNK,
-            "unparsable",
+            "lying-length",
         ),
         // A file cut short in its fourth chunk: the three before.
         (

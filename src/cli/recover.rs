@@ -8,7 +8,9 @@ use std::path::PathBuf;
 use clap::Args;
 use posestream::files::check_output;
 use posestream::msgs::salvage::{Salvager, Skips};
-use posestream::recording::{Recorder, RecordingError, RecordingReader, write_rosbag2_metadata};
+use posestream::recording::{
+    Recorder, RecordingError, RecordingInput, RecordingReader, write_rosbag2_metadata,
+};
 use serde::Serialize;
 
 use super::{CliError, progress_bar};
@@ -55,7 +57,7 @@ pub fn run(args: &RecoverArgs) -> Result<(), CliError> {
         path: args.input.clone(),
         source,
     };
-    let mut file = std::fs::File::open(&args.input).map_err(io)?;
+    let mut file = RecordingInput::open(&args.input).map_err(io)?;
     let mut salvager = Salvager::new(&mut file, limit).map_err(io)?;
     let mut recorder = Recorder::create(&args.output)?;
     recorder.set_flush_interval(None);

@@ -518,6 +518,16 @@ pub enum RecordingInput {
     Shipped(std::io::Cursor<&'static [u8]>),
 }
 
+impl RecordingInput {
+    /// Opens `path`: a file, or a shipped recording (`builtin:recordings/NAME.mcap`).
+    pub fn open(path: &Path) -> std::io::Result<Self> {
+        Ok(match crate::shipped::find(path) {
+            Some(shipped) => RecordingInput::Shipped(std::io::Cursor::new(shipped?.bytes)),
+            None => RecordingInput::File(File::open(path)?),
+        })
+    }
+}
+
 impl Read for RecordingInput {
     fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
         match self {
@@ -554,12 +564,7 @@ impl RecordingReader {
             path: path.clone(),
             source,
         };
-        let file = match crate::shipped::find(&path) {
-            Some(shipped) => RecordingInput::Shipped(std::io::Cursor::new(
-                shipped.map_err(|e| io(e.into()))?.bytes,
-            )),
-            None => RecordingInput::File(File::open(&path).map_err(io)?),
-        };
+        let file = RecordingInput::open(&path).map_err(io)?;
         Self::from_reader(file, path, max_record_bytes)
     }
 }

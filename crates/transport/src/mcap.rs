@@ -243,8 +243,11 @@ impl<M: Message> McapSource<M> {
         Ok(self)
     }
 
-    /// Says what this pass skipped, if anything.
+    /// Says what the first pass skipped, if anything (the others skip the same).
     fn report_skips(&self) {
+        if self.pass > 0 {
+            return;
+        }
         if let Some(skips) = self.reader.skips().filter(|s| !s.is_empty()) {
             tracing::warn!(
                 "{}: damaged parts skipped, every readable message used: {}",
