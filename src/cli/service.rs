@@ -100,7 +100,7 @@ impl Summary for service::DetectorReport {
             text.push_str(&format!(
                 "\nimages: {} frames, {} with people ({} person-frames), {} without; \
                  {} tracks confirmed ({} re-acquisitions); \
-                 {} landmark runs, {:.1} ms each; person detector found someone in {} of {} searches",
+                 {} landmark runs on {}, {:.1} ms each; person detector found someone in {} of {} searches",
                 s.frames,
                 s.detected,
                 s.people,
@@ -108,6 +108,10 @@ impl Summary for service::DetectorReport {
                 s.tracks.confirmed,
                 s.tracks.reacquisitions,
                 s.network_runs,
+                match s.runtime {
+                    posestream::detector::Runtime::Litert => "LiteRT",
+                    _ => "tract",
+                },
                 s.mean_network_ms(),
                 s.detector_hits,
                 s.searches
@@ -185,8 +189,8 @@ pub struct SourceArgs {
     /// Landmark model (overrides `detector.images.model`).
     #[arg(long, value_enum)]
     pub model: Option<posestream::models::LandmarkModel>,
-    /// What runs the models (overrides `detector.images.runtime`): `litert` needs
-    /// `$POSESTREAM_LITERT` or `detector.images.litert_library`.
+    /// What runs the models (overrides `detector.images.runtime`; default `auto`: LiteRT
+    /// when `posestream models fetch` has set it up, else tract).
     #[arg(long, value_enum)]
     pub runtime: Option<posestream::detector::Runtime>,
     /// Pace of a replayed recording (overrides `detector.rate`).

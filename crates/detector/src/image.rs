@@ -26,7 +26,7 @@
 //! A change of image size is a new scene: every track ends (a folder of unrelated
 //! photos).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use rayon::prelude::*;
@@ -39,6 +39,7 @@ use crate::models::landmarks::{HEATMAP_SIZE, INPUT_SIZE, LandmarkNetwork, Networ
 use crate::models::litert::{Landmarks, LiteRt};
 use crate::models::person::{INPUT_SIZE as PERSON_INPUT, PersonNetwork};
 use crate::models::{LandmarkModel, ModelFile};
+use crate::motion::Motion;
 use crate::tracker::{Assignment, Observation, Tracker, TrackerStats, TrackingSettings, iou};
 use posestream_math::camera::CropBox;
 use posestream_math::error::{OutOfDomain, check_real};
@@ -64,6 +65,20 @@ const SAME_PERSON_DISTANCE: f64 = 0.15;
 const SAME_FACE_DISTANCE: f64 = 0.3;
 /// BlazePose's face landmarks (nose, eyes, ears, mouth) come first.
 const FACE_LANDMARKS: usize = 11;
+/// Moving blobs nobody followed explains, looked at per frame at most.
+const MOTION_LOOKS: usize = 4;
+/// A moving blob where the landmark model found nobody is not looked at again for this
+/// many frames.
+const REFUSED_FRAMES: u64 = 15;
+/// Motion's looks are judged over this many frames...
+const MOTION_WINDOW: u64 = 60;
+/// ... once there are this many looks in them...
+const MOTION_TRIAL: usize = 20;
+/// ... and found someone in fewer than this share of them, motion is not looked at until
+/// they age out of the window.
+const MOTION_YIELD: f64 = 0.1;
+/// A head's side over the person's height.
+const HEAD_PER_HEIGHT: f64 = 0.15;
 /// Looks at most at a newly found person: the detector's box, then the landmarks' box
 /// until it settles.
 const ACQUISITION_LOOKS: usize = 3;
@@ -96,11 +111,12 @@ pub struct ImageSettings {
     pub frame_id: String,
     /// The landmark model (`posestream models fetch` downloads it).
     pub model: LandmarkModel,
-    /// What runs it: `tract` (pure Rust, built in) or `litert` (Google's LiteRT, loaded
-    /// from `litert_library`: 2-3 x faster on CPU).
+    /// What runs it: `auto` (LiteRT when set up, else tract), `tract` (pure Rust, built
+    /// in) or `litert` (Google's LiteRT, loaded at run time: 2-3 x faster on CPU).
     pub runtime: Runtime,
     /// LiteRT's `libLiteRt.so` (`site-packages/ai_edge_litert/libLiteRt.so` of
-    /// `pip install 'ai-edge-litert==2.3.*'`); empty: `$POSESTREAM_LITERT`.
+    /// `pip install 'ai-edge-litert==2.3.*'`); empty: `$POSESTREAM_LITERT`, else the one
+    /// `posestream models fetch` put in the model cache.
     pub litert_library: PathBuf,
     /// Where the models are; empty: the cache (`posestream models fetch --help`).
     pub models_dir: PathBuf,
@@ -127,14 +143,24 @@ pub struct ImageSettings {
     /// the camera look bigger: all on a scene's first frame, else one per search in
     /// turn beside the whole image; 1: the whole image only.
     pub search_tiles: u32,
+    /// Propose where to look from what moves (a fixed camera's frame differences;
+    /// `crate::motion`): people the person detector misses, seen from behind or far
+    /// away. Off by itself while the camera moves.
+    pub motion: bool,
+    /// Moving blobs shorter than this (image pixels) are not proposed.
+    pub motion_min_height: f64,
     /// How people are followed from frame to frame (`[detector.images.tracking]`).
     pub tracking: TrackingSettings,
 }
 
 /// The landmark model's runtime.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "kebab-case")]
 pub enum Runtime {
+    /// LiteRT when it is set up (`posestream models fetch` fetches it, or
+    /// `litert_library`, or `$POSESTREAM_LITERT`), else tract.
+    #[default]
+    Auto,
     /// tract, pure Rust (the rewritten models).
     Tract,
     /// Google's LiteRT with XNNPACK, loaded at run time (the original models).
@@ -159,7 +185,7 @@ impl Default for ImageSettings {
             fps: 30.0,
             frame_id: "camera".into(),
             model: LandmarkModel::Full,
-            runtime: Runtime::Tract,
+            runtime: Runtime::Auto,
             litert_library: PathBuf::new(),
             models_dir: PathBuf::new(),
             mapping: PathBuf::from("builtin:detectors/blazepose.toml"),
@@ -170,6 +196,8 @@ impl Default for ImageSettings {
             encoding: MapEncoding::Float32,
             field_of_view: 60.0,
             search_tiles: 4,
+            motion: true,
+            motion_min_height: 40.0,
             tracking: TrackingSettings::default(),
         }
     }
@@ -207,6 +235,13 @@ impl ImageSettings {
             false,
         )?;
         check_topic_name("topic", &self.topic)?;
+        check_real(
+            "motion_min_height",
+            self.motion_min_height,
+            8.0,
+            100_000.0,
+            false,
+        )?;
         self.tracking.check()?;
         if !(1..=8).contains(&self.search_tiles) {
             return Err(OutOfDomain::new(
@@ -275,6 +310,8 @@ pub enum DetectorError {
 /// What the detector did so far.
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize)]
 pub struct DetectorStats {
+    /// What runs the models: `tract` or `litert`.
+    pub runtime: Runtime,
     /// Frames seen.
     pub frames: u64,
     /// Frames with at least one person (heat maps sent).
@@ -301,6 +338,10 @@ pub struct DetectorStats {
     /// Looks at a person followed whose head jumped onto another person's: the model had
     /// taken to someone else in the box (a miss).
     pub jumps: u64,
+    /// Moving blobs that nobody followed explained, looked at (`motion`).
+    pub motion_proposals: u64,
+    /// Of those, where the landmark model found nobody.
+    pub motion_refused: u64,
     /// Seconds spent getting the images from their source, counted by the node: the
     /// wait for the next image (files are decoded ahead on another thread; a topic's
     /// images are decoded here).
@@ -540,6 +581,14 @@ pub struct ImageDetector {
     /// cost a look a search, and a search runs every frame while nobody is followed).
     last_candidate: Option<u64>,
     candidate_every: u64,
+    /// What moves (`None`: `motion` off).
+    motion: Option<Motion>,
+    motion_min_height: f64,
+    /// Moving blobs looked at where nobody was, and when.
+    refused: Vec<(CropBox, u64)>,
+    /// Motion's looks in the last `MOTION_WINDOW` frames: when, and whether someone was
+    /// there.
+    motion_looks: Vec<(u64, bool)>,
     /// One landmark input per look running in parallel.
     inputs: Vec<Vec<f32>>,
     /// The people of the current frame (their maps buffers reused).
@@ -569,8 +618,20 @@ impl ImageDetector {
                 })
             })
         };
-        let (network, person) = match settings.runtime {
-            Runtime::Tract => {
+        let litert = match settings.runtime {
+            Runtime::Tract => None,
+            Runtime::Litert => Some(Self::litert(settings, &dir)?),
+            Runtime::Auto => match Self::litert(settings, &dir) {
+                Ok(runtime) => Some(runtime),
+                Err(DetectorError::Settings(_)) => None,
+                Err(e) => {
+                    tracing::warn!("LiteRT cannot run the models ({e}): tract runs them");
+                    None
+                }
+            },
+        };
+        let (network, person) = match litert {
+            None => {
                 let landmarks = LandmarkNetwork::load(&existing(settings.model.for_tract(&dir))?)?;
                 let person = if settings.person_detector {
                     let path = existing(ModelFile::PersonDetector.for_tract(&dir))?;
@@ -580,15 +641,7 @@ impl ImageDetector {
                 };
                 (Landmarks::Tract(landmarks), person)
             }
-            Runtime::Litert => {
-                let library = LiteRt::library_path(&settings.litert_library).ok_or_else(|| {
-                    DetectorError::Settings(
-                        "runtime \"litert\" needs litert_library (or $POSESTREAM_LITERT): \
-                         site-packages/ai_edge_litert/libLiteRt.so of pip install 'ai-edge-litert==2.3.*'"
-                            .into(),
-                    )
-                })?;
-                let runtime = LiteRt::load(&library)?;
+            Some(runtime) => {
                 // One compiled model per worker of the parallel runs.
                 let workers = rayon::current_num_threads().clamp(1, 8);
                 let path = checked(ModelFile::Landmark(settings.model))?;
@@ -613,6 +666,32 @@ impl ImageDetector {
         Ok(detector)
     }
 
+    /// LiteRT's library as configured (`litert_library`, else `$POSESTREAM_LITERT`, else
+    /// the model cache's), loaded. `Settings` error: none is set up.
+    fn litert(settings: &ImageSettings, dir: &Path) -> Result<LiteRt, DetectorError> {
+        let library = match LiteRt::library_path(&settings.litert_library) {
+            Some(path) => path,
+            None => {
+                let cached = crate::models::fetch::cached_litert(dir);
+                if !cached.exists() {
+                    return Err(DetectorError::Settings(format!(
+                        "runtime \"litert\" needs LiteRT: `posestream models fetch` sets it up in {}, \
+                         or name a libLiteRt.so of pip install 'ai-edge-litert==2.3.*' in litert_library \
+                         (or $POSESTREAM_LITERT)",
+                        dir.display()
+                    )));
+                }
+                crate::models::fetch::checked_litert(dir).map_err(|reason| {
+                    DetectorError::Network(NetworkError::LiteRt {
+                        context: format!("loading {}", cached.display()),
+                        reason,
+                    })
+                })?
+            }
+        };
+        Ok(LiteRt::load(&library)?)
+    }
+
     /// A detector from parts.
     pub fn new(
         network: Landmarks,
@@ -630,6 +709,10 @@ impl ImageDetector {
         settings
             .check()
             .map_err(|e| DetectorError::Settings(e.to_string()))?;
+        let runtime = match &network {
+            Landmarks::Tract(_) => Runtime::Tract,
+            Landmarks::LiteRt(_) => Runtime::Litert,
+        };
         Ok(Self {
             network,
             person: None,
@@ -646,10 +729,17 @@ impl ImageDetector {
             heads: Vec::new(),
             last_candidate: None,
             candidate_every: u64::from(settings.tracking.detect_every),
+            motion: settings.motion.then(Motion::new),
+            motion_min_height: settings.motion_min_height,
+            refused: Vec::new(),
+            motion_looks: Vec::new(),
             inputs: Vec::new(),
             found: Vec::new(),
             found_len: 0,
-            stats: DetectorStats::default(),
+            stats: DetectorStats {
+                runtime,
+                ..DetectorStats::default()
+            },
         })
     }
 
@@ -826,6 +916,8 @@ impl ImageDetector {
             if self.scene.is_some() {
                 self.tracker.reset();
                 self.heads.clear();
+                self.refused.clear();
+                self.motion_looks.clear();
                 self.last_candidate = None;
             }
             self.scene = Some(size);
@@ -888,10 +980,73 @@ impl ImageDetector {
                 k += 1;
             }
         }
-        // 2. Search, when wanted.
-        if self.tracker.wants_detections() {
-            let (observations, heads) = self.search(frame)?;
-            let mut verdicts = self.tracker.associate(&observations);
+        // 2. Search, when wanted; and look where something moves that nobody followed
+        // is (at most MOTION_LOOKS a frame, the tallest first).
+        let moving = match &mut self.motion {
+            Some(m) => m.update(&frame.rgb, self.motion_min_height),
+            None => Vec::new(),
+        };
+        // Refused places are not looked at again for a while (a shadow, a car, where
+        // someone stood).
+        self.refused
+            .retain(|(_, at)| now.saturating_sub(*at) < REFUSED_FRAMES);
+        // Motion that keeps turning out to be nobody (a camera moving too slowly to be
+        // told from people moving) is not looked at while that lasts.
+        self.motion_looks
+            .retain(|(at, _)| now.saturating_sub(*at) < MOTION_WINDOW);
+        let looks = self.motion_looks.len();
+        let people = self.motion_looks.iter().filter(|(_, p)| *p).count();
+        let fruitless = looks >= MOTION_TRIAL && (people as f64) < MOTION_YIELD * looks as f64;
+        let unexplained: Vec<CropBox> = moving
+            .into_iter()
+            .filter(|_| !fruitless)
+            .filter(|b| {
+                !kept.iter().any(|(_, k)| within_body(k, centre(b)))
+                    && !self
+                        .refused
+                        .iter()
+                        .any(|(r, _)| iou(r, b) > SAME_PERSON_IOU)
+            })
+            .take(MOTION_LOOKS)
+            .collect();
+        self.stats.motion_proposals += unexplained.len() as u64;
+        let searching = self.tracker.wants_detections();
+        if searching || !unexplained.is_empty() {
+            let (mut observations, mut heads) = if searching {
+                self.search(frame)?
+            } else {
+                (Vec::new(), Vec::new())
+            };
+            let proposed_from = observations.len();
+            for b in unexplained {
+                if !observations
+                    .iter()
+                    .any(|o| iou(&o.region, &b) > SAME_PERSON_IOU)
+                {
+                    observations.push(Observation {
+                        region: b,
+                        score: self.detection_threshold,
+                    });
+                    // Where the head of a person filling the blob is: the others'
+                    // heads are blacked out, never this one.
+                    let height = b.height / crate::motion::CROP_PER_HEIGHT;
+                    let side = HEAD_PER_HEIGHT * height;
+                    heads.push(
+                        CropBox::new(
+                            b.x0 + 0.5 * (b.width - side),
+                            b.y0 + 0.5 * (b.height - height),
+                            side,
+                            side,
+                        )
+                        .ok(),
+                    );
+                }
+            }
+            let mut verdicts = if searching {
+                self.tracker.associate(&observations)
+            } else {
+                self.tracker.associate_proposals(&observations)
+            };
             // One candidate (the best whose face the detector saw off everyone followed)
             // every `detect_every` frames at most.
             let mut allowed = self
@@ -965,6 +1120,15 @@ impl ImageDetector {
                 {
                     if l.person(self.threshold).is_some() {
                         current[n] = Some(l);
+                    }
+                }
+            }
+            for (n, l) in current.iter().enumerate() {
+                if looked[n] >= proposed_from {
+                    self.motion_looks.push((now, l.is_some()));
+                    if l.is_none() {
+                        self.refused.push((observations[looked[n]].region, now));
+                        self.stats.motion_refused += 1;
                     }
                 }
             }

@@ -13,6 +13,7 @@ pub mod image;
 pub mod images;
 pub mod mapping;
 pub mod models;
+pub mod motion;
 pub mod render;
 pub mod tracker;
 

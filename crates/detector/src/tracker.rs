@@ -61,7 +61,7 @@ pub struct TrackingSettings {
 impl Default for TrackingSettings {
     fn default() -> Self {
         Self {
-            max_people: 4,
+            max_people: 12,
             birth_frames: 2,
             lost_frames: 30,
             detect_every: 10,
@@ -347,6 +347,16 @@ impl Tracker {
         self.settings
             .max_people
             .saturating_sub(present + coming_back)
+    }
+
+    /// [`associate`](Self::associate) for boxes that did not come from a search of the
+    /// person detector (motion's proposals): the detector's schedule (`detect_every`)
+    /// goes on as if they were not there.
+    pub fn associate_proposals(&mut self, observations: &[Observation]) -> Vec<Assignment> {
+        let since = self.frames_since_detection;
+        let out = self.associate(observations);
+        self.frames_since_detection = since;
+        out
     }
 
     /// What each of `observations` is: a track not yet seen this frame (matched by

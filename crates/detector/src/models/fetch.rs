@@ -181,6 +181,14 @@ pub enum FetchError {
     /// A model is missing from the package.
     #[error("{0} is not in the package")]
     Missing(String),
+    /// LiteRT's wheel could not be read.
+    #[error("{url}: {reason}")]
+    Wheel {
+        /// The wheel.
+        url: String,
+        /// The cause.
+        reason: String,
+    },
     /// A model could not be rewritten.
     #[error("{file}: {source}")]
     Rewrite {
@@ -217,43 +225,207 @@ fn io(path: &Path) -> impl FnOnce(std::io::Error) -> FetchError + '_ {
     }
 }
 
-/// The package's bytes: `tarball` if given (a file already downloaded), else from the
-/// registry; checked against [`PACKAGE_SHA256`] either way.
-pub fn package_bytes(tarball: Option<&Path>) -> Result<Vec<u8>, FetchError> {
-    let bytes = match tarball {
+/// A download larger than this is refused (the largest, LiteRT's x86_64 wheel, is 21 MB).
+const DOWNLOAD_LIMIT: u64 = 128 << 20;
+
+/// `url`'s bytes, at most [`DOWNLOAD_LIMIT`].
+fn download(url: &str) -> Result<Vec<u8>, FetchError> {
+    let failed = |reason: String| FetchError::Download {
+        url: url.into(),
+        reason,
+    };
+    // The platform's trust store (as curl uses it), not only Mozilla's roots:
+    // networks that inspect TLS install their own root there.
+    let tls = ureq::tls::TlsConfig::builder()
+        .root_certs(ureq::tls::RootCerts::PlatformVerifier)
+        .build();
+    let agent: ureq::Agent = ureq::Agent::config_builder().tls_config(tls).build().into();
+    let mut body = agent
+        .get(url)
+        .call()
+        .map_err(|e| failed(e.to_string()))?
+        .into_body();
+    let mut bytes = Vec::new();
+    body.as_reader()
+        .take(DOWNLOAD_LIMIT + 1)
+        .read_to_end(&mut bytes)
+        .map_err(|e| failed(e.to_string()))?;
+    if bytes.len() as u64 > DOWNLOAD_LIMIT {
+        return Err(failed(format!("over {DOWNLOAD_LIMIT} bytes")));
+    }
+    Ok(bytes)
+}
+
+/// `file`'s bytes if given (downloaded already), else `url`'s; checked against `sha256`
+/// either way.
+fn pinned_bytes(file: Option<&Path>, url: &str, sha256: &str) -> Result<Vec<u8>, FetchError> {
+    let bytes = match file {
         Some(path) => std::fs::read(path).map_err(io(path))?,
-        None => {
-            let download = |reason: String| FetchError::Download {
-                url: PACKAGE_URL.into(),
-                reason,
-            };
-            // The platform's trust store (as curl uses it), not only Mozilla's roots:
-            // networks that inspect TLS install their own root there.
-            let tls = ureq::tls::TlsConfig::builder()
-                .root_certs(ureq::tls::RootCerts::PlatformVerifier)
-                .build();
-            let agent: ureq::Agent = ureq::Agent::config_builder().tls_config(tls).build().into();
-            let mut body = agent
-                .get(PACKAGE_URL)
-                .call()
-                .map_err(|e| download(e.to_string()))?
-                .into_body();
-            let mut bytes = Vec::new();
-            body.as_reader()
-                .read_to_end(&mut bytes)
-                .map_err(|e| download(e.to_string()))?;
-            bytes
-        }
+        None => download(url)?,
     };
     let found = sha256_hex(&bytes);
-    if found != PACKAGE_SHA256 {
+    if found != sha256 {
         return Err(FetchError::Checksum {
-            url: tarball.map_or(PACKAGE_URL.to_string(), |p| p.display().to_string()),
+            url: file.map_or(url.to_string(), |p| p.display().to_string()),
             found,
-            expected: PACKAGE_SHA256.into(),
+            expected: sha256.into(),
         });
     }
     Ok(bytes)
+}
+
+/// The package's bytes: `tarball` if given (a file already downloaded), else from the
+/// registry; checked against [`PACKAGE_SHA256`] either way.
+pub fn package_bytes(tarball: Option<&Path>) -> Result<Vec<u8>, FetchError> {
+    pinned_bytes(tarball, PACKAGE_URL, PACKAGE_SHA256)
+}
+
+/// LiteRT's wheel for one CPU architecture: `ai-edge-litert` 2.3.0 from PyPI
+/// (Apache-2.0). Its `libLiteRt.so` (the C API, no Python in it) is what runs the
+/// models; the cp312 wheel's is pinned (every Python version's wheel carries the same
+/// library).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct LiteRtWheel {
+    /// `std::env::consts::ARCH` of the machines it runs on.
+    pub arch: &'static str,
+    /// Where PyPI serves it.
+    pub url: &'static str,
+    /// The wheel's SHA-256 (PyPI's index publishes the same).
+    pub sha256: &'static str,
+    /// Its `ai_edge_litert/libLiteRt.so`'s SHA-256 (measured here), checked again
+    /// before the library is loaded.
+    pub library_sha256: &'static str,
+}
+
+/// The version of `ai-edge-litert` fetched (the C API [`super::litert`] binds).
+pub const LITERT_VERSION: &str = "2.3.0";
+
+/// LiteRT's wheels: Linux x86_64 and aarch64 (robots run ARM).
+pub const LITERT_WHEELS: [LiteRtWheel; 2] = [
+    LiteRtWheel {
+        arch: "x86_64",
+        url: "https://files.pythonhosted.org/packages/94/db/defacfb96eb7ddf6145dc6bc0b0c64bc221364e413662ef8216bae8258e8/ai_edge_litert-2.3.0-cp312-cp312-manylinux_2_27_x86_64.whl",
+        sha256: "dc9f56c23e0dcf182b6c35f23fbb102ed048296588882b806d5eff7654c04c88",
+        library_sha256: "eec47eb35e2924b3166015887e652a58edc9af823ae38e02bf83bef2548300bb",
+    },
+    LiteRtWheel {
+        arch: "aarch64",
+        url: "https://files.pythonhosted.org/packages/77/89/2bdb0260c4182358c0948316109a3850c37aa15b87665f4b12fb51ea706c/ai_edge_litert-2.3.0-cp312-cp312-manylinux_2_27_aarch64.whl",
+        sha256: "9891611b23a87cc2ace60e4b5ee9a2ee6f0fb7f395f009470961ae6e6310e1b8",
+        library_sha256: "b57687dc234d2b8b0598aef5a9c961ed24263df8f8b3f56adbee1cff618e544b",
+    },
+];
+
+impl LiteRtWheel {
+    /// The wheel for this machine, if LiteRT ships one for it (Linux only).
+    pub fn for_this_machine() -> Option<&'static Self> {
+        if !cfg!(target_os = "linux") {
+            return None;
+        }
+        LITERT_WHEELS
+            .iter()
+            .find(|w| w.arch == std::env::consts::ARCH)
+    }
+}
+
+/// Where [`fetch_litert`] puts the library in the model cache `dir`: laid out as the wheel
+/// installs it (`ai_edge_litert/libLiteRt.so` beside `ai_edge_litert-2.3.0.dist-info`), so
+/// its version is read the same way as a pip-installed one's.
+pub fn cached_litert(dir: &Path) -> PathBuf {
+    dir.join("litert")
+        .join("ai_edge_litert")
+        .join("libLiteRt.so")
+}
+
+/// The library in `dir` if it is the pinned one for this machine, byte for byte (it is
+/// code that will run). `Err`: why not.
+pub fn checked_litert(dir: &Path) -> Result<PathBuf, String> {
+    let path = cached_litert(dir);
+    let wheel = LiteRtWheel::for_this_machine()
+        .ok_or_else(|| format!("LiteRT has no wheel for {}", std::env::consts::ARCH))?;
+    let bytes = std::fs::read(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let found = sha256_hex(&bytes);
+    if found == wheel.library_sha256 {
+        Ok(path)
+    } else {
+        Err(format!(
+            "{} is not the fetched library (SHA-256 {found}): damaged? `posestream models fetch --force` fetches it again",
+            path.display()
+        ))
+    }
+}
+
+/// What [`fetch_litert`] did.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct FetchedLibrary {
+    /// `ai-edge-litert`'s version.
+    pub version: &'static str,
+    /// The machine's architecture.
+    pub arch: &'static str,
+    /// The library.
+    pub library: PathBuf,
+    /// Whether it was downloaded now (else it was there).
+    pub downloaded: bool,
+}
+
+/// The files taken from the wheel, and where they go under `dir/litert`.
+const WHEEL_MEMBERS: [&str; 3] = [
+    "ai_edge_litert/libLiteRt.so",
+    "ai_edge_litert-2.3.0.dist-info/METADATA",
+    "ai_edge_litert-2.3.0.dist-info/licenses/LICENSE",
+];
+
+/// Fetches LiteRT's wheel for this machine from PyPI (or reads `wheel`, a copy already
+/// downloaded), checks its SHA-256 and extracts `libLiteRt.so` with the wheel's
+/// metadata and licence into `dir/litert`. Kept when there unless `force`. `Ok(None)`:
+/// LiteRT has no wheel for this machine (tract runs the models).
+pub fn fetch_litert(
+    dir: &Path,
+    wheel_file: Option<&Path>,
+    force: bool,
+) -> Result<Option<FetchedLibrary>, FetchError> {
+    let Some(wheel) = LiteRtWheel::for_this_machine() else {
+        return Ok(None);
+    };
+    let library = cached_litert(dir);
+    let fetched = |downloaded| FetchedLibrary {
+        version: LITERT_VERSION,
+        arch: wheel.arch,
+        library: library.clone(),
+        downloaded,
+    };
+    if !force && checked_litert(dir).is_ok() {
+        return Ok(Some(fetched(false)));
+    }
+    let bytes = pinned_bytes(wheel_file, wheel.url, wheel.sha256)?;
+    let root = dir.join("litert");
+    let mut archive =
+        zip::ZipArchive::new(std::io::Cursor::new(&bytes[..])).map_err(|e| FetchError::Wheel {
+            url: wheel.url.into(),
+            reason: e.to_string(),
+        })?;
+    // The library last: a folder with it is a whole one.
+    for member in WHEEL_MEMBERS.iter().rev() {
+        let mut entry = archive.by_name(member).map_err(|e| FetchError::Wheel {
+            url: wheel.url.into(),
+            reason: format!("{member}: {e}"),
+        })?;
+        let mut data = Vec::new();
+        (&mut entry)
+            .take(DOWNLOAD_LIMIT)
+            .read_to_end(&mut data)
+            .map_err(io(&root))?;
+        let target = root.join(member);
+        if let Some(parent) = target.parent() {
+            std::fs::create_dir_all(parent).map_err(io(parent))?;
+        }
+        write_atomically(&target, &data)?;
+    }
+    checked_litert(dir).map_err(|reason| FetchError::Wheel {
+        url: wheel.url.into(),
+        reason,
+    })?;
+    Ok(Some(fetched(true)))
 }
 
 /// Fetches the package (or reads `tarball`), writes `models` and the person detector,
@@ -374,5 +546,46 @@ loadPackage({"files": [{"filename": "/third_party/mediapipe/modules/pose_detecti
         assert_eq!(packed_range(loader, "/other.tflite"), None);
         let reversed = loader.replace("\"end\": 2962288", "\"end\": 5");
         assert_eq!(packed_range(&reversed, DETECTOR_ASSET), None);
+    }
+
+    #[test]
+    fn litert_is_taken_only_as_pinned() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        if LiteRtWheel::for_this_machine().is_none() {
+            assert!(
+                fetch_litert(dir.path(), None, false)
+                    .expect("no wheel")
+                    .is_none()
+            );
+            return;
+        }
+        // A wheel that is not the pinned one is refused before it is opened.
+        let wheel = dir.path().join("other.whl");
+        std::fs::write(&wheel, b"PK\x03\x04 not the wheel").expect("write");
+        let err = fetch_litert(dir.path(), Some(&wheel), false).expect_err("refused");
+        assert!(matches!(err, FetchError::Checksum { .. }), "{err}");
+        assert!(!cached_litert(dir.path()).exists());
+        // A library in the cache that is not the fetched one is not loaded.
+        let library = cached_litert(dir.path());
+        std::fs::create_dir_all(library.parent().expect("folder")).expect("mkdir");
+        std::fs::write(&library, b"\x7fELF damaged").expect("write");
+        let why = checked_litert(dir.path()).expect_err("refused");
+        assert!(why.contains("is not the fetched library"), "{why}");
+    }
+
+    #[test]
+    fn every_wheel_is_pinned_for_a_linux_machine() {
+        let arches: Vec<&str> = LITERT_WHEELS.iter().map(|w| w.arch).collect();
+        assert_eq!(arches, ["x86_64", "aarch64"]);
+        for w in LITERT_WHEELS {
+            assert!(
+                w.url.ends_with(&format!("manylinux_2_27_{}.whl", w.arch)),
+                "{}",
+                w.url
+            );
+            assert!(w.url.contains(&format!("ai_edge_litert-{LITERT_VERSION}-")));
+            assert_eq!(w.sha256.len(), 64);
+            assert_eq!(w.library_sha256.len(), 64);
+        }
     }
 }

@@ -255,10 +255,11 @@ impl LiteRtNetwork {
                 Err(error(ctx, format!("{what}: status {status}")))
             }
         };
+        // LiteRT logs what it does here on stderr: passed through `tracing` instead.
         // SAFETY: each out-pointer is a live local or field; handles passed in were
         // made by the calls before and are not yet destroyed (`Drop` destroys them
         // once, in reverse order).
-        unsafe {
+        super::litert_log::quietly(|| unsafe {
             check(
                 (api.create_environment)(0, std::ptr::null(), &raw mut net.environment),
                 "the environment",
@@ -280,7 +281,10 @@ impl LiteRtNetwork {
                     &raw mut net.compiled,
                 ),
                 "compiling",
-            )?;
+            )
+        })?;
+        // SAFETY: as above.
+        unsafe {
             let mut signature: Handle = std::ptr::null_mut();
             check(
                 (api.model_signature)(net.model, 0, &raw mut signature),
@@ -442,8 +446,8 @@ impl Drop for LiteRtNetwork {
     fn drop(&mut self) {
         let api = &self.runtime.api;
         // SAFETY: each non-null handle was made once by `load` and is destroyed once
-        // here, users before what they use.
-        unsafe {
+        // here, users before what they use. LiteRT logs the teardown (`tracing` here).
+        super::litert_log::quietly(|| unsafe {
             for b in self.inputs.iter().chain(&self.outputs) {
                 (api.destroy_buffer)(b.handle);
             }
@@ -459,7 +463,7 @@ impl Drop for LiteRtNetwork {
             if !self.environment.is_null() {
                 (api.destroy_environment)(self.environment);
             }
-        }
+        });
     }
 }
 

@@ -9,6 +9,7 @@ pub mod append;
 pub mod fetch;
 pub mod landmarks;
 pub mod litert;
+pub mod litert_log;
 pub mod person;
 pub mod rewrite;
 
