@@ -73,8 +73,14 @@ pub fn run(args: &ModelsArgs) -> Result<(), CliError> {
                         models::fetch::LITERT_VERSION,
                         dir.display()
                     ));
-                    models::fetch::fetch_litert(&dir, a.litert_wheel.as_deref(), a.force)
-                        .map_err(CliError::from)
+                    models::fetch::fetch_litert(&dir, a.litert_wheel.as_deref(), a.force).map_err(
+                        |e| {
+                            CliError::Failed(format!(
+                                "{e}\n(the models are fetched; `posestream models fetch --no-litert` \
+                                 skips LiteRT, and tract runs them)"
+                            ))
+                        },
+                    )
                 }
                 _ => Ok(None),
             };

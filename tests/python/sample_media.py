@@ -19,6 +19,7 @@ OUT_DIR/vtest.avi, OUT_DIR/sample.mp4), and prints their paths as JSON. Files al
 there are kept.
 """
 
+import hashlib
 import json
 import subprocess
 import sys
@@ -67,6 +68,17 @@ if footage and not (out / "vtest.avi").exists():
         import tarfile
         with tarfile.open(fileobj=io.BytesIO(tar)) as t:
             (out / "vtest.avi").write_bytes(t.extractfile(member).read())
+
+# The annotations are tied to these exact frames.
+FOOTAGE_SHA256 = {
+    "vtest.avi": "45cddc9490be69345cbdab64ca583be65987e864ca408038e648db99e10516cf",
+    "sample.mp4": "ee777bd901527ddd9cd6dc860150ce3d11d1861e968e25a0493e3d8a6dd39c27",
+}
+if footage:
+    for name, expected in FOOTAGE_SHA256.items():
+        found = hashlib.sha256((out / name).read_bytes()).hexdigest()
+        if found != expected:
+            sys.exit(f"{out / name}: SHA-256 {found}, expected {expected} (not the annotated clip)")
 
 astronaut = out / "images" / "astronaut.png"
 if not astronaut.exists():

@@ -77,6 +77,9 @@ const MOTION_TRIAL: usize = 20;
 /// ... and found someone in fewer than this share of them, motion is not looked at until
 /// they age out of the window.
 const MOTION_YIELD: f64 = 0.1;
+/// A proposal overlapping a refused place by more than this (IoU) is that place (a
+/// neighbour's crop overlaps by about 0.5).
+const REFUSED_IOU: f64 = 0.7;
 /// A head's side over the person's height.
 const HEAD_PER_HEIGHT: f64 = 0.15;
 /// Looks at most at a newly found person: the detector's box, then the landmarks' box
@@ -338,9 +341,10 @@ pub struct DetectorStats {
     /// Looks at a person followed whose head jumped onto another person's: the model had
     /// taken to someone else in the box (a miss).
     pub jumps: u64,
-    /// Moving blobs that nobody followed explained, looked at (`motion`).
+    /// Moving blobs that nobody followed explained, looked at by the landmark model
+    /// (`motion`).
     pub motion_proposals: u64,
-    /// Of those, where the landmark model found nobody.
+    /// Of those, where no one new or lost was found.
     pub motion_refused: u64,
     /// Seconds spent getting the images from their source, counted by the node: the
     /// wait for the next image (files are decoded ahead on another thread; a topic's
@@ -1002,14 +1006,10 @@ impl ImageDetector {
             .filter(|_| !fruitless)
             .filter(|b| {
                 !kept.iter().any(|(_, k)| within_body(k, centre(b)))
-                    && !self
-                        .refused
-                        .iter()
-                        .any(|(r, _)| iou(r, b) > SAME_PERSON_IOU)
+                    && !self.refused.iter().any(|(r, _)| iou(r, b) > REFUSED_IOU)
             })
             .take(MOTION_LOOKS)
             .collect();
-        self.stats.motion_proposals += unexplained.len() as u64;
         let searching = self.tracker.wants_detections();
         if searching || !unexplained.is_empty() {
             let (mut observations, mut heads) = if searching {
@@ -1017,9 +1017,11 @@ impl ImageDetector {
             } else {
                 (Vec::new(), Vec::new())
             };
+            // Proposals the person detector's boxes do not already hold (not against
+            // each other: the crops of people side by side overlap).
             let proposed_from = observations.len();
             for b in unexplained {
-                if !observations
+                if !observations[..proposed_from]
                     .iter()
                     .any(|o| iou(&o.region, &b) > SAME_PERSON_IOU)
                 {
@@ -1123,15 +1125,13 @@ impl ImageDetector {
                     }
                 }
             }
-            for (n, l) in current.iter().enumerate() {
-                if looked[n] >= proposed_from {
-                    self.motion_looks.push((now, l.is_some()));
-                    if l.is_none() {
-                        self.refused.push((observations[looked[n]].region, now));
-                        self.stats.motion_refused += 1;
-                    }
-                }
-            }
+            let proposals: Vec<usize> = looked
+                .iter()
+                .copied()
+                .filter(|&i| i >= proposed_from)
+                .collect();
+            self.stats.motion_proposals += proposals.len() as u64;
+            let mut taken: Vec<usize> = Vec::new();
             // People found again first (they keep their places), then newcomers, best
             // first (confident ones before candidates).
             let mut found: Vec<(usize, Look)> = looked
@@ -1162,7 +1162,18 @@ impl ImageDetector {
                         None => continue,
                     },
                 };
+                taken.push(i);
                 kept.push((id, l));
+            }
+            // A proposal counts as someone only where a person was found and taken
+            // (one found who was already followed, or without room, is refused too).
+            for i in proposals {
+                let someone = taken.contains(&i);
+                self.motion_looks.push((now, someone));
+                if !someone {
+                    self.refused.push((observations[i].region, now));
+                    self.stats.motion_refused += 1;
+                }
             }
         }
         let reported = self.tracker.end();

@@ -80,7 +80,11 @@ impl Motion {
             self.frames = 0;
         }
         let step = self.step;
-        let (gw, gh) = ((w / step).max(1), (h / step).max(1));
+        if h < step {
+            // Too flat to hold a person at this scale.
+            return Vec::new();
+        }
+        let (gw, gh) = (w / step, h / step);
         if self.grey.dimensions() != (gw, gh) {
             self.grey = GrayImage::new(gw, gh);
             self.mask = GrayImage::new(gw, gh);
@@ -90,15 +94,15 @@ impl Motion {
         let area = (step * step) as f32;
         for gy in 0..gh {
             for gx in 0..gw {
-                let mut sum = 0u32;
+                let mut sum = 0u64;
                 for y in gy * step..(gy + 1) * step {
                     let row = (y * w) as usize * 3;
                     for x in gx * step..(gx + 1) * step {
                         let p = row + x as usize * 3;
                         // ITU-R BT.601 luma in integers.
-                        sum += (77 * u32::from(raw[p])
-                            + 150 * u32::from(raw[p + 1])
-                            + 29 * u32::from(raw[p + 2]))
+                        sum += (77 * u64::from(raw[p])
+                            + 150 * u64::from(raw[p + 1])
+                            + 29 * u64::from(raw[p + 2]))
                             >> 8;
                     }
                 }
@@ -245,6 +249,15 @@ mod tests {
             m.update(&scene(&[(300, 300, 2, 2), (150, 150, 200, 20)]), 40.0)
                 .is_empty()
         );
+    }
+
+    #[test]
+    fn images_too_flat_or_empty_propose_nothing() {
+        let mut m = Motion::new();
+        for _ in 0..STILL_FRAMES + 2 {
+            assert!(m.update(&RgbImage::new(1920, 2), 1.0).is_empty());
+            assert!(m.update(&RgbImage::new(0, 0), 1.0).is_empty());
+        }
     }
 
     #[test]

@@ -228,6 +228,22 @@ fn io(path: &Path) -> impl FnOnce(std::io::Error) -> FetchError + '_ {
 /// A download larger than this is refused (the largest, LiteRT's x86_64 wheel, is 21 MB).
 const DOWNLOAD_LIMIT: u64 = 128 << 20;
 
+/// `path`'s bytes if it holds at most `limit` (a file given for a download).
+fn read_at_most(path: &Path, limit: u64) -> Result<Vec<u8>, FetchError> {
+    let file = std::fs::File::open(path).map_err(io(path))?;
+    let mut bytes = Vec::new();
+    file.take(limit + 1)
+        .read_to_end(&mut bytes)
+        .map_err(io(path))?;
+    if bytes.len() as u64 > limit {
+        return Err(FetchError::Io {
+            path: path.to_path_buf(),
+            source: std::io::Error::other(format!("over {limit} bytes: not the file")),
+        });
+    }
+    Ok(bytes)
+}
+
 /// `url`'s bytes, at most [`DOWNLOAD_LIMIT`].
 fn download(url: &str) -> Result<Vec<u8>, FetchError> {
     let failed = |reason: String| FetchError::Download {
@@ -260,7 +276,7 @@ fn download(url: &str) -> Result<Vec<u8>, FetchError> {
 /// either way.
 fn pinned_bytes(file: Option<&Path>, url: &str, sha256: &str) -> Result<Vec<u8>, FetchError> {
     let bytes = match file {
-        Some(path) => std::fs::read(path).map_err(io(path))?,
+        Some(path) => read_at_most(path, DOWNLOAD_LIMIT)?,
         None => download(url)?,
     };
     let found = sha256_hex(&bytes);
@@ -343,7 +359,8 @@ pub fn checked_litert(dir: &Path) -> Result<PathBuf, String> {
     let path = cached_litert(dir);
     let wheel = LiteRtWheel::for_this_machine()
         .ok_or_else(|| format!("LiteRT has no wheel for {}", std::env::consts::ARCH))?;
-    let bytes = std::fs::read(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+    // LiteRT's library is 6-8 MB: a larger file is not it (and is not read whole).
+    let bytes = read_at_most(&path, 64 << 20).map_err(|e| e.to_string())?;
     let found = sha256_hex(&bytes);
     if found == wheel.library_sha256 {
         Ok(path)
@@ -399,22 +416,26 @@ pub fn fetch_litert(
     }
     let bytes = pinned_bytes(wheel_file, wheel.url, wheel.sha256)?;
     let root = dir.join("litert");
+    let source = wheel_file.map_or(wheel.url.to_string(), |p| p.display().to_string());
     let mut archive =
         zip::ZipArchive::new(std::io::Cursor::new(&bytes[..])).map_err(|e| FetchError::Wheel {
-            url: wheel.url.into(),
+            url: source.clone(),
             reason: e.to_string(),
         })?;
     // The library last: a folder with it is a whole one.
     for member in WHEEL_MEMBERS.iter().rev() {
         let mut entry = archive.by_name(member).map_err(|e| FetchError::Wheel {
-            url: wheel.url.into(),
+            url: source.clone(),
             reason: format!("{member}: {e}"),
         })?;
         let mut data = Vec::new();
         (&mut entry)
             .take(DOWNLOAD_LIMIT)
             .read_to_end(&mut data)
-            .map_err(io(&root))?;
+            .map_err(|e| FetchError::Wheel {
+                url: source.clone(),
+                reason: format!("{member}: {e}"),
+            })?;
         let target = root.join(member);
         if let Some(parent) = target.parent() {
             std::fs::create_dir_all(parent).map_err(io(parent))?;
@@ -422,7 +443,7 @@ pub fn fetch_litert(
         write_atomically(&target, &data)?;
     }
     checked_litert(dir).map_err(|reason| FetchError::Wheel {
-        url: wheel.url.into(),
+        url: source,
         reason,
     })?;
     Ok(Some(fetched(true)))

@@ -91,50 +91,85 @@ fn pass_on(text: &str) {
     }
 }
 
+/// Descriptor 2 on a memory file until [`finish`](Redirect::finish), or until dropped
+/// (a panic in the call): then the original stderr is back and what was captured is
+/// written to it.
 #[cfg(target_os = "linux")]
 struct Redirect {
-    saved: std::os::fd::OwnedFd,
+    saved: Option<std::os::fd::OwnedFd>,
     capture: std::fs::File,
 }
 
 #[cfg(target_os = "linux")]
 impl Redirect {
-    #[allow(unsafe_code, reason = "file descriptor 2 swapped with dup/dup2")]
+    #[allow(unsafe_code, reason = "file descriptor 2 swapped with fcntl/dup2")]
     fn start() -> Option<Self> {
-        use std::os::fd::{FromRawFd, OwnedFd};
+        use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
         let _ = std::io::stderr().flush();
+        // The original stderr first, close-on-exec (a child another thread spawns
+        // meanwhile does not inherit it), at 3 or above; none (stderr closed): no
+        // redirection, so descriptor 2 is never taken from whoever holds it.
+        // SAFETY: F_DUPFD_CLOEXEC returns a new descriptor we own, or -1.
+        let saved = unsafe { libc::fcntl(2, libc::F_DUPFD_CLOEXEC, 3) };
+        if saved < 0 {
+            return None;
+        }
+        // SAFETY: `saved` is a fresh descriptor owned by nothing else.
+        let saved = unsafe { OwnedFd::from_raw_fd(saved) };
         // SAFETY: memfd_create with a NUL-terminated name returns a new descriptor we
-        // own, or -1.
+        // own, or -1; below 3 only when 0 or 1 was closed: then not used.
         let memfd = unsafe { libc::memfd_create(c"litert-log".as_ptr(), libc::MFD_CLOEXEC) };
         if memfd < 0 {
             return None;
         }
         // SAFETY: `memfd` is a fresh descriptor owned by nothing else.
         let capture = unsafe { std::fs::File::from_raw_fd(memfd) };
-        // SAFETY: dup of descriptor 2 returns a new descriptor we own, or -1.
-        let saved = unsafe { libc::dup(2) };
-        if saved < 0 {
+        if capture.as_raw_fd() <= 2 {
             return None;
         }
-        // SAFETY: `saved` is a fresh descriptor owned by nothing else.
-        let saved = unsafe { OwnedFd::from_raw_fd(saved) };
         // SAFETY: both descriptors are open; dup2 replaces descriptor 2 atomically.
         if unsafe { libc::dup2(memfd, 2) } < 0 {
             return None;
         }
-        Some(Self { saved, capture })
+        Some(Self {
+            saved: Some(saved),
+            capture,
+        })
     }
 
+    /// Puts the original stderr back and returns what was written meanwhile (at most
+    /// `KEPT` bytes; a longer output is said so).
     #[allow(unsafe_code, reason = "file descriptor 2 restored with dup2")]
-    fn finish(mut self) -> String {
+    fn restore(&mut self) -> Option<String> {
         use std::os::fd::AsRawFd;
+        let saved = self.saved.take()?;
         // SAFETY: `saved` is open (owned here); dup2 puts the original stderr back.
-        unsafe { libc::dup2(self.saved.as_raw_fd(), 2) };
+        unsafe { libc::dup2(saved.as_raw_fd(), 2) };
         let mut bytes = Vec::new();
         if self.capture.rewind().is_ok() {
-            let _ = (&mut self.capture).take(KEPT).read_to_end(&mut bytes);
+            let _ = (&mut self.capture).take(KEPT + 1).read_to_end(&mut bytes);
         }
-        String::from_utf8_lossy(&bytes).into_owned()
+        let cut = bytes.len() as u64 > KEPT;
+        bytes.truncate(KEPT as usize);
+        let mut text = String::from_utf8_lossy(&bytes).into_owned();
+        if cut {
+            text.push_str("\nWARNING: [posestream] LiteRT's output cut at 64 KiB\n");
+        }
+        Some(text)
+    }
+
+    fn finish(mut self) -> String {
+        self.restore().unwrap_or_default()
+    }
+}
+
+#[cfg(target_os = "linux")]
+impl Drop for Redirect {
+    fn drop(&mut self) {
+        // Unwinding from a panic in the call: stderr back, and what it held shown.
+        if let Some(text) = self.restore() {
+            let _ = std::io::stderr().write_all(text.as_bytes());
+        }
     }
 }
 
@@ -199,9 +234,24 @@ mod tests {
             }
             redirect.finish()
         };
-        assert_eq!(got, "INFO: [x.cc:1] hello\n");
+        // (Another test's thread may have written to stderr meanwhile.)
+        assert!(got.contains("INFO: [x.cc:1] hello\n"), "{got}");
         // Descriptor 2 is the original again: a second capture starts empty.
         let again = quietly(|| 7);
         assert_eq!(again, 7);
+    }
+
+    #[test]
+    fn a_panic_in_the_call_gives_stderr_back() {
+        let stderr = || std::fs::read_link("/proc/self/fd/2").expect("fd 2");
+        let before = stderr();
+        let caught = std::panic::catch_unwind(|| {
+            quietly(|| {
+                assert!(stderr().to_string_lossy().contains("memfd:litert-log"));
+                panic!("inside LiteRT's call");
+            })
+        });
+        assert!(caught.is_err());
+        assert_eq!(stderr(), before);
     }
 }
