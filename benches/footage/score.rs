@@ -285,25 +285,13 @@ pub fn found_in_recording(path: &Path, fps: f64) -> Result<Vec<Found>, String> {
     let mut best: BTreeMap<(u64, u32), (u32, Found)> = BTreeMap::new();
     for (_, s) in skeletons {
         let frame = (s.header.stamp.nanos() as f64 * fps / 1e9).round() as u64;
-        let mut xs: Vec<f64> = s
-            .keypoints
-            .chunks_exact(2)
-            .map(|c| c[0])
-            .filter(|v| v.is_finite())
-            .collect();
-        let mut ys: Vec<f64> = s
-            .keypoints
-            .chunks_exact(2)
-            .map(|c| c[1])
-            .filter(|v| v.is_finite())
-            .collect();
-        if xs.is_empty() || ys.is_empty() {
+        let (Some(x), Some(y)) = (median_of(&s.keypoints, 0), median_of(&s.keypoints, 1)) else {
             continue;
-        }
+        };
         let f = Found {
             frame,
             track: s.track_id,
-            at: (median(&mut xs), median(&mut ys)),
+            at: (x, y),
         };
         let e = best.entry((frame, s.track_id)).or_insert((s.lag, f));
         if s.lag < e.0 {
@@ -313,9 +301,15 @@ pub fn found_in_recording(path: &Path, fps: f64) -> Result<Vec<Found>, String> {
     Ok(best.into_values().map(|(_, f)| f).collect())
 }
 
-fn median(v: &mut [f64]) -> f64 {
+/// The median of coordinate `axis` (0: x, 1: y) of interleaved 2D points, finite ones.
+fn median_of(points: &[f64], axis: usize) -> Option<f64> {
+    let mut v: Vec<f64> = points
+        .chunks_exact(2)
+        .map(|c| c[axis])
+        .filter(|v| v.is_finite())
+        .collect();
     v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
+    v.get(v.len() / 2).copied()
 }
 
 #[cfg(test)]

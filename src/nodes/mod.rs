@@ -555,19 +555,25 @@ impl EstimatorNode {
         self.unknown = Some(unknown);
     }
 
-    /// Checks a message without an id as far as it can be without its track, and holds
-    /// a copy of it for its image's end.
-    fn hold_unknown(&mut self, msg: &msgs::HeatMapsView<'_>) -> Result<(), NodeError> {
+    /// The message's maps within the configured limits.
+    fn check_map_size(&self, msg: &msgs::HeatMapsView<'_>) -> Result<(), NodeError> {
         self.limits
             .heatmap_values(
                 msg.joint_names.len() as u64,
                 u64::from(msg.height),
                 u64::from(msg.width),
             )
+            .map(|_| ())
             .map_err(|source| NodeError::Limit {
                 sequence: msg.sequence,
                 source,
-            })?;
+            })
+    }
+
+    /// Checks a message without an id as far as it can be without its track, and holds
+    /// a copy of it for its image's end.
+    fn hold_unknown(&mut self, msg: &msgs::HeatMapsView<'_>) -> Result<(), NodeError> {
+        self.check_map_size(msg)?;
         msg.crop()?;
         let max_tracks = self.max_tracks;
         let held = self
@@ -644,16 +650,7 @@ impl EstimatorNode {
                 msg.sequence
             );
         }
-        self.limits
-            .heatmap_values(
-                msg.joint_names.len() as u64,
-                u64::from(msg.height),
-                u64::from(msg.width),
-            )
-            .map_err(|source| NodeError::Limit {
-                sequence: msg.sequence,
-                source,
-            })?;
+        self.check_map_size(msg)?;
         if !same_layout(msg.joint_names, &self.joint_names) {
             return Err(NodeError::Joints {
                 sequence: msg.sequence,

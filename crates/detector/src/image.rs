@@ -1291,6 +1291,22 @@ mod tests {
     }
 
     #[test]
+    fn motion_settings_outside_their_domain_are_refused_by_name() {
+        for bad in [f64::NAN, f64::INFINITY, -1.0, 0.0, 1e300] {
+            let settings = ImageSettings {
+                motion_min_height: bad,
+                ..ImageSettings::default()
+            };
+            let err = settings.check().expect_err("refused");
+            assert!(
+                err.to_string().contains("motion_min_height"),
+                "{bad}: {err}"
+            );
+        }
+        assert!(ImageSettings::default().check().is_ok());
+    }
+
+    #[test]
     fn a_head_is_twice_the_face_landmarks_extent_around_their_centre() {
         let h = head_box(&[[100.0, 200.0], [140.0, 220.0], [120.0, 210.0]]).expect("head");
         assert_eq!((h.x0, h.y0, h.width, h.height), (80.0, 170.0, 80.0, 80.0));

@@ -595,6 +595,22 @@ loadPackage({"files": [{"filename": "/third_party/mediapipe/modules/pose_detecti
     }
 
     #[test]
+    fn a_given_file_larger_than_a_download_is_not_read_whole() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let big = dir.path().join("big.whl");
+        std::fs::write(&big, vec![0u8; 4097]).expect("write");
+        let err = read_at_most(&big, 4096).expect_err("refused");
+        assert!(err.to_string().contains("over 4096 bytes"), "{err}");
+        assert_eq!(read_at_most(&big, 4097).expect("read").len(), 4097);
+        let empty = dir.path().join("empty.whl");
+        std::fs::write(&empty, b"").expect("write");
+        let err = fetch_litert(dir.path(), Some(&empty), false);
+        if LiteRtWheel::for_this_machine().is_some() {
+            assert!(matches!(err, Err(FetchError::Checksum { .. })));
+        }
+    }
+
+    #[test]
     fn every_wheel_is_pinned_for_a_linux_machine() {
         let arches: Vec<&str> = LITERT_WHEELS.iter().map(|w| w.arch).collect();
         assert_eq!(arches, ["x86_64", "aarch64"]);
