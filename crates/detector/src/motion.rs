@@ -80,11 +80,12 @@ impl Motion {
             self.frames = 0;
         }
         let step = self.step;
-        if h < step {
-            // Too flat to hold a person at this scale.
+        let (gw, gh) = (w / step, h / step);
+        if gw < 2 || gh < 2 {
+            // Too small or too flat to hold a person at this scale (and imageproc's
+            // connected components panic on a 1 x 1 image).
             return Vec::new();
         }
-        let (gw, gh) = (w / step, h / step);
         if self.grey.dimensions() != (gw, gh) {
             self.grey = GrayImage::new(gw, gh);
             self.mask = GrayImage::new(gw, gh);
@@ -257,6 +258,12 @@ mod tests {
         for _ in 0..STILL_FRAMES + 2 {
             assert!(m.update(&RgbImage::new(1920, 2), 1.0).is_empty());
             assert!(m.update(&RgbImage::new(0, 0), 1.0).is_empty());
+        }
+        // A 1 x 1 video (imageproc's connected components panicked on its mask).
+        let mut m = Motion::new();
+        for _ in 0..STILL_FRAMES + 2 {
+            let one = RgbImage::from_pixel(1, 1, image::Rgb([128; 3]));
+            assert!(m.update(&one, 1.0).is_empty());
         }
     }
 
