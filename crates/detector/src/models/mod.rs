@@ -10,6 +10,7 @@ pub mod fetch;
 pub mod landmarks;
 pub mod litert;
 pub mod litert_log;
+pub mod pedestrians;
 pub mod person;
 pub mod rewrite;
 
