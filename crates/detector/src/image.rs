@@ -655,6 +655,9 @@ struct Sighting {
     body: Option<CropBox>,
 }
 
+/// A pedestrian detector's box: its score and `[x0, y0, x1, y1]`, image pixels.
+type ScoredBox = (f32, [f64; 4]);
+
 /// Where a person's head was last seen, and the frame.
 struct Head {
     id: u32,
@@ -1133,7 +1136,7 @@ impl ImageDetector {
         }
         let threshold = self.pedestrian_threshold;
         let rgb = &frame.rgb;
-        let found: Vec<Result<Vec<(f32, [f64; 4])>, DetectorError>> = regions
+        let found: Vec<Result<Vec<ScoredBox>, DetectorError>> = regions
             .par_iter()
             .map(|region| {
                 let worker = rayon::current_thread_index().unwrap_or(0);
@@ -1164,7 +1167,7 @@ impl ImageDetector {
         self.stats.pedestrian_seconds += began.elapsed().as_secs_f64();
         // One person in several regions: the best box.
         bodies.sort_by(|a, b| b.0.total_cmp(&a.0));
-        let mut kept: Vec<(f32, [f64; 4])> = Vec::new();
+        let mut kept: Vec<ScoredBox> = Vec::new();
         for b in bodies {
             if kept.iter().all(|k| box_iou(&k.1, &b.1) <= BODY_NMS_IOU) {
                 kept.push(b);
