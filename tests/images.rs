@@ -164,8 +164,11 @@ fn people_seen_from_behind_at_a_distance_are_found_by_their_bodies_and_where_the
         Some(0)
     );
     assert!(bodies_report["detector"]["images"]["pedestrian_runs"].as_u64() > Some(0));
-    // Measured: motion tract 0.59 against 0.43, LiteRT 0.57 against 0.29; precision
-    // 1.00.
+    // Measured (tract): motion 0.63, the pedestrian detector 0.76, faces only 0.45;
+    // precision 1.00.
+    // The faces' path has a floor of its own (the comparisons below would pass more
+    // easily were it to fall).
+    assert!(faces_only.recall >= 0.35, "{faces_only:?}");
     assert!(moving.recall >= 0.5, "{moving:?}");
     assert!(
         moving.recall >= faces_only.recall + 0.1,
@@ -174,10 +177,9 @@ fn people_seen_from_behind_at_a_distance_are_found_by_their_bodies_and_where_the
     assert!(moving.precision >= 0.95, "{moving:?}");
     assert!(moving.counted >= 45, "{moving:?}");
     // The pedestrian detector without motion (it works on a moving camera too).
-    // Measured: tract 0.65 against 0.24, precision 1.00.
-    assert!(bodies.recall >= 0.55, "{bodies:?}");
+    assert!(bodies.recall >= 0.65, "{bodies:?}");
     assert!(
-        bodies.recall >= faces_only.recall + 0.15,
+        bodies.recall >= faces_only.recall + 0.2,
         "{bodies:?} {faces_only:?}"
     );
     assert!(bodies.precision >= 0.95, "{bodies:?}");

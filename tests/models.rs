@@ -217,7 +217,8 @@ fn person_detector_matches_the_reference_runtime(models: &std::path::Path) {
 
 #[test]
 fn the_pedestrian_detector_is_fetched_converted_and_finds_the_people_of_a_photo() {
-    use posestream::detector::crop::{crop_input, whole_image_box};
+    use posestream::camera::CropBox;
+    use posestream::detector::crop::crop_input;
     use posestream::models::pedestrians::{INPUT_SIZE, PedestrianNetwork};
     let dir = tempfile::tempdir().expect("tempdir");
     let fetched = fetch::fetch_pedestrians(dir.path(), None, false).unwrap_or_else(|e| {
@@ -255,6 +256,10 @@ fn the_pedestrian_detector_is_fetched_converted_and_finds_the_people_of_a_photo(
         why.contains("is not the fetched pedestrian detector"),
         "{why}"
     );
+    // Fetching again (no --force) replaces it.
+    let mended = fetch::fetch_pedestrians(&other, None, false).expect("fetched again");
+    assert!(mended.downloaded);
+    assert!(fetch::checked_pedestrians(&other).is_ok());
 
     // bus.jpg, the whole photo: the people standing in it, found by tract and by
     // posestream's LiteRT binding on the same converted file, alike.
@@ -266,7 +271,9 @@ fn the_pedestrian_detector_is_fetched_converted_and_finds_the_people_of_a_photo(
     let rgb = image::open(&bus).expect("bus.jpg").to_rgb8();
     let (w, h) = rgb.dimensions();
     let mut input = Vec::new();
-    crop_input(&rgb, &whole_image_box(w, h), INPUT_SIZE, &mut input);
+    // The whole photo squeezed to the input, as the detector searches it.
+    let whole_photo = CropBox::new(0.0, 0.0, f64::from(w), f64::from(h)).expect("box");
+    crop_input(&rgb, &whole_photo, INPUT_SIZE, &mut input);
     let whole = |v: &f32| 2.0 * v - 1.0;
     let input: Vec<f32> = input.iter().map(whole).collect();
     let tract = PedestrianNetwork::load(&fetched.model).expect("tract loads it");

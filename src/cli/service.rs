@@ -100,7 +100,7 @@ impl Summary for service::DetectorReport {
             text.push_str(&format!(
                 "\nimages: {} frames, {} with people ({} person-frames), {} without; \
                  {} tracks confirmed ({} re-acquisitions); \
-                 {} landmark runs on {}, {:.1} ms each; person detector found someone in {} of {} searches",
+                 {} landmark runs on {}, {:.1} ms each; the person detectors found someone in {} of {} searches",
                 s.frames,
                 s.detected,
                 s.people,
@@ -142,12 +142,15 @@ impl Summary for service::PipelineReport {
         if let Some(st) = &self.stages {
             text.push_str(&format!(
                 "\nper image: getting it (reading, decoding, waiting) {:.1} ms; {:.2} landmark runs of {:.1} ms; \
-                 {:.2} person-detector runs of {:.1} ms; estimator update median {:.2} ms",
+                 {:.2} person-detector runs of {:.1} ms; {:.2} pedestrian-detector runs of {:.1} ms; \
+                 estimator update median {:.2} ms",
                 st.image_ms,
                 st.landmark_runs_per_image,
                 st.landmark_ms,
                 st.person_detector_runs_per_image,
                 st.person_detector_ms,
+                st.pedestrian_detector_runs_per_image,
+                st.pedestrian_detector_ms,
                 st.estimator_update_median_ms
             ));
         }

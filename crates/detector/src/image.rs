@@ -89,9 +89,9 @@ const BODY_NMS_IOU: f64 = 0.5;
 /// its crop blacked out), as a share of the box's height: across, and half that
 /// above and below.
 const BODY_MARGIN: f64 = 0.1;
-/// A new look whose body landmarks lie within someone's (this share of them) and span
-/// at most this share of their height is a part of them (`part_of`).
+/// A newcomer's look whose body landmarks lie within someone's (this share of them)...
 const PART_INSIDE: f64 = 0.9;
+/// ... and span at most this share of their height is a part of them (`part_of`).
 const PART_HEIGHT: f64 = 0.75;
 /// While nobody is followed (a search every frame) the pedestrian detector runs every
 /// this many times `detect_every` frames (BlazePose's, 4 x cheaper, searches every
@@ -177,9 +177,9 @@ pub struct ImageSettings {
     pub pedestrians: bool,
     /// The pedestrian detector's score below this: not a person.
     pub pedestrian_threshold: f32,
-    /// The pedestrian detector also searches this many tiles across the image (each
-    /// its full height, overlapping), where people far away look bigger, beside the
-    /// whole image; 1: the whole image only.
+    /// The pedestrian detector also searches this many tiles along the image's longer
+    /// side (each its full other side, overlapping), where people far away look
+    /// bigger, beside the whole image; 1: the whole image only.
     pub pedestrian_tiles: u32,
     /// How people are followed from frame to frame (`[detector.images.tracking]`).
     pub tracking: TrackingSettings,
@@ -376,9 +376,10 @@ pub struct DetectorStats {
     pub network_seconds: f64,
     /// Person detector runs (one per region searched).
     pub detector_runs: u64,
-    /// Searches with the person detector (each runs it on the whole image and tiles).
+    /// Searches for people (BlazePose's person detector and the pedestrian detector,
+    /// each on the whole image and tiles).
     pub searches: u64,
-    /// Searches that found someone.
+    /// Searches that found someone (either detector, a confident box).
     pub detector_hits: u64,
     /// Seconds in the person detector.
     pub detector_seconds: f64,
@@ -523,7 +524,25 @@ fn head_jump<'a>(
     (a[0] - b[0]).hypot(a[1] - b[1]) > before.width && others.any(|h| contains(h, b))
 }
 
-/// The centre of `b`.
+/// Two sightings of one search are one person: two bodies never (the pedestrian
+/// detector's boxes are thinned already, and the crops of people side by side overlap
+/// much), a body and a face when the face's head lies in the body's upper half, two
+/// faces' crops when they overlap more than `SAME_PERSON_IOU`.
+fn same_sighting(a: &Sighting, b: &Sighting) -> bool {
+    match (a.body, b.body) {
+        (Some(_), Some(_)) => false,
+        (Some(body), None) | (None, Some(body)) => {
+            let other = if a.body.is_some() { b } else { a };
+            let upper = CropBox {
+                height: 0.5 * body.height,
+                ..body
+            };
+            other.head.is_some_and(|h| contains(&upper, centre(&h)))
+        }
+        (None, None) => iou(&a.observation.region, &b.observation.region) > SAME_PERSON_IOU,
+    }
+}
+
 /// `part`'s body landmarks lie within `whole`'s body (their extent grown by a tenth of
 /// its height), nearly all of them, and span at most `PART_HEIGHT` of its height: a
 /// look at a part of someone already found (their legs), not a person.
@@ -577,6 +596,7 @@ fn box_iou(a: &[f64; 4], b: &[f64; 4]) -> f64 {
     if union > 0.0 { inter / union } else { 0.0 }
 }
 
+/// The centre of `b`.
 fn centre(b: &CropBox) -> [f64; 2] {
     [b.x0 + 0.5 * b.width, b.y0 + 0.5 * b.height]
 }
@@ -710,9 +730,6 @@ pub struct ImageDetector {
     /// Motion's looks in the last `MOTION_WINDOW` frames: when, and whether someone was
     /// there.
     motion_looks: Vec<(u64, bool)>,
-    /// Each person's body (their landmarks' extent) in the previous frame: someone
-    /// followed beside another is looked at with all around their body blacked out.
-    bodies: Vec<(u32, CropBox)>,
     /// One landmark input per look running in parallel.
     inputs: Vec<Vec<f32>>,
     /// The people of the current frame (their maps buffers reused).
@@ -787,7 +804,9 @@ impl ImageDetector {
                     None
                 };
                 let pedestrians = if pedestrians {
-                    Some(PedestrianNetwork::load(&pedestrians_path)?)
+                    // The same file as LiteRT's, checked as fetched: tract's TFLite
+                    // reader trusts the indices in a file.
+                    Some(PedestrianNetwork::load(&checked_pedestrians()?)?)
                 } else {
                     None
                 };
@@ -899,7 +918,6 @@ impl ImageDetector {
             motion_min_height: settings.motion_min_height,
             refused: Vec::new(),
             motion_looks: Vec::new(),
-            bodies: Vec::new(),
             inputs: Vec::new(),
             found: Vec::new(),
             found_len: 0,
@@ -975,24 +993,23 @@ impl ImageDetector {
                 },
             ),
         };
-        if self.person.is_none() && self.pedestrians.is_none() {
-            return Ok(vec![Sighting {
+        // Without BlazePose's detector, the region as a whole (and the bodies found).
+        let mut all = if self.person.is_none() {
+            vec![Sighting {
                 observation: Observation { region, score: 1.0 },
                 head: None,
                 body: None,
-            }]);
-        }
-        let mut all = self.search_faces(frame, region, &area)?;
+            }]
+        } else {
+            self.search_faces(frame, region, &area)?
+        };
         all.extend(self.search_bodies(frame, &area, followed)?);
         // One person seen in several regions, or by both detectors: the best-scoring
-        // box.
+        // sighting.
         all.sort_by(|a, b| b.observation.score.total_cmp(&a.observation.score));
         let mut placed: Vec<Sighting> = Vec::new();
         for s in all {
-            if !placed
-                .iter()
-                .any(|p| iou(&p.observation.region, &s.observation.region) > SAME_PERSON_IOU)
-            {
+            if !placed.iter().any(|p| same_sighting(p, &s)) {
                 placed.push(s);
             }
         }
@@ -1126,12 +1143,26 @@ impl ImageDetector {
         // 0.55 (README).
         let mut regions = vec![*area];
         if self.pedestrian_tiles > 1 {
+            // Along the longer side (a portrait image: down it).
             let n = f64::from(self.pedestrian_tiles);
-            let width = area.width / (0.8 * n + 0.2);
-            regions.extend((0..self.pedestrian_tiles).map(|k| CropBox {
-                x0: area.x0 + 0.8 * width * f64::from(k),
-                width,
-                ..*area
+            let across = area.width >= area.height;
+            let long = if across { area.width } else { area.height };
+            let side = long / (0.8 * n + 0.2);
+            regions.extend((0..self.pedestrian_tiles).map(|k| {
+                let at = 0.8 * side * f64::from(k);
+                if across {
+                    CropBox {
+                        x0: area.x0 + at,
+                        width: side,
+                        ..*area
+                    }
+                } else {
+                    CropBox {
+                        y0: area.y0 + at,
+                        height: side,
+                        ..*area
+                    }
+                }
             }));
         }
         let threshold = self.pedestrian_threshold;
@@ -1214,7 +1245,6 @@ impl ImageDetector {
                 self.heads.clear();
                 self.refused.clear();
                 self.motion_looks.clear();
-                self.bodies.clear();
                 self.last_candidate = None;
                 self.last_pedestrians = None;
             }
@@ -1227,29 +1257,21 @@ impl ImageDetector {
         // 1. Follow.
         let (ids, boxes): (Vec<u32>, Vec<CropBox>) = self.tracker.predictions().unzip();
         let heads = &self.heads;
-        let bodies = &self.bodies;
+        // Not tried again: all around a person's body as last seen blacked out when
+        // their box overlaps someone else's (as a new body's look is): it lost people
+        // followed by their face (vtest.avi's first 91 frames, faces only: recall 0.45
+        // -> 0.27) and found no one more with the pedestrian detector on.
         let masks: Vec<Vec<CropBox>> = ids
             .iter()
-            .zip(&boxes)
-            .map(|(&id, crop)| {
+            .map(|&id| {
                 let own = heads.iter().find(|h| h.id == id).map(|h| &h.region);
-                let mut masks = masks_for(
+                masks_for(
                     own,
                     heads
                         .iter()
                         .filter(|h| h.id != id && now - h.seen <= MASKED_HEAD_FRAMES)
                         .map(|h| h.region),
-                );
-                // Someone else's box overlapping this one: the model could take to
-                // them; all around this person's body as last seen is blacked out.
-                let crowded = ids
-                    .iter()
-                    .zip(&boxes)
-                    .any(|(&other, b)| other != id && iou(b, crop) > 0.0);
-                if let Some((_, body)) = bodies.iter().find(|(b, _)| *b == id).filter(|_| crowded) {
-                    masks.extend(around(body, crop));
-                }
-                masks
+                )
             })
             .collect();
         let looks = self.look_all(frame, &boxes, &masks)?;
@@ -1391,23 +1413,37 @@ impl ImageDetector {
                 .filter_map(|(_, l)| l.face)
                 .chain(looked.iter().filter_map(|&i| heads[i]))
                 .collect();
-            let masks: Vec<Vec<CropBox>> = looked
+            let head_masks: Vec<Vec<CropBox>> = looked
                 .iter()
                 .map(|&i| match (&verdicts[i], heads[i].as_ref()) {
                     (Assignment::Candidate, _) | (_, None) => Vec::new(),
                     (_, Some(own)) => {
-                        let mut masks =
-                            masks_for(Some(own), others.iter().copied().filter(|h| h != own));
-                        // A body the pedestrian detector saw: all around it too (the
-                        // people beside it, whose heads may not be known).
-                        if let Some(body) = bodies.get(i).copied().flatten() {
-                            masks.extend(around(&body, &observations[i].region));
-                        }
-                        masks
+                        masks_for(Some(own), others.iter().copied().filter(|h| h != own))
                     }
                 })
                 .collect();
+            // A body the pedestrian detector saw: all around it blacked out too (the
+            // people beside it, whose heads may not be known), in every look at it.
+            let looked_bodies: Vec<Option<CropBox>> = looked
+                .iter()
+                .map(|&i| match verdicts[i] {
+                    Assignment::Candidate => None,
+                    _ => bodies.get(i).copied().flatten(),
+                })
+                .collect();
+            let masks_at = |n: usize, crop: &CropBox| {
+                let mut masks = head_masks[n].clone();
+                if let Some(body) = &looked_bodies[n] {
+                    masks.extend(around(body, crop));
+                }
+                masks
+            };
             let boxes: Vec<CropBox> = looked.iter().map(|&i| observations[i].region).collect();
+            let masks: Vec<Vec<CropBox>> = boxes
+                .iter()
+                .enumerate()
+                .map(|(n, b)| masks_at(n, b))
+                .collect();
             // Look at each box; while the landmarks found give a box unlike the one
             // looked at (a detector box is a rough guess), look again there (a
             // candidate is looked at once).
@@ -1431,8 +1467,11 @@ impl ImageDetector {
                     break;
                 }
                 let (index, next): (Vec<usize>, Vec<CropBox>) = again.into_iter().unzip();
-                let again_masks: Vec<Vec<CropBox>> =
-                    index.iter().map(|&n| masks[n].clone()).collect();
+                let again_masks: Vec<Vec<CropBox>> = index
+                    .iter()
+                    .zip(&next)
+                    .map(|(&n, b)| masks_at(n, b))
+                    .collect();
                 for (n, l) in index
                     .into_iter()
                     .zip(self.look_all(frame, &next, &again_masks)?)
@@ -1449,8 +1488,8 @@ impl ImageDetector {
                 .collect();
             self.stats.motion_proposals += proposals.len() as u64;
             let mut taken: Vec<usize> = Vec::new();
-            // People found again first (they keep their places), then newcomers, best
-            // first (confident ones before candidates).
+            // People found again first (they keep their places), then newcomers, then
+            // candidates.
             let mut found: Vec<(usize, Look)> = looked
                 .iter()
                 .zip(current)
@@ -1478,9 +1517,10 @@ impl ImageDetector {
                 // found included.
                 // Someone already present, or a part of them (a box on a person's legs
                 // gives a small skeleton there).
+                let newcomer = !matches!(verdicts[i], Assignment::Track(_));
                 if kept
                     .iter()
-                    .any(|(_, o)| same_person(o, &l) || part_of(o, &l))
+                    .any(|(_, o)| same_person(o, &l) || (newcomer && part_of(o, &l)))
                     || (verdicts[i] == Assignment::Candidate
                         && !confirms(heads[i].as_ref(), &l, kept.iter().map(|(_, k)| k)))
                 {
@@ -1533,13 +1573,6 @@ impl ImageDetector {
         }
         let tracker = &self.tracker;
         self.heads.retain(|h| tracker.is_live(h.id));
-        self.bodies.clear();
-        for (id, l) in &kept {
-            let (lo, hi) = extent(&l.points);
-            if let Ok(body) = CropBox::new(lo[0], lo[1], hi[0] - lo[0], hi[1] - lo[1]) {
-                self.bodies.push((*id, body));
-            }
-        }
         // 3. The heat maps of the people reported.
         self.found_len = 0;
         for (id, _) in &reported {

@@ -258,6 +258,11 @@ pub struct Stages {
     pub person_detector_ms: f64,
     /// Person-detector runs per image.
     pub person_detector_runs_per_image: f64,
+    /// One pedestrian-detector run (one region searched), per run: the wall time of a
+    /// search over its runs (they run in parallel).
+    pub pedestrian_detector_ms: f64,
+    /// Pedestrian-detector runs per image.
+    pub pedestrian_detector_runs_per_image: f64,
     /// The estimator's update, per heat-map message: median.
     pub estimator_update_median_ms: f64,
 }
@@ -273,6 +278,8 @@ impl Stages {
             landmark_runs_per_image: per(images.network_runs as f64, frames),
             person_detector_ms: 1e3 * per(images.detector_seconds, images.detector_runs),
             person_detector_runs_per_image: per(images.detector_runs as f64, frames),
+            pedestrian_detector_ms: 1e3 * per(images.pedestrian_seconds, images.pedestrian_runs),
+            pedestrian_detector_runs_per_image: per(images.pedestrian_runs as f64, frames),
             estimator_update_median_ms: update.median_ms,
         }
     }

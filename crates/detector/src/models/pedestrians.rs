@@ -30,13 +30,16 @@ pub const ANCHORS: usize = 1917;
 pub const CLASSES: usize = 2;
 /// Overlap above which the lower-scoring of two boxes is dropped.
 pub const NMS_IOU: f32 = 0.5;
+/// Boxes kept per run at most, the best (the API's `max_detections`).
+pub const MAX_DETECTIONS: usize = 100;
 
 /// The graph's node whose output is the preprocessed image (300 x 300, values in
 /// [-1, 1]), and those holding the box codes and the class logits.
 const GRAPH_INPUT: &str = "FeatureExtractor/MobilenetV2/MobilenetV2/input";
 const GRAPH_OUTPUTS: [&str; 2] = ["concat", "concat_1"];
 
-/// One pedestrian found: score and box, in input coordinates normalised to [0, 1].
+/// One pedestrian found: score and box, in input coordinates normalised to [0, 1]
+/// (clipped to the input).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Pedestrian {
     /// Probability.
@@ -102,7 +105,8 @@ pub fn decode(
         .filter_map(|(i, a)| {
             let logit = *logits.get(i * CLASSES + 1)?;
             let score = 1.0 / (1.0 + (-logit.clamp(-100.0, 100.0)).exp());
-            if score < threshold {
+            // Not `score < threshold`: a NaN logit is no pedestrian either.
+            if !(score >= threshold) {
                 return None;
             }
             let c = codes.get(i * 4..i * 4 + 4)?;
@@ -111,21 +115,23 @@ pub fn decode(
             // Clamped: a code far outside the training range gives no infinite box.
             let h = (c[2] / 5.0).clamp(-10.0, 4.0).exp() * a[2];
             let w = (c[3] / 5.0).clamp(-10.0, 4.0).exp() * a[3];
+            // Clipped to the input, as the API's post-processing does.
+            let clip = |v: f32| v.clamp(0.0, 1.0);
             let p = Pedestrian {
                 score,
-                min: [x - 0.5 * w, y - 0.5 * h],
-                max: [x + 0.5 * w, y + 0.5 * h],
+                min: [clip(x - 0.5 * w), clip(y - 0.5 * h)],
+                max: [clip(x + 0.5 * w), clip(y + 0.5 * h)],
             };
-            p.min
-                .iter()
-                .chain(&p.max)
-                .all(|v| v.is_finite())
-                .then_some(p)
+            let finite = p.min.iter().chain(&p.max).all(|v| v.is_finite());
+            (finite && p.max[0] > p.min[0] && p.max[1] > p.min[1]).then_some(p)
         })
         .collect();
     candidates.sort_by(|a, b| b.score.total_cmp(&a.score));
     let mut out: Vec<Pedestrian> = Vec::new();
     for c in candidates {
+        if out.len() == MAX_DETECTIONS {
+            break;
+        }
         if out.iter().all(|k| k.iou(&c) <= NMS_IOU) {
             out.push(c);
         }
@@ -369,6 +375,23 @@ mod tests {
         assert!(decode(&codes[..3], &logits, &anchors, 0.1).is_empty());
         let wild = [f32::MAX, f32::NAN, 1e30, -1e30];
         assert!(decode(&wild, &[0.0, 5.0], &anchors[..1], 0.1).is_empty());
+        // A NaN logit scores nothing; a box off the input is clipped to it, or dropped
+        // when nothing of it is left.
+        assert!(decode(&codes[..4], &[0.0, f32::NAN], &anchors[..1], 0.1).is_empty());
+        let far = [0.0, 1e30, 1e30, 1e30];
+        assert!(decode(&far, &[0.0, 5.0], &anchors[..1], 0.1).is_empty());
+        let edge = [0.0, 50.0, 0.0, 0.0];
+        let clipped = decode(&edge, &[0.0, 5.0], &anchors[..1], 0.1);
+        assert_eq!(clipped.len(), 1, "{clipped:?}");
+        assert!(
+            clipped[0].max[0] == 1.0 && clipped[0].min[0] < 1.0,
+            "{clipped:?}"
+        );
+        // At most MAX_DETECTIONS boxes, however many anchors score.
+        let every = anchors();
+        let zero = vec![0.0_f32; ANCHORS * 4];
+        let sure: Vec<f32> = (0..ANCHORS).flat_map(|_| [0.0, 5.0]).collect();
+        assert_eq!(decode(&zero, &sure, &every, 0.1).len(), MAX_DETECTIONS);
     }
 
     #[test]
