@@ -105,8 +105,8 @@ pub fn decode(
         .filter_map(|(i, a)| {
             let logit = *logits.get(i * CLASSES + 1)?;
             let score = 1.0 / (1.0 + (-logit.clamp(-100.0, 100.0)).exp());
-            // Not `score < threshold`: a NaN logit is no pedestrian either.
-            if !(score >= threshold) {
+            // A NaN logit is no pedestrian either.
+            if score.is_nan() || score < threshold {
                 return None;
             }
             let c = codes.get(i * 4..i * 4 + 4)?;
@@ -388,7 +388,7 @@ mod tests {
             "{clipped:?}"
         );
         // At most MAX_DETECTIONS boxes, however many anchors score.
-        let every = anchors();
+        let every = super::anchors();
         let zero = vec![0.0_f32; ANCHORS * 4];
         let sure: Vec<f32> = (0..ANCHORS).flat_map(|_| [0.0, 5.0]).collect();
         assert_eq!(decode(&zero, &sure, &every, 0.1).len(), MAX_DETECTIONS);
