@@ -218,7 +218,7 @@ fn person_detector_matches_the_reference_runtime(models: &std::path::Path) {
 #[test]
 fn the_pedestrian_detector_is_fetched_converted_and_finds_the_people_of_a_photo() {
     use posestream::camera::CropBox;
-    use posestream::detector::crop::crop_input;
+    use posestream::detector::crop::crop_input_signed;
     use posestream::models::pedestrians::{INPUT_SIZE, PedestrianNetwork};
     let dir = tempfile::tempdir().expect("tempdir");
     let fetched = fetch::fetch_pedestrians(dir.path(), None, false).unwrap_or_else(|e| {
@@ -273,9 +273,7 @@ fn the_pedestrian_detector_is_fetched_converted_and_finds_the_people_of_a_photo(
     let mut input = Vec::new();
     // The whole photo squeezed to the input, as the detector searches it.
     let whole_photo = CropBox::new(0.0, 0.0, f64::from(w), f64::from(h)).expect("box");
-    crop_input(&rgb, &whole_photo, INPUT_SIZE, &mut input);
-    let whole = |v: &f32| 2.0 * v - 1.0;
-    let input: Vec<f32> = input.iter().map(whole).collect();
+    crop_input_signed(&rgb, &whole_photo, INPUT_SIZE, &mut input);
     let tract = PedestrianNetwork::load(&fetched.model).expect("tract loads it");
     let found = tract.detect(0, &input, 0.3).expect("runs");
     println!("bus.jpg: {found:?}");

@@ -77,6 +77,15 @@ pub fn box_from_alignment(centre: [f64; 2], scale: [f64; 2], min_side: f64) -> O
     })
 }
 
+/// [`crop_input`] with values in [-1, 1] (the person detectors' input; outside the
+/// image is -1).
+pub fn crop_input_signed(rgb: &image::RgbImage, b: &CropBox, size: usize, out: &mut Vec<f32>) {
+    crop_input(rgb, b, size, out);
+    for v in out.iter_mut() {
+        *v = 2.0 * *v - 1.0;
+    }
+}
+
 /// Resamples box `b` of `rgb` (bilinear) into `out`: `size x size x 3`, row-major, values
 /// in [0, 1]; outside the image is black (0), as MediaPipe's letterboxing. Input pixel
 /// `(u, v)` is the image point `b.x0 + (u + 0.5) * b.width / size - 0.5` (pixel centres).

@@ -32,7 +32,9 @@ use std::time::Instant;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::crop::{box_from_alignment, crop_input, mask_input, squared, tiles, whole_image_box};
+use super::crop::{
+    box_from_alignment, crop_input, crop_input_signed, mask_input, squared, tiles, whole_image_box,
+};
 use super::mapping::{ChannelMapping, ChannelMappingError};
 use crate::images::ImageFrame;
 use crate::models::landmarks::{HEATMAP_SIZE, INPUT_SIZE, LandmarkNetwork, NetworkError};
@@ -1064,10 +1066,7 @@ impl ImageDetector {
             .map(|region| {
                 let worker = rayon::current_thread_index().unwrap_or(0);
                 let mut input = Vec::new();
-                crop_input(rgb, region, PERSON_INPUT, &mut input);
-                for v in &mut input {
-                    *v = 2.0 * *v - 1.0;
-                }
+                crop_input_signed(rgb, region, PERSON_INPUT, &mut input);
                 let found = person.detect(worker, &input, low)?;
                 let to_image = |p: [f32; 2]| {
                     [
@@ -1172,10 +1171,7 @@ impl ImageDetector {
             .map(|region| {
                 let worker = rayon::current_thread_index().unwrap_or(0);
                 let mut input = Vec::new();
-                crop_input(rgb, region, PEDESTRIAN_INPUT, &mut input);
-                for v in &mut input {
-                    *v = 2.0 * *v - 1.0;
-                }
+                crop_input_signed(rgb, region, PEDESTRIAN_INPUT, &mut input);
                 let people = network.detect(worker, &input, threshold)?;
                 Ok(people
                     .iter()
