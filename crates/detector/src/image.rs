@@ -399,6 +399,9 @@ pub struct DetectorStats {
     pub motion_proposals: u64,
     /// Of those, where no one new or lost was found.
     pub motion_refused: u64,
+    /// Of the detectors' boxes looked at, where the landmark model found nobody (not
+    /// looked at again for a while).
+    pub refused_sightings: u64,
     /// Seconds spent getting the images from their source, counted by the node: the
     /// wait for the next image (files are decoded ahead on another thread; a topic's
     /// images are decoded here).
@@ -1377,6 +1380,17 @@ impl ImageDetector {
             } else {
                 self.tracker.associate_proposals(&observations)
             };
+            // Nor the detectors' boxes at a refused place.
+            for (v, o) in verdicts.iter_mut().zip(&observations[..proposed_from]) {
+                if *v != Assignment::Ignored
+                    && self
+                        .refused
+                        .iter()
+                        .any(|(r, _)| iou(r, &o.region) > REFUSED_IOU)
+                {
+                    *v = Assignment::Ignored;
+                }
+            }
             // One candidate (the best whose face the detector saw off everyone followed)
             // every `detect_every` frames at most.
             let mut allowed = self
@@ -1475,6 +1489,15 @@ impl ImageDetector {
                     if l.person(self.threshold).is_some() {
                         current[n] = Some(l);
                     }
+                }
+            }
+            // A box where the landmark model found nobody is a refused place, as a
+            // moving blob's is (a poster, a shadow the detector scores as a person):
+            // not looked at again for `REFUSED_FRAMES`.
+            for (n, l) in current.iter().enumerate() {
+                if l.is_none() && looked[n] < proposed_from {
+                    self.refused.push((observations[looked[n]].region, now));
+                    self.stats.refused_sightings += 1;
                 }
             }
             let proposals: Vec<usize> = looked

@@ -16,7 +16,7 @@ use crate::msgs::sensor::CameraInfo;
 use crate::nodes::camera::CameraTap;
 use crate::nodes::config::{ReplayRate, ServiceConfig};
 use crate::nodes::latency::{LatencyHistogram, LatencySummary};
-use crate::nodes::{EstimatorNode, Refusals};
+use crate::nodes::{EstimatorNode, MetricTiming, Refusals};
 use crate::recording::RecordingSummary;
 use crate::streaming::StreamCounters;
 use crate::transport::{FrameSource, Message, Received, Sink, Source, TransportError};
@@ -57,6 +57,8 @@ pub struct EstimatorReport {
     pub counters: StreamCounters,
     /// Estimates the metric step failed on (published in dictionary units).
     pub metric_failures: u64,
+    /// What the metric step cost.
+    pub metric: MetricTiming,
     /// Time per heat-map message in the estimator node.
     pub update: LatencySummary,
     /// Why the input ended early, if it did.
@@ -152,6 +154,7 @@ pub fn run_estimator(
         failed_sends: outputs.failed_sends(),
         counters: node.counters(),
         metric_failures: node.metric_failures(),
+        metric: node.metric_timing(),
         update: latency.summary(),
         input_error,
         unknown_id_tracks: node.tracks_from_unknown_ids(),
@@ -263,13 +266,24 @@ pub struct Stages {
     pub pedestrian_detector_ms: f64,
     /// Pedestrian-detector runs per image.
     pub pedestrian_detector_runs_per_image: f64,
-    /// The estimator's update, per heat-map message: median.
+    /// The estimator's update, per heat-map message: median (the window, its lag pass
+    /// and the metric step of what it publishes).
     pub estimator_update_median_ms: f64,
+    /// Of that, the metric step, per heat-map message: mean.
+    pub metric_ms: f64,
+    /// The metric step's iterations per estimate adjusted: mean.
+    pub metric_iterations: f64,
 }
 
 impl Stages {
-    /// The stages of a run whose detector did `images` and estimator `update`.
-    pub fn of(images: &DetectorStats, update: &LatencySummary) -> Self {
+    /// The stages of a run whose detector did `images` and estimator `update` (its
+    /// `messages`, the metric step `metric`).
+    pub fn of(
+        images: &DetectorStats,
+        update: &LatencySummary,
+        messages: u64,
+        metric: &MetricTiming,
+    ) -> Self {
         let per = |total: f64, n: u64| if n == 0 { 0.0 } else { total / n as f64 };
         let frames = images.frames;
         Self {
@@ -281,6 +295,8 @@ impl Stages {
             pedestrian_detector_ms: 1e3 * per(images.pedestrian_seconds, images.pedestrian_runs),
             pedestrian_detector_runs_per_image: per(images.pedestrian_runs as f64, frames),
             estimator_update_median_ms: update.median_ms,
+            metric_ms: 1e3 * per(metric.seconds, messages),
+            metric_iterations: per(metric.iterations as f64, metric.estimates),
         }
     }
 }
@@ -361,7 +377,7 @@ pub fn run_pipeline(
     let stages = detector
         .images
         .as_ref()
-        .map(|s| Stages::of(s, &estimator.update));
+        .map(|s| Stages::of(s, &estimator.update, estimator.frames, &estimator.metric));
     Ok(PipelineReport {
         detector,
         estimator,

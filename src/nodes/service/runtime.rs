@@ -207,6 +207,7 @@ pub fn run_estimator_with_camera(
         failed_sends: outputs.failed_sends(),
         counters: node.counters(),
         metric_failures: node.metric_failures(),
+        metric: node.metric_timing(),
         update: solved.latency.summary(),
         input_error,
         unknown_id_tracks: node.tracks_from_unknown_ids(),

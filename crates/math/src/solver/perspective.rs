@@ -60,6 +60,11 @@ pub struct PerspectiveParams {
     pub apg_steps: usize,
     /// Stop when an iteration lowers the squared ray distance by less than this (relative).
     pub tolerance: f64,
+    /// Carry the C-step's acceleration over from one iteration to the next (FISTA's
+    /// momentum across the alternation). The streaming metric step's: on
+    /// `posestream scenes` 35 iterations with it matched 100 without (mean refined
+    /// MPJPE 0.267 m both), 35 without 0.274 m.
+    pub momentum: bool,
 }
 
 impl Default for PerspectiveParams {
@@ -70,6 +75,7 @@ impl Default for PerspectiveParams {
             max_iterations: 100,
             apg_steps: 1,
             tolerance: 1e-6,
+            momentum: false,
         }
     }
 }
@@ -162,6 +168,9 @@ pub struct PerspectiveWorkspace {
     grad: Vec<f64>,
     z: Vec<f64>,
     prev: Vec<f64>,
+    /// The C-steps' acceleration sequence (`PerspectiveParams::momentum`); (0, 0): a
+    /// frame's first C-step.
+    t: (f64, f64),
 }
 
 /// The starting point of a frame: its weak fit placed in front of the camera.
@@ -224,6 +233,7 @@ pub fn adjust_frame(
     ws.grad.resize(k, 0.0);
     ws.z.resize(k, 0.0);
     ws.prev.resize(k, 0.0);
+    ws.t = (0.0, 0.0);
     ws.rays.clear();
     ws.rays
         .extend((0..p).map(|j| camera.ray(uv[2 * j], uv[2 * j + 1])));
@@ -323,8 +333,15 @@ fn lasso_apg(
     let p = dict.num_joints();
     let step = 1.0 / lipschitz;
     let thresh = params.alpha * step;
-    ws.prev.copy_from_slice(c);
-    let (mut t_prev, mut t_cur) = (1.0_f64, 1.0_f64);
+    // With `momentum`, the C-steps of one frame are one accelerated sequence: its
+    // extrapolation point and step count carry over from the iteration before (each
+    // C-step's first step is otherwise a plain gradient step: with one APG step per
+    // C-step, a proximal gradient descent).
+    if !params.momentum || ws.t.0 == 0.0 {
+        ws.prev.copy_from_slice(c);
+        ws.t = (1.0, 1.0);
+    }
+    let (mut t_prev, mut t_cur) = ws.t;
     for _ in 0..params.apg_steps {
         let mom = (t_prev - 1.0) / t_cur;
         for ((z, &ci), &pi) in ws.z.iter_mut().zip(c.iter()).zip(ws.prev.iter()) {
@@ -349,4 +366,5 @@ fn lasso_apg(
         t_prev = t_cur;
         t_cur = 0.5 * (1.0 + (1.0 + 4.0 * t_cur * t_cur).sqrt());
     }
+    ws.t = (t_prev, t_cur);
 }

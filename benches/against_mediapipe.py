@@ -1,0 +1,127 @@
+"""posestream against MediaPipe Pose, side by side on one video, in interleaved rounds
+(issue 45; README, "Against MediaPipe"). Not in CI: it needs MediaPipe from PyPI.
+
+MediaPipe Pose: the legacy `solutions.pose` (`model_complexity=1`, the full landmark
+model, tracking between frames), timed two ways: end to end (each frame decoded by
+OpenCV, converted to RGB and given to `process`: frames per second over the loop) and its
+pose calls alone (milliseconds per `process`: p50, p99). posestream: `posestream run
+--video VIDEO --ros2 false --record ...` as a user runs it (decoding, person detectors,
+landmarks, the estimator in metres, the recording), its own report: frames per second
+over the run, latency from a decoded image to its newest skeleton published (p50, p99).
+The two alternate, round after round, so that both see the same minutes of the
+machine (this 2-core machine's speed varies by a fifth from minute to minute).
+
+    python3 -m venv target/mediapipe
+    target/mediapipe/bin/pip install mediapipe==0.10.14
+    cargo build --release
+    target/mediapipe/bin/python benches/against_mediapipe.py target/footage-media/bikes.mp4 \
+        [--rounds 3] [--posestream target/release/posestream] [-- extra run options]
+"""
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+
+import cv2
+import mediapipe as mp
+import numpy as np
+
+
+def cpu_seconds():
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+def mediapipe_round(video):
+    """MediaPipe Pose over `video`: end to end (decode included) and its calls alone."""
+    cap = cv2.VideoCapture(video)
+    if not cap.isOpened():
+        sys.exit(f"{video}: OpenCV cannot open it")
+    calls = []
+    found = 0
+    with mp.solutions.pose.Pose(static_image_mode=False, model_complexity=1) as pose:
+        began, cpu = time.perf_counter(), cpu_seconds()
+        while True:
+            ok, frame = cap.read()
+            if not ok:
+                break
+            rgb = cv2.cvtColor(frame, cv2.COLOR_BGR2RGB)
+            at = time.perf_counter()
+            result = pose.process(rgb)
+            calls.append(time.perf_counter() - at)
+            found += result.pose_landmarks is not None
+        wall, cpu = time.perf_counter() - began, cpu_seconds() - cpu
+    ms = np.array(calls) * 1e3
+    return {
+        "frames": len(calls),
+        "with_person": found,
+        "fps": len(calls) / wall,
+        "calls_fps": len(calls) / (ms.sum() / 1e3),
+        "p50": float(np.percentile(ms, 50)),
+        "p99": float(np.percentile(ms, 99)),
+        "cores": cpu / wall,
+    }
+
+
+def posestream_round(binary, video, extra):
+    """One `posestream run` over `video`: its report's figures."""
+    with tempfile.TemporaryDirectory() as tmp:
+        out = subprocess.run(
+            [binary, "run", "--video", video, "--ros2", "false", "--json",
+             "--record", os.path.join(tmp, "run.mcap"), *extra],
+            capture_output=True, text=True, check=False)
+        if out.returncode != 0:
+            sys.exit(f"posestream run failed:\n{out.stderr[-2000:]}")
+        report = json.loads(out.stdout)
+    latency = report["latency"] or {}
+    stages = report["stages"] or {}
+    images = report["detector"]["images"] or {}
+    return {
+        "frames": images.get("frames", 0),
+        "with_person": images.get("detected", 0),
+        "fps": report["frames_per_second"],
+        "p50": latency.get("median_ms", float("nan")),
+        "p99": latency.get("p99_ms", float("nan")),
+        "stages": stages,
+    }
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("video")
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--posestream", default="target/release/posestream")
+    ap.add_argument("extra", nargs="*", help="more `posestream run` options (after --)")
+    args = ap.parse_args()
+    print(f"MediaPipe {mp.__version__}, OpenCV {cv2.__version__}; {os.cpu_count()} cores; "
+          f"{args.video}")
+    print("| round | posestream frames/s | p50 / p99 ms | MediaPipe frames/s (decode included) "
+          "| its calls alone frames/s | p50 / p99 ms | cores it used | ratio (frames/s) |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|")
+    ratios = []
+    for r in range(1, args.rounds + 1):
+        ours = posestream_round(args.posestream, args.video, args.extra)
+        theirs = mediapipe_round(args.video)
+        ratio = ours["fps"] / theirs["fps"]
+        ratios.append(ratio)
+        print(f"| {r} | {ours['fps']:.1f} | {ours['p50']:.1f} / {ours['p99']:.0f} "
+              f"| {theirs['fps']:.1f} | {theirs['calls_fps']:.1f} "
+              f"| {theirs['p50']:.1f} / {theirs['p99']:.0f} | {theirs['cores']:.2f} | {ratio:.2f}x |",
+              flush=True)
+        if r == args.rounds:
+            s = ours["stages"]
+            print(f"\nposestream's stages (last round), ms: " + ", ".join(
+                f"{k} {v:.2f}" for k, v in s.items()))
+            print(f"people found: posestream in {ours['with_person']} of {ours['frames']} frames, "
+                  f"MediaPipe in {theirs['with_person']} of {theirs['frames']}")
+    print(f"\nposestream / MediaPipe frames/s: {min(ratios):.2f}-{max(ratios):.2f}x "
+          f"over {len(ratios)} interleaved rounds")
+
+
+if __name__ == "__main__":
+    main()
