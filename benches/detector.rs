@@ -51,7 +51,7 @@ fn bench(c: &mut Criterion) {
             b.iter(|| network.run_spread(&rgb).expect("runs"))
         });
         if let Some(runtime) = &litert {
-            let mut compiled = LiteRtNetwork::load(runtime, &m.original).expect("compiles");
+            let mut compiled = LiteRtNetwork::load(runtime, &m.original, 1).expect("compiles");
             group.bench_function(format!("landmarks {model:?}, LiteRT"), |b| {
                 b.iter(|| compiled.run(&rgb).expect("runs"))
             });

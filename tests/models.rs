@@ -113,7 +113,7 @@ fn fetched_models_run_in_tract_with_the_reference_runtimes_heat_maps() {
         // posestream's LiteRT binding (the C API of the same wheel's libLiteRt.so) on
         // the original model: the Python runtime's heat maps, and tract's landmarks.
         let runtime = LiteRt::load(&common::litert_library()).expect("libLiteRt.so loads");
-        let mut compiled = LiteRtNetwork::load(&runtime, &m.original).expect("compiles");
+        let mut compiled = LiteRtNetwork::load(&runtime, &m.original, 1).expect("compiles");
         let fast = compiled.run(&input.data).expect("runs");
         let worst_litert = fast
             .heatmap_logits

@@ -55,6 +55,9 @@ struct Api {
     create_options: unsafe extern "C" fn(*mut Handle) -> Status,
     destroy_options: unsafe extern "C" fn(Handle),
     set_accelerators: unsafe extern "C" fn(Handle, c_int) -> Status,
+    create_opaque_options:
+        unsafe extern "C" fn(*const c_char, *mut c_void, Deallocator, *mut Handle) -> Status,
+    add_opaque_options: unsafe extern "C" fn(Handle, Handle) -> Status,
     create_compiled_model: unsafe extern "C" fn(Handle, Handle, Handle, *mut Handle) -> Status,
     destroy_compiled_model: unsafe extern "C" fn(Handle),
     model_signature: unsafe extern "C" fn(Handle, usize, *mut Handle) -> Status,
@@ -150,6 +153,8 @@ impl LiteRt {
             create_options: symbol!(b"LiteRtCreateOptions\0"),
             destroy_options: symbol!(b"LiteRtDestroyOptions\0"),
             set_accelerators: symbol!(b"LiteRtSetOptionsHardwareAccelerators\0"),
+            create_opaque_options: symbol!(b"LiteRtCreateOpaqueOptions\0"),
+            add_opaque_options: symbol!(b"LiteRtAddOpaqueOptions\0"),
             create_compiled_model: symbol!(b"LiteRtCreateCompiledModel\0"),
             destroy_compiled_model: symbol!(b"LiteRtDestroyCompiledModel\0"),
             model_signature: symbol!(b"LiteRtGetModelSignature\0"),
@@ -176,6 +181,13 @@ impl LiteRt {
             .filter(|p| !p.is_empty())
             .map(PathBuf::from)
     }
+}
+
+/// Frees an options payload made by `CString::into_raw` (LiteRT calls it once, when it
+/// destroys the options holding it).
+unsafe extern "C" fn free_payload(payload: *mut c_void) {
+    // SAFETY: `payload` came from `CString::into_raw` and is freed once, here.
+    drop(unsafe { CString::from_raw(payload.cast::<c_char>()) });
 }
 
 /// One tensor's host memory: 64-byte aligned floats inside `memory`.
@@ -214,23 +226,27 @@ pub struct LiteRtNetwork {
 unsafe impl Send for LiteRtNetwork {}
 
 impl LiteRtNetwork {
-    /// Compiles the original (not rewritten) landmark model at `path`.
-    pub fn load(runtime: &LiteRt, path: &Path) -> Result<Self, NetworkError> {
+    /// Compiles the original (not rewritten) landmark model at `path`, each run on
+    /// `threads` threads (XNNPACK's).
+    pub fn load(runtime: &LiteRt, path: &Path, threads: usize) -> Result<Self, NetworkError> {
         Self::load_model(
             runtime,
             path,
             INPUT_SIZE * INPUT_SIZE * 3,
             &[HEATMAP_SIZE * HEATMAP_SIZE * HEATMAP_CHANNELS, 1, 195],
+            threads,
         )
     }
 
     /// Compiles the model at `path`: one input of `input_floats`, outputs of (at least)
-    /// each size of `output_floats`.
+    /// each size of `output_floats`, each run on `threads` threads (XNNPACK's own pool;
+    /// 1: the calling thread only).
     pub fn load_model(
         runtime: &LiteRt,
         path: &Path,
         input_floats: usize,
         output_floats: &[usize],
+        threads: usize,
     ) -> Result<Self, NetworkError> {
         let context = format!("loading {}", path.display());
         let ctx = context.as_str();
@@ -272,6 +288,29 @@ impl LiteRtNetwork {
             check(
                 (api.set_accelerators)(net.options, ACCELERATOR_CPU),
                 "the CPU",
+            )?;
+            // The CPU accelerator's options: LiteRT's "xnnpack" opaque options, a TOML
+            // payload (litert/c/options/litert_cpu_options.cc of the 2.x sources; that
+            // helper is not exported by the wheel's library, the two calls below are).
+            // LiteRT owns the payload once it is added: it frees it with `free_payload`.
+            let payload = CString::new(format!("num_threads = {}\n", threads.clamp(1, 64)))
+                .map_err(|_| error(ctx, "the CPU options"))?;
+            let mut opaque: Handle = std::ptr::null_mut();
+            let payload = payload.into_raw().cast::<c_void>();
+            let status = (api.create_opaque_options)(
+                c"xnnpack".as_ptr(),
+                payload,
+                Some(free_payload),
+                &raw mut opaque,
+            );
+            if status != 0 {
+                // Not taken: still ours.
+                free_payload(payload);
+            }
+            check(status, "the CPU options")?;
+            check(
+                (api.add_opaque_options)(net.options, opaque),
+                "the CPU options",
             )?;
             check(
                 (api.create_compiled_model)(
@@ -477,7 +516,7 @@ pub fn compiled_models(
 ) -> Result<Vec<std::sync::Mutex<LiteRtNetwork>>, NetworkError> {
     (0..workers.max(1))
         .map(|_| {
-            LiteRtNetwork::load_model(runtime, path, input_floats, output_floats)
+            LiteRtNetwork::load_model(runtime, path, input_floats, output_floats, 1)
                 .map(std::sync::Mutex::new)
         })
         .collect()
@@ -498,25 +537,42 @@ pub fn worker(
 pub enum Landmarks {
     /// tract: one optimised plan, run by any number of threads at once.
     Tract(super::landmarks::LandmarkNetwork),
-    /// LiteRT: one compiled model per worker (a compiled model runs one crop at a time).
-    LiteRt(Vec<std::sync::Mutex<LiteRtNetwork>>),
+    /// LiteRT: one compiled model per worker (a compiled model runs one crop at a time),
+    /// each on its worker's thread, and one for a frame's lone run on every core.
+    LiteRt {
+        /// One per worker of the parallel runs, one thread each.
+        workers: Vec<std::sync::Mutex<LiteRtNetwork>>,
+        /// A frame's only run (one person followed): XNNPACK's threads, one per worker.
+        lone: std::sync::Mutex<LiteRtNetwork>,
+    },
 }
 
 impl Landmarks {
-    /// The original landmark model at `path` compiled by LiteRT, once per worker.
+    /// The original landmark model at `path` compiled by LiteRT, once per worker and
+    /// once on `workers` threads.
     pub fn litert(runtime: &LiteRt, path: &Path, workers: usize) -> Result<Self, NetworkError> {
-        (0..workers.max(1))
-            .map(|_| LiteRtNetwork::load(runtime, path).map(std::sync::Mutex::new))
-            .collect::<Result<Vec<_>, _>>()
-            .map(Self::LiteRt)
+        let workers = workers.max(1);
+        Ok(Self::LiteRt {
+            lone: std::sync::Mutex::new(LiteRtNetwork::load(runtime, path, workers)?),
+            workers: (0..workers)
+                .map(|_| LiteRtNetwork::load(runtime, path, 1).map(std::sync::Mutex::new))
+                .collect::<Result<Vec<_>, _>>()?,
+        })
     }
 
     /// Runs on one crop (`256 x 256 x 3`, values in [0, 1]); `worker` picks LiteRT's
-    /// compiled model (any number: taken modulo their count).
-    pub fn run(&self, worker: usize, rgb: &[f32]) -> Result<LandmarkOutput, NetworkError> {
+    /// compiled model (any number: taken modulo their count), `None`: the lone run's
+    /// (on all the workers' cores).
+    pub fn run(&self, worker: Option<usize>, rgb: &[f32]) -> Result<LandmarkOutput, NetworkError> {
         match self {
             Self::Tract(n) => n.run(rgb),
-            Self::LiteRt(nets) => self::worker(nets, worker)?.run(rgb),
+            Self::LiteRt { workers, lone } => match worker {
+                Some(w) => self::worker(workers, w)?.run(rgb),
+                None => lone
+                    .lock()
+                    .map_err(|_| error("running the model", "a previous run panicked"))?
+                    .run(rgb),
+            },
         }
     }
 }
