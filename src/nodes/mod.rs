@@ -996,7 +996,9 @@ fn metric_pose(m: &mut Metric, e: &FrameEstimate, info: &FrameInfo) -> Result<()
         .map_err(|e| e.to_string());
     m.timing.estimates += 1;
     m.timing.seconds += began.elapsed().as_secs_f64();
-    m.timing.iterations += m.step.iterations() as u64;
+    if adjusted.is_ok() {
+        m.timing.iterations += m.step.iterations() as u64;
+    }
     adjusted
 }
 

@@ -449,7 +449,7 @@ impl Look {
     }
 }
 
-/// Runs `network` (its `worker`) on `crop` of `frame` with the other people's heads
+/// Runs `network` (its `worker`; `None`: the lone run's model, on every core) on `crop` of `frame` with the other people's heads
 /// `masks` blacked out, `input` its scratch.
 fn look(
     network: &Landmarks,
@@ -1394,7 +1394,9 @@ impl ImageDetector {
             } else {
                 self.tracker.associate_proposals(&observations)
             };
-            // Nor the detectors' boxes at a refused place.
+            // Nor the detectors' boxes at a refused place, those matched to a lost track
+            // too (looking there for them anyway found the cyclist of bikes.mp4 in 68
+            // frames instead of 77: the box is not them, and their track lives on).
             for (v, o) in verdicts.iter_mut().zip(&observations[..proposed_from]) {
                 if *v != Assignment::Ignored
                     && self

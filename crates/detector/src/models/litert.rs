@@ -58,6 +58,7 @@ struct Api {
     create_opaque_options:
         unsafe extern "C" fn(*const c_char, *mut c_void, Deallocator, *mut Handle) -> Status,
     add_opaque_options: unsafe extern "C" fn(Handle, Handle) -> Status,
+    destroy_opaque_options: unsafe extern "C" fn(Handle),
     create_compiled_model: unsafe extern "C" fn(Handle, Handle, Handle, *mut Handle) -> Status,
     destroy_compiled_model: unsafe extern "C" fn(Handle),
     model_signature: unsafe extern "C" fn(Handle, usize, *mut Handle) -> Status,
@@ -155,6 +156,7 @@ impl LiteRt {
             set_accelerators: symbol!(b"LiteRtSetOptionsHardwareAccelerators\0"),
             create_opaque_options: symbol!(b"LiteRtCreateOpaqueOptions\0"),
             add_opaque_options: symbol!(b"LiteRtAddOpaqueOptions\0"),
+            destroy_opaque_options: symbol!(b"LiteRtDestroyOpaqueOptions\0"),
             create_compiled_model: symbol!(b"LiteRtCreateCompiledModel\0"),
             destroy_compiled_model: symbol!(b"LiteRtDestroyCompiledModel\0"),
             model_signature: symbol!(b"LiteRtGetModelSignature\0"),
@@ -291,8 +293,9 @@ impl LiteRtNetwork {
             )?;
             // The CPU accelerator's options: LiteRT's "xnnpack" opaque options, a TOML
             // payload (litert/c/options/litert_cpu_options.cc of the 2.x sources; that
-            // helper is not exported by the wheel's library, the two calls below are).
-            // LiteRT owns the payload once it is added: it frees it with `free_payload`.
+            // helper is not exported by the wheel's library, the calls below are). The
+            // opaque options own the payload once made (they free it with
+            // `free_payload`), the options own them once added (`Drop` destroys both).
             let payload = CString::new(format!("num_threads = {}\n", threads.clamp(1, 64)))
                 .map_err(|_| error(ctx, "the CPU options"))?;
             let mut opaque: Handle = std::ptr::null_mut();
@@ -308,10 +311,12 @@ impl LiteRtNetwork {
                 free_payload(payload);
             }
             check(status, "the CPU options")?;
-            check(
-                (api.add_opaque_options)(net.options, opaque),
-                "the CPU options",
-            )?;
+            let status = (api.add_opaque_options)(net.options, opaque);
+            if status != 0 {
+                // Not taken: still ours (with the payload).
+                (api.destroy_opaque_options)(opaque);
+            }
+            check(status, "the CPU options")?;
             check(
                 (api.create_compiled_model)(
                     net.environment,

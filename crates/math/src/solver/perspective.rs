@@ -224,6 +224,7 @@ pub fn adjust_frame(
     debug_assert_eq!(weights.len(), p);
     let weight_sum: f64 = weights.iter().sum();
     let max_weight = weights.iter().cloned().fold(0.0, f64::max);
+    fit.iterations = 0;
     if weights.iter().filter(|&&w| w > 0.0).count() < 3 || weight_sum <= 0.0 {
         return;
     }
@@ -249,7 +250,6 @@ pub fn adjust_frame(
     let lipschitz = (gram_max * max_weight).max(f64::MIN_POSITIVE);
     let mut previous = f64::INFINITY;
     let mut distance = f64::NAN;
-    fit.iterations = 0;
     for _ in 0..params.max_iterations {
         // 1. Depths: the point of each ray nearest its model joint.
         let mut d2 = 0.0;
@@ -295,6 +295,11 @@ pub fn adjust_frame(
             let r = limb0 / limb;
             fit.coefficients.iter_mut().for_each(|c| *c *= r);
             ws.shape.iter_mut().for_each(|v| *v *= r);
+            // With `momentum`, the next extrapolation is from the previous iterate as
+            // it was, not rescaled with this one (the textbook form, both at one size,
+            // measured worse: `posestream scenes` refined MPJPE +5 to +10 mm per
+            // person; restarting the momentum when the ray distance rose changed
+            // nothing).
         }
     }
     fit.ray_distance = distance;
