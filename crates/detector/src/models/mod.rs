@@ -6,6 +6,7 @@
 //! `~/.cache/posestream/models`.
 
 pub mod append;
+mod engine;
 pub mod fetch;
 pub mod landmarks;
 pub mod litert;

@@ -18,8 +18,9 @@ use std::path::Path;
 use tract_tensorflow::prelude::InferenceModelExt;
 use tract_tflite::prelude::*;
 
-use super::landmarks::{NetworkError, load_model, output_of_shape, run_model};
-use super::litert::{LiteRt, LiteRtNetwork, compiled_models, worker as worker_of};
+use super::engine::{Engine, Output};
+use super::landmarks::NetworkError;
+use super::litert::LiteRt;
 
 /// Input side, pixels (the whole input is one image region squeezed to a square, as
 /// the model was trained).
@@ -238,11 +239,17 @@ pub struct PedestrianOutput {
     pub logits: Vec<f32>,
 }
 
-/// What runs the detector.
-enum Engine {
-    Tract(std::sync::Arc<TypedRunnableModel>),
-    LiteRt(Vec<std::sync::Mutex<LiteRtNetwork>>),
-}
+/// Its outputs: box codes, class logits.
+const OUTPUTS: [Output<'static>; 2] = [
+    Output {
+        shape: &[1, ANCHORS, 1, 4],
+        floats: ANCHORS * 4,
+    },
+    Output {
+        shape: &[1, ANCHORS, CLASSES],
+        floats: ANCHORS * CLASSES,
+    },
+];
 
 /// A loaded pedestrian detector.
 pub struct PedestrianNetwork {
@@ -254,7 +261,7 @@ impl PedestrianNetwork {
     /// Loads the converted detector ([`convert`]) for tract.
     pub fn load(path: &Path) -> Result<Self, NetworkError> {
         Ok(Self {
-            engine: Engine::Tract(load_model(path)?),
+            engine: Engine::tract(path)?,
             anchors: anchors(),
         })
     }
@@ -267,13 +274,7 @@ impl PedestrianNetwork {
         workers: usize,
     ) -> Result<Self, NetworkError> {
         Ok(Self {
-            engine: Engine::LiteRt(compiled_models(
-                runtime,
-                path,
-                workers,
-                INPUT_SIZE * INPUT_SIZE * 3,
-                &[ANCHORS * 4, ANCHORS * CLASSES],
-            )?),
+            engine: Engine::litert(runtime, path, workers, INPUT_SIZE, &OUTPUTS)?,
             anchors: anchors(),
         })
     }
@@ -281,23 +282,8 @@ impl PedestrianNetwork {
     /// Raw outputs for `input`: `300 x 300 x 3`, row-major, values in [-1, 1];
     /// `worker` picks LiteRT's compiled model.
     pub fn run_raw(&self, worker: usize, input: &[f32]) -> Result<PedestrianOutput, NetworkError> {
-        match &self.engine {
-            Engine::Tract(model) => {
-                let outputs = run_model(model, &[1, INPUT_SIZE, INPUT_SIZE, 3], input)?;
-                Ok(PedestrianOutput {
-                    codes: output_of_shape(&outputs, &[1, ANCHORS, 1, 4])?,
-                    logits: output_of_shape(&outputs, &[1, ANCHORS, CLASSES])?,
-                })
-            }
-            Engine::LiteRt(nets) => {
-                let mut net = worker_of(nets, worker)?;
-                net.run_raw(input)?;
-                Ok(PedestrianOutput {
-                    codes: net.output(ANCHORS * 4)?.to_vec(),
-                    logits: net.output(ANCHORS * CLASSES)?.to_vec(),
-                })
-            }
-        }
+        let [codes, logits] = self.engine.run(worker, INPUT_SIZE, input, OUTPUTS)?;
+        Ok(PedestrianOutput { codes, logits })
     }
 
     /// The pedestrians in `input` scoring at least `threshold`, best first.

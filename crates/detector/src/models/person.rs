@@ -9,10 +9,9 @@
 
 use std::path::Path;
 
-use tract_tflite::prelude::*;
-
-use super::landmarks::{NetworkError, load_model, output_of_shape, run_model};
-use super::litert::{LiteRt, LiteRtNetwork, compiled_models, worker as worker_of};
+use super::engine::{Engine, Output};
+use super::landmarks::NetworkError;
+use super::litert::LiteRt;
 
 /// Input side, pixels.
 pub const INPUT_SIZE: usize = 224;
@@ -144,11 +143,17 @@ pub struct PersonOutput {
     pub scores: Vec<f32>,
 }
 
-/// What runs the detector.
-enum Engine {
-    Tract(std::sync::Arc<TypedRunnableModel>),
-    LiteRt(Vec<std::sync::Mutex<LiteRtNetwork>>),
-}
+/// Its outputs: box values, score logits.
+const OUTPUTS: [Output<'static>; 2] = [
+    Output {
+        shape: &[1, ANCHORS, VALUES_PER_ANCHOR],
+        floats: ANCHORS * VALUES_PER_ANCHOR,
+    },
+    Output {
+        shape: &[1, ANCHORS, 1],
+        floats: ANCHORS,
+    },
+];
 
 /// A loaded person detector.
 pub struct PersonNetwork {
@@ -160,7 +165,7 @@ impl PersonNetwork {
     /// Loads the detector rewritten for tract ([`super::rewrite`]).
     pub fn load(path: &Path) -> Result<Self, NetworkError> {
         Ok(Self {
-            engine: Engine::Tract(load_model(path)?),
+            engine: Engine::tract(path)?,
             anchors: anchors(),
         })
     }
@@ -173,13 +178,7 @@ impl PersonNetwork {
         workers: usize,
     ) -> Result<Self, NetworkError> {
         Ok(Self {
-            engine: Engine::LiteRt(compiled_models(
-                runtime,
-                path,
-                workers,
-                INPUT_SIZE * INPUT_SIZE * 3,
-                &[ANCHORS * VALUES_PER_ANCHOR, ANCHORS],
-            )?),
+            engine: Engine::litert(runtime, path, workers, INPUT_SIZE, &OUTPUTS)?,
             anchors: anchors(),
         })
     }
@@ -187,23 +186,8 @@ impl PersonNetwork {
     /// Raw outputs for `input`: `224 x 224 x 3`, row-major, values in [-1, 1];
     /// `worker` picks LiteRT's compiled model.
     pub fn run_raw(&self, worker: usize, input: &[f32]) -> Result<PersonOutput, NetworkError> {
-        match &self.engine {
-            Engine::Tract(model) => {
-                let outputs = run_model(model, &[1, INPUT_SIZE, INPUT_SIZE, 3], input)?;
-                Ok(PersonOutput {
-                    boxes: output_of_shape(&outputs, &[1, ANCHORS, VALUES_PER_ANCHOR])?,
-                    scores: output_of_shape(&outputs, &[1, ANCHORS, 1])?,
-                })
-            }
-            Engine::LiteRt(nets) => {
-                let mut net = worker_of(nets, worker)?;
-                net.run_raw(input)?;
-                Ok(PersonOutput {
-                    boxes: net.output(ANCHORS * VALUES_PER_ANCHOR)?.to_vec(),
-                    scores: net.output(ANCHORS)?.to_vec(),
-                })
-            }
-        }
+        let [boxes, scores] = self.engine.run(worker, INPUT_SIZE, input, OUTPUTS)?;
+        Ok(PersonOutput { boxes, scores })
     }
 
     /// The people in `input` scoring at least `threshold`, best first.

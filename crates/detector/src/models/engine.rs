@@ -1,0 +1,85 @@
+//! A detector network on either runtime: tract's optimised plan (run by any number of
+//! threads at once), or LiteRT's compiled models, one per worker of the parallel runs.
+//! BlazePose's person detector ([`super::person`]) and the pedestrian detector
+//! ([`super::pedestrians`]) load and run through it, each naming its input side and its
+//! outputs.
+
+use std::path::Path;
+use std::sync::{Arc, Mutex};
+
+use tract_tflite::prelude::*;
+
+use super::landmarks::{NetworkError, load_model, output_of_shape, run_model};
+use super::litert::{LiteRt, LiteRtNetwork, compiled_models, worker};
+
+/// One output of a detector network: its shape in tract's plan and, the same values,
+/// its size in floats for LiteRT (which names outputs by size).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Output<'a> {
+    /// The output's shape (tract).
+    pub shape: &'a [usize],
+    /// Its values, in floats (LiteRT).
+    pub floats: usize,
+}
+
+/// What runs a detector network.
+pub(crate) enum Engine {
+    /// tract: one optimised plan.
+    Tract(Arc<TypedRunnableModel>),
+    /// LiteRT: one compiled model per worker (a compiled model runs one input at a time).
+    LiteRt(Vec<Mutex<LiteRtNetwork>>),
+}
+
+impl Engine {
+    /// The model at `path` for tract.
+    pub fn tract(path: &Path) -> Result<Self, NetworkError> {
+        Ok(Self::Tract(load_model(path)?))
+    }
+
+    /// The model at `path` compiled by LiteRT, once per worker of parallel runs, for an
+    /// input of `side x side x 3` and `outputs`.
+    pub fn litert(
+        runtime: &LiteRt,
+        path: &Path,
+        workers: usize,
+        side: usize,
+        outputs: &[Output<'_>],
+    ) -> Result<Self, NetworkError> {
+        let floats: Vec<usize> = outputs.iter().map(|o| o.floats).collect();
+        Ok(Self::LiteRt(compiled_models(
+            runtime,
+            path,
+            workers,
+            side * side * 3,
+            &floats,
+        )?))
+    }
+
+    /// Runs on `input` (`side x side x 3`, row-major); `worker` picks LiteRT's compiled
+    /// model. The values of each of `outputs`, in their order.
+    pub fn run<const N: usize>(
+        &self,
+        worker_index: usize,
+        side: usize,
+        input: &[f32],
+        outputs: [Output<'_>; N],
+    ) -> Result<[Vec<f32>; N], NetworkError> {
+        let mut values: [Vec<f32>; N] = std::array::from_fn(|_| Vec::new());
+        match self {
+            Self::Tract(model) => {
+                let out = run_model(model, &[1, side, side, 3], input)?;
+                for (v, o) in values.iter_mut().zip(&outputs) {
+                    *v = output_of_shape(&out, o.shape)?;
+                }
+            }
+            Self::LiteRt(nets) => {
+                let mut net = worker(nets, worker_index)?;
+                net.run_raw(input)?;
+                for (v, o) in values.iter_mut().zip(&outputs) {
+                    *v = net.output(o.floats)?.to_vec();
+                }
+            }
+        }
+        Ok(values)
+    }
+}
