@@ -58,6 +58,9 @@ def mediapipe_round(video):
             calls.append(time.perf_counter() - at)
             found += result.pose_landmarks is not None
         wall, cpu = time.perf_counter() - began, cpu_seconds() - cpu
+    cap.release()
+    if not calls:
+        sys.exit(f"{video}: OpenCV decoded no frame of it")
     ms = np.array(calls) * 1e3
     return {
         "frames": len(calls),
@@ -73,16 +76,25 @@ def mediapipe_round(video):
 def posestream_round(binary, video, extra):
     """One `posestream run` over `video`: its report's figures."""
     with tempfile.TemporaryDirectory() as tmp:
-        out = subprocess.run(
-            [binary, "run", "--video", video, "--ros2", "false", "--json",
-             "--record", os.path.join(tmp, "run.mcap"), *extra],
-            capture_output=True, text=True, check=False)
+        try:
+            out = subprocess.run(
+                [binary, "run", "--video", video, "--ros2", "false", "--json",
+                 "--record", os.path.join(tmp, "run.mcap"), *extra],
+                capture_output=True, text=True, check=False, timeout=3600)
+        except subprocess.TimeoutExpired:
+            sys.exit("posestream run took over an hour")
         if out.returncode != 0:
             sys.exit(f"posestream run failed:\n{out.stderr[-2000:]}")
         report = json.loads(out.stdout)
+    # A run that ended early is not a figure.
+    for side in ("detector", "estimator"):
+        if report[side].get("input_error"):
+            sys.exit(f"posestream run: {side} input error: {report[side]['input_error']}")
     latency = report["latency"] or {}
     stages = report["stages"] or {}
     images = report["detector"]["images"] or {}
+    if not images.get("frames"):
+        sys.exit("posestream run took no frame of the video")
     return {
         "frames": images.get("frames", 0),
         "with_person": images.get("detected", 0),
@@ -93,13 +105,25 @@ def posestream_round(binary, video, extra):
     }
 
 
+def rounds(text):
+    n = int(text)
+    if not 1 <= n <= 100:
+        raise argparse.ArgumentTypeError(f"{n}: from 1 to 100")
+    return n
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("video")
-    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--rounds", type=rounds, default=3, help="1 to 100 (default 3)")
     ap.add_argument("--posestream", default="target/release/posestream")
     ap.add_argument("extra", nargs="*", help="more `posestream run` options (after --)")
     args = ap.parse_args()
+    # The video must decode before a round spends a posestream run on it.
+    probe = cv2.VideoCapture(args.video)
+    if not (probe.isOpened() and probe.read()[0]):
+        sys.exit(f"{args.video}: OpenCV cannot decode it")
+    probe.release()
     print(f"MediaPipe {mp.__version__}, OpenCV {cv2.__version__}; {os.cpu_count()} cores; "
           f"{args.video}")
     print("| round | posestream frames/s | p50 / p99 ms | MediaPipe frames/s (decode included) "

@@ -277,3 +277,35 @@ fn momentum_across_iterations_gets_further_in_the_same_iterations() {
     assert!(2 * further > plain.fits.len());
     assert!(error(&carried) < 1.1 * error(&plain));
 }
+
+/// A keypoint that is not a number makes the ray distance NaN: the adjustment stops at
+/// once (its result is refused by the caller) instead of running every iteration.
+#[test]
+fn a_nan_keypoint_ends_the_adjustment_at_once() {
+    let dict = Dictionary::load(k128()).expect("dictionary");
+    let skel = dict.skeleton().clone();
+    let p = dict.num_joints();
+    let gt = read(fixture("synthetic-s0").join("gt_3d.npy"));
+    let (_, uv) = place(&skel, &gt.data, Vector3::new(-0.3, 0.1, 2.5));
+    let est = Estimator::new(dict, Params::default()).expect("estimator");
+    let (_, adjusted) = lift_and_adjust(&est, uv.clone(), None, &PerspectiveParams::default());
+    let mut fit = adjusted.fits[0].clone();
+    let mut frame = uv[..2 * p].to_vec();
+    frame[3] = f64::NAN;
+    let params = PerspectiveParams {
+        momentum: true,
+        ..PerspectiveParams::default()
+    };
+    posestream::solver::perspective::adjust_frame(
+        est.dictionary(),
+        est.basis_gram_max(),
+        &camera(),
+        &frame,
+        &vec![1.0; p],
+        &mut fit,
+        &params,
+        &mut posestream::solver::perspective::PerspectiveWorkspace::default(),
+    );
+    assert!(fit.iterations <= 1, "{} iterations", fit.iterations);
+    assert!(fit.ray_distance.is_nan());
+}

@@ -302,7 +302,9 @@ pub struct MetricTiming {
     pub estimates: u64,
     /// Seconds in the step, summed.
     pub seconds: f64,
-    /// The perspective adjustment's iterations, summed.
+    /// Of those, the ones adjusted (a metric pose made).
+    pub adjusted: u64,
+    /// The perspective adjustment's iterations on those adjusted, summed.
     pub iterations: u64,
 }
 
@@ -997,6 +999,7 @@ fn metric_pose(m: &mut Metric, e: &FrameEstimate, info: &FrameInfo) -> Result<()
     m.timing.estimates += 1;
     m.timing.seconds += began.elapsed().as_secs_f64();
     if adjusted.is_ok() {
+        m.timing.adjusted += 1;
         m.timing.iterations += m.step.iterations() as u64;
     }
     adjusted

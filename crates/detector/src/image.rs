@@ -449,8 +449,9 @@ impl Look {
     }
 }
 
-/// Runs `network` (its `worker`; `None`: the lone run's model, on every core) on `crop` of `frame` with the other people's heads
-/// `masks` blacked out, `input` its scratch.
+/// Runs `network` (its `worker`; `None`: the lone run's model, on every core with
+/// LiteRT) on `crop` of `frame` with the other people's heads `masks` blacked out,
+/// `input` its scratch.
 fn look(
     network: &Landmarks,
     worker: Option<usize>,
@@ -959,9 +960,9 @@ impl ImageDetector {
         }
         let network = &self.network;
         let looks: Vec<Result<Look, DetectorError>> = if boxes.len() == 1 {
-            // One run (one person followed): on every core, XNNPACK's threads (bikes.mp4:
-            // 26.2-29.0 -> 30.4-32.5 frames/s in interleaved rounds, p50 latency
-            // 29.4-33.4 -> 24.4-29.4 ms).
+            // One run (one person followed): on every core with LiteRT, XNNPACK's
+            // threads (bikes.mp4: 26.2-29.0 -> 30.4-32.5 frames/s in interleaved
+            // rounds, p50 latency 29.4-33.4 -> 24.4-29.4 ms).
             vec![look(
                 network,
                 None,

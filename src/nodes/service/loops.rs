@@ -271,7 +271,7 @@ pub struct Stages {
     pub estimator_update_median_ms: f64,
     /// Of that, the metric step, per heat-map message: mean.
     pub metric_ms: f64,
-    /// The metric step's iterations per estimate adjusted: mean.
+    /// The metric step's iterations per estimate it adjusted: mean.
     pub metric_iterations: f64,
 }
 
@@ -296,7 +296,7 @@ impl Stages {
             pedestrian_detector_runs_per_image: per(images.pedestrian_runs as f64, frames),
             estimator_update_median_ms: update.median_ms,
             metric_ms: 1e3 * per(metric.seconds, messages),
-            metric_iterations: per(metric.iterations as f64, metric.estimates),
+            metric_iterations: per(metric.iterations as f64, metric.adjusted),
         }
     }
 }

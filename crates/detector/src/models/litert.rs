@@ -547,8 +547,9 @@ pub enum Landmarks {
     LiteRt {
         /// One per worker of the parallel runs, one thread each.
         workers: Vec<std::sync::Mutex<LiteRtNetwork>>,
-        /// A frame's only run (one person followed): XNNPACK's threads, one per worker.
-        lone: std::sync::Mutex<LiteRtNetwork>,
+        /// A frame's only run (one person followed): XNNPACK's threads, one per worker
+        /// (`None` with one worker: that worker's model).
+        lone: Option<std::sync::Mutex<LiteRtNetwork>>,
     },
 }
 
@@ -558,7 +559,13 @@ impl Landmarks {
     pub fn litert(runtime: &LiteRt, path: &Path, workers: usize) -> Result<Self, NetworkError> {
         let workers = workers.max(1);
         Ok(Self::LiteRt {
-            lone: std::sync::Mutex::new(LiteRtNetwork::load(runtime, path, workers)?),
+            lone: if workers > 1 {
+                Some(std::sync::Mutex::new(LiteRtNetwork::load(
+                    runtime, path, workers,
+                )?))
+            } else {
+                None
+            },
             workers: (0..workers)
                 .map(|_| LiteRtNetwork::load(runtime, path, 1).map(std::sync::Mutex::new))
                 .collect::<Result<Vec<_>, _>>()?,
@@ -571,12 +578,12 @@ impl Landmarks {
     pub fn run(&self, worker: Option<usize>, rgb: &[f32]) -> Result<LandmarkOutput, NetworkError> {
         match self {
             Self::Tract(n) => n.run(rgb),
-            Self::LiteRt { workers, lone } => match worker {
-                Some(w) => self::worker(workers, w)?.run(rgb),
-                None => lone
+            Self::LiteRt { workers, lone } => match (worker, lone) {
+                (None, Some(lone)) => lone
                     .lock()
                     .map_err(|_| error("running the model", "a previous run panicked"))?
                     .run(rgb),
+                (w, _) => self::worker(workers, w.unwrap_or(0))?.run(rgb),
             },
         }
     }

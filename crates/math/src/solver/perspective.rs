@@ -266,6 +266,11 @@ pub fn adjust_frame(
             }
         }
         distance = (d2 / weight_sum).sqrt();
+        // Not finite (a NaN keypoint): no iteration can mend it (the caller refuses
+        // the result).
+        if !d2.is_finite() {
+            break;
+        }
         if previous.is_finite() && previous - d2 <= params.tolerance * previous {
             break;
         }
