@@ -81,14 +81,14 @@ fn bench(c: &mut Criterion) {
         .map(|i| ((i * 7919) % 255) as f32 / 127.5 - 1.0)
         .collect();
     group.bench_function("person detector 224x224", |b| {
-        b.iter(|| detector.detect(0, &input, 0.5).expect("runs"))
+        b.iter(|| detector.detect(Some(0), &input, 0.5).expect("runs"))
     });
     if let Some(runtime) = &litert {
         let fast =
             PersonNetwork::load_litert(runtime, &ModelFile::PersonDetector.original(&dir), 1)
                 .expect("compiles");
         group.bench_function("person detector 224x224, LiteRT", |b| {
-            b.iter(|| fast.detect(0, &input, 0.5).expect("runs"))
+            b.iter(|| fast.detect(Some(0), &input, 0.5).expect("runs"))
         });
     }
     group.finish();

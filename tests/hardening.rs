@@ -915,6 +915,7 @@ fn configuration_values_outside_their_domain_are_one_error_naming_the_key() {
             "[detector.images.tracking]\nduplicate_iou = -1.0\n",
             "detector.images.tracking.duplicate_iou",
         ),
+        ("[detector]\nnice = 20\n", "detector.nice"),
         (
             "[detector.images]\nsearch_tiles = 0\n",
             "detector.images.search_tiles",

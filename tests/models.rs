@@ -168,7 +168,7 @@ fn person_detector_matches_the_reference_runtime(models: &std::path::Path) {
     let boxes = posestream::npy::read::<f32>(&out.join("boxes.npy")).expect("boxes");
     let scores = posestream::npy::read::<f32>(&out.join("scores.npy")).expect("scores");
     let network = PersonNetwork::load(&file.for_tract(models)).expect("tract loads the rewrite");
-    let got = network.run_raw(0, &input.data).expect("runs");
+    let got = network.run_raw(Some(0), &input.data).expect("runs");
     let worst = |a: &[f32], b: &[f32]| {
         assert_eq!(a.len(), b.len());
         a.iter()
@@ -188,19 +188,24 @@ fn person_detector_matches_the_reference_runtime(models: &std::path::Path) {
     );
     // posestream's LiteRT binding on the original detector: the Python runtime's values.
     let runtime = LiteRt::load(&common::litert_library()).expect("libLiteRt.so loads");
-    let fast = PersonNetwork::load_litert(&runtime, &file.original(models), 2)
-        .expect("compiles")
-        .run_raw(1, &input.data)
-        .expect("runs");
-    let (fast_box, fast_score) = (
-        worst(&fast.boxes, &boxes.data),
-        worst(&fast.scores, &scores.data),
-    );
-    println!("person detector, LiteRT binding: box {fast_box:e} px, score logit {fast_score:e}");
-    assert!(
-        fast_box <= 1e-3 && fast_score <= 1e-3,
-        "{fast_box} {fast_score}"
-    );
+    let compiled =
+        PersonNetwork::load_litert(&runtime, &file.original(models), 2).expect("compiles");
+    // A worker's model and the lone run's (both workers' threads) alike.
+    for worker in [Some(1), None] {
+        let fast = compiled.run_raw(worker, &input.data).expect("runs");
+        let (fast_box, fast_score) = (
+            worst(&fast.boxes, &boxes.data),
+            worst(&fast.scores, &scores.data),
+        );
+        println!(
+            "person detector, LiteRT binding ({worker:?}): box {fast_box:e} px, score logit \
+             {fast_score:e}"
+        );
+        assert!(
+            fast_box <= 1e-3 && fast_score <= 1e-3,
+            "{worker:?}: {fast_box} {fast_score}"
+        );
+    }
     // Decoded the same way, both find the same people.
     let a = anchors();
     let ours = decode(&got.boxes, &got.scores, &a, 0.5);
@@ -275,7 +280,7 @@ fn the_pedestrian_detector_is_fetched_converted_and_finds_the_people_of_a_photo(
     let whole_photo = CropBox::new(0.0, 0.0, f64::from(w), f64::from(h)).expect("box");
     crop_input_signed(&rgb, &whole_photo, INPUT_SIZE, &mut input);
     let tract = PedestrianNetwork::load(&fetched.model).expect("tract loads it");
-    let found = tract.detect(0, &input, 0.3).expect("runs");
+    let found = tract.detect(Some(0), &input, 0.3).expect("runs");
     println!("bus.jpg: {found:?}");
     // The two whole men (the two others are cut by the photo's edges), each at least a
     // third of the photo tall, their feet on the pavement (measured: 0.999 and 0.965,
@@ -292,8 +297,8 @@ fn the_pedestrian_detector_is_fetched_converted_and_finds_the_people_of_a_photo(
     let runtime = LiteRt::load(&common::litert_library()).expect("libLiteRt.so loads");
     let fast = PedestrianNetwork::load_litert(&runtime, &fetched.model, 1).expect("compiles");
     let (a, b) = (
-        tract.run_raw(0, &input).expect("runs"),
-        fast.run_raw(0, &input).expect("runs"),
+        tract.run_raw(Some(0), &input).expect("runs"),
+        fast.run_raw(Some(0), &input).expect("runs"),
     );
     let worst = |x: &[f32], y: &[f32]| {
         assert_eq!(x.len(), y.len());

@@ -133,6 +133,9 @@ impl Summary for service::PipelineReport {
             self.seconds,
             self.frames_per_second
         );
+        if let Some(f) = self.streaming_frames_per_second {
+            text.push_str(&format!(" ({f:.1} from the first image)"));
+        }
         if let Some(l) = &self.latency {
             text.push_str(&format!(
                 "\nlatency, image to newest skeleton: median {:.1} ms, p99 {:.1} ms",

@@ -61,6 +61,11 @@ pub struct DetectorConfig {
     pub repeat: u64,
     /// The image detector (the other sources).
     pub images: ImageSettings,
+    /// The image detector's threads run at least this nice (0-19; Linux's nice values),
+    /// the rest of the process as started: a frame already detected gets its skeleton
+    /// published before the next frame's detection takes the cores
+    /// ([`crate::nodes::priority`]). 0: as started.
+    pub nice: u8,
 }
 
 impl Default for DetectorConfig {
@@ -71,6 +76,7 @@ impl Default for DetectorConfig {
             rate: ReplayRate::Recorded,
             repeat: 1,
             images: ImageSettings::default(),
+            nice: 10,
         }
     }
 }
@@ -240,6 +246,8 @@ impl ServiceConfig {
     /// it (`estimator.window.size must be in 1..=300, got 1000000000`).
     pub fn validate(&self) -> Result<(), OutOfDomain> {
         crate::error::check_range("repeat", self.detector.repeat, 0, 1_000_000)
+            .map_err(|x| x.within("detector"))?;
+        crate::error::check_range("nice", self.detector.nice, 0, 19)
             .map_err(|x| x.within("detector"))?;
         let e = &self.estimator;
         crate::error::check_range("max_tracks", e.max_tracks, 1, 64)

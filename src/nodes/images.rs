@@ -90,6 +90,9 @@ pub struct ImageHeatMaps {
     stats: SharedStats,
     /// The live view's images, if one is served.
     shown: Option<ShownImages>,
+    /// How nice the thread reading this source is made on its first read (`[detector]
+    /// nice`); 0 once done.
+    nice: u8,
 }
 
 impl ImageHeatMaps {
@@ -110,7 +113,15 @@ impl ImageHeatMaps {
             encoding,
             stats: SharedStats::default(),
             shown: None,
+            nice: 0,
         }
+    }
+
+    /// The same source, making the thread that reads it at least `nice` nice on its
+    /// first read ([`crate::nodes::priority`]).
+    pub fn with_nice(mut self, nice: u8) -> Self {
+        self.nice = nice;
+        self
     }
 
     /// The same source, showing each image on `sink` (a live view) as it comes in.
@@ -162,6 +173,9 @@ impl Source<HeatMaps> for ImageHeatMaps {
     fn recv(&mut self, timeout: Duration) -> Result<Received<HeatMaps>, TransportError> {
         if let Some((maps, stamp)) = self.pending.pop_front() {
             return Ok(Received::Message(maps, stamp));
+        }
+        if self.nice > 0 {
+            crate::nodes::priority::at_least(std::mem::take(&mut self.nice));
         }
         let began = std::time::Instant::now();
         let (frame, stamp) = match self.frames.recv(timeout)? {

@@ -135,6 +135,8 @@ pub struct FrameClock(std::sync::Arc<std::sync::Mutex<ClockInner>>);
 struct ClockInner {
     taken: std::collections::VecDeque<(i64, std::time::Instant)>,
     latency: LatencyHistogram,
+    /// When the first image came in.
+    first_in: Option<std::time::Instant>,
 }
 
 impl Default for ClockInner {
@@ -142,6 +144,7 @@ impl Default for ClockInner {
         Self {
             taken: std::collections::VecDeque::with_capacity(FrameClock::REMEMBERED),
             latency: LatencyHistogram::coarse(),
+            first_in: None,
         }
     }
 }
@@ -159,10 +162,12 @@ impl FrameClock {
     /// The image captured at `stamp_ns` came in now.
     pub fn image_in(&self, stamp_ns: i64) {
         let mut inner = self.lock();
+        let now = std::time::Instant::now();
+        inner.first_in.get_or_insert(now);
         if inner.taken.len() == Self::REMEMBERED {
             inner.taken.pop_front();
         }
-        inner.taken.push_back((stamp_ns, std::time::Instant::now()));
+        inner.taken.push_back((stamp_ns, now));
     }
 
     /// A newest skeleton of the image captured at `stamp_ns` goes out now: its latency
@@ -183,5 +188,10 @@ impl FrameClock {
     /// The latencies so far.
     pub fn summary(&self) -> LatencySummary {
         self.lock().latency.summary()
+    }
+
+    /// When the first image came in (`None` before one did).
+    pub fn first_in(&self) -> Option<std::time::Instant> {
+        self.lock().first_in
     }
 }

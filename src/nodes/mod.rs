@@ -22,6 +22,7 @@ pub mod hri;
 pub mod images;
 pub mod latency;
 pub mod markers;
+pub mod priority;
 pub mod replay;
 pub mod service;
 pub mod shown_images;

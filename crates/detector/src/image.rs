@@ -39,8 +39,10 @@ use super::mapping::{ChannelMapping, ChannelMappingError};
 use crate::images::ImageFrame;
 use crate::models::landmarks::{HEATMAP_SIZE, INPUT_SIZE, LandmarkNetwork, NetworkError};
 use crate::models::litert::{Landmarks, LiteRt};
-use crate::models::pedestrians::{INPUT_SIZE as PEDESTRIAN_INPUT, PedestrianNetwork};
-use crate::models::person::{INPUT_SIZE as PERSON_INPUT, PersonNetwork};
+use crate::models::pedestrians::{INPUT_SIZE as PEDESTRIAN_INPUT, Pedestrian, PedestrianNetwork};
+use crate::models::person::{
+    Detection as PersonDetection, INPUT_SIZE as PERSON_INPUT, PersonNetwork,
+};
 use crate::models::{LandmarkModel, ModelFile};
 use crate::motion::Motion;
 use crate::tracker::{Assignment, Observation, Tracker, TrackerStats, TrackingSettings, iou};
@@ -98,8 +100,16 @@ const PART_HEIGHT: f64 = 0.75;
 /// While nobody is followed (a search every frame) the pedestrian detector runs every
 /// this many times `detect_every` frames (BlazePose's, 4 x cheaper, searches every
 /// frame): bikes.mp4, a cyclist in 80 of 250 frames, lost 15 % of its frames per
-/// second to it at 1 x.
+/// second to it at 1 x; at 4 x, 24 pedestrian runs instead of 42 and 3-8 % more frames
+/// per second, but sample.mp4's recall went from 0.55 to 0.50.
 const EMPTY_SCENE_SEARCHES: u64 = 2;
+/// While nobody is followed (a search every frame) BlazePose's detector searches a tile
+/// besides the whole image in one search of this many (the first of a scene, and while
+/// someone is followed, every one): bikes.mp4 (scenes of nobody, cut after cut) 383 ->
+/// 258 detector runs, 225 -> 169 landmark runs, 37.3 -> 43.8-50.0 frames/s; the footage
+/// bench: vtest.avi unchanged, sample.mp4 recall 0.55 = 0.55, precision 0.97 -> 0.95,
+/// IDF1 0.47 -> 0.49.
+const EMPTY_SCENE_TILE_EVERY: u64 = 3;
 /// Pedestrian boxes shorter than this (image pixels) are not looked at.
 const MIN_BODY_HEIGHT: f64 = 20.0;
 /// Looks at most at a newly found person: the detector's box, then the landmarks' box
@@ -164,7 +174,8 @@ pub struct ImageSettings {
     /// The person detector also searches tiles of the image, this many along its
     /// longer side (overlapping, as many as cover the shorter), where people far from
     /// the camera look bigger: all on a scene's first frame, else one per search in
-    /// turn beside the whole image; 1: the whole image only.
+    /// turn beside the whole image (while nobody is followed, in one search of three);
+    /// 1: the whole image only.
     pub search_tiles: u32,
     /// Propose where to look from what moves (a fixed camera's frame differences;
     /// `crate::motion`): people the person detector misses, seen from behind or far
@@ -684,6 +695,69 @@ struct Sighting {
 /// A pedestrian detector's box: its score and `[x0, y0, x1, y1]`, image pixels.
 type ScoredBox = (f32, [f64; 4]);
 
+/// One detector run of a search: the detector and the region it looks at.
+#[derive(Clone, Copy)]
+enum Run<'a> {
+    Faces(&'a PersonNetwork, CropBox),
+    Bodies(&'a PedestrianNetwork, CropBox),
+}
+
+/// What one run of a search found.
+enum Seen {
+    Faces(Vec<Sighting>),
+    Bodies(Vec<ScoredBox>),
+}
+
+/// The person detector's people in `region` (found by their face), each with the
+/// landmark model's box from the detection's alignment points and their head, image
+/// pixels.
+fn faces_in(region: &CropBox, found: &[PersonDetection]) -> Vec<Sighting> {
+    let to_image = |p: [f32; 2]| {
+        [
+            region.x0 + f64::from(p[0]) * region.width,
+            region.y0 + f64::from(p[1]) * region.height,
+        ]
+    };
+    found
+        .iter()
+        .filter_map(|d| {
+            let [x, y] = to_image([d.centre[0] - 0.5 * d.size[0], d.centre[1] - 0.5 * d.size[1]]);
+            let head = CropBox::new(
+                x,
+                y,
+                f64::from(d.size[0]) * region.width,
+                f64::from(d.size[1]) * region.height,
+            )
+            .ok();
+            box_from_alignment(to_image(d.keypoints[0]), to_image(d.keypoints[1]), 16.0).map(
+                |region| Sighting {
+                    observation: Observation {
+                        region,
+                        score: d.score,
+                    },
+                    head,
+                    body: None,
+                },
+            )
+        })
+        .collect()
+}
+
+/// The pedestrian detector's boxes in `region`, image pixels.
+fn bodies_in(region: &CropBox, people: &[Pedestrian]) -> Vec<ScoredBox> {
+    let x = |v: f32| region.x0 + f64::from(v) * region.width;
+    let y = |v: f32| region.y0 + f64::from(v) * region.height;
+    people
+        .iter()
+        .map(|p| {
+            (
+                p.score,
+                [x(p.min[0]), y(p.min[1]), x(p.max[0]), y(p.max[1])],
+            )
+        })
+        .collect()
+}
+
 /// Where a person's head was last seen, and the frame.
 struct Head {
     id: u32,
@@ -720,6 +794,8 @@ pub struct ImageDetector {
     scene_start: u64,
     /// The tile the next search looks at besides the whole image.
     next_tile: usize,
+    /// Searches in a row while nobody is followed (0 while someone is).
+    empty_searches: u64,
     /// Each person's head where it was last seen: blacked out in the other people's
     /// looks (a box that holds two people is looked at for the one it was given).
     heads: Vec<Head>,
@@ -917,6 +993,7 @@ impl ImageDetector {
             scene: None,
             scene_start: 0,
             next_tile: 0,
+            empty_searches: 0,
             heads: Vec::new(),
             last_candidate: None,
             candidate_every: u64::from(settings.tracking.detect_every),
@@ -1013,6 +1090,43 @@ impl ImageDetector {
                 },
             ),
         };
+        let face_regions = self.face_regions(region, &area, followed);
+        let body_regions = self.body_regions(&area, followed);
+        let mut runs: Vec<Run<'_>> = Vec::new();
+        if let Some(person) = &self.person {
+            runs.extend(face_regions.iter().map(|r| Run::Faces(person, *r)));
+        }
+        if let Some(network) = &self.pedestrians {
+            runs.extend(body_regions.iter().map(|r| Run::Bodies(network, *r)));
+        }
+        // Both detectors' runs at once, spread over the cores: a search with the
+        // pedestrian detector is 2 + 3 runs, not one detector's runs after the other's.
+        let low = self.tracker_low_threshold();
+        let pedestrian_threshold = self.pedestrian_threshold;
+        let rgb = &frame.rgb;
+        let lone = runs.len() == 1;
+        let done: Vec<Result<(Seen, f64), DetectorError>> = runs
+            .par_iter()
+            .map(|run| {
+                let began = Instant::now();
+                // A lone run (the whole image while nobody is followed, in two searches
+                // of three) on every core, XNNPACK's threads; else one per worker.
+                let worker = (!lone).then(|| rayon::current_thread_index().unwrap_or(0));
+                let mut input = Vec::new();
+                let found = match *run {
+                    Run::Faces(person, region) => {
+                        crop_input_signed(rgb, &region, PERSON_INPUT, &mut input);
+                        Seen::Faces(faces_in(&region, &person.detect(worker, &input, low)?))
+                    }
+                    Run::Bodies(network, region) => {
+                        crop_input_signed(rgb, &region, PEDESTRIAN_INPUT, &mut input);
+                        let people = network.detect(worker, &input, pedestrian_threshold)?;
+                        Seen::Bodies(bodies_in(&region, &people))
+                    }
+                };
+                Ok((found, began.elapsed().as_secs_f64()))
+            })
+            .collect();
         // Without BlazePose's detector, the region as a whole (and the bodies found).
         let mut all = if self.person.is_none() {
             vec![Sighting {
@@ -1021,9 +1135,24 @@ impl ImageDetector {
                 body: None,
             }]
         } else {
-            self.search_faces(frame, region, &area)?
+            Vec::new()
         };
-        all.extend(self.search_bodies(frame, &area, followed)?);
+        let mut bodies = Vec::new();
+        for d in done {
+            match d? {
+                (Seen::Faces(f), seconds) => {
+                    all.extend(f);
+                    self.stats.detector_runs += 1;
+                    self.stats.detector_seconds += seconds;
+                }
+                (Seen::Bodies(b), seconds) => {
+                    bodies.extend(b);
+                    self.stats.pedestrian_runs += 1;
+                    self.stats.pedestrian_seconds += seconds;
+                }
+            }
+        }
+        all.extend(self.body_sightings(bodies));
         // One person seen in several regions, or by both detectors: the best-scoring
         // sighting.
         all.sort_by(|a, b| b.observation.score.total_cmp(&a.observation.score));
@@ -1054,110 +1183,48 @@ impl ImageDetector {
         Ok(placed)
     }
 
-    /// BlazePose's person detector on `region` and one tile of `area` in turn (all of
-    /// them on a scene's first frame): people found by their face, each with the
-    /// landmark model's box from the detector's alignment points and their head.
-    fn search_faces(
-        &mut self,
-        frame: &ImageFrame,
-        region: CropBox,
-        area: &CropBox,
-    ) -> Result<Vec<Sighting>, DetectorError> {
-        let Some(person) = &self.person else {
-            return Ok(Vec::new());
-        };
-        let began = Instant::now();
-        // The whole region, and tiles of it where people far away look bigger: all of
-        // them on a scene's first frame, else one a search in turn.
+    /// Where BlazePose's person detector looks: `region`, and one tile of `area` in
+    /// turn (all of them on a scene's first frame), where people far away look bigger;
+    /// none without the detector.
+    fn face_regions(&mut self, region: CropBox, area: &CropBox, followed: bool) -> Vec<CropBox> {
+        if self.person.is_none() {
+            return Vec::new();
+        }
         let mut regions = vec![region];
         let all = tiles(area, self.search_tiles);
+        self.empty_searches = if followed {
+            0
+        } else {
+            self.empty_searches.wrapping_add(1)
+        };
         if self.stats.frames == self.scene_start || all.is_empty() {
             regions.extend(all);
-        } else {
+        } else if followed || self.empty_searches % EMPTY_SCENE_TILE_EVERY == 1 {
             regions.push(all[self.next_tile % all.len()]);
             self.next_tile = self.next_tile.wrapping_add(1);
         }
-        let low = self.tracker_low_threshold();
-        let rgb = &frame.rgb;
-        let found: Vec<Result<Vec<Sighting>, DetectorError>> = regions
-            .par_iter()
-            .map(|region| {
-                let worker = rayon::current_thread_index().unwrap_or(0);
-                let mut input = Vec::new();
-                crop_input_signed(rgb, region, PERSON_INPUT, &mut input);
-                let found = person.detect(worker, &input, low)?;
-                let to_image = |p: [f32; 2]| {
-                    [
-                        region.x0 + f64::from(p[0]) * region.width,
-                        region.y0 + f64::from(p[1]) * region.height,
-                    ]
-                };
-                Ok(found
-                    .iter()
-                    .filter_map(|d| {
-                        let [x, y] = to_image([
-                            d.centre[0] - 0.5 * d.size[0],
-                            d.centre[1] - 0.5 * d.size[1],
-                        ]);
-                        let head = CropBox::new(
-                            x,
-                            y,
-                            f64::from(d.size[0]) * region.width,
-                            f64::from(d.size[1]) * region.height,
-                        )
-                        .ok();
-                        box_from_alignment(to_image(d.keypoints[0]), to_image(d.keypoints[1]), 16.0)
-                            .map(|region| Sighting {
-                                observation: Observation {
-                                    region,
-                                    score: d.score,
-                                },
-                                head,
-                                body: None,
-                            })
-                    })
-                    .collect())
-            })
-            .collect();
-        let mut all = Vec::new();
-        for f in found {
-            all.extend(f?);
-        }
-        self.stats.detector_runs += regions.len() as u64;
-        self.stats.detector_seconds += began.elapsed().as_secs_f64();
-        Ok(all)
+        regions
     }
 
-    /// The pedestrian detector on `area` and `pedestrian_tiles` tiles across it (each
-    /// its full height): people found by their whole body, each as the landmark
-    /// model's box around it (as for a moving blob) with where their head is. Their
-    /// scores are mapped onto the person detector's: the pedestrian threshold to the
-    /// detection threshold (a pedestrian found is a confident box). While nobody is
-    /// `followed` (a search every frame), it runs every `EMPTY_SCENE_SEARCHES x
-    /// detect_every` frames.
-    fn search_bodies(
-        &mut self,
-        frame: &ImageFrame,
-        area: &CropBox,
-        followed: bool,
-    ) -> Result<Vec<Sighting>, DetectorError> {
-        let Some(network) = &self.pedestrians else {
-            return Ok(Vec::new());
-        };
+    /// Where the pedestrian detector looks: `area` and `pedestrian_tiles` tiles across
+    /// it (each its full height, overlapping by a fifth of a tile), where people far
+    /// away look bigger; all of them each time: one in turn (a third of the cost)
+    /// found 0.34 of sample.mp4's people against 0.55 (README). While nobody is
+    /// `followed` (a search every frame), every `EMPTY_SCENE_SEARCHES x detect_every`
+    /// frames; none without the detector.
+    fn body_regions(&mut self, area: &CropBox, followed: bool) -> Vec<CropBox> {
+        if self.pedestrians.is_none() {
+            return Vec::new();
+        }
         let now = self.stats.frames;
         if !followed
             && self.last_pedestrians.is_some_and(|at| {
                 now.saturating_sub(at) < EMPTY_SCENE_SEARCHES * self.candidate_every
             })
         {
-            return Ok(Vec::new());
+            return Vec::new();
         }
         self.last_pedestrians = Some(now);
-        let began = Instant::now();
-        // The whole area and tiles across it, each its full height (overlapping by a
-        // fifth of a tile), where people far away look bigger. All of them each time:
-        // one in turn (a third of the cost) found 0.34 of sample.mp4's people against
-        // 0.55 (README).
         let mut regions = vec![*area];
         if self.pedestrian_tiles > 1 {
             // Along the longer side (a portrait image: down it).
@@ -1182,35 +1249,15 @@ impl ImageDetector {
                 }
             }));
         }
-        let threshold = self.pedestrian_threshold;
-        let rgb = &frame.rgb;
-        let found: Vec<Result<Vec<ScoredBox>, DetectorError>> = regions
-            .par_iter()
-            .map(|region| {
-                let worker = rayon::current_thread_index().unwrap_or(0);
-                let mut input = Vec::new();
-                crop_input_signed(rgb, region, PEDESTRIAN_INPUT, &mut input);
-                let people = network.detect(worker, &input, threshold)?;
-                Ok(people
-                    .iter()
-                    .map(|p| {
-                        let x = |v: f32| region.x0 + f64::from(v) * region.width;
-                        let y = |v: f32| region.y0 + f64::from(v) * region.height;
-                        (
-                            p.score,
-                            [x(p.min[0]), y(p.min[1]), x(p.max[0]), y(p.max[1])],
-                        )
-                    })
-                    .collect())
-            })
-            .collect();
-        let mut bodies = Vec::new();
-        for f in found {
-            bodies.extend(f?);
-        }
-        self.stats.pedestrian_runs += regions.len() as u64;
-        self.stats.pedestrian_seconds += began.elapsed().as_secs_f64();
-        // One person in several regions: the best box.
+        regions
+    }
+
+    /// The pedestrian detector's boxes (of all regions searched) as sightings: one
+    /// person in several regions is the best box; each as the landmark model's box
+    /// around it (as for a moving blob) with where their head is. Their scores are
+    /// mapped onto the person detector's: the pedestrian threshold to the detection
+    /// threshold (a pedestrian found is a confident box).
+    fn body_sightings(&self, mut bodies: Vec<ScoredBox>) -> Vec<Sighting> {
         bodies.sort_by(|a, b| b.0.total_cmp(&a.0));
         let mut kept: Vec<ScoredBox> = Vec::new();
         for b in bodies {
@@ -1218,9 +1265,9 @@ impl ImageDetector {
                 kept.push(b);
             }
         }
+        let threshold = self.pedestrian_threshold;
         let span = (1.0 - threshold).max(f32::EPSILON);
-        Ok(kept
-            .into_iter()
+        kept.into_iter()
             .filter_map(|(score, [x0, y0, x1, y1])| {
                 let (w, h) = (x1 - x0, y1 - y0);
                 if !(h >= MIN_BODY_HEIGHT && w > 0.0) {
@@ -1239,7 +1286,7 @@ impl ImageDetector {
                     body: CropBox::new(x0, y0, w, h).ok(),
                 })
             })
-            .collect())
+            .collect()
     }
 
     /// The low-score pass's threshold (the tracker keeps it under the confident one).

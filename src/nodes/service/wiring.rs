@@ -548,18 +548,19 @@ impl EstimatorOutputs {
         for s in skeletons.iter() {
             let stamp = self.stamp(s);
             self.skeletons.publish(s, stamp);
+            // Its latency: the skeleton out, before what is drawn or derived from it.
+            if let Some(clock) = &self.clock
+                && s.lag == 0
+                && s.state != SkeletonState::Lost as u8
+            {
+                clock.skeleton_out(s.header.stamp.nanos());
+            }
             if !self.markers.is_empty() {
                 self.markers
                     .publish(&skeleton_markers(s, &self.bones), stamp);
             }
             if !self.bodies.is_empty() {
                 self.bodies.publish(s, image_size, stamp);
-            }
-            if let Some(clock) = &self.clock
-                && s.lag == 0
-                && s.state != SkeletonState::Lost as u8
-            {
-                clock.skeleton_out(s.header.stamp.nanos());
             }
         }
         node.recycle(skeletons);
@@ -638,18 +639,19 @@ impl EstimatorOutputs {
         for s in skeletons {
             let stamp = self.stamp(s);
             self.skeletons.publish_async(s, stamp).await;
+            // Its latency: the skeleton out, before what is drawn or derived from it.
+            if let Some(clock) = &self.clock
+                && s.lag == 0
+                && s.state != SkeletonState::Lost as u8
+            {
+                clock.skeleton_out(s.header.stamp.nanos());
+            }
             if !self.markers.is_empty() {
                 let markers = skeleton_markers(s, &self.bones);
                 self.markers.publish_async(&markers, stamp).await;
             }
             if !self.bodies.is_empty() {
                 self.bodies.publish_async(s, image_size, stamp).await;
-            }
-            if let Some(clock) = &self.clock
-                && s.lag == 0
-                && s.state != SkeletonState::Lost as u8
-            {
-                clock.skeleton_out(s.header.stamp.nanos());
             }
         }
     }
@@ -756,11 +758,25 @@ pub fn detector_input(
     }
     let dictionary = crate::msgs::shipped::load_dictionary(&config.estimator.dictionary)
         .map_err(SetupError::Dictionary)?;
-    let detector = ImageDetector::load(&config.detector.images, &dictionary.skeleton().joints)
-        .map_err(SetupError::Detector)?;
+    // Loaded on a thread made nice first: the threads its models start (LiteRT's)
+    // inherit it; rayon's workers, which run the models in parallel, are made so too.
+    let nice = config.detector.nice;
+    let joints = &dictionary.skeleton().joints;
+    let detector = std::thread::scope(|scope| {
+        std::thread::Builder::new()
+            .name("detector-load".into())
+            .spawn_scoped(scope, || {
+                crate::nodes::priority::detector_threads_at_least(nice);
+                ImageDetector::load(&config.detector.images, joints)
+            })
+            .map_err(|_| ServiceError::Thread("detector-load"))?
+            .join()
+            .map_err(|_| ServiceError::Thread("detector-load"))
+    })?
+    .map_err(SetupError::Detector)?;
     let frames = image_frames(config, middleware.ros.as_mut())?;
     let encoding = config.detector.images.encoding.message_encoding();
-    let mut source = ImageHeatMaps::new(frames, detector, encoding);
+    let mut source = ImageHeatMaps::new(frames, detector, encoding).with_nice(nice);
     if let Some(live) = live {
         source = source.with_shown_images(live.sink(&shown_images_topic(config))?);
     }

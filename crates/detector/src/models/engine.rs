@@ -5,12 +5,12 @@
 //! outputs.
 
 use std::path::Path;
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 
 use tract_tflite::prelude::*;
 
 use super::landmarks::{NetworkError, load_model, output_of_shape, run_model};
-use super::litert::{LiteRt, LiteRtNetwork, compiled_models, worker};
+use super::litert::{CompiledModels, LiteRt, LiteRtNetwork};
 
 /// One output of a detector network: its shape in tract's plan and, the same values,
 /// its size in floats for LiteRT (which names outputs by size).
@@ -26,8 +26,8 @@ pub(crate) struct Output<'a> {
 pub(crate) enum Engine {
     /// tract: one optimised plan.
     Tract(Arc<TypedRunnableModel>),
-    /// LiteRT: one compiled model per worker (a compiled model runs one input at a time).
-    LiteRt(Vec<Mutex<LiteRtNetwork>>),
+    /// LiteRT: compiled for parallel runs (and, if asked for, a lone run).
+    LiteRt(CompiledModels),
 }
 
 impl Engine {
@@ -36,30 +36,30 @@ impl Engine {
         Ok(Self::Tract(load_model(path)?))
     }
 
-    /// The model at `path` compiled by LiteRT, once per worker of parallel runs, for an
-    /// input of `side x side x 3` and `outputs`.
+    /// The model at `path` compiled by LiteRT, once per worker of parallel runs (and,
+    /// if `lone`, once on all their threads for a lone run), for an input of
+    /// `side x side x 3` and `outputs`.
     pub fn litert(
         runtime: &LiteRt,
         path: &Path,
         workers: usize,
+        lone: bool,
         side: usize,
         outputs: &[Output<'_>],
     ) -> Result<Self, NetworkError> {
         let floats: Vec<usize> = outputs.iter().map(|o| o.floats).collect();
-        Ok(Self::LiteRt(compiled_models(
-            runtime,
-            path,
+        Ok(Self::LiteRt(CompiledModels::load(
             workers,
-            side * side * 3,
-            &floats,
+            lone,
+            |threads| LiteRtNetwork::load_model(runtime, path, side * side * 3, &floats, threads),
         )?))
     }
 
     /// Runs on `input` (`side x side x 3`, row-major); `worker` picks LiteRT's compiled
-    /// model. The values of each of `outputs`, in their order.
+    /// model (`None`: the lone run's). The values of each of `outputs`, in their order.
     pub fn run<const N: usize>(
         &self,
-        worker_index: usize,
+        worker: Option<usize>,
         side: usize,
         input: &[f32],
         outputs: [Output<'_>; N],
@@ -72,8 +72,8 @@ impl Engine {
                     *v = output_of_shape(&out, o.shape)?;
                 }
             }
-            Self::LiteRt(nets) => {
-                let mut net = worker(nets, worker_index)?;
+            Self::LiteRt(models) => {
+                let mut net = models.lock(worker)?;
                 net.run_raw(input)?;
                 for (v, o) in values.iter_mut().zip(&outputs) {
                     *v = net.output(o.floats)?.to_vec();

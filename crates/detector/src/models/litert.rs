@@ -511,65 +511,74 @@ impl Drop for LiteRtNetwork {
     }
 }
 
-/// `workers` compiled models of the model at `path` (see [`LiteRtNetwork::load_model`]).
-pub fn compiled_models(
-    runtime: &LiteRt,
-    path: &Path,
-    workers: usize,
-    input_floats: usize,
-    output_floats: &[usize],
-) -> Result<Vec<std::sync::Mutex<LiteRtNetwork>>, NetworkError> {
-    (0..workers.max(1))
-        .map(|_| {
-            LiteRtNetwork::load_model(runtime, path, input_floats, output_floats, 1)
-                .map(std::sync::Mutex::new)
-        })
-        .collect()
+/// One network compiled by LiteRT for parallel and lone runs: one compiled model per
+/// worker of the parallel runs (a compiled model runs one input at a time), each on its
+/// worker's thread, and one for a frame's lone run on all the workers' cores
+/// (XNNPACK's own threads).
+pub struct CompiledModels {
+    /// One per worker of the parallel runs, one thread each.
+    workers: Vec<std::sync::Mutex<LiteRtNetwork>>,
+    /// A frame's only run: XNNPACK's threads, one per worker (`None` with one worker,
+    /// or when not asked for: the first worker's model).
+    lone: Option<std::sync::Mutex<LiteRtNetwork>>,
 }
 
-/// Locks compiled model `worker` (modulo their count).
-pub fn worker(
-    nets: &[std::sync::Mutex<LiteRtNetwork>],
-    worker: usize,
-) -> Result<std::sync::MutexGuard<'_, LiteRtNetwork>, NetworkError> {
-    nets.get(worker % nets.len().max(1))
-        .ok_or_else(|| error("running the model", "no compiled model"))?
-        .lock()
-        .map_err(|_| error("running the model", "a previous run panicked"))
+impl CompiledModels {
+    /// `load(threads)` once per worker (one thread each) and, if `lone` and there are
+    /// several workers, once on `workers` threads.
+    pub fn load(
+        workers: usize,
+        lone: bool,
+        load: impl Fn(usize) -> Result<LiteRtNetwork, NetworkError>,
+    ) -> Result<Self, NetworkError> {
+        let workers = workers.max(1);
+        Ok(Self {
+            lone: if lone && workers > 1 {
+                Some(std::sync::Mutex::new(load(workers)?))
+            } else {
+                None
+            },
+            workers: (0..workers)
+                .map(|_| load(1).map(std::sync::Mutex::new))
+                .collect::<Result<Vec<_>, _>>()?,
+        })
+    }
+
+    /// Locks the compiled model of `worker` (any number: taken modulo their count);
+    /// `None`: the lone run's (the first worker's without one).
+    pub fn lock(
+        &self,
+        worker: Option<usize>,
+    ) -> Result<std::sync::MutexGuard<'_, LiteRtNetwork>, NetworkError> {
+        let net = match (worker, &self.lone) {
+            (None, Some(lone)) => lone,
+            (w, _) => self
+                .workers
+                .get(w.unwrap_or(0) % self.workers.len().max(1))
+                .ok_or_else(|| error("running the model", "no compiled model"))?,
+        };
+        net.lock()
+            .map_err(|_| error("running the model", "a previous run panicked"))
+    }
 }
 
 /// The landmark model on its runtime.
 pub enum Landmarks {
     /// tract: one optimised plan, run by any number of threads at once.
     Tract(super::landmarks::LandmarkNetwork),
-    /// LiteRT: one compiled model per worker (a compiled model runs one crop at a time),
-    /// each on its worker's thread, and one for a frame's lone run on every core.
-    LiteRt {
-        /// One per worker of the parallel runs, one thread each.
-        workers: Vec<std::sync::Mutex<LiteRtNetwork>>,
-        /// A frame's only run (one person followed): XNNPACK's threads, one per worker
-        /// (`None` with one worker: that worker's model).
-        lone: Option<std::sync::Mutex<LiteRtNetwork>>,
-    },
+    /// LiteRT: compiled for parallel runs and a frame's lone run (one person followed).
+    LiteRt(CompiledModels),
 }
 
 impl Landmarks {
     /// The original landmark model at `path` compiled by LiteRT, once per worker and
     /// once on `workers` threads.
     pub fn litert(runtime: &LiteRt, path: &Path, workers: usize) -> Result<Self, NetworkError> {
-        let workers = workers.max(1);
-        Ok(Self::LiteRt {
-            lone: if workers > 1 {
-                Some(std::sync::Mutex::new(LiteRtNetwork::load(
-                    runtime, path, workers,
-                )?))
-            } else {
-                None
-            },
-            workers: (0..workers)
-                .map(|_| LiteRtNetwork::load(runtime, path, 1).map(std::sync::Mutex::new))
-                .collect::<Result<Vec<_>, _>>()?,
-        })
+        Ok(Self::LiteRt(CompiledModels::load(
+            workers,
+            true,
+            |threads| LiteRtNetwork::load(runtime, path, threads),
+        )?))
     }
 
     /// Runs on one crop (`256 x 256 x 3`, values in [0, 1]); `worker` picks LiteRT's
@@ -578,13 +587,7 @@ impl Landmarks {
     pub fn run(&self, worker: Option<usize>, rgb: &[f32]) -> Result<LandmarkOutput, NetworkError> {
         match self {
             Self::Tract(n) => n.run(rgb),
-            Self::LiteRt { workers, lone } => match (worker, lone) {
-                (None, Some(lone)) => lone
-                    .lock()
-                    .map_err(|_| error("running the model", "a previous run panicked"))?
-                    .run(rgb),
-                (w, _) => self::worker(workers, w.unwrap_or(0))?.run(rgb),
-            },
+            Self::LiteRt(models) => models.lock(worker)?.run(rgb),
         }
     }
 }

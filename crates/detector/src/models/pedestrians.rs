@@ -274,14 +274,18 @@ impl PedestrianNetwork {
         workers: usize,
     ) -> Result<Self, NetworkError> {
         Ok(Self {
-            engine: Engine::litert(runtime, path, workers, INPUT_SIZE, &OUTPUTS)?,
+            engine: Engine::litert(runtime, path, workers, false, INPUT_SIZE, &OUTPUTS)?,
             anchors: anchors(),
         })
     }
 
     /// Raw outputs for `input`: `300 x 300 x 3`, row-major, values in [-1, 1];
-    /// `worker` picks LiteRT's compiled model.
-    pub fn run_raw(&self, worker: usize, input: &[f32]) -> Result<PedestrianOutput, NetworkError> {
+    /// `worker` picks LiteRT's compiled model (`None`: the lone run's).
+    pub fn run_raw(
+        &self,
+        worker: Option<usize>,
+        input: &[f32],
+    ) -> Result<PedestrianOutput, NetworkError> {
         let [codes, logits] = self.engine.run(worker, INPUT_SIZE, input, OUTPUTS)?;
         Ok(PedestrianOutput { codes, logits })
     }
@@ -289,7 +293,7 @@ impl PedestrianNetwork {
     /// The pedestrians in `input` scoring at least `threshold`, best first.
     pub fn detect(
         &self,
-        worker: usize,
+        worker: Option<usize>,
         input: &[f32],
         threshold: f32,
     ) -> Result<Vec<Pedestrian>, NetworkError> {
