@@ -5,14 +5,13 @@ MediaPipe Pose: the legacy `solutions.pose` (`model_complexity=1`, the full land
 model, tracking between frames), timed two ways: end to end (each frame decoded by
 OpenCV, converted to RGB and given to `process`: frames per second over the loop) and its
 pose calls alone (milliseconds per `process`: p50, p99 over the calls that gave a pose,
-as posestream's latency is over images with someone, and over all calls). posestream:
-`posestream run
---video VIDEO --ros2 false --record ...` as a user runs it (decoding, person detectors,
-landmarks, the estimator in metres, the recording), its own report: frames per second
-from its first image to the run's end (closing the recording included; MediaPipe's clock
-starts at its first frame too, after loading its models), and over the whole run (from
-the process's start, in brackets), latency from a decoded image to its newest skeleton
-published (p50, p99).
+as posestream's latency is over images with someone, and over all calls).
+posestream: `posestream run --video VIDEO --ros2 false --record ...` as a user runs it
+(decoding, person detectors, landmarks, the estimator in metres, the recording), its own
+report: frames per second from its first image to the run's end (closing the recording
+included; MediaPipe's clock starts at its first frame too, after loading its models),
+and over the whole run (from the process's start, in brackets), latency from a decoded
+image to its newest skeleton published (p50, p99).
 The two alternate, round after round, so that both see the same minutes of the
 machine (this 2-core machine's speed varies by a fifth from minute to minute).
 

@@ -926,7 +926,7 @@ fn camera_images_on_a_ros2_topic_become_heat_maps() {
     let mut middleware = Middleware::open(&c, detector_transport(&c)).expect("ros");
     let DetectorInput {
         mut source, stats, ..
-    } = detector_input(&c, &mut middleware, None).expect("input");
+    } = detector_input(&c, &mut middleware, None, 0).expect("input");
     // A camera node publishes the photos, scaled down, as rgb8 and bgr8 images.
     let mut camera_settings = c.ros.clone();
     camera_settings.node_name = "camera".into();

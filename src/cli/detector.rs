@@ -32,7 +32,8 @@ pub fn run(args: &DetectorArgs) -> Result<(), CliError> {
     config.ros.or_named("posestream_detector");
     let stop = stop_flag();
     let mut wiring = Wiring::open(&config, service::detector_transport(&config))?;
-    let input = wiring.detector_input(&config)?;
+    // Alone in its process: nothing of ours to yield to (`[detector] nice` is for `run`).
+    let input = wiring.detector_input(&config, 0)?;
     wiring.start_recording(&config)?;
     let sinks = wiring.detector_outputs(&config)?;
     if sinks.is_empty() {

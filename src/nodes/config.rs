@@ -61,10 +61,12 @@ pub struct DetectorConfig {
     pub repeat: u64,
     /// The image detector (the other sources).
     pub images: ImageSettings,
-    /// The image detector's threads run at least this nice (0-19; Linux's nice values),
-    /// the rest of the process as started: a frame already detected gets its skeleton
-    /// published before the next frame's detection takes the cores
-    /// ([`crate::nodes::priority`]). 0: as started.
+    /// Where the estimator shares the process (`posestream run`), the image detector's
+    /// threads (its own, LiteRT's, rayon's global pool) run at least this nice (0-19;
+    /// Linux's nice values), the rest as started: a frame already detected gets its
+    /// skeleton published before the next frame's detection takes the cores
+    /// ([`crate::nodes::priority`]). 0: as started. Against other processes too: with
+    /// no autogroup, they get more of the cores than the detector.
     pub nice: u8,
 }
 

@@ -26,9 +26,11 @@ pub fn at_least(nice: u8) {
         // SAFETY: a system call on this thread's own id, no pointers.
         let set =
             unsafe { libc::setpriority(libc::PRIO_PROCESS, libc::gettid() as libc::id_t, target) };
-        if set != 0 {
+        // Said once, not once per thread.
+        static SAID: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+        if set != 0 && !SAID.swap(true, std::sync::atomic::Ordering::Relaxed) {
             tracing::warn!(
-                "a detector thread stays at nice {now}: {}",
+                "the detector's threads stay at nice {now}: {}",
                 std::io::Error::last_os_error()
             );
         }
@@ -36,10 +38,15 @@ pub fn at_least(nice: u8) {
 }
 
 /// Makes the calling thread and every worker of rayon's global pool (the detector's
-/// parallel model runs) at least `nice` nice ([`at_least`]).
+/// parallel model runs) at least `nice` nice ([`at_least`]). The workers are asked, not
+/// waited for (waiting from inside a worker would never end); the pool, made here if
+/// it is not yet, is for good: a thread cannot be made less nice again.
 pub fn detector_threads_at_least(nice: u8) {
+    if nice == 0 {
+        return;
+    }
     at_least(nice);
-    rayon::broadcast(|_| at_least(nice));
+    rayon::spawn_broadcast(move |_| at_least(nice));
 }
 
 /// The calling thread's nice value (Linux; elsewhere 0).
@@ -61,6 +68,7 @@ mod tests {
     #[test]
     #[cfg(target_os = "linux")]
     fn a_thread_made_nicer_stays_so_and_so_do_the_threads_it_starts() {
+        let own = this_thread_nice();
         let named = |name: &str| std::thread::Builder::new().name(name.into());
         named("lowered")
             .spawn(move || {
@@ -86,6 +94,6 @@ mod tests {
             .join()
             .expect("the thread ran");
         // Other threads keep theirs.
-        assert!(this_thread_nice() < 19);
+        assert_eq!(this_thread_nice(), own);
     }
 }

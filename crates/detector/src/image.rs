@@ -394,11 +394,13 @@ pub struct DetectorStats {
     pub searches: u64,
     /// Searches that found someone (either detector, a confident box).
     pub detector_hits: u64,
-    /// Seconds in the person detector.
+    /// Seconds in the person detector's runs, summed over the runs (parallel ones
+    /// too: two side by side take longer each than one alone).
     pub detector_seconds: f64,
     /// Pedestrian detector runs (one per region searched).
     pub pedestrian_runs: u64,
-    /// Seconds in the pedestrian detector.
+    /// Seconds in the pedestrian detector's runs, summed over the runs (parallel ones
+    /// too).
     pub pedestrian_seconds: f64,
     /// Looks whose landmarks had collapsed to a point (a box drifted off its person).
     pub collapsed: u64,
@@ -706,6 +708,13 @@ enum Run<'a> {
 enum Seen {
     Faces(Vec<Sighting>),
     Bodies(Vec<ScoredBox>),
+}
+
+/// Whether a search (not a scene's first) looks at a tile beside the whole image: every
+/// one while someone is `followed`, else the first of every `EMPTY_SCENE_TILE_EVERY`
+/// (`empty`: searches in a row while nobody is followed, this one included).
+fn a_tile_too(followed: bool, empty: u64) -> bool {
+    followed || empty % EMPTY_SCENE_TILE_EVERY == 1
 }
 
 /// The person detector's people in `region` (found by their face), each with the
@@ -1104,29 +1113,33 @@ impl ImageDetector {
         let low = self.tracker_low_threshold();
         let pedestrian_threshold = self.pedestrian_threshold;
         let rgb = &frame.rgb;
-        let lone = runs.len() == 1;
-        let done: Vec<Result<(Seen, f64), DetectorError>> = runs
-            .par_iter()
-            .map(|run| {
-                let began = Instant::now();
-                // A lone run (the whole image while nobody is followed, in two searches
-                // of three) on every core, XNNPACK's threads; else one per worker.
-                let worker = (!lone).then(|| rayon::current_thread_index().unwrap_or(0));
-                let mut input = Vec::new();
-                let found = match *run {
-                    Run::Faces(person, region) => {
-                        crop_input_signed(rgb, &region, PERSON_INPUT, &mut input);
-                        Seen::Faces(faces_in(&region, &person.detect(worker, &input, low)?))
-                    }
-                    Run::Bodies(network, region) => {
-                        crop_input_signed(rgb, &region, PEDESTRIAN_INPUT, &mut input);
-                        let people = network.detect(worker, &input, pedestrian_threshold)?;
-                        Seen::Bodies(bodies_in(&region, &people))
-                    }
-                };
-                Ok((found, began.elapsed().as_secs_f64()))
-            })
-            .collect();
+        let one = |run: &Run<'_>, worker: Option<usize>| {
+            let began = Instant::now();
+            let mut input = Vec::new();
+            let found = match *run {
+                Run::Faces(person, region) => {
+                    crop_input_signed(rgb, &region, PERSON_INPUT, &mut input);
+                    Seen::Faces(faces_in(&region, &person.detect(worker, &input, low)?))
+                }
+                Run::Bodies(network, region) => {
+                    crop_input_signed(rgb, &region, PEDESTRIAN_INPUT, &mut input);
+                    let people = network.detect(worker, &input, pedestrian_threshold)?;
+                    Seen::Bodies(bodies_in(&region, &people))
+                }
+            };
+            Ok::<_, DetectorError>((found, began.elapsed().as_secs_f64()))
+        };
+        let done: Vec<Result<(Seen, f64), DetectorError>> = match runs.as_slice() {
+            // A lone run (the whole image while nobody is followed, in two searches of
+            // three) here, on every core with LiteRT (XNNPACK's threads; the person
+            // detector's lone model: the pedestrian detector, never alone beside it,
+            // has none).
+            [run] => vec![one(run, None)],
+            _ => runs
+                .par_iter()
+                .map(|run| one(run, Some(rayon::current_thread_index().unwrap_or(0))))
+                .collect(),
+        };
         // Without BlazePose's detector, the region as a whole (and the bodies found).
         let mut all = if self.person.is_none() {
             vec![Sighting {
@@ -1199,7 +1212,7 @@ impl ImageDetector {
         };
         if self.stats.frames == self.scene_start || all.is_empty() {
             regions.extend(all);
-        } else if followed || self.empty_searches % EMPTY_SCENE_TILE_EVERY == 1 {
+        } else if a_tile_too(followed, self.empty_searches) {
             regions.push(all[self.next_tile % all.len()]);
             self.next_tile = self.next_tile.wrapping_add(1);
         }
@@ -1312,6 +1325,7 @@ impl ImageDetector {
             self.scene = Some(size);
             self.scene_start = self.stats.frames;
             self.next_tile = 0;
+            self.empty_searches = 0;
         }
         self.tracker.begin();
         let now = self.stats.frames;
@@ -1758,6 +1772,15 @@ mod tests {
             *p = [x, top + (bottom - top) * k as f64 / (n - 1) as f64];
         }
         l
+    }
+
+    #[test]
+    fn while_nobody_is_followed_a_tile_is_searched_in_one_search_of_three() {
+        // Searches in a row while nobody is followed: a tile on the 1st, 4th, 7th...
+        let tiles: Vec<bool> = (1..=7).map(|n| a_tile_too(false, n)).collect();
+        assert_eq!(tiles, [true, false, false, true, false, false, true]);
+        // While someone is followed: every search.
+        assert!((0..5).all(|n| a_tile_too(true, n)));
     }
 
     #[test]

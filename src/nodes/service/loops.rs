@@ -234,8 +234,9 @@ pub struct PipelineReport {
     pub seconds: f64,
     /// Frames the detector took per second of wall time.
     pub frames_per_second: f64,
-    /// Image sources: frames per second from the first image in to the run's end (the
-    /// clock MediaPipe's benchmarks use: model loading and start-up left out).
+    /// Image sources: frames per second from the first image in to the run's end
+    /// (closing the recording included; model loading and start-up left out, as
+    /// `benches/against_mediapipe.py` times MediaPipe).
     pub streaming_frames_per_second: Option<f64>,
     /// Image sources: from a decoded image to each of its newest (lag 0) skeletons
     /// published, one per person.
@@ -317,7 +318,8 @@ pub fn run_pipeline(
     let start = Instant::now();
     let mut node = EstimatorNode::from_service_config(config)?;
     let mut wiring = Wiring::open(config, detector_transport(config))?;
-    let input = wiring.detector_input(config)?;
+    // The estimator shares the cores: the detector's threads yield to it.
+    let input = wiring.detector_input(config, config.detector.nice)?;
     wiring.start_recording(config)?;
     let outputs = wiring.estimator_outputs(config, &node)?;
     let DetectorInput {

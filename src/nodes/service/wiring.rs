@@ -746,6 +746,7 @@ pub fn detector_input(
     config: &ServiceConfig,
     middleware: &mut Middleware,
     live: Option<&LiveView>,
+    nice: u8,
 ) -> Result<DetectorInput, ServiceError> {
     if config.detector.source == DetectorSource::Recording {
         return Ok(DetectorInput {
@@ -758,13 +759,15 @@ pub fn detector_input(
     }
     let dictionary = crate::msgs::shipped::load_dictionary(&config.estimator.dictionary)
         .map_err(SetupError::Dictionary)?;
-    // Loaded on a thread made nice first: the threads its models start (LiteRT's)
+    // Loaded on a thread made `nice` first: the threads its models start (LiteRT's)
     // inherit it; rayon's workers, which run the models in parallel, are made so too.
-    let nice = config.detector.nice;
+    // The main thread's stack size: compiling the models may want more than a spawned
+    // thread's 2 MiB.
     let joints = &dictionary.skeleton().joints;
     let detector = std::thread::scope(|scope| {
         std::thread::Builder::new()
             .name("detector-load".into())
+            .stack_size(8 << 20)
             .spawn_scoped(scope, || {
                 crate::nodes::priority::detector_threads_at_least(nice);
                 ImageDetector::load(&config.detector.images, joints)
@@ -915,12 +918,14 @@ impl Wiring {
         detector_outputs(config, &mut self.middleware, &self.taps)
     }
 
-    /// The detector node's configured input.
+    /// The detector node's configured input, its threads at least `nice` nice
+    /// (`[detector] nice` where an estimator shares the process, else 0).
     pub fn detector_input(
         &mut self,
         config: &ServiceConfig,
+        nice: u8,
     ) -> Result<DetectorInput, ServiceError> {
-        detector_input(config, &mut self.middleware, self.taps.live.as_ref())
+        detector_input(config, &mut self.middleware, self.taps.live.as_ref(), nice)
     }
 
     /// A live camera's own calibration (the `ros2` source's `topics.camera_info`), for

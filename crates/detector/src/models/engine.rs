@@ -1,5 +1,6 @@
 //! A detector network on either runtime: tract's optimised plan (run by any number of
-//! threads at once), or LiteRT's compiled models, one per worker of the parallel runs.
+//! threads at once), or LiteRT's compiled models, one per worker of the parallel runs
+//! (and, if asked for, one on all their cores for a lone run).
 //! BlazePose's person detector ([`super::person`]) and the pedestrian detector
 //! ([`super::pedestrians`]) load and run through it, each naming its input side and its
 //! outputs.

@@ -12,7 +12,8 @@
 //! anything but 2.3 is refused.
 //!
 //! A [`LiteRtNetwork`] is one compiled model with its buffers: not for two threads at
-//! once (the detector keeps one per worker).
+//! once (the detector keeps one per worker, and one on every worker's core for a
+//! frame's lone run: [`CompiledModels`]).
 
 #![allow(
     unsafe_code,

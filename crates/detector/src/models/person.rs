@@ -172,7 +172,8 @@ impl PersonNetwork {
 
     /// Compiles the original detector at `path` with LiteRT, one compiled model per
     /// worker of parallel runs and one on all their threads for a search's lone run (the
-    /// whole image while nobody is followed: bikes.mp4, 11.8 -> 8 ms a run).
+    /// whole image while nobody is followed; bikes.mp4: the mean run 11.2-12.2 ->
+    /// 10.1-10.8 ms, lone and parallel ones together).
     pub fn load_litert(
         runtime: &LiteRt,
         path: &Path,
