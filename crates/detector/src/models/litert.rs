@@ -516,21 +516,22 @@ impl Drop for LiteRtNetwork {
 /// worker of the parallel runs (a compiled model runs one input at a time), each on its
 /// worker's thread, and one for a frame's lone run on all the workers' cores
 /// (XNNPACK's own threads).
-pub struct CompiledModels {
+/// (`N`: the compiled model, [`LiteRtNetwork`]; anything in tests.)
+pub struct CompiledModels<N = LiteRtNetwork> {
     /// One per worker of the parallel runs, one thread each.
-    workers: Vec<std::sync::Mutex<LiteRtNetwork>>,
+    workers: Vec<std::sync::Mutex<N>>,
     /// A frame's only run: XNNPACK's threads, one per worker (`None` with one worker,
     /// or when not asked for: the first worker's model).
-    lone: Option<std::sync::Mutex<LiteRtNetwork>>,
+    lone: Option<std::sync::Mutex<N>>,
 }
 
-impl CompiledModels {
+impl<N> CompiledModels<N> {
     /// `load(threads)` once per worker (one thread each) and, if `lone` and there are
     /// several workers, once on `workers` threads.
     pub fn load(
         workers: usize,
         lone: bool,
-        load: impl Fn(usize) -> Result<LiteRtNetwork, NetworkError>,
+        load: impl Fn(usize) -> Result<N, NetworkError>,
     ) -> Result<Self, NetworkError> {
         let workers = workers.max(1);
         Ok(Self {
@@ -550,7 +551,7 @@ impl CompiledModels {
     pub fn lock(
         &self,
         worker: Option<usize>,
-    ) -> Result<std::sync::MutexGuard<'_, LiteRtNetwork>, NetworkError> {
+    ) -> Result<std::sync::MutexGuard<'_, N>, NetworkError> {
         let net = match (worker, &self.lone) {
             (None, Some(lone)) => lone,
             (w, _) => self
@@ -590,5 +591,36 @@ impl Landmarks {
             Self::Tract(n) => n.run(rgb),
             Self::LiteRt(models) => models.lock(worker)?.run(rgb),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Compiled models standing for LiteRT's: the threads each was made for and which.
+    fn models(workers: usize, lone: bool) -> CompiledModels<(usize, usize)> {
+        let made = std::cell::Cell::new(0);
+        CompiledModels::load(workers, lone, |threads| {
+            made.set(made.get() + 1);
+            Ok((threads, made.get()))
+        })
+        .expect("loads")
+    }
+
+    #[test]
+    fn a_lone_run_gets_the_model_on_every_workers_core_and_a_worker_its_own() {
+        let m = models(3, true);
+        // The lone model first, on 3 threads; then one per worker, on 1 each.
+        assert_eq!(*m.lock(None).expect("lone"), (3, 1));
+        assert_eq!(*m.lock(Some(0)).expect("worker 0"), (1, 2));
+        assert_eq!(*m.lock(Some(2)).expect("worker 2"), (1, 4));
+        // Any worker number, modulo their count.
+        assert_eq!(*m.lock(Some(5)).expect("worker 5"), (1, 4));
+        // Without a lone model (not asked for, or one worker): the first worker's.
+        assert_eq!(*models(3, false).lock(None).expect("none"), (1, 1));
+        let one = models(1, true);
+        assert_eq!(*one.lock(None).expect("one"), (1, 1));
+        assert_eq!(*one.lock(Some(7)).expect("any"), (1, 1));
     }
 }
