@@ -67,6 +67,22 @@ fn weak_metric(skeleton: &Skeleton, poses: &[f64]) -> Vec<f64> {
 }
 
 /// Lifts `uv` (image pixels) with `est`, then adjusts the estimate to perspective.
+/// Where the close scenes stand before the camera, metres.
+const CLOSE: Vector3<f64> = Vector3::new(-0.3, 0.1, 2.5);
+
+/// The s0 fixture's poses (its first `frames`; all: `None`) at [`CLOSE`] before a
+/// pinhole camera, with an estimator of the full K128 dictionary and default settings:
+/// (estimator, skeleton, true poses, keypoints).
+fn close_scene(frames: Option<usize>) -> (Estimator, Skeleton, Vec<f64>, Vec<f64>) {
+    let dict = Dictionary::load(k128()).expect("dictionary");
+    let skel = dict.skeleton().clone();
+    let gt = read(fixture("synthetic-s0").join("gt_3d.npy"));
+    let n = frames.map_or(gt.data.len(), |f| f * 3 * dict.num_joints());
+    let (truth, uv) = place(&skel, &gt.data[..n], CLOSE);
+    let est = Estimator::new(dict, Params::default()).expect("estimator");
+    (est, skel, truth, uv)
+}
+
 fn lift_and_adjust(
     est: &Estimator,
     uv: Vec<f64>,
@@ -143,13 +159,9 @@ fn recovers_a_three_basis_pose_seen_close_up_in_perspective() {
 fn perspective_beats_weak_perspective_on_a_close_sequence() {
     // The s0 fixture's poses at 2.5 m, seen by a pinhole camera; the full K128 dictionary
     // and default settings.
-    let dict = Dictionary::load(k128()).expect("dictionary");
-    let skel = dict.skeleton().clone();
-    let p = dict.num_joints();
-    let gt = read(fixture("synthetic-s0").join("gt_3d.npy"));
-    let offset = Vector3::new(-0.3, 0.1, 2.5);
-    let (truth, uv) = place(&skel, &gt.data, offset);
-    let est = Estimator::new(dict, Params::default()).expect("estimator");
+    let (est, skel, truth, uv) = close_scene(None);
+    let p = est.dictionary().num_joints();
+    let offset = CLOSE;
     let (weak, adjusted) = lift_and_adjust(&est, uv, None, &PerspectiveParams::default());
     let weak_error = root_aligned_mpjpe(&weak_metric(&skel, &weak.poses), &truth, p, skel.root());
     let error = root_aligned_mpjpe(&adjusted.poses, &truth, p, skel.root());
@@ -177,17 +189,13 @@ fn perspective_beats_weak_perspective_on_a_close_sequence() {
 #[test]
 fn unobserved_joints_follow_the_model() {
     // As above, 10 frames, with two joints (a wrist and an ankle) not observed.
-    let dict = Dictionary::load(k128()).expect("dictionary");
-    let skel = dict.skeleton().clone();
-    let p = dict.num_joints();
-    let gt = read(fixture("synthetic-s0").join("gt_3d.npy"));
-    let (truth, uv) = place(&skel, &gt.data[..10 * 3 * p], Vector3::new(-0.3, 0.1, 2.5));
+    let (est, skel, truth, uv) = close_scene(Some(10));
+    let p = est.dictionary().num_joints();
     let mut confidence = vec![1.0; 10 * p];
     for t in 0..10 {
         confidence[t * p + 3] = 0.0;
         confidence[t * p + p - 1] = 0.0;
     }
-    let est = Estimator::new(dict, Params::default()).expect("estimator");
     let (weak, adjusted) =
         lift_and_adjust(&est, uv, Some(confidence), &PerspectiveParams::default());
     assert!(adjusted.poses.iter().all(|v| v.is_finite()));
@@ -240,12 +248,8 @@ fn bad_settings_and_box_counts_are_errors() {
 /// (lower ray distance on most frames, and on average), without losing the pose.
 #[test]
 fn momentum_across_iterations_gets_further_in_the_same_iterations() {
-    let dict = Dictionary::load(k128()).expect("dictionary");
-    let skel = dict.skeleton().clone();
-    let p = dict.num_joints();
-    let gt = read(fixture("synthetic-s0").join("gt_3d.npy"));
-    let (truth, uv) = place(&skel, &gt.data, Vector3::new(-0.3, 0.1, 2.5));
-    let est = Estimator::new(dict, Params::default()).expect("estimator");
+    let (est, skel, truth, uv) = close_scene(None);
+    let p = est.dictionary().num_joints();
     let run = |momentum: bool| {
         let params = PerspectiveParams {
             max_iterations: 35,
@@ -282,12 +286,8 @@ fn momentum_across_iterations_gets_further_in_the_same_iterations() {
 /// once (its result is refused by the caller) instead of running every iteration.
 #[test]
 fn a_nan_keypoint_ends_the_adjustment_at_once() {
-    let dict = Dictionary::load(k128()).expect("dictionary");
-    let skel = dict.skeleton().clone();
-    let p = dict.num_joints();
-    let gt = read(fixture("synthetic-s0").join("gt_3d.npy"));
-    let (_, uv) = place(&skel, &gt.data, Vector3::new(-0.3, 0.1, 2.5));
-    let est = Estimator::new(dict, Params::default()).expect("estimator");
+    let (est, _, _, uv) = close_scene(None);
+    let p = est.dictionary().num_joints();
     let (_, adjusted) = lift_and_adjust(&est, uv.clone(), None, &PerspectiveParams::default());
     let mut fit = adjusted.fits[0].clone();
     let mut frame = uv[..2 * p].to_vec();

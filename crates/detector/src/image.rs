@@ -821,7 +821,7 @@ pub struct ImageDetector {
     /// Motion's looks in the last `MOTION_WINDOW` frames: when, and whether someone was
     /// there.
     motion_looks: Vec<(u64, bool)>,
-    /// One landmark input per look running in parallel.
+    /// One model input per run in parallel (landmark looks, a search's detector runs).
     inputs: Vec<Vec<f32>>,
     /// The people of the current frame (their maps buffers reused).
     found: Vec<Found>,
@@ -1113,17 +1113,21 @@ impl ImageDetector {
         let low = self.tracker_low_threshold();
         let pedestrian_threshold = self.pedestrian_threshold;
         let rgb = &frame.rgb;
-        let one = |run: &Run<'_>, worker: Option<usize>| {
+        // The model inputs: the landmark looks' buffers (not in use during a search).
+        if self.inputs.len() < runs.len() {
+            self.inputs.resize_with(runs.len(), Vec::new);
+        }
+        let inputs = &mut self.inputs[..runs.len()];
+        let one = |run: &Run<'_>, worker: Option<usize>, input: &mut Vec<f32>| {
             let began = Instant::now();
-            let mut input = Vec::new();
             let found = match *run {
                 Run::Faces(person, region) => {
-                    crop_input_signed(rgb, &region, PERSON_INPUT, &mut input);
-                    Seen::Faces(faces_in(&region, &person.detect(worker, &input, low)?))
+                    crop_input_signed(rgb, &region, PERSON_INPUT, input);
+                    Seen::Faces(faces_in(&region, &person.detect(worker, input, low)?))
                 }
                 Run::Bodies(network, region) => {
-                    crop_input_signed(rgb, &region, PEDESTRIAN_INPUT, &mut input);
-                    let people = network.detect(worker, &input, pedestrian_threshold)?;
+                    crop_input_signed(rgb, &region, PEDESTRIAN_INPUT, input);
+                    let people = network.detect(worker, input, pedestrian_threshold)?;
                     Seen::Bodies(bodies_in(&region, &people))
                 }
             };
@@ -1134,10 +1138,13 @@ impl ImageDetector {
             // three) here, on every core with LiteRT (XNNPACK's threads; the person
             // detector's lone model: the pedestrian detector, never alone beside it,
             // has none).
-            [run] => vec![one(run, None)],
+            [run] => vec![one(run, None, &mut inputs[0])],
             _ => runs
                 .par_iter()
-                .map(|run| one(run, Some(rayon::current_thread_index().unwrap_or(0))))
+                .zip(inputs.par_iter_mut())
+                .map(|(run, input)| {
+                    one(run, Some(rayon::current_thread_index().unwrap_or(0)), input)
+                })
                 .collect(),
         };
         // Without BlazePose's detector, the region as a whole (and the bodies found).

@@ -549,12 +549,7 @@ impl EstimatorOutputs {
             let stamp = self.stamp(s);
             self.skeletons.publish(s, stamp);
             // Its latency: the skeleton out, before what is drawn or derived from it.
-            if let Some(clock) = &self.clock
-                && s.lag == 0
-                && s.state != SkeletonState::Lost as u8
-            {
-                clock.skeleton_out(s.header.stamp.nanos());
-            }
+            self.note_latency(s);
             if !self.markers.is_empty() {
                 self.markers
                     .publish(&skeleton_markers(s, &self.bones), stamp);
@@ -640,12 +635,7 @@ impl EstimatorOutputs {
             let stamp = self.stamp(s);
             self.skeletons.publish_async(s, stamp).await;
             // Its latency: the skeleton out, before what is drawn or derived from it.
-            if let Some(clock) = &self.clock
-                && s.lag == 0
-                && s.state != SkeletonState::Lost as u8
-            {
-                clock.skeleton_out(s.header.stamp.nanos());
-            }
+            self.note_latency(s);
             if !self.markers.is_empty() {
                 let markers = skeleton_markers(s, &self.bones);
                 self.markers.publish_async(&markers, stamp).await;
@@ -653,6 +643,17 @@ impl EstimatorOutputs {
             if !self.bodies.is_empty() {
                 self.bodies.publish_async(s, image_size, stamp).await;
             }
+        }
+    }
+
+    /// A newest (lag 0) skeleton of someone present just went out: its latency, on the
+    /// frame clock if there is one.
+    fn note_latency(&self, skeleton: &Skeleton3D) {
+        if let Some(clock) = &self.clock
+            && skeleton.lag == 0
+            && skeleton.state != SkeletonState::Lost as u8
+        {
+            clock.skeleton_out(skeleton.header.stamp.nanos());
         }
     }
 
