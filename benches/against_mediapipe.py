@@ -24,6 +24,7 @@ machine (this 2-core machine's speed varies by a fifth from minute to minute).
 
 import argparse
 import json
+import math
 import os
 import resource
 import subprocess
@@ -93,15 +94,30 @@ def posestream_round(binary, video, extra):
                 capture_output=True, text=True, check=False, timeout=3600)
         except subprocess.TimeoutExpired:
             sys.exit("posestream run took over an hour")
+        except OSError as e:
+            sys.exit(f"{binary}: cannot run it ({e})")
         if out.returncode != 0:
             sys.exit(f"posestream run failed:\n{out.stderr[-2000:]}")
-        report = json.loads(out.stdout)
+        try:
+            report = json.loads(out.stdout)
+        except json.JSONDecodeError as e:
+            sys.exit(f"posestream run --json printed no report ({e})")
     # A run that ended early is not a figure.
     for side in ("detector", "estimator"):
         if report[side].get("input_error"):
             sys.exit(f"posestream run: {side} input error: {report[side]['input_error']}")
-    latency = report["latency"] or {}
-    stages = report["stages"] or {}
+    # Figures posestream left out (an older binary) or had none of (null) are not
+    # figures: NaN, printed as such.
+    def number(value):
+        return float(value) if isinstance(value, (int, float)) else float("nan")
+
+    latency = report.get("latency") or {}
+    if not latency.get("count"):
+        latency = {}
+    stages = {k: number(v) for k, v in (report.get("stages") or {}).items()}
+    fps = number(report.get("streaming_frames_per_second"))
+    if not math.isfinite(fps) or fps <= 0:
+        sys.exit("posestream run reported no streaming_frames_per_second (a build before it?)")
     images = report["detector"]["images"] or {}
     if not images.get("frames"):
         sys.exit("posestream run took no frame of the video")
@@ -110,10 +126,10 @@ def posestream_round(binary, video, extra):
         "with_person": images.get("detected", 0),
         # From its first image, as MediaPipe's clock (model loading left out); the
         # whole run's figure beside it.
-        "fps": report["streaming_frames_per_second"],
-        "run_fps": report["frames_per_second"],
-        "p50": latency.get("median_ms", float("nan")),
-        "p99": latency.get("p99_ms", float("nan")),
+        "fps": fps,
+        "run_fps": number(report.get("frames_per_second")),
+        "p50": number(latency.get("median_ms")),
+        "p99": number(latency.get("p99_ms")),
         "stages": stages,
     }
 
