@@ -273,6 +273,9 @@ pub fn run(args: &EvalArgs) -> Result<(), CliError> {
         let people = super::scenes::markdown(scenes)?;
         print!("{people}");
         write_results(args, &split, &format!("{tables}{people}"))?;
+        let stand = super::distances::markdown(scenes)?;
+        print!("{stand}");
+        write_results(args, &split, &format!("{tables}{people}{stand}"))?;
     }
     Ok(())
 }

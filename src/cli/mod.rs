@@ -3,6 +3,7 @@
 
 pub mod config;
 pub mod detector;
+pub mod distances;
 pub mod error;
 pub mod estimator;
 pub mod eval;

@@ -19,6 +19,7 @@ use pathfinding::matrix::Matrix;
 use posestream::detector::tracker::{Observation, Tracker, TrackingSettings, iou};
 use posestream::metrics::p_mpjpe;
 use posestream::msgs::sensor::CameraInfo;
+use posestream::msgs::tf::TFMessage;
 use posestream::msgs::{HeatMaps, Skeleton3D, SkeletonState, Units};
 use posestream::nodes::config::{ReplayRate, Topics};
 use posestream::nodes::replay::{ReplayOptions, replay};
@@ -48,6 +49,14 @@ pub struct ScenesArgs {
     /// Write the markdown here as well as to stdout.
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Where people stand instead: walking takes at 2-15 m from cameras 1.2-3 m high,
+    /// placed with and without the floor, per distance band.
+    #[arg(long)]
+    pub distances: bool,
+    /// With `--distances`: the training takes' walks (style `normal`) instead of the
+    /// held-out ones (`proud`): what the metric step's constants were measured on.
+    #[arg(long, requires = "distances")]
+    pub train: bool,
 }
 
 /// A scene: its name and people, the first placed by the camera (5 m in front of it),
@@ -83,9 +92,9 @@ const SCENES: [Scene; 3] = [
 ];
 
 #[derive(Parser)]
-struct SynthCommand {
+pub(super) struct SynthCommand {
     #[command(flatten)]
-    args: SynthArgs,
+    pub(super) args: SynthArgs,
 }
 
 /// One person's errors over their refined (lag 10) skeletons.
@@ -101,9 +110,47 @@ struct PersonErrors {
     axes: usize,
 }
 
+impl PersonErrors {
+    fn add(&mut self, e: &FrameError) {
+        self.frames += 1;
+        self.mpjpe += e.mpjpe;
+        self.root_aligned += e.root_aligned;
+        self.p_mpjpe += e.p_mpjpe;
+        self.root += e.root;
+        self.depth += e.depth.abs();
+        self.within[0] += e.within[0];
+        self.within[1] += e.within[1];
+        self.axes += e.axes;
+    }
+}
+
+/// One skeleton's errors against the truth, metres (camera frame).
+#[derive(Debug, Clone, Default)]
+pub(super) struct FrameError {
+    /// The true person (track id of the truth).
+    pub person: u32,
+    /// The frame.
+    pub sequence: u64,
+    /// The true root's distance from the camera.
+    pub distance: f64,
+    pub mpjpe: f64,
+    pub root_aligned: f64,
+    pub p_mpjpe: f64,
+    /// The root's position error.
+    pub root: f64,
+    /// The root's depth error, signed, relative to its true depth (+: too far).
+    pub depth: f64,
+    /// Per-axis errors within 1 and 2 `position_std`, of `axes`.
+    pub within: [usize; 2],
+    pub axes: usize,
+    /// The skeleton's mean bone length over its bones, and the truth's.
+    pub limb: f64,
+    pub true_limb: f64,
+}
+
 /// What the tracker did in a scene.
 #[derive(Debug)]
-struct Tracking {
+pub(super) struct Tracking {
     /// Per true person, the tracker id of each frame it was reported in.
     given: BTreeMap<u32, Vec<u32>>,
     /// True boxes (all frames, all people).
@@ -123,7 +170,7 @@ impl Tracking {
     }
 
     /// IDF1 and the best one-to-one map from tracker ids to true ones.
-    fn idf1(&self) -> (f64, BTreeMap<u32, u32>) {
+    pub(super) fn idf1(&self) -> (f64, BTreeMap<u32, u32>) {
         let truths: Vec<u32> = self.given.keys().copied().collect();
         let mut tracks: Vec<u32> = self.given.values().flatten().copied().collect();
         tracks.sort_unstable();
@@ -152,16 +199,22 @@ impl Tracking {
 }
 
 /// Strips the ids of `input`'s heat maps, shuffles each image's people, gives them the
-/// tracker's ids and writes them (with the camera) to `output`.
-fn track(input: &Path, output: &Path, topics: &Topics) -> Result<Tracking, CliError> {
+/// tracker's ids and writes them (with the camera, and its place over the floor) to
+/// `output`.
+pub(super) fn track(input: &Path, output: &Path, topics: &Topics) -> Result<Tracking, CliError> {
     let maps = read_topic::<HeatMaps>(input, "/posestream/heatmaps")?;
     let infos = read_topic::<CameraInfo>(input, "/camera/camera_info")?;
+    let transforms = read_topic::<TFMessage>(input, &topics.tf_static)?;
     let mut images: BTreeMap<u64, Vec<HeatMaps>> = BTreeMap::new();
     for (t, m) in maps {
         images.entry(t).or_default().push(m);
     }
     let mut tracker = Tracker::new(TrackingSettings::default(), 0.5);
     let mut rec = Recorder::create(output)?;
+    // The camera over the floor, when the scene has one.
+    for (t, tf) in &transforms {
+        rec.write(&topics.tf_static, *t, tf)?;
+    }
     let mut tracking = Tracking {
         given: BTreeMap::new(),
         truth_boxes: 0,
@@ -200,20 +253,30 @@ fn track(input: &Path, output: &Path, topics: &Topics) -> Result<Tracking, CliEr
     Ok(tracking)
 }
 
-/// The errors of `skeletons` (ids already the true ones) at `lag` against `truth`; and
-/// how many of them were not in metres (not scored).
-fn errors(
+/// The errors of `skeletons` (ids already the true ones) at `lag` against `truth`, one
+/// per skeleton scored (in frame order per person); and how many of them were not in
+/// metres (not scored). `bones` are the layout's.
+pub(super) fn frame_errors(
     skeletons: &[Skeleton3D],
     truth: &[(u64, Skeleton3D)],
     lag: u32,
-) -> (BTreeMap<u32, PersonErrors>, usize) {
+    bones: &[(usize, usize)],
+) -> (Vec<FrameError>, usize) {
     let truth: BTreeMap<(u32, u64), &Skeleton3D> = truth
         .iter()
         .map(|(_, g)| ((g.track_id, g.sequence), g))
         .collect();
-    let mut out: BTreeMap<u32, PersonErrors> = BTreeMap::new();
+    let mut out = Vec::new();
     let mut not_metric = 0;
     let mut scored = std::collections::BTreeSet::new();
+    let at = |v: &[f64], j: usize| [v[3 * j], v[3 * j + 1], v[3 * j + 2]];
+    let dist = |a: [f64; 3], b: [f64; 3]| {
+        ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+    };
+    let limb = |v: &[f64]| {
+        let total: f64 = bones.iter().map(|&(a, b)| dist(at(v, a), at(v, b))).sum();
+        total / bones.len().max(1) as f64
+    };
     for s in skeletons
         .iter()
         .filter(|s| s.lag == lag && s.state != SkeletonState::Lost as u8)
@@ -234,10 +297,10 @@ fn errors(
         if joints == 0 || q.len() != p.len() {
             continue;
         }
-        let e = out.entry(s.track_id).or_default();
-        let at = |v: &[f64], j: usize| [v[3 * j], v[3 * j + 1], v[3 * j + 2]];
-        let dist = |a: [f64; 3], b: [f64; 3]| {
-            ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+        let mut e = FrameError {
+            person: s.track_id,
+            sequence: s.sequence,
+            ..FrameError::default()
         };
         let (p0, q0) = (at(p, 0), at(q, 0));
         for j in 0..joints {
@@ -258,10 +321,27 @@ fn errors(
                 e.axes += 1;
             }
         }
-        e.p_mpjpe += p_mpjpe(p, q, joints);
-        e.root += dist(p0, q0);
-        e.depth += (p0[2] - q0[2]).abs() / q0[2];
-        e.frames += 1;
+        e.p_mpjpe = p_mpjpe(p, q, joints);
+        e.root = dist(p0, q0);
+        e.depth = (p0[2] - q0[2]) / q0[2];
+        e.distance = dist(q0, [0.0; 3]);
+        e.limb = limb(p);
+        e.true_limb = limb(q);
+        out.push(e);
+    }
+    (out, not_metric)
+}
+
+/// Per person, the sums of [`frame_errors`].
+fn errors(
+    skeletons: &[Skeleton3D],
+    truth: &[(u64, Skeleton3D)],
+    lag: u32,
+) -> (BTreeMap<u32, PersonErrors>, usize) {
+    let (frames, not_metric) = frame_errors(skeletons, truth, lag, &[]);
+    let mut out: BTreeMap<u32, PersonErrors> = BTreeMap::new();
+    for e in &frames {
+        out.entry(e.person).or_default().add(e);
     }
     (out, not_metric)
 }
@@ -273,7 +353,11 @@ pub fn run(args: &ScenesArgs) -> Result<(), CliError> {
         "the held-out takes the scenes are made of",
         "--data",
     )?;
-    let text = markdown(args)?;
+    let text = if args.distances {
+        super::distances::markdown(args)?
+    } else {
+        markdown(args)?
+    };
     print!("{text}");
     if let Some(out) = &args.out {
         std::fs::write(out, &text).map_err(|source| CliError::File {
@@ -306,17 +390,20 @@ impl ScenesArgs {
         let args = ScenesCommand::try_parse_from(argv)
             .map_err(|e| CliError::Usage(e.to_string()))?
             .args;
-        for scene in &SCENES {
-            for (file, _) in scene.people {
-                let take = args.data.join(file);
-                if !take.is_file() {
-                    return Err(CliError::Usage(format!(
-                        "the scenes need {} (--scenes-data; --no-scenes leaves them out)",
-                        take.display()
-                    )));
-                }
-                posestream::mocap::Bvh::load(&take)?;
+        // The people-in-the-room scenes' takes, and the walks of `--distances`.
+        let takes = SCENES
+            .iter()
+            .flat_map(|scene| scene.people.iter().map(|(file, _)| *file))
+            .chain(super::distances::takes());
+        for file in takes {
+            let take = args.data.join(file);
+            if !take.is_file() {
+                return Err(CliError::Usage(format!(
+                    "the scenes need {} (--scenes-data; --no-scenes leaves them out)",
+                    take.display()
+                )));
             }
+            posestream::mocap::Bvh::load(&take)?;
         }
         args.config.load()?;
         std::fs::create_dir_all(&args.work).map_err(|source| CliError::File {

@@ -6,6 +6,7 @@ use std::path::PathBuf;
 use clap::Args;
 use posestream::mocap::{Bvh, SkeletonMapping};
 use posestream::msgs::sensor::CameraInfo;
+use posestream::msgs::tf::{TFMessage, Transform, TransformStamped};
 use posestream::msgs::{self, Header, HeatMapEncoding, Skeleton3D, SkeletonState, Time, Units};
 use posestream::nodes::config::Topics;
 use posestream::npy;
@@ -41,6 +42,15 @@ pub struct CameraArgs {
     /// Keep the camera where the first frame puts it instead of following the body.
     #[arg(long)]
     pub static_camera: bool,
+    /// The camera's height above the floor, metres: it then stands `--distance` from
+    /// the first person horizontally, looking level and `--tilt` down (instead of
+    /// `--elevation`), and the recording places it over the floor on `/tf_static`
+    /// (`/tf` each frame while it follows the body), frame `map`.
+    #[arg(long)]
+    pub camera_height: Option<f64>,
+    /// With `--camera-height`: degrees the camera looks down from level.
+    #[arg(long, default_value_t = 0.0, requires = "camera_height")]
+    pub tilt: f64,
 }
 
 impl CameraArgs {
@@ -55,6 +65,8 @@ impl CameraArgs {
             focal: self.focal,
             image_size: [self.image_size, self.image_size],
             follow: !self.static_camera,
+            height: self.camera_height,
+            tilt_deg: self.tilt,
         }
     }
 }
@@ -135,7 +147,8 @@ pub struct SynthArgs {
     pub frames: usize,
     /// Also write an MCAP recording (rosbag2-compatible) of the heat maps on
     /// `/posestream/heatmaps`, the ground truth on `/posestream/ground_truth` (track id
-    /// = person) and a pinhole camera's `sensor_msgs/CameraInfo` on `/camera/camera_info`.
+    /// = person) and a pinhole camera's `sensor_msgs/CameraInfo` on `/camera/camera_info`
+    /// (with `--camera-height`, the camera over the floor on `/tf_static` or `/tf`).
     #[arg(long)]
     pub mcap: Option<PathBuf>,
     /// Heat maps in the recording as u8 with a scale (4x smaller) instead of f32.
@@ -370,6 +383,10 @@ fn write_npy(
     Ok(())
 }
 
+/// The frame the recording places the camera in (`--camera-height`): the motion
+/// capture's world, `z = 0` its floor.
+pub const FLOOR_FRAME: &str = "map";
+
 /// The recording: per image, the camera's calibration (pinhole), then each person's
 /// heat maps and truth (track id = person).
 fn write_recording(
@@ -398,6 +415,40 @@ fn write_recording(
             stamp: Time::from_nanos(stamp_ns),
             frame_id: "camera".into(),
         };
+        // The camera over the floor: once when it stands still, each frame when it
+        // follows the body.
+        if cam.height.is_some() && (t == 0 || cam.follow) {
+            let pose = &people[0].view.cameras[t];
+            let (q, x) = (pose.rotation, pose.translation.vector);
+            let tf = TFMessage {
+                transforms: vec![TransformStamped {
+                    header: Header {
+                        stamp: header.stamp.clone(),
+                        frame_id: FLOOR_FRAME.into(),
+                    },
+                    child_frame_id: header.frame_id.clone(),
+                    transform: Transform {
+                        translation: msgs::visualization::Vector3 {
+                            x: x.x,
+                            y: x.y,
+                            z: x.z,
+                        },
+                        rotation: msgs::visualization::Quaternion {
+                            x: q.i,
+                            y: q.j,
+                            z: q.k,
+                            w: q.w,
+                        },
+                    },
+                }],
+            };
+            let topic = if cam.follow {
+                &topics.tf
+            } else {
+                &topics.tf_static
+            };
+            rec.write(topic, stamp_ns as u64, &tf)?;
+        }
         if cam.projection == Projection::Pinhole {
             // The calibration with every image, as a camera driver publishes it.
             let info = CameraInfo {

@@ -271,6 +271,7 @@ impl ServiceConfig {
             ("ground_truth", &t.ground_truth),
             ("camera_info", &t.camera_info),
             ("tf", &t.tf),
+            ("tf_static", &t.tf_static),
         ];
         // The bodies' namespace: its topics are names of their own (`/humans/bodies/tracked`).
         check_topic_name("hri_bodies", &t.hri_bodies).map_err(|x| x.within("topics"))?;
@@ -491,8 +492,12 @@ pub struct Topics {
     /// The camera's calibration (`sensor_msgs/CameraInfo`) beside the heat maps: the
     /// estimator's metric step takes it (ROS 2 input, recordings).
     pub camera_info: String,
-    /// Transforms of each person's body and joint frames (`tf2_msgs/TFMessage`).
+    /// Transforms of each person's body and joint frames (`tf2_msgs/TFMessage`); the
+    /// estimator also reads the floor's frame from it (`[estimator.metric.floor]`).
     pub tf: String,
+    /// Transforms valid at all times (`tf2_msgs/TFMessage`, latched): where the estimator
+    /// reads a fixed camera's place over the floor (`[estimator.metric.floor] source = "tf"`).
+    pub tf_static: String,
     /// The namespace of REP-155's bodies: `<this>/tracked` lists the ids, and
     /// `<this>/<id>/roi` and `<this>/<id>/skeleton2d` describe each.
     pub hri_bodies: String,
@@ -509,6 +514,7 @@ impl Default for Topics {
             ground_truth: "/posestream/ground_truth".into(),
             camera_info: "/camera/camera_info".into(),
             tf: "/tf".into(),
+            tf_static: "/tf_static".into(),
             hri_bodies: "/humans/bodies".into(),
         }
     }

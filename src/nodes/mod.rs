@@ -26,16 +26,20 @@ pub mod priority;
 pub mod replay;
 pub mod service;
 pub mod shown_images;
+pub mod tf_buffer;
 pub mod unknown_ids;
 
 use std::collections::{BTreeMap, VecDeque};
 use std::panic::AssertUnwindSafe;
 
+use self::tf_buffer::TfBuffer;
 use crate::camera::{CropBox, Intrinsics, PixelMap};
 use crate::error::EstimateError;
 use crate::estimator::Estimator;
+use crate::floor::{BodyScale, FloorModel, FloorSource};
 use crate::limits::{LimitError, Limits};
 use crate::metric::{MetricPose, MetricSettings, MetricStep};
+use crate::msgs::tf::TFMessage;
 use crate::msgs::{self, DecodeError, Skeleton3D, Time, Units};
 use crate::skeleton::same_layout;
 use crate::streaming::{
@@ -100,6 +104,12 @@ pub enum NodeError {
         /// What is wrong with it.
         reason: String,
     },
+    /// A transform the TF buffer cannot hold (`tf_buffer`): refused.
+    #[error("transform: {reason}; refused")]
+    Transform {
+        /// What is wrong with it.
+        reason: String,
+    },
     /// A frame of a new track while `max_tracks` tracks run, each with a frame of the
     /// same image: refused.
     #[error(
@@ -155,6 +165,7 @@ impl NodeError {
             Self::DuplicateId { .. } => "duplicate-id",
             Self::NoTrack { .. } => "no-track",
             Self::CameraInfo { .. } => "camera-info",
+            Self::Transform { .. } => "tf",
         }
     }
 }
@@ -227,6 +238,8 @@ struct Track {
     last_taken: u64,
     /// A duplicate of its id in one image was warned about.
     duplicate_warned: bool,
+    /// The person's size from their feet on the floor (with a floor).
+    scale: BodyScale,
 }
 
 /// Heat-map messages in, skeleton messages out, through one [`WindowEstimator`] per
@@ -274,10 +287,22 @@ pub struct EstimatorNode {
     /// People without ids: their messages of the image in hand, and their tracker
     /// (taken out while their messages are handled).
     unknown: Option<unknown_ids::UnknownIds>,
+    /// The floor from TF (`[estimator.metric.floor] source = "tf"`).
+    tf: Option<FloorFromTf>,
     /// Test builds (`--features fault-injection`): the sequence number whose handling
     /// panics, from `POSESTREAM_INJECT_PANIC_AT`.
     #[cfg(feature = "fault-injection")]
     panic_at: Option<u64>,
+}
+
+/// The floor from TF: the transforms taken, the floor frame, and what the floor in hand
+/// was looked up for (the buffer's version and the camera frame).
+struct FloorFromTf {
+    buffer: TfBuffer,
+    frame: String,
+    looked_up: Option<(u64, String)>,
+    /// The floor was missing once (logged once).
+    missing_said: bool,
 }
 
 /// The metric step of a node whose camera is known.
@@ -287,6 +312,8 @@ struct Metric {
     /// The images' size (columns, rows), when a `CameraInfo` gave it: a crop box whose
     /// centre is outside is not of these images.
     size: Option<(f64, f64)>,
+    /// The floor under the camera, when known (`[estimator.metric.floor]`).
+    floor: Option<FloorModel>,
     /// The frame in hand, in metres (reused).
     pose: MetricPose,
     /// Estimates the step failed on (published in dictionary units).
@@ -334,6 +361,7 @@ impl EstimatorNode {
             spare: Vec::new(),
             refused: Refusals::default(),
             unknown: Some(unknown_ids::UnknownIds::new(DEFAULT_MAX_TRACKS)),
+            tf: None,
             #[cfg(feature = "fault-injection")]
             panic_at: std::env::var("POSESTREAM_INJECT_PANIC_AT")
                 .ok()
@@ -358,6 +386,12 @@ impl EstimatorNode {
         MetricStep::new(self.template.estimator(), settings.clone())?;
         self.metric_settings = settings.clone();
         self.metric = None;
+        self.tf = (settings.floor.source == FloorSource::Tf).then(|| FloorFromTf {
+            buffer: TfBuffer::new(),
+            frame: settings.floor.frame.clone(),
+            looked_up: None,
+            missing_said: false,
+        });
         if let Some(camera) = settings.camera() {
             self.set_camera(camera, None)?;
         }
@@ -379,6 +413,7 @@ impl EstimatorNode {
                     step: MetricStep::new(self.template.estimator(), self.metric_settings.clone())?,
                     camera,
                     size,
+                    floor: self.metric_settings.floor.configured(),
                     pose: MetricPose::default(),
                     failures: 0,
                     timing: MetricTiming::default(),
@@ -422,6 +457,52 @@ impl EstimatorNode {
         }
         self.set_camera(camera, size)
             .map_err(|e| refuse(e.to_string()))
+    }
+
+    /// Takes transforms (`/tf_static`, `/tf`): with the floor from TF, the camera's place
+    /// over the floor frame comes from them (the newest of each frame). Transforms the
+    /// buffer cannot hold are refused and counted (`tf`); without a floor from TF they
+    /// are not looked at.
+    pub fn transforms(&mut self, message: &TFMessage) {
+        let Some(tf) = &mut self.tf else {
+            return;
+        };
+        for reason in tf.buffer.take(message) {
+            let e = NodeError::Transform { reason };
+            self.refused.note(e.kind(), &e);
+        }
+    }
+
+    /// The floor the metric step uses now (from the configuration or TF).
+    pub fn floor(&self) -> Option<FloorModel> {
+        self.metric.as_ref().and_then(|m| m.floor)
+    }
+
+    /// With the floor from TF: looks it up again for `camera_frame` when a transform
+    /// came since, or the camera frame changed.
+    fn update_floor(&mut self, camera_frame: &str) {
+        let (Some(tf), Some(m)) = (&mut self.tf, &mut self.metric) else {
+            return;
+        };
+        let version = tf.buffer.version();
+        if tf
+            .looked_up
+            .as_ref()
+            .is_some_and(|(v, f)| *v == version && f == camera_frame)
+        {
+            return;
+        }
+        tf.looked_up = Some((version, camera_frame.to_owned()));
+        let pose = tf.buffer.lookup(&tf.frame, camera_frame);
+        m.floor = pose.and_then(|p| FloorModel::new(p.rotation, p.translation.vector).ok());
+        if m.floor.is_none() && !tf.missing_said {
+            tf.missing_said = true;
+            tracing::warn!(
+                "no floor yet: no transform from {} to the camera frame {camera_frame:?} on \
+                 /tf_static or /tf (or the camera is not above it); metres from the assumed size",
+                tf.frame
+            );
+        }
     }
 
     /// Estimates the metric step failed on (a pose without size, a non-finite result):
@@ -821,6 +902,7 @@ impl EstimatorNode {
             last_sequence: 0,
             last_taken: 0,
             duplicate_warned: false,
+            scale: BodyScale::new(self.metric_settings.floor.contact_frames),
         });
         Ok(self.tracks.len() - 1)
     }
@@ -843,6 +925,16 @@ impl EstimatorNode {
 
     /// Turns the estimates in hand of track `i` into messages ([`release`]).
     fn release(&mut self, i: usize, out: &mut Vec<Skeleton3D>) {
+        if self.tf.is_some()
+            && let Some(info) = self.tracks[i].frames.back_mut()
+        {
+            // The camera frame's floor (its id lent out and back: no allocation).
+            let frame = std::mem::take(&mut info.frame_id);
+            self.update_floor(&frame);
+            if let Some(info) = self.tracks[i].frames.back_mut() {
+                info.frame_id = frame;
+            }
+        }
         let Self {
             tracks,
             estimates,
@@ -946,7 +1038,7 @@ fn release(
             continue;
         };
         let metres = match metric.as_deref_mut() {
-            Some(m) => match metric_pose(m, e, info) {
+            Some(m) => match metric_pose(m, e, info, &mut track.scale) {
                 Ok(()) => Some(&m.pose),
                 Err(error) => {
                     m.failures += 1;
@@ -979,7 +1071,12 @@ fn release(
 /// The metric pose of estimate `e` into `m.pose`: refused when the frame's crop box is
 /// not in the camera's images (it does not overlap them; a crop may reach past an
 /// image's edge, as BlazePose's body circle does).
-fn metric_pose(m: &mut Metric, e: &FrameEstimate, info: &FrameInfo) -> Result<(), String> {
+fn metric_pose(
+    m: &mut Metric,
+    e: &FrameEstimate,
+    info: &FrameInfo,
+    scale: &mut BodyScale,
+) -> Result<(), String> {
     if let Some((width, height)) = m.size {
         let [x0, y0] = info.to_image.apply(-0.5, -0.5);
         let [x1, y1] = info
@@ -995,7 +1092,13 @@ fn metric_pose(m: &mut Metric, e: &FrameEstimate, info: &FrameInfo) -> Result<()
     let began = std::time::Instant::now();
     let adjusted = m
         .step
-        .adjust(e, &info.to_image, &m.camera, &mut m.pose)
+        .adjust(
+            e,
+            &info.to_image,
+            &m.camera,
+            m.floor.as_ref().map(|f| (f, scale)),
+            &mut m.pose,
+        )
         .map_err(|e| e.to_string());
     m.timing.estimates += 1;
     m.timing.seconds += began.elapsed().as_secs_f64();

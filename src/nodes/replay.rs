@@ -23,6 +23,7 @@ use super::service::{EstimatorOutputs, Publishers, Taps, live_view, pace, run_es
 use super::{EstimatorNode, Refusals, SetupError};
 use crate::files::{OutputIsInput, check_output};
 use crate::msgs::sensor::CameraInfo;
+use crate::msgs::tf::TFMessage;
 use crate::msgs::{self, HeatMaps, HeatMapsView, RosMessage, Skeleton3D};
 use crate::recording::{RecordingError, RecordingReader, write_rosbag2_metadata};
 use crate::streaming::StreamCounters;
@@ -184,6 +185,8 @@ pub fn replay(
         live: live.as_ref(),
         camera_topic: &topics.camera_info,
         camera: None,
+        tf_topics: [&topics.tf_static, &topics.tf],
+        tf: None,
         pace: (options.rate == ReplayRate::Recorded).then(|| (Instant::now(), None)),
         stop,
         heatmaps: 0,
@@ -314,6 +317,10 @@ struct RecordingFrames<'a> {
     /// The camera-info topic, and the calibration read last (not yet taken).
     camera_topic: &'a str,
     camera: Option<CameraInfo>,
+    /// The transform topics (`/tf_static`, `/tf`), and the transforms read last (not
+    /// yet taken).
+    tf_topics: [&'a str; 2],
+    tf: Option<TFMessage>,
     /// When pacing: the start, and the first log time.
     pace: Option<(Instant, Option<u64>)>,
     stop: &'a AtomicBool,
@@ -331,6 +338,10 @@ impl FrameSource for RecordingFrames<'_> {
 
     fn camera_info(&mut self) -> Option<CameraInfo> {
         self.camera.take()
+    }
+
+    fn transforms(&mut self) -> Option<TFMessage> {
+        self.tf.take()
     }
 
     /// Never waits, but for the pace.
@@ -416,6 +427,21 @@ impl FrameSource for RecordingFrames<'_> {
                 return match msgs::decode::<CameraInfo>(&msg.data) {
                     Ok(info) => {
                         self.camera = Some(info);
+                        Ok(Received::Idle)
+                    }
+                    Err(e) => Err(TransportError::Malformed {
+                        transport: "mcap",
+                        topic: msg.topic,
+                        reason: e.to_string(),
+                    }),
+                };
+            }
+            if self.tf_topics.contains(&msg.topic.as_str()) && msg.schema == TFMessage::NAME {
+                // Handed to the estimator (the floor) before the frames after it; one
+                // that does not decode is refused and counted.
+                return match msgs::decode::<TFMessage>(&msg.data) {
+                    Ok(tf) => {
+                        self.tf = Some(tf);
                         Ok(Received::Idle)
                     }
                     Err(e) => Err(TransportError::Malformed {

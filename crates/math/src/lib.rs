@@ -34,6 +34,7 @@ pub mod camera;
 pub mod dictionary;
 pub mod error;
 pub mod estimator;
+pub mod floor;
 pub mod geometry;
 pub mod heatmaps;
 pub mod metric;

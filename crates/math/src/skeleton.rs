@@ -108,6 +108,29 @@ impl Skeleton {
         Some(Vector3::z().cross(&right))
     }
 
+    /// The joints a standing person's weight is on (their ankles): the default layout's
+    /// `l-ankle` and `r-ankle` (the authors' `ltibia` and `rtibia`), or, in another
+    /// layout, joints whose name says ankle or foot.
+    pub fn feet(&self) -> Vec<usize> {
+        if is_default_layout(&self.joints) {
+            return vec![3, 6];
+        }
+        self.joints
+            .iter()
+            .enumerate()
+            .filter(|(_, name)| {
+                let lower = name.to_ascii_lowercase();
+                lower.contains("ankle") || lower.contains("foot")
+            })
+            .map(|(j, _)| j)
+            .collect()
+    }
+
+    /// The top of the torso: the thorax (the authors' name too), else the neck.
+    pub fn torso_top(&self) -> Option<usize> {
+        self.index_of("thorax").or_else(|| self.index_of("neck"))
+    }
+
     /// Left/right joint pairs, found by name: `l`/`r` prefixes (`lhumerus`/`rhumerus`,
     /// `l-knee`/`r-knee`) or `left`/`right` (`LeftArm`/`RightArm`).
     pub fn left_right_pairs(&self) -> Vec<(usize, usize)> {

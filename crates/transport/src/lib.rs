@@ -184,6 +184,12 @@ pub trait FrameSource: Send {
     fn camera_info(&mut self) -> Option<posestream_msgs::sensor::CameraInfo> {
         None
     }
+
+    /// Transforms (`/tf_static`, `/tf`), if some came since the last call; returned as
+    /// [`FrameSource::camera_info`] is.
+    fn transforms(&mut self) -> Option<posestream_msgs::tf::TFMessage> {
+        None
+    }
 }
 
 /// A [`Source`] of [`HeatMaps`] messages as a [`FrameSource`]: each message is lent as

@@ -118,6 +118,11 @@ pub fn run_estimator(
                     let _ = node.camera_info(&info);
                     continue;
                 }
+                if let Some(tf) = source.transforms() {
+                    // Refusals counted by the node.
+                    node.transforms(&tf);
+                    continue;
+                }
                 // A quiet input: the image handled last is complete (its people without
                 // ids are given theirs and estimated).
                 node.complete_image(&mut out);

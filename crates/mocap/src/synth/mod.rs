@@ -49,6 +49,15 @@ pub struct CameraSpec {
     /// Follow the body: the camera keeps its place relative to the root's current
     /// horizontal position (a dolly); otherwise it stays where the first frame puts it.
     pub follow: bool,
+    /// The camera's height above the floor (the motion capture's `z = 0`), metres: it
+    /// then stands `distance` from the root horizontally, looking level and `tilt_deg`
+    /// down, and `elevation_deg` is not used. `None`: it looks at the root from
+    /// `elevation_deg` above it.
+    #[serde(default)]
+    pub height: Option<f64>,
+    /// With a `height`: degrees the camera looks down from level.
+    #[serde(default)]
+    pub tilt_deg: f64,
 }
 
 impl Default for CameraSpec {
@@ -62,6 +71,8 @@ impl Default for CameraSpec {
             focal: 1000.0,
             image_size: [1000.0, 1000.0],
             follow: true,
+            height: None,
+            tilt_deg: 0.0,
         }
     }
 }
@@ -77,6 +88,8 @@ impl CameraSpec {
             self.focal,
             self.image_size[0],
             self.image_size[1],
+            self.height.unwrap_or(1.0),
+            self.tilt_deg,
         ];
         if finite.iter().any(|v| !v.is_finite()) {
             return Err("camera values must be finite".into());
@@ -86,6 +99,12 @@ impl CameraSpec {
         }
         if self.elevation_deg.abs() >= 90.0 {
             return Err("camera elevation must lie strictly between -90 and 90 degrees".into());
+        }
+        if self.height.is_some_and(|h| h <= 0.0) {
+            return Err("camera height must be positive (above the floor)".into());
+        }
+        if self.tilt_deg.abs() >= 90.0 {
+            return Err("camera tilt must lie strictly between -90 and 90 degrees".into());
         }
         if self.image_size.iter().any(|&v| v < 1.0) {
             return Err("image size must be at least 1 x 1".into());
@@ -115,6 +134,9 @@ pub struct View {
     pub camera_3d: Vec<f64>,
     /// Their images, pixels: `[x, y]` per joint, frame-major.
     pub image_2d: Vec<f64>,
+    /// The camera frame in the world (the motion capture's axes, z up, `z = 0` the
+    /// floor), per frame.
+    pub cameras: Vec<nalgebra::Isometry3<f64>>,
 }
 
 /// Which joints of each person another person hides, frame by frame: a joint is hidden
@@ -218,17 +240,33 @@ pub fn view_from(
     let k = cam.intrinsics();
     let mut camera_3d = Vec::with_capacity(seq.frames * p * 3);
     let mut image_2d = Vec::with_capacity(seq.frames * p * 2);
+    let mut cameras = Vec::with_capacity(seq.frames);
     for t in 0..seq.frames {
         let az = (cam.azimuth_deg + cam.orbit_deg_per_s * t as f64 * seq.frame_time).to_radians();
-        let el = cam.elevation_deg.to_radians();
         let target = if cam.follow { root_at(t) } else { first_root };
-        let target = Vector3::new(target.x, target.y, first_root.z);
-        let dir = (front * az.cos() + left * az.sin()) * el.cos() + Vector3::z() * el.sin();
-        let centre = target + dir * cam.distance;
-        let forward = -dir;
+        let level = front * az.cos() + left * az.sin();
+        let (centre, forward) = match cam.height {
+            Some(height) => {
+                let tilt = cam.tilt_deg.to_radians();
+                let centre = Vector3::new(target.x, target.y, height) + level * cam.distance;
+                (centre, -level * tilt.cos() - Vector3::z() * tilt.sin())
+            }
+            None => {
+                let el = cam.elevation_deg.to_radians();
+                let target = Vector3::new(target.x, target.y, first_root.z);
+                let dir = level * el.cos() + Vector3::z() * el.sin();
+                (target + dir * cam.distance, -dir)
+            }
+        };
         let right = forward.cross(&Vector3::z()).normalize();
         let down = forward.cross(&right);
         let r = Matrix3::from_rows(&[right.transpose(), down.transpose(), forward.transpose()]);
+        cameras.push(nalgebra::Isometry3::from_parts(
+            centre.into(),
+            nalgebra::UnitQuaternion::from_rotation_matrix(
+                &nalgebra::Rotation3::from_matrix_unchecked(r.transpose()),
+            ),
+        ));
         for j in 0..p {
             let w = Vector3::from_column_slice(&seq.positions[3 * (t * p + j)..][..3]);
             let c = r * (w - centre);
@@ -256,6 +294,7 @@ pub fn view_from(
         frames: seq.frames,
         camera_3d,
         image_2d,
+        cameras,
     })
 }
 
@@ -420,6 +459,42 @@ mod tests {
         let boxes = crop_boxes(&v.image_2d, 17, 1.2);
         assert_eq!(boxes.len(), 11);
         assert!((boxes[0].width - boxes[0].height).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_camera_at_a_height_looks_down_its_tilt_and_places_itself_over_the_floor() {
+        let skel = default_layout();
+        let seq = standing(3);
+        let cam = CameraSpec {
+            height: Some(2.0),
+            tilt_deg: 20.0,
+            distance: 4.0,
+            ..CameraSpec::default()
+        };
+        let v = view(&seq, &skel, &cam).expect("view");
+        let pose = v.cameras[0];
+        // The camera stands 2 m above the floor, 4 m from the root horizontally.
+        assert!((pose.translation.z - 2.0).abs() < 1e-12);
+        let root = Vector3::from_column_slice(&seq.positions[..3]);
+        let away = pose.translation.vector - root;
+        assert!((away.x.hypot(away.y) - 4.0).abs() < 1e-9);
+        // Its optical axis points 20 degrees below level.
+        let forward = pose.rotation * Vector3::z();
+        assert!(
+            (forward.z + 20f64.to_radians().sin()).abs() < 1e-12,
+            "{forward:?}"
+        );
+        // The camera-frame truth is the world seen from that pose.
+        for j in 0..17 {
+            let c = Vector3::from_column_slice(&v.camera_3d[3 * j..3 * j + 3]);
+            let w = Vector3::from_column_slice(&seq.positions[3 * j..3 * j + 3]);
+            assert!((pose * nalgebra::Point3::from(c) - nalgebra::Point3::from(w)).norm() < 1e-9);
+        }
+        let bad = CameraSpec {
+            height: Some(-1.0),
+            ..CameraSpec::default()
+        };
+        assert!(bad.validate().is_err());
     }
 
     #[test]

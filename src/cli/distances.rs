@@ -1,0 +1,319 @@
+//! `posestream scenes --distances`: where people stand. Scenes of held-out walking takes
+//! (`synth`: a static camera 1-3 m above the floor looking level to 30 degrees down, its
+//! place over the floor on `/tf_static`, people walking from 2 to 15 m away), their ids
+//! removed and given by posestream's tracker as in `scenes`, replayed in three modes: no
+//! floor with the assumed body size, no floor with the subjects' true size, and the floor
+//! from TF with the assumed size. Per distance band of the true root: the root's error
+//! relative to its distance (median over frames and people), the signed depth error, the
+//! MPJPE in the camera frame, the body size from the skeleton's bones against the
+//! subject's after 2 s, the share of per-axis errors within 1 and 2 `position_std`.
+
+use std::path::Path;
+use std::sync::atomic::AtomicBool;
+
+use clap::Parser;
+use posestream::floor::FloorSource;
+use posestream::msgs::Skeleton3D;
+use posestream::nodes::config::{ReplayRate, ServiceConfig};
+use posestream::nodes::replay::{ReplayOptions, replay};
+use posestream::recording::read_topic;
+
+use super::CliError;
+use super::scenes::{FrameError, ScenesArgs, SynthCommand, frame_errors, track};
+
+/// A scene of people walking at several distances: the camera's height, tilt, and where
+/// it stands from the first person (`synth --distance`, `--azimuth`), and the people
+/// (take, `synth --place`).
+struct Walk {
+    name: &'static str,
+    height: f64,
+    tilt: f64,
+    distance: f64,
+    azimuth: f64,
+    people: &'static [(&'static str, &'static str)],
+}
+
+/// Held-out walking takes (the `proud` style) seen from several heights and tilts.
+const WALKS: [Walk; 4] = [
+    Walk {
+        name: "camera 1.2 m high, level: one walks away from 2.5 m, one backs away facing it",
+        height: 1.2,
+        tilt: 0.0,
+        distance: 2.5,
+        azimuth: 165.0,
+        people: &[
+            ("dataset-1_walk_proud_001.bvh", ""),
+            ("dataset-1_walk-back_proud_001.bvh", "0,-1.5,180"),
+        ],
+    },
+    Walk {
+        name: "camera 2.2 m high, 15 degrees down: two walk away, side by side",
+        height: 2.2,
+        tilt: 15.0,
+        distance: 3.0,
+        azimuth: 195.0,
+        people: &[
+            ("dataset-1_walk_proud_002.bvh", ""),
+            ("dataset-1_walk_proud_001.bvh", "-1.0,1.5"),
+        ],
+    },
+    Walk {
+        name: "camera 3 m high, 30 degrees down: two walk across, 4 and 7 m away",
+        height: 3.0,
+        tilt: 30.0,
+        distance: 4.0,
+        azimuth: 100.0,
+        people: &[
+            ("dataset-1_walk-left_proud_001.bvh", ""),
+            ("dataset-1_walk-right_proud_001.bvh", "3.0,-3.0"),
+        ],
+    },
+    Walk {
+        name: "camera 1.5 m high, 5 degrees down: two walk across, 9 and 12 m away",
+        height: 1.5,
+        tilt: 5.0,
+        distance: 9.0,
+        azimuth: 80.0,
+        people: &[
+            ("dataset-1_walk_proud_001.bvh", ""),
+            ("dataset-1_walk_proud_002.bvh", "0,-3.0,180"),
+        ],
+    },
+];
+
+/// The takes of the walks.
+pub fn takes() -> impl Iterator<Item = &'static str> {
+    WALKS
+        .iter()
+        .flat_map(|walk| walk.people.iter().map(|(file, _)| *file))
+}
+
+/// The take of a walk: the held-out one, or with `train` the training style's.
+fn take(file: &str, train: bool) -> String {
+    if train {
+        file.replace("_proud_", "_normal_")
+    } else {
+        file.to_owned()
+    }
+}
+
+/// The distance bands of the tables, metres (true root from the camera).
+const BANDS: [(f64, f64); 4] = [(2.0, 4.0), (4.0, 7.0), (7.0, 10.0), (10.0, 15.0)];
+
+/// How a replay places people.
+struct Mode {
+    name: &'static str,
+    floor: FloorSource,
+    /// The metric step's mean limb length: `None` the configuration's (the assumed size),
+    /// else the subjects' (`--mean-limb-length`).
+    true_size: bool,
+}
+
+const MODES: [Mode; 3] = [
+    Mode {
+        name: "no floor, assumed size",
+        floor: FloorSource::None,
+        true_size: false,
+    },
+    Mode {
+        name: "no floor, true size",
+        floor: FloorSource::None,
+        true_size: true,
+    },
+    Mode {
+        name: "floor from TF, assumed size",
+        floor: FloorSource::Tf,
+        true_size: false,
+    },
+];
+
+/// Frames after a person's first before their size is scored (2 s at 30 frames/s).
+const SIZE_AFTER_FRAMES: u64 = 60;
+
+/// The distance scenes evaluated: a markdown section (`## Where people stand`).
+pub fn markdown(args: &ScenesArgs) -> Result<String, CliError> {
+    let base = args.config.load()?;
+    let mut errors: Vec<Vec<FrameError>> = vec![Vec::new(); MODES.len()];
+    for (i, walk) in WALKS.iter().enumerate() {
+        let dir = args.work.join(format!("walk-{i}"));
+        let recording = dir.join("walk.mcap");
+        synth(args, walk, &dir, &recording)?;
+        let tracked = dir.join("tracked.mcap");
+        let tracking = track(&recording, &tracked, &base.topics)?;
+        let (_, to_truth) = tracking.idf1();
+        let truth = read_topic::<Skeleton3D>(&recording, "/posestream/ground_truth")?;
+        for (m, mode) in MODES.iter().enumerate() {
+            let config = mode_config(&base, mode, args.mean_limb_length)?;
+            let out = dir.join(format!("skeletons-{m}.mcap"));
+            let options = ReplayOptions {
+                record: Some(out.clone()),
+                rosbag2: false,
+                rate: ReplayRate::Fast,
+                paced_for_live: false,
+            };
+            replay(&config, &tracked, &options, &AtomicBool::new(false))?;
+            let skeletons: Vec<Skeleton3D> =
+                read_topic::<Skeleton3D>(&out, &config.topics.skeletons)?
+                    .into_iter()
+                    .filter_map(|(_, mut s)| {
+                        s.track_id = *to_truth.get(&s.track_id)?;
+                        // One person of one scene: ids of their own across scenes.
+                        s.track_id += 100 * i as u32;
+                        Some(s)
+                    })
+                    .collect();
+            let truth: Vec<(u64, Skeleton3D)> = truth
+                .iter()
+                .map(|(t, g)| {
+                    let mut g = g.clone();
+                    g.track_id += 100 * i as u32;
+                    (*t, g)
+                })
+                .collect();
+            let lag = u32::try_from(config.estimator.window.lag).unwrap_or(u32::MAX);
+            let bones = posestream::skeleton::default_layout()
+                .bones()
+                .collect::<Vec<_>>();
+            let (frames, _) = frame_errors(&skeletons, &truth, lag, &bones);
+            errors[m].extend(frames);
+        }
+    }
+    Ok(table(args, &base, &errors))
+}
+
+/// `synth` of one walk into `recording`.
+fn synth(args: &ScenesArgs, walk: &Walk, dir: &Path, recording: &Path) -> Result<(), CliError> {
+    let mut argv: Vec<String> = vec!["synth".into(), "--mapping".into()];
+    argv.push(args.mapping.display().to_string());
+    for (file, place) in walk.people {
+        argv.push("--bvh".into());
+        argv.push(args.data.join(take(file, args.train)).display().to_string());
+        if !place.is_empty() {
+            argv.push(format!("--place={place}"));
+        }
+    }
+    argv.extend([
+        "--static-camera".into(),
+        format!("--camera-height={}", walk.height),
+        format!("--tilt={}", walk.tilt),
+        format!("--distance={}", walk.distance),
+        format!("--azimuth={}", walk.azimuth),
+        "--out".into(),
+        dir.join("seq").display().to_string(),
+        "--mcap".into(),
+        recording.display().to_string(),
+    ]);
+    let synth = SynthCommand::try_parse_from(&argv)
+        .map_err(|e| CliError::Usage(format!("{}: {e}", walk.name)))?;
+    super::synth::run(&synth.args)
+}
+
+/// The configuration of one mode.
+fn mode_config(
+    base: &ServiceConfig,
+    mode: &Mode,
+    true_limb: f64,
+) -> Result<ServiceConfig, CliError> {
+    let mut config = base.clone();
+    config.outputs.ros2 = false;
+    if mode.true_size {
+        config.estimator.metric.mean_limb_length = true_limb;
+    }
+    config.estimator.metric.floor.source = mode.floor;
+    config.estimator.metric.floor.frame = super::synth::FLOOR_FRAME.into();
+    config
+        .validate()
+        .map_err(|e| CliError::Usage(format!("{}: {e}", mode.name)))?;
+    Ok(config)
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
+/// The tables: one row per mode and band.
+fn table(args: &ScenesArgs, base: &ServiceConfig, errors: &[Vec<FrameError>]) -> String {
+    let mut text = format!(
+        "## Where people stand (`posestream scenes --distances{}`)\n\n\
+         {} walking takes (`{}`), two people a scene, seen by a static camera \
+         1.2-3 m above the floor, level to 30 degrees down (focal 1000 px), walking \
+         between 2 and 15 m from it; ids from posestream's tracker; the refined (lag {}) \
+         skeletons against the truth, camera frame. Assumed size: mean bone length {} m \
+         (the configuration's); the subjects' is {} m. Root: the root's error over its \
+         distance, median over frames and people; depth: the signed error of its depth, \
+         mean (+: too far); size: the skeleton's mean bone length against the subject's \
+         after {SIZE_AFTER_FRAMES} frames (2 s), median of the relative error.\n\n\
+         | mode | distance | frames | root | depth (signed) | MPJPE | root-aligned | size | size (signed) | within 1 / 2 std |\n\
+         |---|---|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+        if args.train { " --train" } else { "" },
+        if args.train { "Training" } else { "Held-out" },
+        if args.train { "normal" } else { "proud" },
+        base.estimator.window.lag,
+        base.estimator.metric.mean_limb_length,
+        args.mean_limb_length,
+    );
+    for (mode, frames) in MODES.iter().zip(errors) {
+        let first: std::collections::BTreeMap<u32, u64> =
+            frames
+                .iter()
+                .fold(std::collections::BTreeMap::new(), |mut m, e| {
+                    let s = m.entry(e.person).or_insert(e.sequence);
+                    *s = (*s).min(e.sequence);
+                    m
+                });
+        let bands = BANDS
+            .iter()
+            .map(|&(lo, hi)| (format!("{lo:.0}-{hi:.0} m"), lo, hi))
+            .chain(std::iter::once(("all".to_string(), 0.0, f64::INFINITY)));
+        for (band, lo, hi) in bands {
+            let in_band: Vec<&FrameError> = frames
+                .iter()
+                .filter(|e| e.distance >= lo && e.distance < hi)
+                .collect();
+            if in_band.is_empty() {
+                continue;
+            }
+            let n = in_band.len() as f64;
+            let root = median(in_band.iter().map(|e| e.root / e.distance).collect());
+            let depth = in_band.iter().map(|e| e.depth).sum::<f64>() / n;
+            let mpjpe = in_band.iter().map(|e| e.mpjpe).sum::<f64>() / n;
+            let sizes: Vec<f64> = in_band
+                .iter()
+                .filter(|e| e.sequence >= first[&e.person] + SIZE_AFTER_FRAMES)
+                .map(|e| e.limb / e.true_limb - 1.0)
+                .collect();
+            let signed_size = sizes.iter().sum::<f64>() / sizes.len().max(1) as f64;
+            let size = median(sizes.iter().map(|s| s.abs()).collect());
+            let aligned = in_band.iter().map(|e| e.root_aligned).sum::<f64>() / n;
+            let axes = in_band.iter().map(|e| e.axes).sum::<usize>().max(1) as f64;
+            let within = |k: usize| in_band.iter().map(|e| e.within[k]).sum::<usize>() as f64;
+            let size = if sizes.is_empty() {
+                "- | -".to_string()
+            } else {
+                format!("{:.1} % | {:+.1} %", 100.0 * size, 100.0 * signed_size)
+            };
+            text.push_str(&format!(
+                "| {} | {band} | {} | {:.1} % | {:+.1} % | {:.0} mm | {:.0} mm | {size} | {:.0} % / {:.0} % |\n",
+                mode.name,
+                in_band.len(),
+                100.0 * root,
+                100.0 * depth,
+                1000.0 * mpjpe,
+                1000.0 * aligned,
+                100.0 * within(0) / axes,
+                100.0 * within(1) / axes,
+            ));
+        }
+    }
+    text.push('\n');
+    text
+}
