@@ -115,6 +115,16 @@ fn the_floor_on_tf_static_stands_a_walker_where_they_are_and_config_gives_the_sa
         &rec,
         &dir.path().join("config.mcap"),
     );
+    // The message says where the scale came from: the floor after the first contact.
+    use posestream::msgs::MetricSource;
+    assert!(
+        none.iter()
+            .all(|s| s.metric_source == MetricSource::Size as u8)
+    );
+    assert!(
+        tf.iter()
+            .all(|s| s.metric_source == MetricSource::Floor as u8)
+    );
     let (without, bias_without) = root_errors(&none, &truth);
     let (with, bias_with) = root_errors(&tf, &truth);
     let median = |v: &[f64]| v[v.len() / 2];

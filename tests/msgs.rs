@@ -216,6 +216,27 @@ fn messages_round_trip_through_cdr_with_the_encapsulation_header() {
 }
 
 #[test]
+fn a_skeleton_recorded_before_metric_source_decodes_with_none() {
+    let skel = Skeleton3D {
+        sequence: 3,
+        units: 1,
+        state: 1,
+        metric_source: msgs::MetricSource::Floor as u8,
+        ..Skeleton3D::default()
+    };
+    let bytes = msgs::encode(&skel).expect("encodes");
+    // The older layout: everything up to `state`, without the trailing byte.
+    let older: Skeleton3D = msgs::decode(&bytes[..bytes.len() - 1]).expect("decodes");
+    assert_eq!(
+        older,
+        Skeleton3D {
+            metric_source: msgs::MetricSource::None as u8,
+            ..skel
+        }
+    );
+}
+
+#[test]
 fn malformed_bytes_are_errors_not_panics() {
     let good = msgs::encode(&sample_maps(HeatMapEncoding::Float32)).expect("encodes");
     // Big-endian encapsulation, too short, every truncation, garbage.

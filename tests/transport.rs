@@ -37,6 +37,7 @@ fn skeleton(seq: u64) -> Skeleton3D {
         projected: (0..2 * p).map(|i| 101.0 + f - i as f64).collect(),
         lag: (seq % 11) as u32,
         state: (seq % 3) as u8,
+        metric_source: 1 + (seq % 2) as u8,
     }
 }
 
@@ -616,6 +617,7 @@ fn assert_is_our_skeleton(v: &serde_json::Value) {
     assert_eq!(v["units"], want.units);
     assert_eq!(v["lag"], want.lag);
     assert_eq!(v["state"], want.state);
+    assert_eq!(v["metric_source"], want.metric_source);
     let names: Vec<String> = v["joint_names"]
         .as_array()
         .expect("names")

@@ -1137,6 +1137,10 @@ fn write_skeleton(
     m.joint_names.extend_from_slice(&joint_names[reused..]);
     if let Some(metres) = metres {
         m.units = Units::Metres as u8;
+        m.metric_source = match metres.source {
+            crate::metric::MetricSource::Size => msgs::MetricSource::Size,
+            crate::metric::MetricSource::Floor => msgs::MetricSource::Floor,
+        } as u8;
         m.positions.clone_from(&metres.positions);
         m.position_std.clone_from(&metres.position_std);
         m.keypoints.clone_from(&metres.keypoints);
@@ -1144,6 +1148,7 @@ fn write_skeleton(
         m.projected.clone_from(&metres.projected);
     } else {
         m.units = Units::Dictionary as u8;
+        m.metric_source = msgs::MetricSource::None as u8;
         m.positions.clone_from(&e.pose);
         m.position_std.clone_from(&e.pose_std);
         to_image(&e.keypoints, &mut m.keypoints);

@@ -39,6 +39,7 @@ class Skeleton3D(IdlStruct, typename="posestream_msgs::msg::dds_::Skeleton3D_"):
     projected: sequence[float64]
     lag: uint32
     state: uint8
+    metric_source: uint8
 
 
 qos = Qos(
@@ -71,6 +72,7 @@ while got < count and time.time() < deadline:
                     "projected": list(s.projected),
                     "lag": s.lag,
                     "state": s.state,
+                    "metric_source": s.metric_source,
                 }
             ),
             flush=True,

@@ -39,7 +39,7 @@ pub mod visualization;
 
 pub use heatmaps::{HeatMapEncoding, HeatMaps, HeatMapsView};
 pub use sensor::{CompressedImage, Image};
-pub use skeleton::{Skeleton3D, Skeleton3DArray, SkeletonState, Units};
+pub use skeleton::{MetricSource, Skeleton3D, Skeleton3DArray, SkeletonState, Units};
 pub use visualization::{Marker, MarkerArray};
 
 use byteorder::LittleEndian;
@@ -108,6 +108,9 @@ pub trait RosMessage: RosType + Serialize + DeserializeOwned {
     const NAME: &'static str;
     /// The `.msg` text.
     const DEFINITION: &'static str;
+    /// Bytes of trailing fields that older versions of the message lack: [`decode`]
+    /// reads such an older message with them zero (0: none).
+    const ADDED_TAIL: usize = 0;
     /// The fields, in order, derived from the Rust type.
     fn fields() -> Vec<Field>;
 
@@ -147,7 +150,7 @@ pub trait RosMessage: RosType + Serialize + DeserializeOwned {
 macro_rules! ros_message {
     (
         $(#[$meta:meta])*
-        $name:ident = $full:literal, $short:literal, $definition:expr;
+        $name:ident = $full:literal, $short:literal, $definition:expr $(, added_tail = $tail:literal)?;
         $( $(#[$fmeta:meta])* $field:ident : $ty:ty ),* $(,)?
     ) => {
         $(#[$meta])*
@@ -178,6 +181,7 @@ macro_rules! ros_message {
         impl $crate::RosMessage for $name {
             const NAME: &'static str = $full;
             const DEFINITION: &'static str = $definition;
+            $( const ADDED_TAIL: usize = $tail; )?
             fn fields() -> Vec<$crate::Field> {
                 vec![$($crate::Field {
                     ros_type: <$ty as $crate::RosType>::ros_type(),
@@ -280,8 +284,22 @@ pub fn decode<M: RosMessage>(bytes: &[u8]) -> Result<M, DecodeError> {
         Some(h) if h == CDR_LE_HEADER => {}
         other => return Err(DecodeError::Encapsulation(other.unwrap_or(bytes).to_vec())),
     }
-    cdr_encoding::from_bytes::<M, LittleEndian>(&bytes[4..])
+    let body = &bytes[4..];
+    cdr_encoding::from_bytes::<M, LittleEndian>(body)
         .map(|(m, _)| m)
+        .or_else(|e| {
+            // An older version of the message, without the fields added at its end:
+            // read with them zero (a copy, on this path only).
+            if M::ADDED_TAIL == 0 {
+                return Err(e);
+            }
+            let mut older = Vec::with_capacity(body.len() + M::ADDED_TAIL);
+            older.extend_from_slice(body);
+            older.resize(body.len() + M::ADDED_TAIL, 0);
+            cdr_encoding::from_bytes::<M, LittleEndian>(&older)
+                .map(|(m, _)| m)
+                .map_err(|_| e)
+        })
         .map_err(|e| DecodeError::Cdr {
             message: M::NAME,
             reason: e.to_string(),

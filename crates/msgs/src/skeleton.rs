@@ -23,10 +23,21 @@ pub enum Units {
     Metres = 1,
 }
 
+/// Where the metres' scale came from (`METRIC_*` in the `.msg`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MetricSource {
+    /// Not in metres (dictionary units).
+    None = 0,
+    /// The assumed body size.
+    Size = 1,
+    /// The person's feet on the floor.
+    Floor = 2,
+}
+
 ros_message! {
     /// One estimated 3D skeleton (`msgs/msg/Skeleton3D.msg` documents each field).
     Skeleton3D = "posestream_msgs/msg/Skeleton3D", "posestream_msgs/Skeleton3D",
-        include_str!("../../../msgs/msg/Skeleton3D.msg");
+        include_str!("../../../msgs/msg/Skeleton3D.msg"), added_tail = 1;
     /// Stamp of the frame described and the camera frame id.
     header: Header,
     /// Sequence number of the frame described.
@@ -51,6 +62,9 @@ ros_message! {
     lag: u32,
     /// `STATE_INITIALISING` (0), `STATE_TRACKING` (1) or `STATE_LOST` (2).
     state: u8,
+    /// `METRIC_NONE` (0), `METRIC_SIZE` (1) or `METRIC_FLOOR` (2); absent (older
+    /// recordings): 0 (`added_tail`).
+    metric_source: u8,
 }
 
 ros_message! {

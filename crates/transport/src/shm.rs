@@ -94,8 +94,10 @@ pub struct SkeletonSample {
     pub state: u8,
     /// `Skeleton3D::units`.
     pub units: u8,
+    /// `Skeleton3D::metric_source`.
+    pub metric_source: u8,
     /// Zero.
-    pub reserved: [u8; 2],
+    pub reserved: u8,
     /// Camera frame id.
     pub frame_id: [u8; FRAME_ID_BYTES],
     /// Joint names.
@@ -278,7 +280,8 @@ impl SkeletonSample {
             lag: m.lag,
             state: m.state,
             units: m.units,
-            reserved: [0; 2],
+            metric_source: m.metric_source,
+            reserved: 0,
             frame_id: pack(&m.header.frame_id, "frame id")?,
             joint_names: pack_names(&m.joint_names)?,
             positions: [0.0; 3 * MAX_JOINTS],
@@ -317,6 +320,7 @@ impl SkeletonSample {
             projected: self.projected[..2 * p].to_vec(),
             lag: self.lag,
             state: self.state,
+            metric_source: self.metric_source,
         })
     }
 }
@@ -747,6 +751,7 @@ mod tests {
             offset_of!(SkeletonSample, lag),
             offset_of!(SkeletonSample, state),
             offset_of!(SkeletonSample, units),
+            offset_of!(SkeletonSample, metric_source),
             offset_of!(SkeletonSample, reserved),
             offset_of!(SkeletonSample, frame_id),
             offset_of!(SkeletonSample, joint_names),
@@ -759,7 +764,7 @@ mod tests {
         assert_eq!(
             s,
             [
-                0, 8, 16, 20, 24, 28, 29, 30, 32, 96, 864, 1632, 2400, 2912, 3168
+                0, 8, 16, 20, 24, 28, 29, 30, 31, 32, 96, 864, 1632, 2400, 2912, 3168
             ]
         );
         assert_eq!(
@@ -781,6 +786,7 @@ mod tests {
         let doc = include_str!("../../../msgs/SHARED_MEMORY.md");
         for line in [
             "| 3168 | `projected`",
+            "| 30 | `metric_source`",
             "| 1632 | `position_std`",
             "| 128 | `joint_names`",
             "3,680 bytes",
