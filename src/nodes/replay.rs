@@ -182,6 +182,7 @@ pub fn replay(
         heatmaps_topic: &topics.heatmaps,
         ground_truth: (passed_on.recorder.is_some() || passed_on.live.is_some())
             .then_some((&passed_on, topics.ground_truth.as_str())),
+        truth: Vec::new(),
         live: live.as_ref(),
         camera_topic: &topics.camera_info,
         camera: None,
@@ -312,6 +313,8 @@ struct RecordingFrames<'a> {
     /// The output recording and live view, and the ground-truth topic, when recording
     /// or showing.
     ground_truth: Option<(&'a Taps, &'a str)>,
+    /// A truth message encoded again (reused).
+    truth: Vec<u8>,
     /// The live view, which is shown the heat maps as they are read.
     live: Option<&'a LiveView>,
     /// The camera-info topic, and the calibration read last (not yet taken).
@@ -453,9 +456,19 @@ impl FrameSource for RecordingFrames<'_> {
             }
             if let Some((taps, topic)) = self.ground_truth {
                 if msg.topic == topic && msg.schema == Skeleton3D::NAME {
-                    // A failed write marks the recording failed: the next message ends
-                    // the replay, and finishing the recording reports it.
-                    let _ = taps.send_encoded::<Skeleton3D>(topic, msg.log_time_ns, &msg.data);
+                    // Decoded and encoded again: a truth recorded before a field was
+                    // added to Skeleton3D goes out in the layout of the output's schema
+                    // (one that does not decode is left out). A failed write marks the
+                    // recording failed: the next message ends the replay, and finishing
+                    // the recording reports it.
+                    let truth = &mut self.truth;
+                    let again = msgs::decode::<Skeleton3D>(&msg.data).ok().filter(|s| {
+                        truth.clear();
+                        msgs::encode_into(s, truth).is_ok()
+                    });
+                    if again.is_some() {
+                        let _ = taps.send_encoded::<Skeleton3D>(topic, msg.log_time_ns, truth);
+                    }
                 }
             }
         }
