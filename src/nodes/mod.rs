@@ -492,7 +492,15 @@ impl EstimatorNode {
         {
             return;
         }
-        tf.looked_up = Some((version, camera_frame.to_owned()));
+        // The frame id's buffer kept (no allocation while a robot's /tf streams).
+        match &mut tf.looked_up {
+            Some((v, f)) => {
+                *v = version;
+                f.clear();
+                f.push_str(camera_frame);
+            }
+            None => tf.looked_up = Some((version, camera_frame.to_owned())),
+        }
         let pose = tf.buffer.lookup(&tf.frame, camera_frame);
         m.floor = pose.and_then(|p| FloorModel::new(p.rotation, p.translation.vector).ok());
         if m.floor.is_none() && !tf.missing_said {

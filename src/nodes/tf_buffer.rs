@@ -87,8 +87,18 @@ impl TfBuffer {
             Translation3::new(v.x, v.y, v.z),
             UnitQuaternion::from_quaternion(q),
         );
-        self.frames
-            .insert(child.to_owned(), (parent.to_owned(), pose));
+        // A frame known already keeps its buffers (a robot's /tf streams).
+        match self.frames.get_mut(child) {
+            Some((p, known)) => {
+                p.clear();
+                p.push_str(parent);
+                *known = pose;
+            }
+            None => {
+                self.frames
+                    .insert(child.to_owned(), (parent.to_owned(), pose));
+            }
+        }
         self.version += 1;
         Ok(())
     }
