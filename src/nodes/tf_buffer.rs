@@ -4,9 +4,11 @@
 //! one used (no interpolation between stamps: the estimator asks for a camera's place
 //! over the floor, which a fixed camera or a robot standing still keeps).
 //!
-//! Bounded: at most [`MAX_FRAMES`] frames; a transform of one more, with a non-finite
-//! value, a zero quaternion, an empty or over-long frame id, or making a frame its own
-//! ancestor is refused (its reason returned), and what was known stays.
+//! Bounded: at most [`MAX_FRAMES`] frames (never evicted: a frame once known stays
+//! until the node ends); a transform of one more, with a non-finite value, a quaternion
+//! not of unit length, an empty or over-long frame id, or making a frame its own
+//! ancestor (within 64 parents) is refused (its reason returned), and what was known
+//! stays.
 
 use std::collections::HashMap;
 
@@ -72,9 +74,12 @@ impl TfBuffer {
             return Err(format!("{parent} -> {child}: a value is not finite"));
         }
         let q = Quaternion::new(r.w, r.x, r.y, r.z);
-        let norm = q.norm();
-        if norm <= 1e-6 {
-            return Err(format!("{parent} -> {child}: a zero quaternion"));
+        // A rotation's quaternion is of unit length (tf2 refuses others too); this also
+        // refuses a zero one and one whose length overflows.
+        if (q.norm_squared() - 1.0).abs() > 1e-2 {
+            return Err(format!(
+                "{parent} -> {child}: a quaternion not of unit length"
+            ));
         }
         if !self.frames.contains_key(child) && self.frames.len() >= MAX_FRAMES {
             return Err(format!("{child}: more than {MAX_FRAMES} frames"));

@@ -30,7 +30,7 @@ pub enum FloorSource {
     /// The height, pitch and roll of [`FloorSettings`].
     Config,
     /// The transform from [`FloorSettings::frame`] to the images' camera frame, read from
-    /// `/tf_static` and `/tf` (a recording's or the ROS 2 graph's).
+    /// `/tf_static` and `/tf` (a recording's; not yet a live ROS 2 graph's).
     Tf,
 }
 

@@ -225,9 +225,9 @@ impl MetricStep {
 
     /// Writes estimate `e` in metres into `out`: `to_image` maps its heat-map pixels to
     /// image pixels (the crop box), `camera` is the camera's. With a `floor` and the
-    /// person's [`BodyScale`], the lowest ankle's contact is noted and the pose scaled
-    /// about the camera centre by the person's median factor ([`MetricSource::Floor`]);
-    /// without, it keeps the assumed size. An error (the pose has no size, or the result
+    /// person's [`BodyScale`], the ankle in contact (its observed ray meets the floor
+    /// nearest) is noted and the pose scaled about the camera centre by the person's
+    /// factor ([`MetricSource::Floor`]); without, it keeps the assumed size. An error (the pose has no size, or the result
     /// is not finite) leaves `out` to be ignored.
     pub fn adjust(
         &mut self,
