@@ -4,17 +4,23 @@
 
 mod common;
 
+use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::process::{Command, Stdio};
+use std::sync::atomic::AtomicBool;
+use std::time::{Duration, Instant};
 
 use common::root;
-use posestream::floor::FloorSource;
-use posestream::msgs::tf::{TFMessage, Transform, TransformStamped};
-use posestream::msgs::visualization::{Quaternion, Vector3};
+use nalgebra::{Quaternion as Quat, UnitQuaternion, Vector3 as V3};
+use posestream::floor::{FloorModel, FloorSource};
+use posestream::msgs::sensor::CameraInfo;
+use posestream::msgs::tf::{TFMessage, TransformStamped};
 use posestream::msgs::{Header, Skeleton3D, SkeletonState, Units};
-use posestream::nodes::config::ReplayRate;
+use posestream::nodes::config::{ReplayRate, Transport};
 use posestream::nodes::replay::{ReplayOptions, replay};
+use posestream::nodes::service::{self, Middleware, Wiring, serve_estimator};
 use posestream::nodes::{EstimatorNode, ServiceConfig};
+use posestream::transport::Sink;
 
 /// The camera of the scene: height (m) and pitch (degrees down).
 const HEIGHT: f64 = 2.0;
@@ -174,26 +180,11 @@ fn without_a_transform_to_the_floor_frame_the_metres_are_the_assumed_size_s() {
 }
 
 fn transform(parent: &str, child: &str, xyz: [f64; 3], q: [f64; 4]) -> TransformStamped {
-    TransformStamped {
-        header: Header {
-            frame_id: parent.into(),
-            ..Header::default()
-        },
-        child_frame_id: child.into(),
-        transform: Transform {
-            translation: Vector3 {
-                x: xyz[0],
-                y: xyz[1],
-                z: xyz[2],
-            },
-            rotation: Quaternion {
-                x: q[0],
-                y: q[1],
-                z: q[2],
-                w: q[3],
-            },
-        },
-    }
+    let header = Header {
+        frame_id: parent.into(),
+        ..Header::default()
+    };
+    TransformStamped::new(header, child, xyz, q)
 }
 
 #[test]
@@ -251,4 +242,311 @@ fn a_floor_configuration_out_of_its_domain_is_one_error_naming_the_key() {
             "{text}: {stderr}"
         );
     }
+}
+
+/// Lines of a child's stdout until one starting with `wanted` (panics after `limit`).
+fn wait_for_line(lines: &std::sync::mpsc::Receiver<String>, wanted: &str, limit: Duration) {
+    let until = Instant::now() + limit;
+    loop {
+        let left = until.saturating_duration_since(Instant::now());
+        match lines.recv_timeout(left) {
+            Ok(line) if line.starts_with(wanted) => return,
+            Ok(_) => {}
+            Err(e) => panic!("no {wanted:?} from the TF publisher: {e}"),
+        }
+    }
+}
+
+/// The deployment: a robot's `/tf_static` published by another ROS 2 stack (Python's
+/// `cyclonedds`, as tf2's static broadcaster does: latched, once) before the estimator
+/// starts; the estimator, reading heat maps and the camera's calibration over ROS 2 and
+/// publishing its own body frames on `/tf` (which it hears back), finds the floor there.
+#[test]
+fn a_ros2_estimator_reads_the_floor_from_a_tf_static_publisher_that_came_before_it() {
+    static STOP: AtomicBool = AtomicBool::new(false);
+    let dir = tempfile::tempdir().expect("tempdir");
+    let rec = walk(dir.path());
+    let truth: Vec<Skeleton3D> = common::messages(&rec, "/posestream/ground_truth");
+    let mut c = config(FloorSource::Tf);
+    c.ros.localhost_only = true;
+    c.ros.domain_id = (std::process::id() % 90) as u16 + 120;
+    // The robot's static transforms, latched before the estimator exists.
+    let mut publisher = Command::new(common::python())
+        .arg(root().join("tests/python/ros2_tf_static_publisher.py"))
+        .arg(c.ros.domain_id.to_string())
+        .arg(&rec)
+        .arg("60")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .expect("python runs (.ci/run installs cyclonedds, mcap and rosbags)");
+    let (line_tx, lines) = std::sync::mpsc::channel();
+    let stdout = publisher.stdout.take().expect("stdout");
+    common::spawn("tf-publisher-stdout", move || {
+        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+            let _ = line_tx.send(line);
+        }
+    });
+    wait_for_line(&lines, "published", Duration::from_secs(60));
+    // The estimator: ROS 2 in, skeletons and its body frames out on ROS 2, recorded.
+    let mut est = c.clone();
+    est.outputs.ros2 = true;
+    est.outputs.tf = true;
+    est.outputs.record = dir.path().join("estimator.mcap");
+    est.ros.node_name = "estimator".into();
+    let estimator = {
+        let mut node = EstimatorNode::from_service_config(&est).expect("node");
+        let mut wiring = Wiring::open(&est, Some(Transport::Ros2)).expect("wiring");
+        wiring.start_recording(&est).expect("recording");
+        let mut outputs = wiring.estimator_outputs(&est, &node).expect("outputs");
+        let input = wiring
+            .estimator_input(&est, Transport::Ros2)
+            .expect("input");
+        common::spawn("estimator", move || {
+            let report = serve_estimator(&mut node, input, &mut outputs, &STOP).expect("serves");
+            drop(outputs);
+            wiring.conclude(None).expect("recording finished");
+            report
+        })
+    };
+    wait_for_line(&lines, "matched", Duration::from_secs(30));
+    // The detector's side: the camera's calibration, then the heat maps, over ROS 2.
+    let mut det = c.clone();
+    det.outputs.ros2 = true;
+    det.ros.node_name = "detector".into();
+    let mut middleware = Middleware::open(&det, None).expect("middleware");
+    let sinks = service::detector_outputs(&det, &mut middleware, &service::Taps::default())
+        .expect("outputs");
+    let ros = middleware.ros.clone().expect("ros");
+    let mut camera = ros.sink::<CameraInfo>(&c.topics.camera_info).expect("sink");
+    let start = Instant::now();
+    while ros.subscriptions(&c.topics.heatmaps) == 0
+        || ros.subscriptions(&c.topics.camera_info) == 0
+    {
+        assert!(
+            start.elapsed() < Duration::from_secs(30),
+            "no estimator discovered"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    std::thread::sleep(ros.match_settle());
+    let info: Vec<CameraInfo> = common::messages(&rec, &c.topics.camera_info);
+    camera.send(&info[0], 0).expect("camera info sent");
+    let source = service::recording_source(&det, &rec).expect("source");
+    let report = service::run_detector_on_runtime(
+        source,
+        sinks,
+        ReplayRate::Recorded,
+        &AtomicBool::new(false),
+    )
+    .expect("runs");
+    assert_eq!(report.failed_sends, 0);
+    // The estimator ends the track after its gap; then stops.
+    std::thread::sleep(Duration::from_secs(3));
+    STOP.store(true, std::sync::atomic::Ordering::Relaxed);
+    let report = estimator.join().expect("estimator");
+    let _ = publisher.kill();
+    let _ = publisher.wait();
+    drop(middleware);
+    assert_eq!(report.frames, 150, "refused {:?}", report.refused);
+    // Its own body frames heard back on /tf are passed over, not refused.
+    assert_eq!(report.refused.of("tf"), 0, "{:?}", report.refused);
+    let skeletons: Vec<Skeleton3D> = common::messages(&est.outputs.record, &c.topics.skeletons);
+    use posestream::msgs::MetricSource;
+    let sources: Vec<(u64, u8)> = skeletons
+        .iter()
+        .map(|s| (s.sequence, s.metric_source))
+        .collect();
+    assert!(
+        skeletons
+            .iter()
+            .all(|s| s.metric_source == MetricSource::Floor as u8),
+        "every skeleton placed by the floor: {sources:?}"
+    );
+    let (errors, depth) = root_errors(&skeletons, &truth);
+    let median = errors[errors.len() / 2];
+    eprintln!("root {median:.4}, depth {depth:+.4}");
+    // As replayed from the recording (1.0 %, +0.7 %).
+    assert!(
+        median < 0.03 && depth.abs() < 0.02,
+        "root {median:.4}, depth {depth:.4}"
+    );
+    // Where the walker stands, under the floor frame: the footprint (from the newest
+    // estimates, as bodies are described) against the truth's point between the hips
+    // dropped onto the floor.
+    let statics: Vec<TFMessage> = common::messages(&rec, &c.topics.tf_static);
+    let camera = &statics[0].transforms[0].transform;
+    let (t, q) = (&camera.translation, &camera.rotation);
+    let floor = FloorModel::new(
+        UnitQuaternion::from_quaternion(Quat::new(q.w, q.x, q.y, q.z)),
+        V3::new(t.x, t.y, t.z),
+    )
+    .expect("a floor");
+    let by_sequence: std::collections::HashMap<i64, &Skeleton3D> =
+        truth.iter().map(|g| (g.header.stamp.nanos(), g)).collect();
+    let frames: Vec<TFMessage> = common::messages(&est.outputs.record, &c.topics.tf);
+    let mut off = Vec::new();
+    for t in frames.iter().flat_map(|m| &m.transforms) {
+        if !t.child_frame_id.ends_with("_footprint") {
+            continue;
+        }
+        assert_eq!(t.header.frame_id, "map");
+        let g = by_sequence[&t.header.stamp.nanos()];
+        let hips = |i: usize| V3::from_column_slice(&g.positions[3 * i..3 * i + 3]);
+        let between = (hips(1) + hips(4)) / 2.0;
+        let on_floor = floor.to_floor(&between);
+        let p = &t.transform.translation;
+        assert_eq!(p.z, 0.0);
+        // Over the distance from the camera.
+        off.push((p.x - on_floor.x).hypot(p.y - on_floor.y) / between.norm());
+    }
+    let children: std::collections::BTreeSet<(&str, &str)> = frames
+        .iter()
+        .flat_map(|m| &m.transforms)
+        .map(|t| (t.header.frame_id.as_str(), t.child_frame_id.as_str()))
+        .collect();
+    assert!(off.len() > 100, "{} footprints: {children:?}", off.len());
+    off.sort_by(f64::total_cmp);
+    eprintln!(
+        "footprint off by {:.4} of the distance (median)",
+        off[off.len() / 2]
+    );
+    assert!(
+        off[off.len() / 2] < 0.03,
+        "footprint {:.4} of the distance off",
+        off[off.len() / 2]
+    );
+    // ROS 2 users' tools read the frames: Humble's and Jazzy's tf2_msgs (rosbags), each
+    // body rebuilt from its frames onto the published joints.
+    let hri = root().join("msgs/hri_msgs/msg");
+    let read = common::python_client(
+        "body_frames.py",
+        &[
+            est.outputs.record.to_str().expect("utf-8"),
+            hri.to_str().expect("utf-8"),
+        ],
+    );
+    assert_eq!(read["distros_disagree"], 0, "{read}");
+    assert_eq!(
+        read["footprint_parents"],
+        serde_json::json!(["map"]),
+        "{read}"
+    );
+    assert_eq!(
+        read["footprints"].as_u64(),
+        Some(off.len() as u64),
+        "{read}"
+    );
+    assert!(read["joints_checked"].as_u64() > Some(1000), "{read}");
+    // (The track's last newest estimate repeats its frame's stamp, refined a little
+    // further: 2 mm from the frames of that stamp.)
+    assert!(read["max_error_m"].as_f64() < Some(5e-3), "{read}");
+    // What was read is in the output recording, for a replay of it.
+    let recorded: Vec<TFMessage> = common::messages(&est.outputs.record, &c.topics.tf_static);
+    assert!(
+        recorded
+            .iter()
+            .flat_map(|m| &m.transforms)
+            .any(|t| t.header.frame_id == "map" && t.child_frame_id == "camera"),
+        "the output recording holds the /tf_static read"
+    );
+}
+
+#[test]
+fn synth_refuses_a_camera_height_or_tilt_out_of_its_domain_in_one_error() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let bvh = common::shared().join("data/mocap/bandai-namco-1/dataset-1_walk_proud_001.bvh");
+    for (flag, wanted) in [
+        ("--camera-height=0", "camera height"),
+        ("--camera-height=1e308", "camera height"),
+        ("--camera-height=nan", "finite"),
+        ("--tilt=90", "tilt"),
+    ] {
+        let out = Command::new(env!("CARGO_BIN_EXE_posestream"))
+            .current_dir(root())
+            .args([
+                "synth",
+                "--mapping",
+                "config/skeletons/bandai-namco.toml",
+                "--bvh",
+            ])
+            .arg(&bvh)
+            .args(["--static-camera", "--frames=5", flag])
+            .arg("--out")
+            .arg(dir.path().join("seq"))
+            .output()
+            .expect("synth runs");
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{flag}: accepted");
+        assert!(stderr.contains(wanted), "{flag}: {stderr}");
+        assert_eq!(stderr.matches("error").count(), 1, "{flag}: {stderr}");
+    }
+}
+
+/// The walk again, with transforms that do not decode (cut short, garbage) and one
+/// that decodes but cannot be a transform (NaN) after its `/tf_static`.
+#[test]
+fn a_recording_s_broken_transforms_are_refused_and_counted_and_the_floor_still_found() {
+    use posestream::msgs::sensor::CameraInfo as Info;
+    use posestream::msgs::{HeatMaps, RosMessage};
+    use posestream::recording::{Recorder, RecordingReader};
+    let dir = tempfile::tempdir().expect("tempdir");
+    let rec = walk(dir.path());
+    let broken = dir.path().join("broken.mcap");
+    let mut out = Recorder::create(&broken).expect("create");
+    for m in RecordingReader::open(&rec).expect("opens") {
+        let m = m.expect("reads");
+        let (topic, t, data) = (m.topic.as_str(), m.log_time_ns, &m.data);
+        match m.schema.as_str() {
+            s if s == HeatMaps::NAME => out.write_encoded::<HeatMaps>(topic, t, data),
+            s if s == Info::NAME => out.write_encoded::<Info>(topic, t, data),
+            s if s == Skeleton3D::NAME => out.write_encoded::<Skeleton3D>(topic, t, data),
+            s if s == TFMessage::NAME => {
+                out.write_encoded::<TFMessage>(topic, t, data)
+                    .expect("write");
+                out.write_encoded::<TFMessage>("/tf", t, &data[..data.len() / 2])
+                    .expect("write");
+                out.write_encoded::<TFMessage>("/tf", t, &[0, 1, 0, 0, 0xff, 0xff, 0xff, 0x7f])
+                    .expect("write");
+                let nan = TFMessage {
+                    transforms: vec![transform(
+                        "map",
+                        "camera",
+                        [f64::NAN, 0.0, 2.0],
+                        [0.0, 0.0, 0.0, 1.0],
+                    )],
+                };
+                out.write::<TFMessage>("/tf", t, &nan)
+            }
+            other => panic!("a topic of schema {other:?} in the walk"),
+        }
+        .expect("write");
+    }
+    out.finish().expect("finish");
+    let options = ReplayOptions {
+        record: Some(dir.path().join("out.mcap")),
+        rosbag2: false,
+        rate: ReplayRate::Fast,
+        paced_for_live: false,
+    };
+    let report = replay(
+        &config(FloorSource::Tf),
+        &broken,
+        &options,
+        &AtomicBool::new(false),
+    )
+    .expect("replay");
+    // Two that do not decode, one transform refused by the buffer.
+    assert_eq!(report.refused.of("undecodable"), 2, "{report:?}");
+    assert_eq!(report.refused.of("tf"), 1, "{:?}", report.refused);
+    assert_eq!(report.malformed, 3, "{report:?}");
+    assert_eq!(report.frames, 150);
+    let skeletons: Vec<Skeleton3D> =
+        common::messages(&dir.path().join("out.mcap"), "/posestream/skeletons");
+    use posestream::msgs::MetricSource;
+    assert!(
+        skeletons
+            .iter()
+            .all(|s| s.metric_source == MetricSource::Floor as u8)
+    );
 }

@@ -13,6 +13,7 @@ use std::sync::atomic::AtomicBool;
 
 use clap::Parser;
 use posestream::floor::FloorSource;
+use posestream::mocap::SkeletonMapping;
 use posestream::msgs::Skeleton3D;
 use posestream::nodes::config::{ReplayRate, ServiceConfig};
 use posestream::nodes::replay::{ReplayOptions, replay};
@@ -104,8 +105,8 @@ const BANDS: [(f64, f64); 4] = [(2.0, 4.0), (4.0, 7.0), (7.0, 10.0), (10.0, 15.0
 struct Mode {
     name: &'static str,
     floor: FloorSource,
-    /// The metric step's mean limb length: `None` the configuration's (the assumed size),
-    /// else the subjects' (`--mean-limb-length`).
+    /// The metric step's mean limb length: the subjects' (`--mean-limb-length`) when
+    /// true, else the configuration's (the assumed size).
     true_size: bool,
 }
 
@@ -133,6 +134,10 @@ const SIZE_AFTER_FRAMES: u64 = 60;
 /// The distance scenes evaluated: a markdown section (`## Where people stand`).
 pub fn markdown(args: &ScenesArgs) -> Result<String, CliError> {
     let base = args.config.load()?;
+    // The bones of the skeletons scored: the mapping's layout (the truth's and the
+    // dictionary's joints).
+    let mapping = SkeletonMapping::load(&args.mapping)?;
+    let bones = mapping.layout.bones().collect::<Vec<_>>();
     let mut errors: Vec<Vec<FrameError>> = vec![Vec::new(); MODES.len()];
     for (i, walk) in WALKS.iter().enumerate() {
         let dir = args.work.join(format!("walk-{i}"));
@@ -141,7 +146,16 @@ pub fn markdown(args: &ScenesArgs) -> Result<String, CliError> {
         let tracked = dir.join("tracked.mcap");
         let tracking = track(&recording, &tracked, &base.topics)?;
         let (_, to_truth) = tracking.idf1();
-        let truth = read_topic::<Skeleton3D>(&recording, "/posestream/ground_truth")?;
+        // One person of one scene: ids of their own across scenes.
+        let scene_id = |id: u32| id + 100 * i as u32;
+        let truth: Vec<(u64, Skeleton3D)> =
+            read_topic::<Skeleton3D>(&recording, "/posestream/ground_truth")?
+                .into_iter()
+                .map(|(t, mut g)| {
+                    g.track_id = scene_id(g.track_id);
+                    (t, g)
+                })
+                .collect();
         for (m, mode) in MODES.iter().enumerate() {
             let config = mode_config(&base, mode, args.mean_limb_length)?;
             let out = dir.join(format!("skeletons-{m}.mcap"));
@@ -156,24 +170,11 @@ pub fn markdown(args: &ScenesArgs) -> Result<String, CliError> {
                 read_topic::<Skeleton3D>(&out, &config.topics.skeletons)?
                     .into_iter()
                     .filter_map(|(_, mut s)| {
-                        s.track_id = *to_truth.get(&s.track_id)?;
-                        // One person of one scene: ids of their own across scenes.
-                        s.track_id += 100 * i as u32;
+                        s.track_id = scene_id(*to_truth.get(&s.track_id)?);
                         Some(s)
                     })
                     .collect();
-            let truth: Vec<(u64, Skeleton3D)> = truth
-                .iter()
-                .map(|(t, g)| {
-                    let mut g = g.clone();
-                    g.track_id += 100 * i as u32;
-                    (*t, g)
-                })
-                .collect();
             let lag = u32::try_from(config.estimator.window.lag).unwrap_or(u32::MAX);
-            let bones = posestream::skeleton::default_layout()
-                .bones()
-                .collect::<Vec<_>>();
             let (frames, _) = frame_errors(&skeletons, &truth, lag, &bones);
             errors[m].extend(frames);
         }

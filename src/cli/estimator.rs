@@ -39,8 +39,9 @@ pub fn run(args: &EstimatorArgs) -> Result<(), CliError> {
     let input = args.input.unwrap_or(config.estimator.input);
     let mut node = EstimatorNode::from_service_config(&config)?;
     let mut wiring = Wiring::open(&config, Some(input))?;
-    let source = wiring.estimator_input(&config, input)?;
+    // The recording first: what the input reads beside the heat maps is recorded.
     wiring.start_recording(&config)?;
+    let source = wiring.estimator_input(&config, input)?;
     let mut outputs = wiring.estimator_outputs(&config, &node)?;
     stop_after(args.duration, &stop);
     // The input is dropped in the loop, the outputs here: before the middleware under them.

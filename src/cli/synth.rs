@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use clap::Args;
 use posestream::mocap::{Bvh, SkeletonMapping};
 use posestream::msgs::sensor::CameraInfo;
-use posestream::msgs::tf::{TFMessage, Transform, TransformStamped};
+use posestream::msgs::tf::{TFMessage, TransformStamped};
 use posestream::msgs::{self, Header, HeatMapEncoding, Skeleton3D, SkeletonState, Time, Units};
 use posestream::nodes::config::Topics;
 use posestream::npy;
@@ -421,26 +421,15 @@ fn write_recording(
             let pose = &people[0].view.cameras[t];
             let (q, x) = (pose.rotation, pose.translation.vector);
             let tf = TFMessage {
-                transforms: vec![TransformStamped {
-                    header: Header {
+                transforms: vec![TransformStamped::new(
+                    Header {
                         stamp: header.stamp.clone(),
                         frame_id: FLOOR_FRAME.into(),
                     },
-                    child_frame_id: header.frame_id.clone(),
-                    transform: Transform {
-                        translation: msgs::visualization::Vector3 {
-                            x: x.x,
-                            y: x.y,
-                            z: x.z,
-                        },
-                        rotation: msgs::visualization::Quaternion {
-                            x: q.i,
-                            y: q.j,
-                            z: q.k,
-                            w: q.w,
-                        },
-                    },
-                }],
+                    header.frame_id.clone(),
+                    [x.x, x.y, x.z],
+                    [q.i, q.j, q.k, q.w],
+                )],
             };
             let topic = if cam.follow {
                 &topics.tf

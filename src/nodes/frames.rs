@@ -2,13 +2,15 @@
 //! body frame `body_<id>` midway between the hips, child of the images' camera frame, with REP-155's
 //! axes (x forward out of the chest, y to the person's left, z up along the spine), and
 //! under it one frame per joint, `<joint>_<id>` (`l_knee_b3`), at the joint and oriented as
-//! the body. `<id>` is the body's REP-155 id ([`body_id`]). Metres only: a skeleton in
-//! dictionary units has no place in the camera frame, so it gets no frames.
+//! the body. `<id>` is the body's REP-155 id ([`body_id`]). With the floor known, also
+//! where the person stands: `body_<id>_footprint` under the floor frame
+//! ([`BodyFrames::footprint`]). Metres only: a skeleton in dictionary units has no place
+//! in the camera frame, so it gets no frames.
 
 use nalgebra::{Matrix3, Rotation3, UnitQuaternion, Vector3 as V3};
 
-use crate::msgs::tf::{TFMessage, Transform, TransformStamped};
-use crate::msgs::visualization::{Quaternion, Vector3};
+use crate::floor::FloorModel;
+use crate::msgs::tf::{TFMessage, TransformStamped};
 use crate::msgs::{Header, Skeleton3D, Units};
 
 /// The REP-155 id of track `track_id`: `b<track_id>` (a ROS name token may not start
@@ -20,6 +22,23 @@ pub fn body_id(track_id: u32) -> String {
 /// The body frame of track `track_id`: `body_<id>`.
 pub fn body_frame(track_id: u32) -> String {
     format!("body_{}", body_id(track_id))
+}
+
+/// Whether a transform from `parent` to `child` is one of a body's frames as
+/// [`BodyFrames`] names them (`body_b<digits>`, `body_b<digits>_footprint`, or a joint's
+/// frame under the body's): frames of people, which no floor or camera chain passes
+/// through. An estimator reading `/tf` hears its own and passes them over.
+pub fn is_body_transform(parent: &str, child: &str) -> bool {
+    let body = |f: &str| {
+        f.trim_start_matches('/')
+            .strip_prefix("body_b")
+            .and_then(|rest| {
+                let digits = rest.bytes().take_while(u8::is_ascii_digit).count();
+                (digits > 0).then(|| &rest[digits..])
+            })
+            .is_some_and(|tail| tail.is_empty() || tail == "_footprint")
+    };
+    body(child) || body(parent)
 }
 
 /// Which joints of a skeleton layout place and orient the body frame, and the joints'
@@ -77,17 +96,26 @@ impl BodyFrames {
         }
     }
 
-    /// Appends the transforms of `skeleton` to `out` (nothing unless it is in metres and
-    /// has these joints).
-    pub fn transforms(&self, skeleton: &Skeleton3D, out: &mut TFMessage) {
+    /// The body's origin and axes in the camera frame, when `skeleton` is in metres and
+    /// has these joints.
+    fn place(&self, skeleton: &Skeleton3D) -> Option<(V3<f64>, Rotation3<f64>)> {
         let n = self.names.len();
         if skeleton.units != Units::Metres as u8 || skeleton.positions.len() != 3 * n || n == 0 {
-            return;
+            return None;
         }
         let joint = |i: usize| V3::from_column_slice(&skeleton.positions[3 * i..3 * i + 3]);
         let origin =
             self.origin.iter().map(|&i| joint(i)).sum::<V3<f64>>() / self.origin.len() as f64;
-        let axes = self.axes(&joint, origin);
+        Some((origin, self.axes(&joint, origin)))
+    }
+
+    /// Appends the transforms of `skeleton` to `out` (nothing unless it is in metres and
+    /// has these joints).
+    pub fn transforms(&self, skeleton: &Skeleton3D, out: &mut TFMessage) {
+        let Some((origin, axes)) = self.place(skeleton) else {
+            return;
+        };
+        let joint = |i: usize| V3::from_column_slice(&skeleton.positions[3 * i..3 * i + 3]);
         let rotation = UnitQuaternion::from_rotation_matrix(&axes);
         let body = body_frame(skeleton.track_id);
         let id = body_id(skeleton.track_id);
@@ -107,6 +135,41 @@ impl BodyFrames {
                 UnitQuaternion::identity(),
             ));
         }
+    }
+
+    /// Appends where the person of `skeleton` stands on `floor` (the camera frame over
+    /// the floor frame `frame`): `body_<id>_footprint` under `frame`, the body's origin
+    /// dropped onto the floor (z = 0), turned about the floor's up to face where the
+    /// body faces (REP-105's footprint of a robot, for a person). Nothing unless the
+    /// skeleton is in metres and has these joints.
+    pub fn footprint(
+        &self,
+        skeleton: &Skeleton3D,
+        floor: &FloorModel,
+        frame: &str,
+        out: &mut TFMessage,
+    ) {
+        let Some((origin, axes)) = self.place(skeleton) else {
+            return;
+        };
+        let at = floor.to_floor(&origin);
+        let forward = floor.rotation() * (axes * V3::x());
+        // Facing straight up or down (lying along the view): no heading; the floor's x.
+        let yaw = if forward.x.hypot(forward.y) > 1e-9 {
+            forward.y.atan2(forward.x)
+        } else {
+            0.0
+        };
+        let header = Header {
+            stamp: skeleton.header.stamp.clone(),
+            frame_id: frame.to_owned(),
+        };
+        out.transforms.push(stamped(
+            &header,
+            format!("{}_footprint", body_frame(skeleton.track_id)),
+            V3::new(at.x, at.y, 0.0),
+            UnitQuaternion::from_axis_angle(&V3::z_axis(), yaw),
+        ));
     }
 
     /// The body's axes in the camera frame (columns x forward, y left, z up); a person
@@ -134,28 +197,18 @@ fn stamped(
     rotation: UnitQuaternion<f64>,
 ) -> TransformStamped {
     let q = rotation.quaternion();
-    TransformStamped {
-        header: header.clone(),
-        child_frame_id: child,
-        transform: Transform {
-            translation: Vector3 {
-                x: at.x,
-                y: at.y,
-                z: at.z,
-            },
-            rotation: Quaternion {
-                x: q.i,
-                y: q.j,
-                z: q.k,
-                w: q.w,
-            },
-        },
-    }
+    TransformStamped::new(
+        header.clone(),
+        child,
+        [at.x, at.y, at.z],
+        [q.i, q.j, q.k, q.w],
+    )
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::msgs::tf::Transform;
     use crate::msgs::{SkeletonState, Time};
 
     fn names() -> Vec<String> {
@@ -256,5 +309,59 @@ mod tests {
             let q = &t.transform.rotation;
             [q.x, q.y, q.z, q.w].iter().all(|v| v.is_finite())
         }));
+    }
+
+    #[test]
+    fn a_footprint_stands_under_the_body_on_the_floor_facing_where_it_faces() {
+        let frames = BodyFrames::new(&names());
+        let s = facing();
+        // The camera 1.5 m up, level: the floor frame's x is the camera's heading.
+        let floor = FloorModel::from_height_pitch_roll(1.5, 0.0, 0.0).expect("floor");
+        let mut tf = TFMessage::default();
+        frames.footprint(&s, &floor, "base_footprint", &mut tf);
+        let [foot] = &tf.transforms[..] else {
+            panic!("one footprint: {:?}", tf.transforms);
+        };
+        assert_eq!(
+            (foot.header.frame_id.as_str(), foot.child_frame_id.as_str()),
+            ("base_footprint", "body_b3_footprint")
+        );
+        // The hips' midpoint, 3 m ahead and centred, dropped onto the floor.
+        let t = &foot.transform.translation;
+        assert!(
+            (t.x - 3.0).abs() < 1e-9 && t.y.abs() < 1e-9 && t.z == 0.0,
+            "{t:?}"
+        );
+        // Facing the camera: back along the floor's x.
+        let r = rotation(&foot.transform);
+        assert!((r * V3::x() - -V3::x()).norm() < 1e-9, "{}", r * V3::x());
+        assert!((r * V3::z() - V3::z()).norm() < 1e-9);
+        // Dictionary units: none.
+        let mut units = s.clone();
+        units.units = Units::Dictionary as u8;
+        let mut none = TFMessage::default();
+        frames.footprint(&units, &floor, "base_footprint", &mut none);
+        assert!(none.transforms.is_empty());
+    }
+
+    #[test]
+    fn people_s_frames_are_told_from_others() {
+        for (parent, child) in [
+            ("camera", "body_b3"),
+            ("body_b3", "l_knee_b3"),
+            ("map", "body_b12_footprint"),
+            ("/camera", "/body_b0"),
+        ] {
+            assert!(is_body_transform(parent, child), "{parent} -> {child}");
+        }
+        for (parent, child) in [
+            ("base_link", "body_link"),
+            ("map", "body_b"),
+            ("map", "body_bx"),
+            ("map", "body_b3_elsewhere"),
+            ("base_footprint", "camera"),
+        ] {
+            assert!(!is_body_transform(parent, child), "{parent} -> {child}");
+        }
     }
 }

@@ -462,12 +462,16 @@ impl EstimatorNode {
     /// Takes transforms (`/tf_static`, `/tf`): with the floor from TF, the camera's place
     /// over the floor frame comes from them (the newest of each frame). Transforms the
     /// buffer cannot hold are refused and counted (`tf`); without a floor from TF they
-    /// are not looked at.
+    /// are not looked at. People's frames (posestream's own body and joint frames, heard
+    /// back on `/tf`: [`frames::is_body_transform`]) are passed over.
     pub fn transforms(&mut self, message: &TFMessage) {
         let Some(tf) = &mut self.tf else {
             return;
         };
-        for reason in tf.buffer.take(message) {
+        let wanted = |t: &msgs::tf::TransformStamped| {
+            !frames::is_body_transform(&t.header.frame_id, &t.child_frame_id)
+        };
+        for reason in tf.buffer.take_where(message, wanted) {
             let e = NodeError::Transform { reason };
             self.refused.note(e.kind(), &e);
         }

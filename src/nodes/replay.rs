@@ -333,6 +333,34 @@ struct RecordingFrames<'a> {
     error: Option<RecordingError>,
 }
 
+impl RecordingFrames<'_> {
+    /// Records a message read beside the heat maps (`data`, as it came), then decodes it
+    /// into its slot for the estimator, which takes it before the frames after it
+    /// ([`Received::Idle`]); one that does not decode is refused and counted.
+    fn hold<M: crate::transport::Message>(
+        &mut self,
+        slot: impl FnOnce(&mut Self) -> &mut Option<M>,
+        topic: String,
+        stamp_ns: u64,
+        data: &[u8],
+    ) -> Result<Received<()>, TransportError> {
+        if let Some((taps, _)) = self.ground_truth {
+            let _ = taps.send_encoded::<M>(&topic, stamp_ns, data);
+        }
+        match msgs::decode::<M>(data) {
+            Ok(m) => {
+                *slot(self) = Some(m);
+                Ok(Received::Idle)
+            }
+            Err(e) => Err(TransportError::Malformed {
+                transport: "mcap",
+                topic,
+                reason: e.to_string(),
+            }),
+        }
+    }
+}
+
 impl FrameSource for RecordingFrames<'_> {
     /// A recording's time is in its stamps.
     fn live(&self) -> bool {
@@ -420,39 +448,21 @@ impl FrameSource for RecordingFrames<'_> {
             if msg.topic == self.camera_topic {
                 // Recorded as it came (the output holds the calibration it was made
                 // with), then handed to the estimator before the frames after it.
-                if let Some((taps, _)) = self.ground_truth {
-                    let _ = taps.send_encoded::<CameraInfo>(
-                        self.camera_topic,
-                        msg.log_time_ns,
-                        &msg.data,
-                    );
-                }
-                return match msgs::decode::<CameraInfo>(&msg.data) {
-                    Ok(info) => {
-                        self.camera = Some(info);
-                        Ok(Received::Idle)
-                    }
-                    Err(e) => Err(TransportError::Malformed {
-                        transport: "mcap",
-                        topic: msg.topic,
-                        reason: e.to_string(),
-                    }),
-                };
+                return self.hold::<CameraInfo>(
+                    |s| &mut s.camera,
+                    msg.topic,
+                    msg.log_time_ns,
+                    &msg.data,
+                );
             }
             if self.tf_topics.contains(&msg.topic.as_str()) && msg.schema == TFMessage::NAME {
-                // Handed to the estimator (the floor) before the frames after it; one
-                // that does not decode is refused and counted.
-                return match msgs::decode::<TFMessage>(&msg.data) {
-                    Ok(tf) => {
-                        self.tf = Some(tf);
-                        Ok(Received::Idle)
-                    }
-                    Err(e) => Err(TransportError::Malformed {
-                        transport: "mcap",
-                        topic: msg.topic,
-                        reason: e.to_string(),
-                    }),
-                };
+                // The same (the floor): recorded, then handed to the estimator.
+                return self.hold::<TFMessage>(
+                    |s| &mut s.tf,
+                    msg.topic,
+                    msg.log_time_ns,
+                    &msg.data,
+                );
             }
             if let Some((taps, topic)) = self.ground_truth {
                 if msg.topic == topic && msg.schema == Skeleton3D::NAME {

@@ -40,9 +40,20 @@ impl TfBuffer {
 
     /// Takes every transform of `message`; the reasons of those refused.
     pub fn take(&mut self, message: &TFMessage) -> Vec<String> {
+        self.take_where(message, |_| true)
+    }
+
+    /// Takes the transforms of `message` that `wanted` keeps (the others are passed
+    /// over, neither taken nor refused); the reasons of those refused.
+    pub fn take_where(
+        &mut self,
+        message: &TFMessage,
+        wanted: impl Fn(&TransformStamped) -> bool,
+    ) -> Vec<String> {
         message
             .transforms
             .iter()
+            .filter(|t| wanted(t))
             .filter_map(|t| self.take_one(t).err())
             .collect()
     }
@@ -152,30 +163,13 @@ impl TfBuffer {
 mod tests {
     use super::*;
     use crate::msgs::Header;
-    use crate::msgs::tf::Transform;
-    use crate::msgs::visualization::{Quaternion as Q, Vector3 as V};
 
     fn tf(parent: &str, child: &str, xyz: [f64; 3], q: [f64; 4]) -> TransformStamped {
-        TransformStamped {
-            header: Header {
-                frame_id: parent.into(),
-                ..Header::default()
-            },
-            child_frame_id: child.into(),
-            transform: Transform {
-                translation: V {
-                    x: xyz[0],
-                    y: xyz[1],
-                    z: xyz[2],
-                },
-                rotation: Q {
-                    x: q[0],
-                    y: q[1],
-                    z: q[2],
-                    w: q[3],
-                },
-            },
-        }
+        let header = Header {
+            frame_id: parent.into(),
+            ..Header::default()
+        };
+        TransformStamped::new(header, child, xyz, q)
     }
 
     #[test]

@@ -4,7 +4,8 @@ rosbags' ROS 2 Humble type store (not with the recording's schemas), and `/tf` a
 Jazzy's, which must read the same; hri_msgs/IdsList and
 Skeleton2D with the ros4hri definitions given on the command line; the skeletons with
 mcap-ros2-support. Each newest skeleton in metres is rebuilt from its body frame and joint
-frames (quaternions composed here) and compared with its published joint positions.
+frames (quaternions composed here) and compared with its published joint positions; the
+footprints (with a floor) are counted with their parents.
 Prints JSON.
 
 usage: python body_frames.py RECORDING HRI_MSG_DIR
@@ -104,6 +105,8 @@ with open(path, "rb") as f:
                     observed.add(k)
 
 worst, checked, missing, parents = 0.0, 0, 0, set()
+# Where people stand (with a floor): body_b<id>_footprint under the floor frame.
+footprints = [parent for (_, child), (parent, _, _) in frames.items() if child.endswith("_footprint")]
 for s in skeletons:
     stamp = s.header.stamp.sec * 10**9 + s.header.stamp.nanosec
     body = f"body_b{s.track_id}"
@@ -138,6 +141,8 @@ print(
             "observed_keypoints": sorted(observed),
             "bad": roi_bad,
             "distros_disagree": distros_disagree,
+            "footprints": len(footprints),
+            "footprint_parents": sorted(set(footprints)),
         }
     )
 )

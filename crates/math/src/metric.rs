@@ -107,7 +107,7 @@ impl MetricSettings {
         check_range("max_iterations", self.max_iterations, 1, 100_000)?;
         check_range("apg_steps", self.apg_steps, 1, 10_000)?;
         check_real("tolerance", self.tolerance, 0.0, 1.0, true)?;
-        self.floor.check()
+        self.floor.check().map_err(|e| e.within("floor"))
     }
 
     /// The camera, if one is configured.
@@ -158,8 +158,6 @@ pub struct MetricPose {
     pub depth: f64,
     /// Where the metric scale came from.
     pub source: MetricSource,
-    /// The person's mean bone length these metres assume, metres.
-    pub mean_limb_length: f64,
 }
 
 /// Where a metric pose's scale came from (`Skeleton3D.metric_source`).
@@ -316,7 +314,6 @@ impl MetricStep {
                 (self.settings.depth_correction, self.settings.scale_std)
             }
         };
-        out.mean_limb_length = factor * self.settings.mean_limb_length;
         let focal = camera.focal();
         let px = to_image.mean_scale();
         for j in 0..p {

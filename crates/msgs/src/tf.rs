@@ -30,6 +30,33 @@ ros_message! {
     transform: Transform,
 }
 
+impl TransformStamped {
+    /// Frame `child` in the frame of `header`: its origin at `translation` (x, y, z) and
+    /// its axes turned by the unit quaternion `rotation` (x, y, z, w: ROS's order).
+    pub fn new(
+        header: Header,
+        child: impl Into<String>,
+        translation: [f64; 3],
+        rotation: [f64; 4],
+    ) -> Self {
+        let [x, y, z] = translation;
+        let [qx, qy, qz, qw] = rotation;
+        Self {
+            header,
+            child_frame_id: child.into(),
+            transform: Transform {
+                translation: Vector3 { x, y, z },
+                rotation: Quaternion {
+                    x: qx,
+                    y: qy,
+                    z: qz,
+                    w: qw,
+                },
+            },
+        }
+    }
+}
+
 ros_message! {
     /// `tf2_msgs/TFMessage`: what `/tf` carries.
     TFMessage = "tf2_msgs/msg/TFMessage", "tf2_msgs/TFMessage",

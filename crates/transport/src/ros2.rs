@@ -200,6 +200,27 @@ pub fn check_topic_name(key: &str, name: &str) -> Result<(), OutOfDomain> {
 }
 
 impl QosSettings {
+    /// What tf2's static listener asks of `/tf_static` (`tf2_ros::StaticListenerQoS`):
+    /// reliable, transient local (transforms published before the reader joined arrive),
+    /// the last 100.
+    pub fn tf_static_listener() -> Self {
+        Self {
+            reliability: ReliabilityKind::Reliable,
+            durability: DurabilityKind::TransientLocal,
+            depth: 100,
+        }
+    }
+
+    /// What tf2's listener asks of `/tf` (`tf2_ros::DynamicListenerQoS`): reliable,
+    /// volatile, the last 100.
+    pub fn tf_listener() -> Self {
+        Self {
+            reliability: ReliabilityKind::Reliable,
+            durability: DurabilityKind::Volatile,
+            depth: 100,
+        }
+    }
+
     /// The `ros2-client` profile.
     pub fn profile(&self) -> QosProfile {
         let profile = QosProfile::publisher_default()
@@ -428,12 +449,30 @@ impl Ros2 {
         })
     }
 
-    /// A subscription to `M` on `topic`.
+    /// A subscription to `M` on `topic`, with the node's QoS (`[ros.qos]`).
     pub fn source<M: Message>(&self, topic: &str) -> Result<Ros2Source<M>, TransportError> {
+        self.subscribe(topic, self.qos.clone())
+    }
+
+    /// A subscription to `M` on `topic` with a QoS of its own (a topic whose convention
+    /// is not the service's: `/tf_static`, [`QosSettings::tf_static_listener`]).
+    pub fn source_with<M: Message>(
+        &self,
+        topic: &str,
+        qos: &QosSettings,
+    ) -> Result<Ros2Source<M>, TransportError> {
+        self.subscribe(topic, qos.profile())
+    }
+
+    fn subscribe<M: Message>(
+        &self,
+        topic: &str,
+        qos: QosProfile,
+    ) -> Result<Ros2Source<M>, TransportError> {
         let mut node = self.node();
         let t = self.topic::<M>(&mut node, topic)?;
         let mut subscription = node
-            .create_subscription::<M>(&t, Some(self.qos.clone()))
+            .create_subscription::<M>(&t, Some(qos))
             .map_err(|e| setup_error(format!("a subscription to {topic}"), e))?;
         let poll = Poll::new().map_err(|e| setup_error("a poller", e))?;
         poll.registry()

@@ -8,15 +8,20 @@
 //! `ros_discovery_info`, which would otherwise grow for ever; later bodies get no
 //! topics of their own, counted, while `/tf` and the tracked ids go on).
 //!
+//! With the floor known, each body's footprint too (`body_<id>_footprint` under the floor
+//! frame: where the person stands), and a floor from the configuration as a frame under
+//! the camera's ([`Bodies::with_floor`]).
+//!
 //! Bodies are described at one lag, [`Bodies::lag`]: the newest estimates when the window
 //! publishes them (the least delay, as TF and HRI consumers want), else the refined ones.
 
 use super::Publishers;
 use super::ServiceError;
+use crate::floor::FloorModel;
 use crate::msgs::hri::{IdsList, NormalizedRegionOfInterest2D, Skeleton2D};
 use crate::msgs::sensor::RegionOfInterest;
-use crate::msgs::tf::TFMessage;
-use crate::msgs::{Skeleton3D, Skeleton3DArray, SkeletonState};
+use crate::msgs::tf::{TFMessage, TransformStamped};
+use crate::msgs::{Header, Skeleton3D, Skeleton3DArray, SkeletonState};
 use crate::nodes::config::HriRoi;
 use crate::nodes::frames::BodyFrames;
 use crate::nodes::hri::{HriBodies, body_id, normalized_roi, tracked};
@@ -147,6 +152,20 @@ pub struct Bodies {
     /// Whether it was said that skeletons without a camera calibration get no frames
     /// and no body messages of their own.
     said_uncalibrated: bool,
+    /// Where people stand, when the floor is on ([`Bodies::with_floor`]).
+    floor: Option<FloorFrames>,
+}
+
+/// The floor's frames on `/tf`: each body's footprint under the floor frame and, when
+/// the floor is not in the TF tree already (from the configuration), the floor frame
+/// under the camera's.
+struct FloorFrames {
+    /// The floor frame (`[estimator.metric.floor] frame`).
+    frame: String,
+    /// Whether to publish the floor frame itself (under the skeleton's camera frame).
+    publish_floor: bool,
+    /// The floor in hand ([`Bodies::set_floor`]).
+    model: Option<FloorModel>,
 }
 
 impl Default for Bodies {
@@ -159,6 +178,7 @@ impl Default for Bodies {
             hri: None,
             message: TFMessage::default(),
             said_uncalibrated: false,
+            floor: None,
         }
     }
 }
@@ -193,7 +213,29 @@ impl Bodies {
             hri,
             message: TFMessage::default(),
             said_uncalibrated: false,
+            floor: None,
         })
+    }
+
+    /// With the floor on: each body's footprint (`body_<id>_footprint`) under the floor
+    /// frame `frame` as well, and with `publish_floor` the floor frame itself under the
+    /// camera frame (a floor from the configuration, which no TF tree holds).
+    pub fn with_floor(mut self, frame: &str, publish_floor: bool) -> Self {
+        self.floor = Some(FloorFrames {
+            frame: frame.to_owned(),
+            publish_floor,
+            model: None,
+        });
+        self
+    }
+
+    /// The floor the skeletons about to be published were placed on (the node's,
+    /// [`EstimatorNode::floor`](crate::nodes::EstimatorNode::floor)); `None` while
+    /// there is none (no footprints).
+    pub fn set_floor(&mut self, model: Option<FloorModel>) {
+        if let Some(floor) = &mut self.floor {
+            floor.model = model;
+        }
     }
 
     /// Nothing to publish.
@@ -276,6 +318,23 @@ impl Bodies {
         }
         if !self.tf.is_empty() {
             self.frames.transforms(skeleton, &mut self.message);
+            if let Some(FloorFrames {
+                frame,
+                publish_floor,
+                model: Some(model),
+            }) = &self.floor
+                && !self.message.transforms.is_empty()
+            {
+                self.frames
+                    .footprint(skeleton, model, frame, &mut self.message);
+                if *publish_floor {
+                    self.message.transforms.push(floor_under_camera(
+                        &skeleton.header,
+                        model,
+                        frame,
+                    ));
+                }
+            }
         }
         let frames = !self.message.transforms.is_empty();
         let body = self
@@ -435,4 +494,13 @@ impl HriTopics {
             }
         }
     }
+}
+
+/// The floor frame `frame` under the camera frame of `header`: the inverse of the
+/// camera's pose over the floor.
+fn floor_under_camera(header: &Header, floor: &FloorModel, frame: &str) -> TransformStamped {
+    let inverse =
+        nalgebra::Isometry3::from_parts(floor.translation().into(), floor.rotation()).inverse();
+    let (t, q) = (inverse.translation.vector, inverse.rotation);
+    TransformStamped::new(header.clone(), frame, [t.x, t.y, t.z], [q.i, q.j, q.k, q.w])
 }

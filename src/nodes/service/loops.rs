@@ -8,8 +8,11 @@ use std::time::{Duration, Instant};
 use serde::Serialize;
 
 use super::ServiceError;
-use super::runtime::{DetectorSide, run_estimator_with_camera};
-use super::wiring::{DetectorInput, EstimatorOutputs, Publishers, Wiring, detector_transport};
+use super::runtime::{DetectorSide, run_estimator_on_runtime_with};
+use super::side_inputs::SideInputs;
+use super::wiring::{
+    DetectorInput, EstimatorOutputs, Publishers, Recorded, Wiring, detector_transport,
+};
 use crate::detector::DetectorStats;
 use crate::msgs::HeatMaps;
 use crate::msgs::sensor::CameraInfo;
@@ -77,6 +80,18 @@ pub fn run_estimator(
     outputs: &mut EstimatorOutputs,
     stop: &AtomicBool,
 ) -> EstimatorReport {
+    run_estimator_with(node, source, &mut SideInputs::default(), outputs, stop)
+}
+
+/// [`run_estimator`], the node also taking what waits in `side` before each frame (the
+/// camera's calibration and transforms beside a source that does not carry them).
+pub fn run_estimator_with(
+    node: &mut EstimatorNode,
+    source: &mut dyn FrameSource,
+    side: &mut SideInputs,
+    outputs: &mut EstimatorOutputs,
+    stop: &AtomicBool,
+) -> EstimatorReport {
     // A live source's idle track ends after the window's gap in wall time; a replayed
     // recording's gaps are in its stamps, which the window checks itself.
     let idle_limit = Duration::from_secs_f64(node.settings().max_gap_seconds);
@@ -86,6 +101,7 @@ pub fn run_estimator(
     let mut open_track = false;
     let mut input_error = None;
     while !stop.load(Ordering::Relaxed) {
+        side.take(node);
         let accepted = node.frames_accepted();
         let mut image = None;
         let mut handle = |frame: &crate::msgs::HeatMapsView<'_>, _stamp: u64| {
@@ -313,7 +329,7 @@ impl Stages {
 /// Detector and estimator in one process, on a tokio runtime: the detector's source
 /// (the configured one, [`detector_input`]) on a thread of its own, paced on the
 /// runtime, feeds the estimator's solver thread through a bounded channel (a slow
-/// estimator slows the detector down: [`DetectorSide`], [`run_estimator_with_camera`]);
+/// estimator slows the detector down: [`DetectorSide`], [`run_estimator_on_runtime_with`]);
 /// results go to the configured outputs. When recording, the heat maps are recorded
 /// too, so that the recording holds the whole run (`posestream render` draws them).
 pub fn run_pipeline(
@@ -356,17 +372,14 @@ pub fn run_pipeline(
             let sink = wiring
                 .taps
                 .publishers::<CameraInfo>(&config.topics.camera_info)?;
-            Some(Box::new(RecordedCalibration { source, sink }) as Box<dyn Source<CameraInfo>>)
+            Some(Box::new(Recorded { source, sink }) as Box<dyn Source<CameraInfo>>)
         }
         None => None,
     };
-    let estimator = run_estimator_with_camera(
-        &mut node,
-        &mut detector,
-        camera.as_ref().map(CameraTap::reader).or(calibration),
-        &mut outputs,
-        stop,
-    )?;
+    let mut side = SideInputs::camera(camera.as_ref().map(CameraTap::reader).or(calibration));
+    side.transforms = wiring.transform_sources(config)?;
+    let estimator =
+        run_estimator_on_runtime_with(&mut node, &mut detector, side, &mut outputs, stop)?;
     if let Some(tap) = &camera {
         tap.close();
     }
@@ -402,23 +415,6 @@ pub fn run_pipeline(
         recording,
         recording_error,
     })
-}
-
-/// A camera's calibration as the estimator reads it, written to the recording too.
-struct RecordedCalibration {
-    source: Box<dyn Source<CameraInfo>>,
-    sink: Publishers<CameraInfo>,
-}
-
-impl Source<CameraInfo> for RecordedCalibration {
-    fn recv(&mut self, timeout: Duration) -> Result<Received<CameraInfo>, TransportError> {
-        let received = self.source.recv(timeout)?;
-        if let Received::Message(info, stamp) = &received {
-            // A failure is logged once and counted; the estimator still reads it.
-            self.sink.publish(info, *stamp);
-        }
-        Ok(received)
-    }
 }
 
 /// One topic of a recorder: takes a message (waiting up to the given time) and writes

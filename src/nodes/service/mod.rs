@@ -1,6 +1,7 @@
 //! The nodes as services: the loops that move messages between sources, the
 //! [`EstimatorNode`](super::EstimatorNode) and sinks (blocking, [`loops`]; with their
-//! I/O on a tokio runtime, [`runtime`]), and the wiring that builds those ends from the
+//! I/O on a tokio runtime, [`runtime`]; what the estimator reads beside its heat maps,
+//! [`side_inputs`]), and the wiring that builds those ends from the
 //! configuration ([`wiring`]), and what is said of bodies rather than skeletons (frames
 //! on `/tf`, REP-155's topics: [`bodies`]). What backend each end is
 //! comes from the configuration; the loops do not know.
@@ -8,10 +9,12 @@
 pub mod bodies;
 pub mod loops;
 pub mod runtime;
+pub mod side_inputs;
 pub mod wiring;
 
 pub use loops::*;
 pub use runtime::*;
+pub use side_inputs::SideInputs;
 pub use wiring::*;
 
 use crate::nodes::SetupError;

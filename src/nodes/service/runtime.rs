@@ -29,17 +29,18 @@ use std::time::{Duration, Instant};
 
 use tokio::sync::mpsc;
 
+use super::side_inputs::SideInputs;
 use super::{
     DetectorReport, EstimatorInput, EstimatorOutputs, EstimatorReport, POLL, Publishers,
     ServiceError, due_wait,
 };
-use crate::msgs::sensor::CameraInfo;
+use crate::floor::FloorModel;
 use crate::msgs::{HeatMaps, Skeleton3D};
 use crate::nodes::config::ReplayRate;
 use crate::nodes::latency::LatencyHistogram;
 use crate::nodes::{EstimatorNode, Refusals};
 use crate::transport::runtime::{AsyncSource, Blocking};
-use crate::transport::{Received, Source, TransportError};
+use crate::transport::{Received, TransportError};
 
 /// Frames (or batches of skeletons) waiting between the runtime and the solver at most.
 const CHANNEL: usize = 4;
@@ -91,6 +92,8 @@ struct Batch {
     image: Option<(i64, u64)>,
     /// The images' size, when the node knows it (REP-155's image messages need it).
     image_size: Option<(f64, f64)>,
+    /// The floor the skeletons stand on, when the node knows it (their footprints).
+    floor: Option<FloorModel>,
 }
 
 /// What the solver thread counted.
@@ -111,16 +114,16 @@ pub fn run_estimator_on_runtime(
     outputs: &mut EstimatorOutputs,
     stop: &AtomicBool,
 ) -> Result<EstimatorReport, ServiceError> {
-    run_estimator_with_camera(node, source, None, outputs, stop)
+    run_estimator_on_runtime_with(node, source, SideInputs::default(), outputs, stop)
 }
 
-/// [`run_estimator_on_runtime`], the node also taking the camera's calibration from
-/// `camera` (the solver thread looks for a new one before each frame; a camera-info
-/// message is rare, and small).
-pub fn run_estimator_with_camera(
+/// [`run_estimator_on_runtime`], the node also taking what comes in `side` (the
+/// camera's calibration, transforms): the solver thread takes what waits there before
+/// each frame.
+pub fn run_estimator_on_runtime_with(
     node: &mut EstimatorNode,
     mut source: impl AsyncSource<HeatMaps>,
-    camera: Option<Box<dyn Source<CameraInfo>>>,
+    side: SideInputs,
     outputs: &mut EstimatorOutputs,
     stop: &AtomicBool,
 ) -> Result<EstimatorReport, ServiceError> {
@@ -132,7 +135,7 @@ pub fn run_estimator_with_camera(
         let node = &mut *node;
         let solver = std::thread::Builder::new()
             .name("solver".into())
-            .spawn_scoped(scope, move || solve(node, camera, work_rx, done, spent_rx))
+            .spawn_scoped(scope, move || solve(node, side, work_rx, done, spent_rx))
             .map_err(|_| ServiceError::Thread("solver"))?;
         let input = async move {
             let ticks = work.clone();
@@ -187,7 +190,7 @@ pub fn run_estimator_with_camera(
                 };
                 outputs.frame_stamp(batch.released_at);
                 outputs
-                    .publish_async(batch.image, &batch.skeletons, batch.image_size)
+                    .publish_async(batch.image, &batch.skeletons, batch.image_size, batch.floor)
                     .await;
                 // Back to the node, to be written over (the solver may be gone).
                 let _ = spent.send(batch.skeletons);
@@ -218,7 +221,7 @@ pub fn run_estimator_with_camera(
 /// until `work` closes; then the track's last estimates.
 fn solve(
     node: &mut EstimatorNode,
-    mut camera: Option<Box<dyn Source<CameraInfo>>>,
+    mut side: SideInputs,
     mut work: mpsc::Receiver<Work>,
     done: mpsc::Sender<Batch>,
     spent: std::sync::mpsc::Receiver<Vec<Skeleton3D>>,
@@ -240,11 +243,7 @@ fn solve(
         }
         match next {
             Work::Frame(maps, stamp) => {
-                if let Some(source) = &mut camera
-                    && !take_camera_info(node, source.as_mut())
-                {
-                    camera = None;
-                }
+                side.take(node);
                 solved.frames += 1;
                 released_at = stamp;
                 image = Some((maps.header.stamp.nanos(), maps.sequence));
@@ -280,6 +279,7 @@ fn solve(
                     released_at,
                     image,
                     image_size: node.image_size(),
+                    floor: node.floor(),
                 })
                 .is_err()
             {
@@ -295,31 +295,10 @@ fn solve(
             released_at,
             image: None,
             image_size: node.image_size(),
+            floor: node.floor(),
         });
     }
     solved
-}
-
-/// Hands `node` every camera-info message waiting in `source` (refusals counted);
-/// false when the source is closed or broken (it is not read again).
-fn take_camera_info(node: &mut EstimatorNode, source: &mut dyn Source<CameraInfo>) -> bool {
-    loop {
-        match source.recv(Duration::ZERO) {
-            Ok(Received::Message(info, _)) => {
-                // Counted and logged by the node if refused.
-                let _ = node.camera_info(&info);
-            }
-            Ok(Received::Idle) => return true,
-            Ok(Received::Closed) => return false,
-            Err(e @ (TransportError::Malformed { .. } | TransportError::BeyondLimits { .. })) => {
-                node.count_refused(&e)
-            }
-            Err(e) => {
-                tracing::warn!("camera info: {e}; no more is read");
-                return false;
-            }
-        }
-    }
 }
 
 /// The estimator node over its configured input ([`EstimatorInput`]): on the runtime
@@ -333,13 +312,16 @@ pub fn serve_estimator(
     stop: &AtomicBool,
 ) -> Result<EstimatorReport, ServiceError> {
     match input {
-        EstimatorInput::Awaited {
-            mut heatmaps,
-            camera,
-        } => run_estimator_with_camera(node, &mut *heatmaps, camera, outputs, stop),
-        EstimatorInput::Lent(mut source) => {
-            Ok(super::run_estimator(node, &mut source, outputs, stop))
+        EstimatorInput::Awaited { mut heatmaps, side } => {
+            run_estimator_on_runtime_with(node, &mut *heatmaps, side, outputs, stop)
         }
+        EstimatorInput::Lent(mut source, mut side) => Ok(super::run_estimator_with(
+            node,
+            &mut source,
+            &mut side,
+            outputs,
+            stop,
+        )),
     }
 }
 

@@ -9,8 +9,11 @@ use std::time::Duration;
 
 use super::ServiceError;
 pub use super::bodies::{Bodies, TopicMaker};
+use super::side_inputs::SideInputs;
 use crate::detector::{DetectorStats, ImageDetector};
+use crate::floor::{FloorModel, FloorSource};
 use crate::msgs::sensor::CameraInfo;
+use crate::msgs::tf::TFMessage;
 use crate::msgs::visualization::ImageMarker;
 use crate::msgs::{HeatMaps, MarkerArray, Skeleton3D, Skeleton3DArray, SkeletonState};
 use crate::nodes::EstimatorNode;
@@ -25,7 +28,7 @@ use crate::nodes::shown_images::shown_images_topic;
 use crate::recording::RecordingSummary;
 use crate::transport::foxglove::LiveView;
 use crate::transport::mcap::{McapSource, SharedRecorder};
-use crate::transport::ros2::{Ros2, Ros2Sink, Ros2Source};
+use crate::transport::ros2::{QosSettings, Ros2, Ros2Sink, Ros2Source};
 use crate::transport::shm::Shm;
 use crate::transport::{FrameSource, Message, Received, Sink, Source, TransportError};
 
@@ -73,14 +76,49 @@ impl Middleware {
                     Box::new(ros.source::<CameraInfo>(&config.topics.camera_info)?);
                 EstimatorInput::Awaited {
                     heatmaps,
-                    camera: Some(camera),
+                    side: SideInputs::camera(Some(camera)),
                 }
             }
-            Transport::Iceoryx2 => EstimatorInput::Lent(Box::new(
-                self.shm()?
-                    .heatmaps_source(&config.iceoryx2.heatmaps, &config.limits)?,
-            )),
+            Transport::Iceoryx2 => EstimatorInput::Lent(
+                Box::new(
+                    self.shm()?
+                        .heatmaps_source(&config.iceoryx2.heatmaps, &config.limits)?,
+                ),
+                SideInputs::default(),
+            ),
         })
+    }
+
+    /// With the floor from TF (`[estimator.metric.floor] source = "tf"`), subscriptions
+    /// to `topics.tf_static` (latched: reliable, transient local, as tf2's static
+    /// listener asks, so that transforms published before this node started arrive)
+    /// and `topics.tf` (reliable, volatile). They need ROS 2: without it (an estimator
+    /// reading iceoryx2 that publishes nothing on ROS 2) a warning says the floor waits
+    /// for nothing, and none is opened. Empty for the other floor sources.
+    pub fn transform_sources(
+        &mut self,
+        config: &ServiceConfig,
+    ) -> Result<Vec<Box<dyn Source<TFMessage>>>, TransportError> {
+        if config.estimator.metric.floor.source != FloorSource::Tf {
+            return Ok(Vec::new());
+        }
+        let Some(ros) = self.ros.as_mut() else {
+            tracing::warn!(
+                "[estimator.metric.floor] source = \"tf\" reads {} and {} over ROS 2, which \
+                 this node does not use (iceoryx2 in, no ROS 2 out): no floor; set \
+                 [outputs] ros2 = true, or the floor in the configuration (source = \"config\")",
+                config.topics.tf_static,
+                config.topics.tf
+            );
+            return Ok(Vec::new());
+        };
+        Ok(vec![
+            Box::new(ros.source_with::<TFMessage>(
+                &config.topics.tf_static,
+                &QosSettings::tf_static_listener(),
+            )?),
+            Box::new(ros.source_with::<TFMessage>(&config.topics.tf, &QosSettings::tf_listener())?),
+        ])
     }
 }
 
@@ -88,15 +126,16 @@ impl Middleware {
 /// ([`serve_estimator`](super::serve_estimator)).
 pub enum EstimatorInput {
     /// Messages awaited on a tokio runtime ([`run_estimator_on_runtime`](super::run_estimator_on_runtime)),
-    /// and the camera's calibration beside them, if it is read.
+    /// and what is read beside them.
     Awaited {
         /// The heat maps.
         heatmaps: Box<Ros2Source<HeatMaps>>,
-        /// `sensor_msgs/CameraInfo` (`topics.camera_info`).
-        camera: Option<Box<dyn Source<CameraInfo>>>,
+        /// The camera's calibration (`topics.camera_info`) and transforms.
+        side: SideInputs,
     },
-    /// Frames lent by a blocking source ([`run_estimator`](super::run_estimator)).
-    Lent(Box<dyn FrameSource>),
+    /// Frames lent by a blocking source ([`run_estimator`](super::run_estimator)), and
+    /// what is read beside them.
+    Lent(Box<dyn FrameSource>, SideInputs),
 }
 
 fn missing(transport: &'static str) -> TransportError {
@@ -523,7 +562,11 @@ impl EstimatorOutputs {
             crate::streaming::Outputs::Lagged => settings.lag as u32,
             _ => 0,
         };
-        let bodies = Bodies::new(node.joint_names(), lag, tf, hri)?;
+        let mut bodies = Bodies::new(node.joint_names(), lag, tf, hri)?;
+        let floor = &config.estimator.metric.floor;
+        if floor.source != FloorSource::None {
+            bodies = bodies.with_floor(&floor.frame, floor.source == FloorSource::Config);
+        }
         Ok(Self::new(skeletons, markers, node.bones())
             .with_arrays(arrays)
             .with_image_markers(overlay, lag)
@@ -545,6 +588,7 @@ impl EstimatorOutputs {
             self.send_arrays();
         }
         let image_size = node.image_size();
+        self.bodies.set_floor(node.floor());
         for s in skeletons.iter() {
             let stamp = self.stamp(s);
             self.skeletons.publish(s, stamp);
@@ -620,17 +664,20 @@ impl EstimatorOutputs {
     }
 
     /// Publishes skeletons on a runtime ([`Publishers::publish_async`]), as
-    /// [`EstimatorOutputs::publish`] does (`image_size`: the node's, when known).
+    /// [`EstimatorOutputs::publish`] does (`image_size` and `floor`: the node's, when
+    /// known).
     pub(super) async fn publish_async(
         &mut self,
         image_ns: Option<(i64, u64)>,
         skeletons: &[Skeleton3D],
         image_size: Option<(f64, f64)>,
+        floor: Option<FloorModel>,
     ) {
         if self.grouped() && (image_ns.is_some() || !skeletons.is_empty()) {
             self.grouping.add(image_ns, skeletons, &mut self.ready);
             self.send_arrays_async().await;
         }
+        self.bodies.set_floor(floor);
         for s in skeletons {
             let stamp = self.stamp(s);
             self.skeletons.publish_async(s, stamp).await;
@@ -959,13 +1006,52 @@ impl Wiring {
         )
     }
 
-    /// The estimator node's heat maps from `transport` ([`Middleware::estimator_input`]).
+    /// The estimator node's heat maps from `transport` ([`Middleware::estimator_input`])
+    /// and what it reads beside them ([`Self::transform_sources`]), what is read beside
+    /// recorded as it is read (so start the recording first).
     pub fn estimator_input(
         &mut self,
         config: &ServiceConfig,
         transport: Transport,
     ) -> Result<EstimatorInput, ServiceError> {
-        Ok(self.middleware.estimator_input(config, transport)?)
+        let mut input = self.middleware.estimator_input(config, transport)?;
+        let transforms = self.transform_sources(config)?;
+        let camera_sink = self
+            .taps
+            .publishers::<CameraInfo>(&config.topics.camera_info)?;
+        match &mut input {
+            EstimatorInput::Awaited { side, .. } | EstimatorInput::Lent(_, side) => {
+                side.transforms = transforms;
+                // The calibration read is recorded too.
+                side.camera = side.camera.take().map(|source| {
+                    Box::new(Recorded {
+                        source,
+                        sink: camera_sink,
+                    }) as Box<dyn Source<CameraInfo>>
+                });
+            }
+        }
+        Ok(input)
+    }
+
+    /// [`Middleware::transform_sources`], each recorded as it is read (to its topic of
+    /// the output recording, so that a replay of the recording has the floor too).
+    pub fn transform_sources(
+        &mut self,
+        config: &ServiceConfig,
+    ) -> Result<Vec<Box<dyn Source<TFMessage>>>, ServiceError> {
+        let sources = self.middleware.transform_sources(config)?;
+        let topics = [&config.topics.tf_static, &config.topics.tf];
+        sources
+            .into_iter()
+            .zip(topics)
+            .map(|(source, topic)| {
+                Ok(Box::new(Recorded {
+                    source,
+                    sink: self.taps.publishers::<TFMessage>(topic)?,
+                }) as Box<dyn Source<TFMessage>>)
+            })
+            .collect()
     }
 
     /// Finishes the output recording after the loop ended: in place if the input held
@@ -987,5 +1073,25 @@ impl Wiring {
                 kept: recorder.map(|r| r.finish_partial()).transpose()?,
             }),
         }
+    }
+}
+
+/// A source whose messages are also published to taps as they are read (the output
+/// recording): what the estimator read beside its heat maps, kept for a replay.
+pub struct Recorded<M: Message> {
+    /// Where the messages come from.
+    pub source: Box<dyn Source<M>>,
+    /// Where they are written as well.
+    pub sink: Publishers<M>,
+}
+
+impl<M: Message> Source<M> for Recorded<M> {
+    fn recv(&mut self, timeout: Duration) -> Result<Received<M>, TransportError> {
+        let received = self.source.recv(timeout)?;
+        if let Received::Message(message, stamp) = &received {
+            // A failure is logged once and counted; the estimator still reads it.
+            self.sink.publish(message, *stamp);
+        }
+        Ok(received)
     }
 }

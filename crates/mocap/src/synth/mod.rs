@@ -100,8 +100,10 @@ impl CameraSpec {
         if self.elevation_deg.abs() >= 90.0 {
             return Err("camera elevation must lie strictly between -90 and 90 degrees".into());
         }
-        if self.height.is_some_and(|h| h <= 0.0) {
-            return Err("camera height must be positive (above the floor)".into());
+        // What a floor under the camera may be (the estimator's `FloorModel`: 1 cm to
+        // 1 km).
+        if self.height.is_some_and(|h| !(0.01..=1000.0).contains(&h)) {
+            return Err("camera height must lie between 0.01 and 1000 m above the floor".into());
         }
         if self.tilt_deg.abs() >= 90.0 {
             return Err("camera tilt must lie strictly between -90 and 90 degrees".into());
@@ -490,11 +492,13 @@ mod tests {
             let w = Vector3::from_column_slice(&seq.positions[3 * j..3 * j + 3]);
             assert!((pose * nalgebra::Point3::from(c) - nalgebra::Point3::from(w)).norm() < 1e-9);
         }
-        let bad = CameraSpec {
-            height: Some(-1.0),
-            ..CameraSpec::default()
-        };
-        assert!(bad.validate().is_err());
+        for height in [-1.0, 0.0, 0.005, 1001.0, 1e308] {
+            let bad = CameraSpec {
+                height: Some(height),
+                ..CameraSpec::default()
+            };
+            assert!(bad.validate().is_err(), "{height}");
+        }
     }
 
     #[test]
