@@ -221,7 +221,7 @@ fn a_floor_configuration_out_of_its_domain_is_one_error_naming_the_key() {
         ("ankle_height = -0.1", "ankle_height"),
         ("contact_frames = 0", "contact_frames"),
         ("max_scale = 0.5", "max_scale"),
-        ("source = \"learnt\"", "source"),
+        ("source = \"learned\"", "source"),
         ("elevation = 3.0", "elevation"),
     ] {
         let dir = tempfile::tempdir().expect("tempdir");
@@ -549,4 +549,107 @@ fn a_recording_s_broken_transforms_are_refused_and_counted_and_the_floor_still_f
             .iter()
             .all(|s| s.metric_source == MetricSource::Floor as u8)
     );
+}
+
+/// Two held-out walkers side by side (`synth --place`) under the camera of [`walk`].
+fn two_walkers(dir: &Path) -> PathBuf {
+    let rec = dir.join("two.mcap");
+    let data = common::shared().join("data/mocap/bandai-namco-1");
+    let out = Command::new(env!("CARGO_BIN_EXE_posestream"))
+        .current_dir(root())
+        .args(["synth", "--mapping", "config/skeletons/bandai-namco.toml"])
+        .arg("--bvh")
+        .arg(data.join("dataset-1_walk_proud_001.bvh"))
+        .arg("--bvh")
+        .arg(data.join("dataset-1_walk-back_proud_001.bvh"))
+        .args([
+            "--place=0,-1.5,180",
+            "--static-camera",
+            "--distance=3",
+            "--azimuth=165",
+        ])
+        .arg(format!("--camera-height={HEIGHT}"))
+        .arg(format!("--tilt={PITCH}"))
+        .arg("--out")
+        .arg(dir.join("seq"))
+        .arg("--mcap")
+        .arg(&rec)
+        .output()
+        .expect("synth runs");
+    assert!(out.status.success(), "{out:?}");
+    rec
+}
+
+/// No calibration: the floor learnt from two walkers' ankles, its tilt exact and its
+/// height as the size is (here the subjects' own: what the floor adds over the size).
+#[test]
+fn a_floor_learnt_from_two_walkers_is_trusted_and_places_them() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let rec = two_walkers(dir.path());
+    let truth: Vec<Skeleton3D> = common::messages(&rec, "/posestream/ground_truth");
+    let mut c = config(FloorSource::Learnt);
+    c.estimator.metric.mean_limb_length = 0.2235;
+    let options = ReplayOptions {
+        record: Some(dir.path().join("learnt.mcap")),
+        rosbag2: false,
+        rate: ReplayRate::Fast,
+        paced_for_live: false,
+    };
+    let report = replay(&c, &rec, &options, &AtomicBool::new(false)).expect("replay");
+    let floor = report.learnt_floor.expect("a learnt floor's report");
+    eprintln!("{floor:?}");
+    assert_eq!(floor.state, "accepted", "{floor:?}");
+    let (height, pitch) = (floor.height.expect("height"), floor.pitch.expect("pitch"));
+    assert!((height / HEIGHT - 1.0).abs() < 0.05, "{floor:?}");
+    // Measured: 2.01 m, pitch 15.2, roll 1.7 degrees.
+    assert!((pitch - PITCH).abs() < 2.0, "{floor:?}");
+    assert!(floor.roll.expect("roll").abs() < 3.0, "{floor:?}");
+    assert!(floor.height_std.expect("std") > 0.0);
+    let skeletons: Vec<Skeleton3D> =
+        common::messages(&dir.path().join("learnt.mcap"), "/posestream/skeletons");
+    use posestream::msgs::MetricSource;
+    let placed: Vec<Skeleton3D> = skeletons
+        .into_iter()
+        .filter(|s| s.metric_source == MetricSource::Floor as u8)
+        .collect();
+    assert!(
+        placed.len() > 200,
+        "{} skeletons placed by the floor",
+        placed.len()
+    );
+    let by_track: Vec<Skeleton3D> = truth.clone();
+    let (errors, depth) = root_errors_by_track(&placed, &by_track);
+    let median = errors[errors.len() / 2];
+    eprintln!(
+        "learnt floor: root {median:.4}, depth {depth:+.4} over {}",
+        errors.len()
+    );
+    assert!(
+        median < 0.05 && depth.abs() < 0.05,
+        "root {median:.4}, depth {depth:.4}"
+    );
+}
+
+/// [`root_errors`] for several people: truth matched by sequence and track.
+fn root_errors_by_track(skeletons: &[Skeleton3D], truth: &[Skeleton3D]) -> (Vec<f64>, f64) {
+    let truth: std::collections::HashMap<(u64, u32), &Skeleton3D> = truth
+        .iter()
+        .map(|g| ((g.sequence, g.track_id), g))
+        .collect();
+    let mut errors = Vec::new();
+    let mut depth = 0.0;
+    for s in skeletons.iter().filter(|s| s.lag == 10) {
+        let Some(g) = truth.get(&(s.sequence, s.track_id)) else {
+            continue;
+        };
+        let (p, q) = (&s.positions, &g.positions);
+        let d = [p[0] - q[0], p[1] - q[1], p[2] - q[2]];
+        let distance = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt();
+        errors.push((d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt() / distance);
+        depth += d[2] / q[2];
+    }
+    assert!(!errors.is_empty());
+    errors.sort_by(f64::total_cmp);
+    let n = errors.len() as f64;
+    (errors, depth / n)
 }

@@ -14,7 +14,7 @@ use std::sync::atomic::AtomicBool;
 use clap::Parser;
 use posestream::floor::FloorSource;
 use posestream::mocap::SkeletonMapping;
-use posestream::msgs::Skeleton3D;
+use posestream::msgs::{MetricSource, Skeleton3D};
 use posestream::nodes::config::{ReplayRate, ServiceConfig};
 use posestream::nodes::replay::{ReplayOptions, replay};
 use posestream::recording::read_topic;
@@ -110,7 +110,7 @@ struct Mode {
     true_size: bool,
 }
 
-const MODES: [Mode; 3] = [
+const MODES: [Mode; 5] = [
     Mode {
         name: "no floor, assumed size",
         floor: FloorSource::None,
@@ -126,7 +126,29 @@ const MODES: [Mode; 3] = [
         floor: FloorSource::Tf,
         true_size: false,
     },
+    Mode {
+        name: "floor learnt, assumed size",
+        floor: FloorSource::Learnt,
+        true_size: false,
+    },
+    Mode {
+        name: "floor learnt, true size",
+        floor: FloorSource::Learnt,
+        true_size: true,
+    },
 ];
+
+/// A learnt floor at the end of a scene, against the camera's.
+struct Learnt {
+    scene: &'static str,
+    mode: &'static str,
+    /// The camera's true height and pitch.
+    truth: (f64, f64),
+    report: Option<posestream::nodes::FloorReport>,
+    /// Of the refined skeletons, those placed by the floor.
+    on_floor: usize,
+    refined: usize,
+}
 
 /// Frames after a person's first before their size is scored (2 s at 30 frames/s).
 const SIZE_AFTER_FRAMES: u64 = 60;
@@ -139,6 +161,7 @@ pub fn markdown(args: &ScenesArgs) -> Result<String, CliError> {
     let mapping = SkeletonMapping::load(&args.mapping)?;
     let bones = mapping.layout.bones().collect::<Vec<_>>();
     let mut errors: Vec<Vec<FrameError>> = vec![Vec::new(); MODES.len()];
+    let mut learnt = Vec::new();
     for (i, walk) in WALKS.iter().enumerate() {
         let dir = args.work.join(format!("walk-{i}"));
         let recording = dir.join("walk.mcap");
@@ -165,7 +188,7 @@ pub fn markdown(args: &ScenesArgs) -> Result<String, CliError> {
                 rate: ReplayRate::Fast,
                 paced_for_live: false,
             };
-            replay(&config, &tracked, &options, &AtomicBool::new(false))?;
+            let report = replay(&config, &tracked, &options, &AtomicBool::new(false))?;
             let skeletons: Vec<Skeleton3D> =
                 read_topic::<Skeleton3D>(&out, &config.topics.skeletons)?
                     .into_iter()
@@ -177,9 +200,61 @@ pub fn markdown(args: &ScenesArgs) -> Result<String, CliError> {
             let lag = u32::try_from(config.estimator.window.lag).unwrap_or(u32::MAX);
             let (frames, _) = frame_errors(&skeletons, &truth, lag, &bones);
             errors[m].extend(frames);
+            if mode.floor == FloorSource::Learnt {
+                let refined = skeletons.iter().filter(|s| s.lag == lag);
+                learnt.push(Learnt {
+                    scene: walk.name,
+                    mode: mode.name,
+                    truth: (walk.height, walk.tilt),
+                    report: report.learnt_floor,
+                    on_floor: refined
+                        .clone()
+                        .filter(|s| s.metric_source == MetricSource::Floor as u8)
+                        .count(),
+                    refined: refined.count(),
+                });
+            }
         }
     }
-    Ok(table(args, &base, &errors))
+    let mut text = table(args, &base, &errors);
+    text.push_str(&learnt_table(&learnt));
+    Ok(text)
+}
+
+/// The floors learnt: per scene and mode, where learning stood at its end.
+fn learnt_table(learnt: &[Learnt]) -> String {
+    let mut text = String::from(
+        "The floors learnt (`source = \"learnt\"`, each scene from nothing): where learning \
+         stood at the scene's end, the camera's height and pitch against the truth, and the \
+         refined skeletons placed by the floor (the others by the assumed size, while the \
+         floor was not yet trusted).\n\n\
+         | scene | mode | state | height (true) | pitch (true) | roll | inliers | on the floor |\n\
+         |---|---|---|---:|---:|---:|---:|---:|\n",
+    );
+    let pm = |v: Option<f64>, s: Option<f64>, unit: &str| match (v, s) {
+        (Some(v), Some(s)) => format!("{v:.2} +- {s:.2}{unit}"),
+        _ => "-".into(),
+    };
+    for l in learnt {
+        let r = l.report.as_ref();
+        text.push_str(&format!(
+            "| {} | {} | {} | {} ({:.2} m) | {} ({:.0}°) | {} | {} | {} of {} |\n",
+            l.scene,
+            l.mode,
+            r.map_or("no camera", |r| r.state.as_str()),
+            pm(r.and_then(|r| r.height), r.and_then(|r| r.height_std), " m"),
+            l.truth.0,
+            pm(r.and_then(|r| r.pitch), r.and_then(|r| r.pitch_std), "°"),
+            l.truth.1,
+            pm(r.and_then(|r| r.roll), r.and_then(|r| r.roll_std), "°"),
+            r.and_then(|r| r.inliers)
+                .map_or("-".into(), |i| format!("{:.0} %", 100.0 * i)),
+            l.on_floor,
+            l.refined,
+        ));
+    }
+    text.push('\n');
+    text
 }
 
 /// `synth` of one walk into `recording`.

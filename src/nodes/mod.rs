@@ -37,6 +37,7 @@ use crate::camera::{CropBox, Intrinsics, PixelMap};
 use crate::error::EstimateError;
 use crate::estimator::Estimator;
 use crate::floor::{BodyScale, FloorModel, FloorSource};
+use crate::learnt_floor::{FloorLearner, LearningSettings, LearningState, LearntFloor};
 use crate::limits::{LimitError, Limits};
 use crate::metric::{MetricPose, MetricSettings, MetricStep};
 use crate::msgs::tf::TFMessage;
@@ -314,12 +315,61 @@ struct Metric {
     size: Option<(f64, f64)>,
     /// The floor under the camera, when known (`[estimator.metric.floor]`).
     floor: Option<FloorModel>,
+    /// With the floor learnt: the learner, and the lag of the estimates it learns from
+    /// (the refined ones when the window publishes them).
+    learner: Option<(FloorLearner, usize)>,
     /// The frame in hand, in metres (reused).
     pose: MetricPose,
     /// Estimates the step failed on (published in dictionary units).
     failures: u64,
     /// What the step cost so far.
     timing: MetricTiming,
+}
+
+/// Where learning the floor stands, for the reports: the state, and the newest fit with
+/// its uncertainty (trusted or not).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct FloorReport {
+    /// `learning`, `accepted`, or `rejected: <why>`.
+    pub state: String,
+    /// Person-frames kept.
+    pub points: usize,
+    /// The camera's height above the floor, metres, and its standard deviation.
+    pub height: Option<f64>,
+    /// Its standard deviation, metres.
+    pub height_std: Option<f64>,
+    /// Pitch (degrees, positive looking down) and its standard deviation.
+    pub pitch: Option<f64>,
+    /// Its standard deviation, degrees.
+    pub pitch_std: Option<f64>,
+    /// Roll (degrees) and its standard deviation.
+    pub roll: Option<f64>,
+    /// Its standard deviation, degrees.
+    pub roll_std: Option<f64>,
+    /// Of the ankles, those on the plane, as a fraction.
+    pub inliers: Option<f64>,
+}
+
+impl FloorReport {
+    fn of(learner: &FloorLearner) -> Self {
+        let newest = learner.newest();
+        let angles = newest.map(|f| f.model.pitch_roll());
+        Self {
+            state: match learner.state() {
+                LearningState::Learning => "learning".into(),
+                LearningState::Accepted => "accepted".into(),
+                LearningState::Rejected(why) => format!("rejected: {why}"),
+            },
+            points: learner.points(),
+            height: newest.map(|f| f.model.height()),
+            height_std: newest.map(|f| f.height_std),
+            pitch: angles.map(|a| a.0),
+            pitch_std: newest.map(|f| f.pitch_std),
+            roll: angles.map(|a| a.1),
+            roll_std: newest.map(|f| f.roll_std),
+            inliers: newest.map(|f| f.inliers),
+        }
+    }
 }
 
 /// What the metric step cost so far (`EstimatorNode::metric_timing`).
@@ -403,8 +453,26 @@ impl EstimatorNode {
         camera: Intrinsics,
         size: Option<(f64, f64)>,
     ) -> Result<(), EstimateError> {
+        let learner = (self.metric_settings.floor.source == FloorSource::Learnt).then(|| {
+            let s = &self.metric_settings;
+            let settings = LearningSettings {
+                root_height: s.floor.root_height * s.mean_limb_length,
+                ..LearningSettings::default()
+            };
+            let window = self.template.settings();
+            let lag = match window.outputs {
+                crate::streaming::Outputs::Newest => 0,
+                _ => window.lag,
+            };
+            (FloorLearner::new(settings), lag)
+        });
         match &mut self.metric {
             Some(m) => {
+                if m.camera != camera && learner.is_some() {
+                    // Another camera: what was learnt was of the other's floor.
+                    m.learner = learner;
+                    m.floor = None;
+                }
                 m.camera = camera;
                 m.size = size;
             }
@@ -414,6 +482,7 @@ impl EstimatorNode {
                     camera,
                     size,
                     floor: self.metric_settings.floor.configured(),
+                    learner,
                     pose: MetricPose::default(),
                     failures: 0,
                     timing: MetricTiming::default(),
@@ -477,9 +546,16 @@ impl EstimatorNode {
         }
     }
 
-    /// The floor the metric step uses now (from the configuration or TF).
+    /// The floor the metric step uses now (from the configuration, TF, or learnt and
+    /// trusted).
     pub fn floor(&self) -> Option<FloorModel> {
         self.metric.as_ref().and_then(|m| m.floor)
+    }
+
+    /// Where learning the floor stands (`None` unless it is learnt and the camera known).
+    pub fn learnt_floor(&self) -> Option<FloorReport> {
+        let (learner, _) = self.metric.as_ref()?.learner.as_ref()?;
+        Some(FloorReport::of(learner))
     }
 
     /// With the floor from TF: looks it up again for `camera_frame` when a transform
@@ -1065,6 +1141,10 @@ fn release(
         };
         let mut message = spare.pop().unwrap_or_default();
         write_skeleton(&mut message, e, info, joint_names, track.id, metres);
+        let placed = metres.is_some();
+        if placed && let Some(m) = metric.as_deref_mut() {
+            learn_floor(m, track.id, e.lag);
+        }
         if message.is_finite() {
             out.push(message);
         } else {
@@ -1078,6 +1158,52 @@ fn release(
     while track.frames.len() > keep {
         track.frames.pop_front();
     }
+}
+
+/// With the floor learnt: the root of the pose in hand (of track `id`, estimate lag
+/// `lag`) to the learner; the floor the metric step uses follows what the learner
+/// trusts (the change logged).
+fn learn_floor(m: &mut Metric, id: u32, lag: usize) {
+    let Some((learner, learn_lag)) = &mut m.learner else {
+        return;
+    };
+    if lag != *learn_lag {
+        return;
+    }
+    let before = learner.state();
+    if learner.note(id, m.pose.root_at_size) {
+        m.floor = learner.floor().map(|f| f.model);
+    }
+    let after = learner.state();
+    if std::mem::discriminant(&before) != std::mem::discriminant(&after) {
+        match (after, learner.newest()) {
+            (LearningState::Accepted, Some(f)) => {
+                tracing::info!("floor learnt: {}", describe(f));
+            }
+            (LearningState::Rejected(why), Some(f)) => {
+                tracing::warn!(
+                    "the learnt floor is not trusted: {why} ({}); metres from the assumed size",
+                    describe(f)
+                );
+            }
+            _ => tracing::info!("the learnt floor is uncertain again: learning on"),
+        }
+    }
+}
+
+/// A learnt floor in words.
+fn describe(f: &LearntFloor) -> String {
+    let (pitch, roll) = f.model.pitch_roll();
+    format!(
+        "camera {:.2} +- {:.2} m high, pitch {pitch:.1} +- {:.1}, roll {roll:.1} +- {:.1} degrees, \
+         from {} person-frames ({:.0} % on the plane)",
+        f.model.height(),
+        f.height_std,
+        f.pitch_std,
+        f.roll_std,
+        f.points,
+        100.0 * f.inliers
+    )
 }
 
 /// The metric pose of estimate `e` into `m.pose`: refused when the frame's crop box is

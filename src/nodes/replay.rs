@@ -64,6 +64,9 @@ pub struct ReplayReport {
     pub skipped: Option<crate::msgs::salvage::Skips>,
     /// Tracks made for people whose heat maps came without an id.
     pub unknown_id_tracks: u64,
+    /// Where learning the floor stood at the end (`[estimator.metric.floor] source =
+    /// "learnt"`).
+    pub learnt_floor: Option<super::FloorReport>,
 }
 
 /// Why a replay failed.
@@ -261,6 +264,7 @@ pub fn replay(
         output,
         skipped,
         unknown_id_tracks: report.unknown_id_tracks,
+        learnt_floor: report.learnt_floor,
     })
 }
 

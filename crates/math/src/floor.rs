@@ -30,8 +30,11 @@ pub enum FloorSource {
     /// The height, pitch and roll of [`FloorSettings`].
     Config,
     /// The transform from [`FloorSettings::frame`] to the images' camera frame, read from
-    /// `/tf_static` and `/tf` (a recording's; not yet a live ROS 2 graph's).
+    /// `/tf_static` and `/tf` (a live ROS 2 graph's or a recording's).
     Tf,
+    /// Learnt from the roots of people standing and walking ([`crate::learnt_floor`]):
+    /// its tilt, and its height as well as the assumed body size fits the people seen.
+    Learnt,
 }
 
 /// Settings of the floor (`[estimator.metric.floor]`).
@@ -48,7 +51,8 @@ pub struct FloorSettings {
     /// top to its right (REP-103's roll of the camera's body frame, x forward).
     pub roll: f64,
     /// `tf`: the floor frame (`z = 0` is the floor, z up: REP-105's `base_footprint`, or
-    /// `map` on a flat floor).
+    /// `map` on a flat floor). `config` and `learnt`: the name the floor frame is
+    /// published under, beneath the camera frame.
     pub frame: String,
     /// An ankle on the floor is this far above it, in mean bone lengths of the person
     /// (the ankle joint, not the sole; it grows with the body): the training takes'
@@ -60,6 +64,9 @@ pub struct FloorSettings {
     /// A contact is trusted only when its scale factor lies within this factor of 1 (the
     /// assumed size): 1.5 takes people from 1/1.5 to 1.5 times the assumed size.
     pub max_scale: f64,
+    /// `learnt`: a standing or walking person's root (the pelvis) is this far above the
+    /// floor, in mean bone lengths (the training takes': 0.883 m on 0.2235 m).
+    pub root_height: f64,
 }
 
 impl Default for FloorSettings {
@@ -73,6 +80,7 @@ impl Default for FloorSettings {
             ankle_height: 0.52,
             contact_frames: 60,
             max_scale: 1.5,
+            root_height: 3.95,
         }
     }
 }
@@ -84,7 +92,9 @@ impl FloorSettings {
         if self.source == FloorSource::Config {
             FloorModel::from_height_pitch_roll(self.height, self.pitch, self.roll)?;
         }
-        if self.source == FloorSource::Tf && !valid_frame_id(&self.frame) {
+        if matches!(self.source, FloorSource::Tf | FloorSource::Learnt)
+            && !valid_frame_id(&self.frame)
+        {
             return Err(OutOfDomain::new(
                 "frame",
                 "a TF frame id (letters, digits, _ and /)",
@@ -93,7 +103,8 @@ impl FloorSettings {
         }
         check_real("ankle_height", self.ankle_height, 0.0, 2.0, false)?;
         check_range("contact_frames", self.contact_frames, 1, 10_000)?;
-        check_real("max_scale", self.max_scale, 1.0, 10.0, true)
+        check_real("max_scale", self.max_scale, 1.0, 10.0, true)?;
+        check_real("root_height", self.root_height, 0.5, 20.0, false)
     }
 
     /// The floor of the `config` source (`None` for the others).
@@ -102,7 +113,7 @@ impl FloorSettings {
             FloorSource::Config => {
                 FloorModel::from_height_pitch_roll(self.height, self.pitch, self.roll).ok()
             }
-            FloorSource::None | FloorSource::Tf => None,
+            FloorSource::None | FloorSource::Tf | FloorSource::Learnt => None,
         }
     }
 }

@@ -37,6 +37,7 @@ pub mod estimator;
 pub mod floor;
 pub mod geometry;
 pub mod heatmaps;
+pub mod learnt_floor;
 pub mod metric;
 pub mod metrics;
 pub mod skeleton;

@@ -158,6 +158,9 @@ pub struct MetricPose {
     pub depth: f64,
     /// Where the metric scale came from.
     pub source: MetricSource,
+    /// The root (the pelvis), camera frame, metres, placed by the assumed size whatever
+    /// `source` is: what the floor is learnt from ([`crate::learnt_floor`]).
+    pub root_at_size: Vector3<f64>,
 }
 
 /// Where a metric pose's scale came from (`Skeleton3D.metric_source`).
@@ -314,6 +317,7 @@ impl MetricStep {
                 (self.settings.depth_correction, self.settings.scale_std)
             }
         };
+        out.root_at_size = joint(fit, shape, self.root) * self.settings.depth_correction;
         let focal = camera.focal();
         let px = to_image.mean_scale();
         for j in 0..p {

@@ -68,6 +68,9 @@ pub struct EstimatorReport {
     pub input_error: Option<String>,
     /// Tracks the node made for people whose heat maps came without an id.
     pub unknown_id_tracks: u64,
+    /// Where learning the floor stood at the end (`[estimator.metric.floor] source =
+    /// "learnt"`).
+    pub learnt_floor: Option<crate::nodes::FloorReport>,
 }
 
 /// Heat maps from `source` through `node` to `outputs`, until the source closes or
@@ -179,6 +182,7 @@ pub fn run_estimator_with(
         update: latency.summary(),
         input_error,
         unknown_id_tracks: node.tracks_from_unknown_ids(),
+        learnt_floor: node.learnt_floor(),
     }
 }
 

@@ -214,6 +214,7 @@ pub fn run_estimator_on_runtime_with(
         update: solved.latency.summary(),
         input_error,
         unknown_id_tracks: node.tracks_from_unknown_ids(),
+        learnt_floor: node.learnt_floor(),
     })
 }
 

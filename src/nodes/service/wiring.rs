@@ -565,7 +565,7 @@ impl EstimatorOutputs {
         let mut bodies = Bodies::new(node.joint_names(), lag, tf, hri)?;
         let floor = &config.estimator.metric.floor;
         if floor.source != FloorSource::None {
-            bodies = bodies.with_floor(&floor.frame, floor.source == FloorSource::Config);
+            bodies = bodies.with_floor(&floor.frame, floor.source != FloorSource::Tf);
         }
         Ok(Self::new(skeletons, markers, node.bones())
             .with_arrays(arrays)

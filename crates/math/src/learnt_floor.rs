@@ -1,0 +1,752 @@
+//! The floor learnt from people walking, when no calibration says where it is
+//! (`[estimator.metric.floor] source = "learnt"`).
+//!
+//! A standing or walking person's pelvis stays at one height over the floor (3.95 mean
+//! bone lengths on the training takes, +-2 cm while walking). Placed by the assumed body
+//! size ([`crate::metric`]), a person's roots lie on a plane whose tilt is the floor's (a
+//! scale about the camera centre keeps planes' normals) and whose distance from the camera
+//! is the floor's times that person's size error. The root is used, not the ankles: it is
+//! what the size places best (the fitted pose, flatter in depth than the person, draws
+//! its ankles toward the root's depth, which tilts their plane toward the image plane: a
+//! 30 degree camera looked 26.7 degrees down from the ankles). [`FloorLearner`] keeps the
+//! roots of the last [`LearningSettings::points`] person-frames and fits one up direction
+//! by iteratively reweighted least squares (Tukey's biweight on the residuals, their scale
+//! from the median absolute deviation, at most 5 % of the camera's distance from the
+//! plane: a misplaced frame weighs nothing): with an offset of each person's own when
+//! each person's roots span an area (the tilt then exact whatever their sizes), else one
+//! plane for everyone (people walking on lines: the tilt across the lines comes from
+//! where the people are). The camera's height is the people's median (the body-size
+//! prior, averaged over the people seen). Its uncertainty is the jackknife's over ten
+//! blocks of consecutive points (the points of one step are not independent; blocks of a
+//! second or more nearly are).
+//!
+//! A fit is trusted ([`LearningState::Accepted`]) only when it is consistent (the
+//! people's heights of the camera agree within what body sizes differ by: not people on
+//! two levels, as on stairs or a balcony, nor someone sitting; most roots on their
+//! plane), spread (the roots span an area, not one line, which would leave the roll about
+//! it unknown), certain (height, pitch and roll within their limits) and plausible (a
+//! camera above the floor, not upside down); otherwise it is rejected or still learning,
+//! and the metric step keeps the assumed size.
+
+use nalgebra::{Matrix3, Rotation3, SymmetricEigen, UnitQuaternion, Vector3};
+
+use crate::floor::FloorModel;
+
+/// Blocks of the jackknife.
+const BLOCKS: usize = 10;
+/// Reweighting rounds of a fit, and of a jackknife refit (started from the fit).
+const ROUNDS: usize = 10;
+const REFIT_ROUNDS: usize = 4;
+/// The residuals' scale is at least this (metres): roots placed by the assumed size are
+/// not more exact than this, and a zero spread would weigh everything else out.
+const MIN_SCALE: f64 = 0.02;
+/// A person's points needed for their height of the camera to count in the consistency
+/// check.
+const MIN_PERSON_POINTS: usize = 60;
+/// Tukey's biweight constant, in the residuals' scale.
+const TUKEY: f64 = 4.685;
+/// The residuals' scale at most, as a fraction of the camera's distance from the plane
+/// (5 %: people's sizes differ by about twice that, and their planes with them).
+const MAX_SCALE: f64 = 0.05;
+
+/// How the floor is learnt and when it is trusted.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LearningSettings {
+    /// Person-frames (the root of each) kept: the newest replace the oldest.
+    pub points: usize,
+    /// Person-frames needed before a fit is tried.
+    pub min_points: usize,
+    /// A fit every this many person-frames.
+    pub refit_every: usize,
+    /// Height of a standing or walking person's root (the pelvis) above the floor,
+    /// metres (at the assumed size).
+    pub root_height: f64,
+    /// Points within 3 residual scales of their person's plane needed, as a fraction
+    /// (below: rejected).
+    pub min_inliers: f64,
+    /// The people's heights of the camera may lie this far (a fraction) from their
+    /// median: body sizes differ by about this much (beyond: people on more than one
+    /// level, rejected).
+    pub max_height_spread: f64,
+    /// The roots' spread on the floor along its narrower direction, metres (below:
+    /// still learning).
+    pub min_spread: f64,
+
+    /// The height's standard deviation at most, as a fraction of it.
+    pub max_height_std: f64,
+    /// Pitch's and roll's standard deviations at most, degrees.
+    pub max_angle_std: f64,
+}
+
+impl Default for LearningSettings {
+    fn default() -> Self {
+        Self {
+            points: 3600,
+            min_points: 300,
+            refit_every: 30,
+            root_height: 0.99,
+            min_inliers: 0.8,
+            max_height_spread: 0.2,
+            min_spread: 0.1,
+            max_height_std: 0.03,
+            max_angle_std: 2.0,
+        }
+    }
+}
+
+/// A plane fitted to the roots: the floor's up in the camera frame, and the camera's
+/// height over the floor (the people's median), with the lowest and highest person's.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Plane {
+    up: Vector3<f64>,
+    height: f64,
+    /// The camera's height as the person placing it lowest and highest sees it (people
+    /// with [`MIN_PERSON_POINTS`] at least).
+    heights: (f64, f64),
+    /// The residuals' robust scale, metres.
+    scale: f64,
+    /// Points within 3 scales, as a fraction.
+    inliers: f64,
+    /// The roots' spread along the floor's narrower direction, metres.
+    spread: f64,
+}
+
+/// The learnt floor and how sure of it the learner is.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LearntFloor {
+    /// The floor under the camera.
+    pub model: FloorModel,
+    /// Standard deviations of the camera's height (metres), pitch and roll (degrees).
+    pub height_std: f64,
+    /// Pitch's, degrees.
+    pub pitch_std: f64,
+    /// Roll's, degrees.
+    pub roll_std: f64,
+    /// Person-frames it was fitted to.
+    pub points: usize,
+    /// Of them within 3 residual scales of the plane, as a fraction.
+    pub inliers: f64,
+    /// The residuals' robust scale, metres.
+    pub residual: f64,
+    /// The roots' spread along the floor's narrower direction, metres.
+    pub spread: f64,
+    /// The camera's height as the person placing it lowest and highest sees it, metres.
+    pub heights: (f64, f64),
+}
+
+/// Where learning stands.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub enum LearningState {
+    /// Not enough person-frames yet, or the fit not spread or certain enough.
+    #[default]
+    Learning,
+    /// The floor is trusted ([`FloorLearner::floor`]).
+    Accepted,
+    /// The newest fit is not to be trusted.
+    Rejected(Rejection),
+}
+
+/// Why a fit was rejected.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Rejection {
+    /// Too few roots on their person's plane (`inliers`: their fraction): placed
+    /// inconsistently.
+    Inconsistent {
+        /// The fraction on the plane.
+        inliers: f64,
+    },
+    /// People's roots on planes further apart than body sizes explain: people on more
+    /// than one level (stairs, a balcony), or someone sitting. The camera's height as the
+    /// lowest and the highest person place it, metres.
+    Levels {
+        /// The lowest.
+        low: f64,
+        /// The highest.
+        high: f64,
+    },
+    /// A camera below the floor, or rolled or pitched beyond what a camera watching
+    /// people is (degrees).
+    Implausible {
+        /// Height, metres.
+        height: f64,
+        /// Pitch, degrees.
+        pitch: f64,
+        /// Roll, degrees.
+        roll: f64,
+    },
+}
+
+impl std::fmt::Display for Rejection {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Inconsistent { inliers } => write!(
+                f,
+                "only {:.0} % of the roots on their plane",
+                100.0 * inliers
+            ),
+            Self::Levels { low, high } => write!(
+                f,
+                "people on different levels, or not all standing (the camera {low:.2} to {high:.2} m above them)"
+            ),
+            Self::Implausible {
+                height,
+                pitch,
+                roll,
+            } => write!(
+                f,
+                "an implausible camera: {height:.2} m high, pitch {pitch:.1}, roll {roll:.1} degrees"
+            ),
+        }
+    }
+}
+
+/// The floor learnt from the roots of people walking; see the module docs. Its buffers
+/// are allocated once.
+#[derive(Debug, Clone)]
+pub struct FloorLearner {
+    settings: LearningSettings,
+    /// The root (the pelvis) of each person-frame, camera frame, metres (a ring, oldest
+    /// at `next` once full).
+    roots: Vec<Vector3<f64>>,
+    /// Whose they are (the track of each).
+    ids: Vec<u32>,
+    next: usize,
+    since_fit: usize,
+    /// The points kept in a fit, their residuals and weights (reused).
+    lower: Vec<Vector3<f64>>,
+    residuals: Vec<f64>,
+    sorted: Vec<f64>,
+    weights: Vec<f64>,
+    /// The person of each point (an index into `people`), and the people's ids and
+    /// weighted sums (reused).
+    person: Vec<usize>,
+    people: Vec<Person>,
+    state: LearningState,
+    floor: Option<LearntFloor>,
+    /// The newest fit, trusted or not.
+    newest: Option<LearntFloor>,
+}
+
+impl FloorLearner {
+    /// A learner with nothing seen.
+    pub fn new(settings: LearningSettings) -> Self {
+        let n = settings.points.max(1);
+        Self {
+            settings,
+            roots: Vec::with_capacity(n),
+            ids: Vec::with_capacity(n),
+            next: 0,
+            since_fit: 0,
+            lower: Vec::with_capacity(n),
+            residuals: Vec::with_capacity(n),
+            sorted: Vec::with_capacity(n),
+            weights: Vec::with_capacity(n),
+            person: Vec::with_capacity(n),
+            people: Vec::new(),
+            state: LearningState::Learning,
+            floor: None,
+            newest: None,
+        }
+    }
+
+    /// Where learning stands.
+    pub fn state(&self) -> LearningState {
+        self.state
+    }
+
+    /// The floor, while a fit is trusted.
+    pub fn floor(&self) -> Option<&LearntFloor> {
+        self.floor.as_ref()
+    }
+
+    /// The newest fit, trusted or not (what was rejected, or is still uncertain).
+    pub fn newest(&self) -> Option<&LearntFloor> {
+        self.newest.as_ref()
+    }
+
+    /// Person-frames kept.
+    pub fn points(&self) -> usize {
+        self.roots.len()
+    }
+
+    /// Takes the root (the pelvis) of one person-frame of person `id` (camera frame,
+    /// metres, placed by the assumed size); fits again when due. True when the trusted
+    /// floor changed (a new fit trusted, or the one trusted dropped).
+    pub fn note(&mut self, id: u32, root: Vector3<f64>) -> bool {
+        if !root.iter().all(|v| v.is_finite()) {
+            return false;
+        }
+        if self.roots.len() < self.settings.points.max(1) {
+            self.roots.push(root);
+            self.ids.push(id);
+        } else {
+            self.roots[self.next] = root;
+            self.ids[self.next] = id;
+            self.next = (self.next + 1) % self.roots.len();
+        }
+        self.since_fit += 1;
+        if self.roots.len() < self.settings.min_points.max(BLOCKS * 3)
+            || self.since_fit < self.settings.refit_every
+        {
+            return false;
+        }
+        self.since_fit = 0;
+        self.refit()
+    }
+
+    /// Fits the plane to the points kept, with its jackknife, and decides whether to
+    /// trust it; true when the trusted floor changed.
+    fn refit(&mut self) -> bool {
+        let before = self.floor.is_some();
+        let start = self.newest.map_or(-Vector3::y(), |f| f.model.up());
+        let n = self.roots.len();
+        // An offset per person when each person's own roots span an area (their tilt
+        // exact whatever their sizes); else one plane for everyone (people walking on
+        // lines: the tilt across the lines from the people's places).
+        let per_person = self
+            .fit(start, ROUNDS, None, true)
+            .is_some_and(|p| p.spread >= self.settings.min_spread);
+        let Some(plane) = self.fit(start, ROUNDS, None, per_person) else {
+            self.state = LearningState::Learning;
+            self.floor = None;
+            return before;
+        };
+        // The jackknife: each block of consecutive points (in the order they came) left
+        // out in turn.
+        let mut values = [[0.0; 3]; BLOCKS];
+        let mut fitted = 0;
+        for (b, v) in values.iter_mut().enumerate() {
+            let block = (b * n / BLOCKS, (b + 1) * n / BLOCKS);
+            if let Some(p) = self.fit(plane.up, REFIT_ROUNDS, Some(block), per_person)
+                && let Some(m) = model(&p)
+            {
+                let (pitch, roll) = m.pitch_roll();
+                *v = [p.height, pitch, roll];
+                fitted += 1;
+            }
+        }
+        let Some(model) = model(&plane) else {
+            self.state = LearningState::Learning;
+            self.floor = None;
+            return before;
+        };
+        let std = |k: usize| {
+            if fitted < BLOCKS {
+                return f64::INFINITY;
+            }
+            let mean = values.iter().map(|v| v[k]).sum::<f64>() / BLOCKS as f64;
+            let ss = values.iter().map(|v| (v[k] - mean).powi(2)).sum::<f64>();
+            ((BLOCKS - 1) as f64 / BLOCKS as f64 * ss).sqrt()
+        };
+        let learnt = LearntFloor {
+            model,
+            height_std: std(0),
+            pitch_std: std(1),
+            roll_std: std(2),
+            points: n,
+            inliers: plane.inliers,
+            residual: plane.scale,
+            spread: plane.spread,
+            heights: plane.heights,
+        };
+        self.newest = Some(learnt);
+        self.state = self.judge(&learnt);
+        self.floor = (self.state == LearningState::Accepted).then_some(learnt);
+        before || self.floor.is_some()
+    }
+
+    /// Whether `f` is to be trusted.
+    fn judge(&self, f: &LearntFloor) -> LearningState {
+        let s = &self.settings;
+        let (pitch, roll) = f.model.pitch_roll();
+        let height = f.model.height();
+        let (low, high) = f.heights;
+        if low < (1.0 - s.max_height_spread) * height || high > (1.0 + s.max_height_spread) * height
+        {
+            return LearningState::Rejected(Rejection::Levels { low, high });
+        }
+        if f.inliers < s.min_inliers {
+            return LearningState::Rejected(Rejection::Inconsistent { inliers: f.inliers });
+        }
+        if !(0.1..=50.0).contains(&height) || roll.abs() > 45.0 || !(-45.0..=85.0).contains(&pitch)
+        {
+            return LearningState::Rejected(Rejection::Implausible {
+                height,
+                pitch,
+                roll,
+            });
+        }
+        let certain = f.height_std <= s.max_height_std * height
+            && f.pitch_std <= s.max_angle_std
+            && f.roll_std <= s.max_angle_std;
+        if f.spread >= s.min_spread && certain {
+            LearningState::Accepted
+        } else {
+            LearningState::Learning
+        }
+    }
+
+    /// The plane through the roots by reweighted least squares, from `up`: one
+    /// up, an offset per person; the points of `left_out` (a range in arrival order)
+    /// left out.
+    fn fit(
+        &mut self,
+        mut up: Vector3<f64>,
+        rounds: usize,
+        left_out: Option<(usize, usize)>,
+        per_person: bool,
+    ) -> Option<Plane> {
+        let n = self.roots.len();
+        // Arrival order: the ring's oldest first.
+        let oldest = if n < self.settings.points.max(1) {
+            0
+        } else {
+            self.next
+        };
+        let kept = |i: usize| left_out.is_none_or(|(a, b)| i < a || i >= b);
+        // The people of the points kept.
+        self.people.clear();
+        self.person.clear();
+        for i in (0..n).filter(|&i| kept(i)) {
+            let id = self.ids[(oldest + i) % n];
+            let k = match self.people.iter().position(|p| p.id == id) {
+                Some(k) => k,
+                None => {
+                    self.people.push(Person::new(id));
+                    self.people.len() - 1
+                }
+            };
+            self.person.push(k);
+        }
+        let mut first = true;
+        let mut scale = MIN_SCALE;
+        let mut plane = None;
+        for _ in 0..rounds {
+            self.lower.clear();
+            for i in (0..n).filter(|&i| kept(i)) {
+                self.lower.push(self.roots[(oldest + i) % n]);
+            }
+            if self.lower.len() < 3 {
+                return None;
+            }
+            // Each person's offset along up: their median at first, then their weighted
+            // mean's.
+            if first && !per_person {
+                self.sorted.clear();
+                self.sorted.extend(self.lower.iter().map(|q| up.dot(q)));
+                let o = median_in_place(&mut self.sorted);
+                for p in &mut self.people {
+                    p.offset = o;
+                }
+            } else if first {
+                for (k, p) in self.people.iter_mut().enumerate() {
+                    self.sorted.clear();
+                    self.sorted.extend(
+                        self.lower
+                            .iter()
+                            .zip(&self.person)
+                            .filter(|(_, pk)| **pk == k)
+                            .map(|(q, _)| up.dot(q)),
+                    );
+                    p.offset = median_in_place(&mut self.sorted);
+                }
+            }
+            self.residuals.clear();
+            self.residuals.extend(
+                self.lower
+                    .iter()
+                    .zip(&self.person)
+                    .map(|(q, &k)| up.dot(q) - self.people[k].offset),
+            );
+            let mad = {
+                self.sorted.clear();
+                self.sorted.extend(self.residuals.iter().map(|r| r.abs()));
+                median_in_place(&mut self.sorted)
+            };
+            let distance = {
+                self.sorted.clear();
+                self.sorted
+                    .extend(self.people.iter().map(|p| p.offset.abs()));
+                median_in_place(&mut self.sorted)
+            };
+            // At most a fraction of the camera's distance from the plane.
+            scale = (1.4826 * mad).min(MAX_SCALE * distance).max(MIN_SCALE);
+            let c = TUKEY * scale;
+            self.weights.clear();
+            self.weights.extend(self.residuals.iter().map(|r| {
+                let u = r / c;
+                if u.abs() < 1.0 {
+                    (1.0 - u * u).powi(2)
+                } else {
+                    0.0
+                }
+            }));
+            // Each person's weighted mean; the scatter about them, summed.
+            for p in &mut self.people {
+                p.weight = 0.0;
+                p.sum = Vector3::zeros();
+                p.points = 0;
+            }
+            for ((q, &k), w) in self.lower.iter().zip(&self.person).zip(&self.weights) {
+                let p = &mut self.people[k];
+                p.weight += w;
+                p.sum += q * *w;
+                p.points += 1;
+            }
+            let total: f64 = self.people.iter().map(|p| p.weight).sum();
+            if total <= 0.0 {
+                return None;
+            }
+            let global = self.people.iter().map(|p| p.sum).sum::<Vector3<f64>>() / total;
+            let mut cov = Matrix3::zeros();
+            for ((q, &k), w) in self.lower.iter().zip(&self.person).zip(&self.weights) {
+                let p = &self.people[k];
+                if p.weight > 0.0 {
+                    let centre = if per_person { p.sum / p.weight } else { global };
+                    let d = q - centre;
+                    cov += d * d.transpose() * *w;
+                }
+            }
+            cov /= total;
+            let eigen = SymmetricEigen::new(cov);
+            let mut order = [0, 1, 2];
+            order.sort_by(|&i, &j| eigen.eigenvalues[i].total_cmp(&eigen.eigenvalues[j]));
+            let mut normal: Vector3<f64> = eigen.eigenvectors.column(order[0]).into_owned();
+            // Up is toward the camera: the camera (the origin) above the plane.
+            let mean = self.people.iter().map(|p| p.sum).sum::<Vector3<f64>>() / total;
+            if normal.dot(&mean) > 0.0 {
+                normal = -normal;
+            }
+            up = normal;
+            for p in &mut self.people {
+                if p.weight > 0.0 {
+                    p.own = up.dot(&(p.sum / p.weight));
+                    p.offset = if per_person { p.own } else { up.dot(&global) };
+                }
+            }
+            first = false;
+            // The camera's height: the people's, median over points (a person counts as
+            // often as they were seen); the lowest and highest of those seen enough.
+            self.sorted.clear();
+            self.sorted.extend(
+                self.person
+                    .iter()
+                    .map(|&k| self.settings.root_height - self.people[k].offset),
+            );
+            let height = median_in_place(&mut self.sorted);
+            let seen = self
+                .people
+                .iter()
+                .filter(|p| p.points >= MIN_PERSON_POINTS && p.weight > 0.0)
+                .map(|p| self.settings.root_height - p.own);
+            let heights = seen.fold((height, height), |(lo, hi), h| (lo.min(h), hi.max(h)));
+            plane = Some(Plane {
+                up,
+                height,
+                heights,
+                scale,
+                inliers: 0.0,
+                spread: eigen.eigenvalues[order[1]].max(0.0).sqrt(),
+            });
+        }
+        let mut plane = plane?;
+        let within = self
+            .lower
+            .iter()
+            .zip(&self.person)
+            .filter(|(q, k)| (plane.up.dot(q) - self.people[**k].offset).abs() < 3.0 * scale)
+            .count();
+        plane.inliers = within as f64 / self.lower.len() as f64;
+        Some(plane)
+    }
+}
+
+/// One person's share of a fit.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Person {
+    id: u32,
+    /// Their roots' offset along up in the fit (theirs, or everyone's).
+    offset: f64,
+    /// Their own (their weighted mean's).
+    own: f64,
+    /// Their weights, weighted sum of points, and points.
+    weight: f64,
+    sum: Vector3<f64>,
+    points: usize,
+}
+
+impl Person {
+    fn new(id: u32) -> Self {
+        Self {
+            id,
+            offset: 0.0,
+            own: 0.0,
+            weight: 0.0,
+            sum: Vector3::zeros(),
+            points: 0,
+        }
+    }
+}
+
+/// The camera's pose over the plane: the floor frame's z its up, its x the camera's
+/// forward along the floor.
+fn model(plane: &Plane) -> Option<FloorModel> {
+    let up = plane.up;
+    let x = (Vector3::z() - up * up.z).try_normalize(1e-9)?;
+    let y = up.cross(&x);
+    let rows = Matrix3::from_rows(&[x.transpose(), y.transpose(), up.transpose()]);
+    let rotation = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(rows));
+    FloorModel::new(rotation, Vector3::new(0.0, 0.0, plane.height)).ok()
+}
+
+fn median_in_place(v: &mut [f64]) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    let mid = v.len() / 2;
+    let (_, m, _) = v.select_nth_unstable_by(mid, f64::total_cmp);
+    *m
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Roots of people walking over the floor of `truth` (camera frame): walkers
+    /// crossing the view at 3-10 m, each on a line of their own swaying sideways, each
+    /// scaled about the camera centre by their own size error (`sizes`), their floor
+    /// `level` metres up, their root bobbing 2 cm and with a little noise.
+    fn walkers(
+        truth: &FloorModel,
+        sizes: &[f64],
+        frames: usize,
+        level: &[f64],
+    ) -> Vec<(u32, Vector3<f64>)> {
+        let inverse =
+            nalgebra::Isometry3::from_parts(truth.translation().into(), truth.rotation()).inverse();
+        let mut out = Vec::new();
+        let mut noise = 0x9e37_79b9_u64;
+        let mut rand = move || {
+            noise ^= noise << 13;
+            noise ^= noise >> 7;
+            noise ^= noise << 17;
+            (noise % 10_000) as f64 / 10_000.0 - 0.5
+        };
+        for t in 0..frames {
+            for (k, size) in sizes.iter().enumerate() {
+                let phase = t as f64 / 30.0;
+                let ahead = 6.5 + 3.5 * (0.3 * phase + k as f64).sin();
+                let left = -2.0 + 2.0 * k as f64 + 0.5 * (0.2 * phase).cos();
+                let bob = 0.02 * (6.0 * phase).sin();
+                let z = level.get(k).copied().unwrap_or(0.0);
+                // A person `size` times too small for the assumed size has their root
+                // that much lower.
+                let root = nalgebra::Point3::new(ahead, left, z + 0.99 / size + bob);
+                let camera = (inverse * root).coords * *size;
+                out.push((
+                    k as u32,
+                    camera + Vector3::new(rand(), rand(), rand()) * 0.04,
+                ));
+            }
+        }
+        out
+    }
+
+    fn learn(points: &[(u32, Vector3<f64>)]) -> FloorLearner {
+        let mut l = FloorLearner::new(LearningSettings::default());
+        for (id, p) in points {
+            l.note(*id, *p);
+        }
+        l
+    }
+
+    #[test]
+    fn learns_a_tilted_rolled_floor_from_two_walkers_and_how_sure_it_is() {
+        let truth = FloorModel::from_height_pitch_roll(2.5, 20.0, 5.0).expect("floor");
+        let l = learn(&walkers(&truth, &[1.0, 1.0], 900, &[]));
+        assert_eq!(l.state(), LearningState::Accepted, "{:?}", l.newest());
+        let f = l.floor().expect("a floor");
+        let (pitch, roll) = f.model.pitch_roll();
+        assert!((f.model.height() - 2.5).abs() < 0.05, "{f:?}");
+        assert!(
+            (pitch - 20.0).abs() < 1.0 && (roll - 5.0).abs() < 1.0,
+            "{pitch} {roll}"
+        );
+        assert!(f.height_std > 0.0 && f.height_std < 0.075, "{f:?}");
+        assert!(f.inliers > 0.9, "{f:?}");
+    }
+
+    #[test]
+    fn a_size_error_scales_the_height_but_keeps_the_tilt() {
+        let truth = FloorModel::from_height_pitch_roll(2.0, 15.0, 0.0).expect("floor");
+        let l = learn(&walkers(&truth, &[1.12, 1.12], 900, &[]));
+        let f = l.floor().expect("a floor");
+        let (pitch, _) = f.model.pitch_roll();
+        assert!((f.model.height() / 2.0 - 1.12).abs() < 0.03, "{f:?}");
+        assert!((pitch - 15.0).abs() < 1.0, "{pitch}");
+    }
+
+    #[test]
+    fn people_of_different_sizes_agree_on_the_tilt_and_average_the_height() {
+        let truth = FloorModel::from_height_pitch_roll(2.0, 25.0, -4.0).expect("floor");
+        let l = learn(&walkers(&truth, &[0.92, 1.1], 900, &[]));
+        assert_eq!(l.state(), LearningState::Accepted, "{:?}", l.newest());
+        let f = l.floor().expect("a floor");
+        let (pitch, roll) = f.model.pitch_roll();
+        assert!(
+            (pitch - 25.0).abs() < 1.0 && (roll + 4.0).abs() < 1.0,
+            "{pitch} {roll}"
+        );
+        let (low, high) = f.heights;
+        assert!(
+            (low / 2.0 - 0.92).abs() < 0.03 && (high / 2.0 - 1.1).abs() < 0.03,
+            "{f:?}"
+        );
+        assert!(f.model.height() >= low && f.model.height() <= high, "{f:?}");
+    }
+
+    #[test]
+    fn people_on_two_levels_are_rejected_and_nothing_is_trusted() {
+        let truth = FloorModel::from_height_pitch_roll(2.5, 20.0, 0.0).expect("floor");
+        let l = learn(&walkers(&truth, &[1.0, 1.0], 900, &[0.0, 0.8]));
+        assert!(
+            matches!(l.state(), LearningState::Rejected(Rejection::Levels { .. })),
+            "{:?} {:?}",
+            l.state(),
+            l.newest()
+        );
+        assert!(l.floor().is_none());
+    }
+
+    #[test]
+    fn one_walker_on_one_line_is_still_learning() {
+        let truth = FloorModel::from_height_pitch_roll(2.0, 10.0, 0.0).expect("floor");
+        // Walking straight toward the camera and back: the roll about that line is not
+        // seen.
+        let inverse =
+            nalgebra::Isometry3::from_parts(truth.translation().into(), truth.rotation()).inverse();
+        let points: Vec<(u32, Vector3<f64>)> = (0..900)
+            .map(|t| {
+                let ahead = 6.0 + 3.0 * (t as f64 / 60.0).sin();
+                (
+                    1,
+                    (inverse * nalgebra::Point3::new(ahead, 0.0, 0.99)).coords,
+                )
+            })
+            .collect();
+        let l = learn(&points);
+        assert_eq!(l.state(), LearningState::Learning, "{:?}", l.newest());
+        assert!(l.floor().is_none());
+    }
+
+    #[test]
+    fn too_few_or_non_finite_points_give_no_fit() {
+        let mut l = FloorLearner::new(LearningSettings::default());
+        for _ in 0..100 {
+            assert!(!l.note(1, Vector3::new(0.0, 1.0, 5.0)));
+        }
+        assert!(!l.note(1, Vector3::new(f64::NAN, 1.0, 5.0)));
+        assert_eq!(l.points(), 100);
+        assert_eq!(l.state(), LearningState::Learning);
+    }
+}
