@@ -82,9 +82,39 @@ fn bench(c: &mut Criterion) {
     );
 }
 
+/// One fit of the learnt floor (`FloorLearner`, every 30 person-frames on the solver's
+/// thread): 3600 roots of two people kept, the fit and its jackknife.
+fn learnt_floor(c: &mut Criterion) {
+    use nalgebra::Vector3;
+    use posestream::learnt_floor::{FloorLearner, LearningSettings};
+    let mut learner = FloorLearner::new(LearningSettings {
+        refit_every: 1,
+        ..LearningSettings::default()
+    });
+    let root = |t: usize| {
+        let (k, t) = (t % 2, (t / 2) as f64 / 30.0);
+        let ahead = 6.5 + 3.5 * (0.3 * t + k as f64).sin();
+        let left = -2.0 + 2.0 * k as f64 + 0.5 * (0.2 * t).cos();
+        // A level camera 2 m up: x right, y down, z forward.
+        (k as u32, Vector3::new(-left, 2.0 - 0.99, ahead))
+    };
+    for t in 0..3600 {
+        let (k, r) = root(t);
+        learner.note(k, r);
+    }
+    let mut t = 3600;
+    c.bench_function("learnt floor: a fit (3600 roots, two people)", |b| {
+        b.iter(|| {
+            let (k, r) = root(t);
+            t += 1;
+            learner.note(k, r)
+        })
+    });
+}
+
 criterion_group! {
     name = benches;
     config = Criterion::default().sample_size(200);
-    targets = bench
+    targets = bench, learnt_floor
 }
 criterion_main!(benches);

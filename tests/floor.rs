@@ -218,6 +218,8 @@ fn a_floor_configuration_out_of_its_domain_is_one_error_naming_the_key() {
         ("source = \"config\"\nheight = 1.5\npitch = 95.0", "pitch"),
         ("source = \"config\"\nheight = 1.5\nroll = nan", "roll"),
         ("source = \"tf\"\nframe = \"a frame\"", "frame"),
+        ("published_frame = \"base_footprint\"", "published_frame"),
+        ("published_frame = \"a b\"", "published_frame"),
         ("ankle_height = -0.1", "ankle_height"),
         ("contact_frames = 0", "contact_frames"),
         ("max_scale = 0.5", "max_scale"),
@@ -580,7 +582,7 @@ fn two_walkers(dir: &Path) -> PathBuf {
     rec
 }
 
-/// No calibration: the floor learnt from two walkers' ankles, its tilt exact and its
+/// No calibration: the floor learnt from two walkers' pelvises, its tilt and its
 /// height as the size is (here the subjects' own: what the floor adds over the size).
 #[test]
 fn a_floor_learnt_from_two_walkers_is_trusted_and_places_them() {

@@ -326,33 +326,33 @@ struct Metric {
     timing: MetricTiming,
 }
 
-/// Where learning the floor stands, for the reports: the state, and the newest fit with
-/// its uncertainty (trusted or not).
+/// Where learning the floor stands, for the reports: the state, and the floor trusted
+/// (else the newest fit, not trusted) with its uncertainty.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct FloorReport {
     /// `learning`, `accepted`, or `rejected: <why>`.
     pub state: String,
     /// Person-frames kept.
     pub points: usize,
-    /// The camera's height above the floor, metres, and its standard deviation.
+    /// The camera's height above the floor, metres.
     pub height: Option<f64>,
     /// Its standard deviation, metres.
     pub height_std: Option<f64>,
-    /// Pitch (degrees, positive looking down) and its standard deviation.
+    /// Pitch, degrees, positive looking down.
     pub pitch: Option<f64>,
     /// Its standard deviation, degrees.
     pub pitch_std: Option<f64>,
-    /// Roll (degrees) and its standard deviation.
+    /// Roll, degrees.
     pub roll: Option<f64>,
     /// Its standard deviation, degrees.
     pub roll_std: Option<f64>,
-    /// Of the ankles, those on the plane, as a fraction.
+    /// Of the roots, those on their plane, as a fraction.
     pub inliers: Option<f64>,
 }
 
 impl FloorReport {
     fn of(learner: &FloorLearner) -> Self {
-        let newest = learner.newest();
+        let newest = learner.floor().or(learner.newest());
         let angles = newest.map(|f| f.model.pitch_roll());
         Self {
             state: match learner.state() {
@@ -456,7 +456,7 @@ impl EstimatorNode {
         let learner = (self.metric_settings.floor.source == FloorSource::Learnt).then(|| {
             let s = &self.metric_settings;
             let settings = LearningSettings {
-                root_height: s.floor.root_height * s.mean_limb_length,
+                root_height_m: s.floor.root_height * s.mean_limb_length,
                 ..LearningSettings::default()
             };
             let window = self.template.settings();

@@ -18,6 +18,7 @@ use std::time::{Duration, Instant};
 use serde::Serialize;
 
 use super::config::{ReplayRate, ServiceConfig};
+use super::frames::is_body_transform;
 use super::latency::LatencySummary;
 use super::service::{EstimatorOutputs, Publishers, Taps, live_view, pace, run_estimator};
 use super::{EstimatorNode, Refusals, SetupError};
@@ -338,6 +339,32 @@ struct RecordingFrames<'a> {
 }
 
 impl RecordingFrames<'_> {
+    /// [`Self::hold`] for transforms: the copy recorded leaves people's frames out (an
+    /// output recording's own body frames, replayed, are not this run's).
+    fn hold_transforms(
+        &mut self,
+        topic: String,
+        stamp_ns: u64,
+        data: &[u8],
+    ) -> Result<Received<()>, TransportError> {
+        let tf = msgs::decode::<TFMessage>(data).map_err(|e| TransportError::Malformed {
+            transport: "mcap",
+            topic: topic.clone(),
+            reason: e.to_string(),
+        })?;
+        if let Some((taps, _)) = self.ground_truth {
+            let mut kept = tf.clone();
+            kept.transforms
+                .retain(|t| !is_body_transform(&t.header.frame_id, &t.child_frame_id));
+            self.truth.clear();
+            if !kept.transforms.is_empty() && msgs::encode_into(&kept, &mut self.truth).is_ok() {
+                let _ = taps.send_encoded::<TFMessage>(&topic, stamp_ns, &self.truth);
+            }
+        }
+        self.tf = Some(tf);
+        Ok(Received::Idle)
+    }
+
     /// Records a message read beside the heat maps (`data`, as it came), then decodes it
     /// into its slot for the estimator, which takes it before the frames after it
     /// ([`Received::Idle`]); one that does not decode is refused and counted.
@@ -460,13 +487,9 @@ impl FrameSource for RecordingFrames<'_> {
                 );
             }
             if self.tf_topics.contains(&msg.topic.as_str()) && msg.schema == TFMessage::NAME {
-                // The same (the floor): recorded, then handed to the estimator.
-                return self.hold::<TFMessage>(
-                    |s| &mut s.tf,
-                    msg.topic,
-                    msg.log_time_ns,
-                    &msg.data,
-                );
+                // The same (the floor), people's frames of an earlier run left out of the
+                // copy.
+                return self.hold_transforms(msg.topic, msg.log_time_ns, &msg.data);
             }
             if let Some((taps, topic)) = self.ground_truth {
                 if msg.topic == topic && msg.schema == Skeleton3D::NAME {

@@ -51,9 +51,12 @@ pub struct FloorSettings {
     /// top to its right (REP-103's roll of the camera's body frame, x forward).
     pub roll: f64,
     /// `tf`: the floor frame (`z = 0` is the floor, z up: REP-105's `base_footprint`, or
-    /// `map` on a flat floor). `config` and `learnt`: the name the floor frame is
-    /// published under, beneath the camera frame.
+    /// `map` on a flat floor).
     pub frame: String,
+    /// `config` and `learnt`: the floor frame posestream publishes on `/tf`, under the
+    /// camera frame (the people's footprints under it); empty: none. Not one of a
+    /// robot's own REP-105 frames, which have parents of their own.
+    pub published_frame: String,
     /// An ankle on the floor is this far above it, in mean bone lengths of the person
     /// (the ankle joint, not the sole; it grows with the body): the training takes'
     /// ankles stand 0.117 m high on a mean bone length of 0.2235 m.
@@ -77,6 +80,7 @@ impl Default for FloorSettings {
             pitch: 0.0,
             roll: 0.0,
             frame: "base_footprint".into(),
+            published_frame: "posestream_floor".into(),
             ankle_height: 0.52,
             contact_frames: 60,
             max_scale: 1.5,
@@ -92,13 +96,23 @@ impl FloorSettings {
         if self.source == FloorSource::Config {
             FloorModel::from_height_pitch_roll(self.height, self.pitch, self.roll)?;
         }
-        if matches!(self.source, FloorSource::Tf | FloorSource::Learnt)
-            && !valid_frame_id(&self.frame)
-        {
+        if self.source == FloorSource::Tf && !valid_frame_id(&self.frame) {
             return Err(OutOfDomain::new(
                 "frame",
                 "a TF frame id (letters, digits, _ and /)",
                 format!("{:?}", self.frame),
+            ));
+        }
+        let published = self.published_frame.trim_start_matches('/');
+        if !self.published_frame.is_empty()
+            && (!valid_frame_id(&self.published_frame) || ROBOT_FRAMES.contains(&published))
+        {
+            return Err(OutOfDomain::new(
+                "published_frame",
+                "empty, or a TF frame id (letters, digits, _ and /) that is not one of a \
+                 robot's own (map, odom, earth, base_link, base_footprint): it is published \
+                 under the camera frame",
+                format!("{:?}", self.published_frame),
             ));
         }
         check_real("ankle_height", self.ankle_height, 0.0, 2.0, false)?;
@@ -117,6 +131,9 @@ impl FloorSettings {
         }
     }
 }
+
+/// REP-105's frames: a robot's own, with parents of their own.
+const ROBOT_FRAMES: [&str; 5] = ["map", "odom", "earth", "base_link", "base_footprint"];
 
 /// A TF frame id: not empty, at most 256 bytes, ASCII letters, digits, `_` and `/`.
 fn valid_frame_id(id: &str) -> bool {

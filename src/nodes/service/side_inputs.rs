@@ -11,10 +11,10 @@ use crate::msgs::tf::TFMessage;
 use crate::nodes::EstimatorNode;
 use crate::transport::{Received, Source, TransportError};
 
-/// Transform messages taken from one source before a frame, at most: a peer flooding
-/// `/tf` delays the frame by this many messages, not without bound (the rest wait for
-/// the next frame, DDS's history keeping the newest).
-const TRANSFORMS_PER_FRAME: usize = 64;
+/// Messages taken from one source before a frame, at most: a peer flooding `/tf` (or
+/// the camera-info topic) delays the frame by this many messages, not without bound (the
+/// rest wait for the next frame, DDS's history keeping the newest).
+const MESSAGES_PER_FRAME: usize = 64;
 
 /// The estimator's inputs beside its heat maps.
 #[derive(Default)]
@@ -41,7 +41,7 @@ impl SideInputs {
             && !drain(
                 source.as_mut(),
                 node,
-                usize::MAX,
+                MESSAGES_PER_FRAME,
                 "camera info",
                 |node, info| {
                     // Counted and logged by the node if refused.
@@ -55,7 +55,7 @@ impl SideInputs {
             drain(
                 source.as_mut(),
                 node,
-                TRANSFORMS_PER_FRAME,
+                MESSAGES_PER_FRAME,
                 "transforms",
                 EstimatorNode::transforms,
             )

@@ -21,6 +21,7 @@ use crate::nodes::SetupError;
 use crate::nodes::arrays::ImageArrays;
 use crate::nodes::camera::CameraTap;
 use crate::nodes::config::{DetectorSource, ReplayRate, ServiceConfig, Transport};
+use crate::nodes::frames::is_body_transform;
 use crate::nodes::images::{ImageHeatMaps, SharedStats, image_frames};
 use crate::nodes::latency::FrameClock;
 use crate::nodes::markers::{image_markers, skeleton_markers};
@@ -564,8 +565,14 @@ impl EstimatorOutputs {
         };
         let mut bodies = Bodies::new(node.joint_names(), lag, tf, hri)?;
         let floor = &config.estimator.metric.floor;
-        if floor.source != FloorSource::None {
-            bodies = bodies.with_floor(&floor.frame, floor.source != FloorSource::Tf);
+        match floor.source {
+            FloorSource::None => {}
+            // The robot's floor frame: its tree holds it.
+            FloorSource::Tf => bodies = bodies.with_floor(&floor.frame, false),
+            FloorSource::Config | FloorSource::Learnt if !floor.published_frame.is_empty() => {
+                bodies = bodies.with_floor(&floor.published_frame, true)
+            }
+            FloorSource::Config | FloorSource::Learnt => {}
         }
         Ok(Self::new(skeletons, markers, node.bones())
             .with_arrays(arrays)
@@ -1046,9 +1053,10 @@ impl Wiring {
             .into_iter()
             .zip(topics)
             .map(|(source, topic)| {
-                Ok(Box::new(Recorded {
+                Ok(Box::new(RecordedTransforms {
                     source,
                     sink: self.taps.publishers::<TFMessage>(topic)?,
+                    kept: TFMessage::default(),
                 }) as Box<dyn Source<TFMessage>>)
             })
             .collect()
@@ -1091,6 +1099,36 @@ impl<M: Message> Source<M> for Recorded<M> {
         if let Received::Message(message, stamp) = &received {
             // A failure is logged once and counted; the estimator still reads it.
             self.sink.publish(message, *stamp);
+        }
+        Ok(received)
+    }
+}
+
+/// Transforms read from the graph, recorded as they are read, people's frames left out
+/// (posestream's own, heard back on `/tf`, are recorded once already, by its publisher).
+struct RecordedTransforms {
+    source: Box<dyn Source<TFMessage>>,
+    sink: Publishers<TFMessage>,
+    /// The transforms recorded of the message in hand (reused).
+    kept: TFMessage,
+}
+
+impl Source<TFMessage> for RecordedTransforms {
+    fn recv(&mut self, timeout: Duration) -> Result<Received<TFMessage>, TransportError> {
+        let received = self.source.recv(timeout)?;
+        if let Received::Message(message, stamp) = &received {
+            self.kept.transforms.clear();
+            self.kept.transforms.extend(
+                message
+                    .transforms
+                    .iter()
+                    .filter(|t| !is_body_transform(&t.header.frame_id, &t.child_frame_id))
+                    .cloned(),
+            );
+            if !self.kept.transforms.is_empty() {
+                // A failure is logged once and counted; the estimator still reads it.
+                self.sink.publish(&self.kept, *stamp);
+            }
         }
         Ok(received)
     }
