@@ -320,6 +320,12 @@ impl MetricStep {
         out.root_at_size = joint(fit, shape, self.root) * self.settings.depth_correction;
         let focal = camera.focal();
         let px = to_image.mean_scale();
+        // Placed by the floor, the composed spread is scaled to what the errors were on
+        // the training walks (`FloorSettings::std_factor`).
+        let std_factor = match out.source {
+            MetricSource::Floor => self.settings.floor.std_factor,
+            MetricSource::Size => 1.0,
+        };
         for j in 0..p {
             let q = joint(fit, shape, j) * factor;
             out.positions.extend_from_slice(q.as_slice());
@@ -328,7 +334,8 @@ impl MetricStep {
             out.keypoint_std.push(s_px);
             let lateral = q.z.abs() * s_px / focal;
             for v in [q.x, q.y, q.z] {
-                out.position_std.push(lateral.hypot(v * scale_std));
+                out.position_std
+                    .push(std_factor * lateral.hypot(v * scale_std));
             }
         }
         out.depth = fit.translation.z * factor;
