@@ -38,25 +38,25 @@ fn config(floor: FloorSource) -> ServiceConfig {
     c
 }
 
-/// `posestream synth` of a held-out walk (proud), the person walking away from 6 m.
-fn walk(dir: &Path) -> PathBuf {
-    let rec = dir.join("walk.mcap");
-    let bvh = common::shared().join("data/mocap/bandai-namco-1/dataset-1_walk_proud_001.bvh");
-    let out = Command::new(env!("CARGO_BIN_EXE_posestream"))
+/// `posestream synth` of held-out takes (`people`: file and `--place`, empty for none)
+/// into `dir/name`, the camera [`HEIGHT`] m over the floor and [`PITCH`] degrees down,
+/// with `more` arguments.
+fn synth_walk(dir: &Path, name: &str, people: &[(&str, &str)], more: &[&str]) -> PathBuf {
+    let rec = dir.join(name);
+    let data = common::shared().join("data/mocap/bandai-namco-1");
+    let mut command = Command::new(env!("CARGO_BIN_EXE_posestream"));
+    command
         .current_dir(root())
-        .args([
-            "synth",
-            "--mapping",
-            "config/skeletons/bandai-namco.toml",
-            "--bvh",
-        ])
-        .arg(&bvh)
-        .args([
-            "--static-camera",
-            "--distance=6",
-            "--azimuth=165",
-            "--frames=150",
-        ])
+        .args(["synth", "--mapping", "config/skeletons/bandai-namco.toml"]);
+    for (file, place) in people {
+        command.arg("--bvh").arg(data.join(file));
+        if !place.is_empty() {
+            command.arg(format!("--place={place}"));
+        }
+    }
+    let out = command
+        .arg("--static-camera")
+        .args(more)
         .arg(format!("--camera-height={HEIGHT}"))
         .arg(format!("--tilt={PITCH}"))
         .arg("--out")
@@ -67,6 +67,16 @@ fn walk(dir: &Path) -> PathBuf {
         .expect("synth runs");
     assert!(out.status.success(), "{out:?}");
     rec
+}
+
+/// `posestream synth` of a held-out walk (proud), the person walking away from 6 m.
+fn walk(dir: &Path) -> PathBuf {
+    synth_walk(
+        dir,
+        "walk.mcap",
+        &[("dataset-1_walk_proud_001.bvh", "")],
+        &["--distance=6", "--azimuth=165", "--frames=150"],
+    )
 }
 
 fn replayed(config: &ServiceConfig, input: &Path, output: &Path) -> Vec<Skeleton3D> {
@@ -220,6 +230,12 @@ fn a_floor_configuration_out_of_its_domain_is_one_error_naming_the_key() {
         ("source = \"tf\"\nframe = \"a frame\"", "frame"),
         ("published_frame = \"base_footprint\"", "published_frame"),
         ("published_frame = \"a b\"", "published_frame"),
+        ("published_frame = \"/map\"", "published_frame"),
+        ("std_factor = 0.0", "std_factor"),
+        ("std_factor = nan", "std_factor"),
+        ("std_factor = 1e308", "std_factor"),
+        ("root_height = 0.0", "root_height"),
+        ("root_height = inf", "root_height"),
         ("ankle_height = -0.1", "ankle_height"),
         ("contact_frames = 0", "contact_frames"),
         ("max_scale = 0.5", "max_scale"),
@@ -555,31 +571,15 @@ fn a_recording_s_broken_transforms_are_refused_and_counted_and_the_floor_still_f
 
 /// Two held-out walkers side by side (`synth --place`) under the camera of [`walk`].
 fn two_walkers(dir: &Path) -> PathBuf {
-    let rec = dir.join("two.mcap");
-    let data = common::shared().join("data/mocap/bandai-namco-1");
-    let out = Command::new(env!("CARGO_BIN_EXE_posestream"))
-        .current_dir(root())
-        .args(["synth", "--mapping", "config/skeletons/bandai-namco.toml"])
-        .arg("--bvh")
-        .arg(data.join("dataset-1_walk_proud_001.bvh"))
-        .arg("--bvh")
-        .arg(data.join("dataset-1_walk-back_proud_001.bvh"))
-        .args([
-            "--place=0,-1.5,180",
-            "--static-camera",
-            "--distance=3",
-            "--azimuth=165",
-        ])
-        .arg(format!("--camera-height={HEIGHT}"))
-        .arg(format!("--tilt={PITCH}"))
-        .arg("--out")
-        .arg(dir.join("seq"))
-        .arg("--mcap")
-        .arg(&rec)
-        .output()
-        .expect("synth runs");
-    assert!(out.status.success(), "{out:?}");
-    rec
+    synth_walk(
+        dir,
+        "two.mcap",
+        &[
+            ("dataset-1_walk_proud_001.bvh", ""),
+            ("dataset-1_walk-back_proud_001.bvh", "0,-1.5,180"),
+        ],
+        &["--distance=3", "--azimuth=165"],
+    )
 }
 
 /// No calibration: the floor learnt from two walkers' pelvises, its tilt and its

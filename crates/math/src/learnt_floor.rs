@@ -320,13 +320,7 @@ impl FloorLearner {
         let per_person = own.is_some();
         let Some(plane) = own.or_else(|| self.fit(start, ROUNDS, None, false)) else {
             // Nothing to fit (every point weighed out): what was trusted stays.
-            self.newest = None;
-            self.state = if self.floor.is_some() {
-                LearningState::Accepted
-            } else {
-                LearningState::Learning
-            };
-            return false;
+            return self.no_fit();
         };
         // The jackknife: each block of consecutive points (in the order they came) left
         // out in turn.
@@ -343,13 +337,7 @@ impl FloorLearner {
             }
         }
         let Some(model) = model(&plane) else {
-            self.newest = None;
-            self.state = if self.floor.is_some() {
-                LearningState::Accepted
-            } else {
-                LearningState::Learning
-            };
-            return false;
+            return self.no_fit();
         };
         let std = |k: usize| {
             if fitted < BLOCKS {
@@ -386,6 +374,18 @@ impl FloorLearner {
                 before
             }
         }
+    }
+
+    /// A refit that gave no plane (every point weighed out): what was trusted stays;
+    /// false (the trusted floor did not change).
+    fn no_fit(&mut self) -> bool {
+        self.newest = None;
+        self.state = if self.floor.is_some() {
+            LearningState::Accepted
+        } else {
+            LearningState::Learning
+        };
+        false
     }
 
     /// Whether `f` is to be trusted.
