@@ -24,8 +24,8 @@
 
 pub use posestream_detector::{self as detector, images, models, render};
 pub use posestream_math::{
-    camera, dictionary, estimator, floor, geometry, heatmaps, learnt_floor, metric, metrics,
-    skeleton, solver, streaming,
+    camera, dictionary, estimator, floor, fusion, geometry, heatmaps, learnt_floor, metric,
+    metrics, skeleton, solver, streaming,
 };
 pub use posestream_mocap::{self as mocap, evaluation, synth};
 pub use posestream_msgs::{self as msgs, files, limits, npy, recording};

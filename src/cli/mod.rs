@@ -16,6 +16,7 @@ pub mod record;
 pub mod recover;
 pub mod render;
 pub mod replay;
+pub mod rooms;
 pub mod run;
 pub mod scenes;
 pub mod service;

@@ -57,6 +57,10 @@ pub struct ScenesArgs {
     /// held-out ones (`proud`): what the metric step's constants were measured on.
     #[arg(long, requires = "distances")]
     pub train: bool,
+    /// Rooms seen by several cameras instead: each person's views fused against each
+    /// camera alone (`docs/results.md`).
+    #[arg(long, conflicts_with = "distances")]
+    pub rooms: bool,
 }
 
 /// A scene: its name and people, the first placed by the camera (5 m in front of it),
@@ -353,7 +357,9 @@ pub fn run(args: &ScenesArgs) -> Result<(), CliError> {
         "the held-out takes the scenes are made of",
         "--data",
     )?;
-    let text = if args.distances {
+    let text = if args.rooms {
+        super::rooms::markdown(args)?
+    } else if args.distances {
         super::distances::markdown(args)?
     } else {
         markdown(args)?

@@ -257,6 +257,7 @@ impl ServiceConfig {
         e.params.check().map_err(|x| x.within("estimator.params"))?;
         e.window.check().map_err(|x| x.within("estimator.window"))?;
         e.metric.check().map_err(|x| x.within("estimator.metric"))?;
+        e.fusion.check().map_err(|x| x.within("estimator.fusion"))?;
         self.detector
             .images
             .check()
@@ -457,6 +458,8 @@ pub struct EstimatorConfig {
     pub max_tracks: usize,
     /// Metres in the camera frame (`[estimator.metric]`), when the camera is known.
     pub metric: crate::metric::MetricSettings,
+    /// Several cameras, one pose per person (`[estimator.fusion]`).
+    pub fusion: crate::fusion::FusionSettings,
 }
 
 impl Default for EstimatorConfig {
@@ -468,6 +471,7 @@ impl Default for EstimatorConfig {
             input: Transport::Ros2,
             max_tracks: super::DEFAULT_MAX_TRACKS,
             metric: crate::metric::MetricSettings::default(),
+            fusion: crate::fusion::FusionSettings::default(),
         }
     }
 }

@@ -35,6 +35,7 @@ pub mod dictionary;
 pub mod error;
 pub mod estimator;
 pub mod floor;
+pub mod fusion;
 pub mod geometry;
 pub mod heatmaps;
 pub mod learnt_floor;

@@ -252,7 +252,7 @@ impl Scores<'_> {
     }
 
     /// Writes the scores as f32 into `out` (as long as they are), negatives clipped to 0.
-    fn clipped_into(&self, out: &mut [f32]) {
+    pub(crate) fn clipped_into(&self, out: &mut [f32]) {
         match *self {
             Self::F32(v) => {
                 for (d, v) in out.iter_mut().zip(v) {

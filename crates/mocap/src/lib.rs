@@ -7,6 +7,7 @@ pub mod bvh;
 pub mod error;
 pub mod evaluation;
 pub mod mapping;
+pub mod rooms;
 pub mod split;
 pub mod synth;
 

@@ -138,58 +138,19 @@ pub fn e_step(
             let v = r[(1, 0)] * x + r[(1, 1)] * y + r[(1, 2)] * z + fit.translation.y;
             let [u, v] = [u * scale, v * scale];
             ws.projected[j] = [u, v];
-            ws.expected[j] = estep::expectation(
-                maps.map(t, j),
-                h,
-                w,
-                maps.moments(t, j),
-                u,
-                v,
-                sigma,
-                &mut ws.estep,
-            );
         }
-        if swap_prior > 0.0 {
-            let pairs = dict.left_right_pairs();
-            ws.swapped.clear();
-            for &(l, r) in pairs {
-                // Each joint of the pair under the other's map: how well, first.
-                let cross = |from, [u, v]: [f64; 2], ws: &mut EStepWorkspace| {
-                    let moments = maps.moments(t, from);
-                    estep::mass(maps.map(t, from), h, w, moments, u, v, sigma, ws)
-                };
-                let [pl, pr] = [ws.projected[l], ws.projected[r]];
-                let swapped = cross(r, pl, &mut ws.estep) * cross(l, pr, &mut ws.estep);
-                let as_is = ws.expected[l].mass * ws.expected[r].mass;
-                ws.swapped
-                    .push(estep::swap_probability(swap_prior, as_is, swapped));
-            }
-            // Most pairs "swapped" is the fit mirrored left for right, not the maps:
-            // the maps then stand as they are (or the hypothesis would hold the fit
-            // on its mirrored side).
-            let decided = ws.swapped.iter().filter(|&&q| q > 0.5).count();
-            if 2 * decided > pairs.len() {
-                ws.swapped.fill(0.0);
-            }
-            for (&(l, r), &q) in pairs.iter().zip(&ws.swapped) {
-                // Where, only if the swap is not negligible (it moves a joint by q
-                // times the distance of the hypotheses' means: under 0.1 pixel of a
-                // 64-pixel map below 1e-3).
-                if q < 1e-3 {
-                    continue;
-                }
-                let under = |from, [u, v]: [f64; 2], ws: &mut EStepWorkspace| {
-                    let moments = maps.moments(t, from);
-                    estep::expectation(maps.map(t, from), h, w, moments, u, v, sigma, ws)
-                };
-                let [pl, pr] = [ws.projected[l], ws.projected[r]];
-                let lr = under(r, pl, &mut ws.estep);
-                let rl = under(l, pr, &mut ws.estep);
-                let (el, er) = (ws.expected[l], ws.expected[r]);
-                ws.expected[l] = estep::Expectation::mixture(el, lr, q);
-                ws.expected[r] = estep::Expectation::mixture(er, rl, q);
-            }
-        }
+        estep::expect_joints(
+            |j| (maps.map(t, j), maps.moments(t, j)),
+            h,
+            w,
+            &ws.projected,
+            sigma,
+            swap_prior,
+            dict.left_right_pairs(),
+            &mut ws.estep,
+            &mut ws.swapped,
+            &mut ws.expected,
+        );
         for (j, e) in ws.expected.iter().enumerate() {
             obs.xy[2 * (t * p + j)] = e.x / scale;
             obs.xy[2 * (t * p + j) + 1] = e.y / scale;

@@ -265,6 +265,70 @@ pub fn expectation(
     }
 }
 
+/// The E-step of one frame's joints: `expected[j]` under `maps(j)` (a map and its
+/// moments) with the Gaussian of `sigma` around `projected[j]` (map pixels). With
+/// `swap_prior` positive, each left/right pair of `pairs` is a mixture of its maps as
+/// they are and swapped, weighed by how well each explains the pair at its projection
+/// ([`swap_probability`]); `swapped` receives each pair's posterior. The single-camera
+/// EM ([`super::em::e_step`]) and the multi-view one ([`crate::fusion`]) both call it.
+pub fn expect_joints<'m>(
+    maps: impl Fn(usize) -> (&'m [f32], &'m MapMoments),
+    h: usize,
+    w: usize,
+    projected: &[[f64; 2]],
+    sigma: f64,
+    swap_prior: f64,
+    pairs: &[(usize, usize)],
+    ws: &mut EStepWorkspace,
+    swapped: &mut Vec<f64>,
+    expected: &mut [Expectation],
+) {
+    for (j, (e, &[u, v])) in expected.iter_mut().zip(projected).enumerate() {
+        let (map, moments) = maps(j);
+        *e = expectation(map, h, w, moments, u, v, sigma, ws);
+    }
+    if swap_prior <= 0.0 {
+        return;
+    }
+    swapped.clear();
+    for &(l, r) in pairs {
+        // Each joint of the pair under the other's map: how well, first.
+        let cross = |from, [u, v]: [f64; 2], ws: &mut EStepWorkspace| {
+            let (map, moments) = maps(from);
+            mass(map, h, w, moments, u, v, sigma, ws)
+        };
+        let [pl, pr] = [projected[l], projected[r]];
+        let as_swapped = cross(r, pl, ws) * cross(l, pr, ws);
+        let as_is = expected[l].mass * expected[r].mass;
+        swapped.push(swap_probability(swap_prior, as_is, as_swapped));
+    }
+    // Most pairs "swapped" is the fit mirrored left for right, not the maps: the maps
+    // then stand as they are (or the hypothesis would hold the fit on its mirrored
+    // side).
+    let decided = swapped.iter().filter(|&&q| q > 0.5).count();
+    if 2 * decided > pairs.len() {
+        swapped.fill(0.0);
+    }
+    for (&(l, r), &q) in pairs.iter().zip(swapped.iter()) {
+        // Where, only if the swap is not negligible (it moves a joint by q times the
+        // distance of the hypotheses' means: under 0.1 pixel of a 64-pixel map below
+        // 1e-3).
+        if q < 1e-3 {
+            continue;
+        }
+        let under = |from, [u, v]: [f64; 2], ws: &mut EStepWorkspace| {
+            let (map, moments) = maps(from);
+            expectation(map, h, w, moments, u, v, sigma, ws)
+        };
+        let [pl, pr] = [projected[l], projected[r]];
+        let lr = under(r, pl, ws);
+        let rl = under(l, pr, ws);
+        let (el, er) = (expected[l], expected[r]);
+        expected[l] = Expectation::mixture(el, lr, q);
+        expected[r] = Expectation::mixture(er, rl, q);
+    }
+}
+
 /// [`Expectation::mass`] alone, approximately (a third of [`expectation`]'s sums, over
 /// the Gaussian's centre, [`MASS_CUTOFF`]): how well `map` explains a joint at `(px, py)`.
 pub fn mass(

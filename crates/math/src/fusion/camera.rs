@@ -1,0 +1,68 @@
+//! One camera of a rig: its pinhole [`Intrinsics`] and where it stands in the world.
+
+use nalgebra::{Isometry3, Point3, Vector3};
+
+use crate::camera::Intrinsics;
+
+/// A calibrated camera of a rig: intrinsics and the camera frame in the world frame
+/// (`world_from_camera`; the camera frame is x right, y down, z forward, as everywhere
+/// in posestream).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ViewCamera {
+    /// The pinhole camera, pixels.
+    pub intrinsics: Intrinsics,
+    /// The camera frame in the world frame.
+    pub world_from_camera: Isometry3<f64>,
+}
+
+impl ViewCamera {
+    /// The camera centre, world frame.
+    pub fn centre(&self) -> Vector3<f64> {
+        self.world_from_camera.translation.vector
+    }
+
+    /// The unit direction of the ray through image pixel `(u, v)`, world frame.
+    pub fn ray(&self, u: f64, v: f64) -> Vector3<f64> {
+        (self.world_from_camera.rotation * self.intrinsics.ray(u, v)).normalize()
+    }
+
+    /// A world point in the camera frame.
+    pub fn to_camera(&self, p: &Vector3<f64>) -> Vector3<f64> {
+        self.world_from_camera
+            .inverse_transform_point(&Point3::from(*p))
+            .coords
+    }
+
+    /// The image of a world point (pixels) and its depth, or `None` when it is not in
+    /// front of the camera.
+    pub fn project(&self, p: &Vector3<f64>) -> Option<([f64; 2], f64)> {
+        let c = self.to_camera(p);
+        (c.z > 1e-6).then(|| (self.intrinsics.project(&c), c.z))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Translation3, UnitQuaternion};
+
+    #[test]
+    fn a_projected_point_lies_on_the_ray_of_its_image() {
+        let cam = ViewCamera {
+            intrinsics: Intrinsics::new(800.0, 800.0, 320.0, 240.0).expect("valid"),
+            world_from_camera: Isometry3::from_parts(
+                Translation3::new(1.0, -2.0, 1.5),
+                UnitQuaternion::from_euler_angles(-1.7, 0.1, 0.4),
+            ),
+        };
+        let p = Vector3::new(2.0, 3.0, 0.9);
+        let ([u, v], z) = cam.project(&p).expect("in front");
+        let d = cam.ray(u, v);
+        let along = d.dot(&(p - cam.centre()));
+        assert!((cam.centre() + d * along - p).norm() < 1e-9);
+        assert!((cam.to_camera(&p).z - z).abs() < 1e-12);
+        // Behind the camera: no image.
+        let behind = cam.centre() * 2.0 - p;
+        assert!(cam.project(&behind).is_none());
+    }
+}

@@ -1,0 +1,222 @@
+//! `posestream scenes --rooms`: people in rooms seen by several cameras, fused against
+//! single-view. Each room is rendered by [`posestream::synth::room`] (held-out walking
+//! takes, static cameras around the room, each with its own clock, the heat maps' error
+//! model, people hiding each other); each person's views are fused by
+//! [`FusedWindow`] and, apart, estimated by each camera alone (the streaming window and
+//! the metric step, as the service does) and moved to the world frame by that camera's
+//! extrinsics. Errors are in the world frame with no alignment, at the refined lag
+//! (10 frames) for both; the people's views are given (the cross-view matching is not
+//! measured here).
+
+use posestream::fusion::FusionSettings;
+use posestream::metric::MetricSettings;
+use posestream::mocap::{Bvh, MappedSequence, SkeletonMapping, rooms};
+use posestream::streaming::WindowEstimator;
+use posestream::synth::room::{self, RoomCamera};
+use posestream::synth::{self, ErrorModel, Placement};
+use posestream::{Estimator, Skeleton};
+
+use super::CliError;
+use super::scenes::ScenesArgs;
+
+/// A room: its cameras and people (a take and its placement relative to the first).
+struct RoomSpec {
+    name: &'static str,
+    cameras: fn() -> Vec<RoomCamera>,
+    people: &'static [(&'static str, Placement)],
+}
+
+const STILL: Placement = Placement {
+    ahead: 0.0,
+    left: 0.0,
+    turn_deg: 0.0,
+    velocity: [0.0, 0.0],
+};
+
+const fn at(ahead: f64, left: f64, turn_deg: f64) -> Placement {
+    Placement {
+        ahead,
+        left,
+        turn_deg,
+        velocity: [0.0, 0.0],
+    }
+}
+
+fn ring(n: usize, first: f64, distance: f64) -> Vec<RoomCamera> {
+    (0..n)
+        .map(|i| RoomCamera::at(first + 360.0 * i as f64 / n as f64, distance))
+        .collect()
+}
+
+const FRAME: f64 = 1.0 / 30.0;
+
+const ROOMS: [RoomSpec; 9] = [
+    RoomSpec {
+        name: "2 cameras at 90 degrees, 5 m; one person",
+        cameras: || vec![RoomCamera::at(30.0, 5.0), RoomCamera::at(120.0, 5.0)],
+        people: &[("dataset-1_walk-left_proud_001.bvh", STILL)],
+    },
+    RoomSpec {
+        name: "2 cameras at 90 degrees, 9 m; two people",
+        cameras: || vec![RoomCamera::at(30.0, 9.0), RoomCamera::at(120.0, 9.0)],
+        people: &[
+            ("dataset-1_walk_proud_002.bvh", STILL),
+            ("dataset-1_walk-left_proud_001.bvh", at(2.0, 1.0, 180.0)),
+        ],
+    },
+    RoomSpec {
+        name: "3 cameras, 5 m; two people",
+        cameras: || ring(3, 20.0, 5.0),
+        people: &[
+            ("dataset-1_walk-left_proud_001.bvh", STILL),
+            ("dataset-1_walk-right_proud_001.bvh", at(1.5, 1.0, 0.0)),
+        ],
+    },
+    RoomSpec {
+        name: "4 cameras, 6 m; four people",
+        cameras: || ring(4, 45.0, 6.0),
+        people: &[
+            ("dataset-1_walk-left_proud_001.bvh", STILL),
+            ("dataset-1_walk-right_proud_001.bvh", at(1.5, 1.0, 0.0)),
+            ("dataset-1_walk_proud_001.bvh", at(-1.5, 0.5, 90.0)),
+            ("dataset-1_walk-back_proud_001.bvh", at(0.5, -1.5, 0.0)),
+        ],
+    },
+    RoomSpec {
+        name: "3 cameras, 10 m; two people",
+        cameras: || ring(3, 20.0, 10.0),
+        people: &[
+            ("dataset-1_walk_proud_002.bvh", STILL),
+            ("dataset-1_walk-left_proud_001.bvh", at(2.0, 1.0, 180.0)),
+        ],
+    },
+    RoomSpec {
+        name: "4 cameras, 12 m; three people",
+        cameras: || ring(4, 45.0, 12.0),
+        people: &[
+            ("dataset-1_walk_proud_002.bvh", STILL),
+            ("dataset-1_walk-left_proud_001.bvh", at(2.0, 1.0, 180.0)),
+            ("dataset-1_walk-right_proud_001.bvh", at(-1.0, -2.0, 0.0)),
+        ],
+    },
+    RoomSpec {
+        name: "3 cameras unsynchronised (+1/2, -1/3 frame, 3 ms jitter), one at 15 frames/s; two people",
+        cameras: || {
+            let mut c = ring(3, 20.0, 5.0);
+            c[1].offset_s = 0.5 * FRAME;
+            c[1].jitter_s = 0.003;
+            c[2].offset_s = -FRAME / 3.0;
+            c[2].jitter_s = 0.003;
+            c[2].every = 2;
+            c
+        },
+        people: &[
+            ("dataset-1_walk-left_proud_001.bvh", STILL),
+            ("dataset-1_walk-right_proud_001.bvh", at(1.5, 1.0, 0.0)),
+        ],
+    },
+    RoomSpec {
+        name: "3 cameras, one silent from 3 to 6 s; two people",
+        cameras: || {
+            let mut c = ring(3, 20.0, 5.0);
+            c[0].dropped = Some([3.0, 6.0]);
+            c
+        },
+        people: &[
+            ("dataset-1_walk-left_proud_001.bvh", STILL),
+            ("dataset-1_walk-right_proud_001.bvh", at(1.5, 1.0, 0.0)),
+        ],
+    },
+    RoomSpec {
+        name: "1 camera (fusion with one view), 5 m; one person",
+        cameras: || vec![RoomCamera::at(30.0, 5.0)],
+        people: &[("dataset-1_walk-left_proud_001.bvh", STILL)],
+    },
+];
+
+/// The markdown of every room.
+pub fn markdown(args: &ScenesArgs) -> Result<String, CliError> {
+    let config = args.config.load()?;
+    let mapping = SkeletonMapping::load(&args.mapping)?;
+    let skel = mapping.layout.clone();
+    let dict = posestream::msgs::shipped::load_dictionary(&config.estimator.dictionary)?;
+    let estimator = Estimator::new(dict, config.estimator.params.clone())?;
+    let window = WindowEstimator::new(estimator.clone(), config.estimator.window.clone())?;
+    let fusion = FusionSettings {
+        mean_limb_length: args.mean_limb_length,
+        ..config.estimator.fusion.clone()
+    };
+    let mut out = String::new();
+    out.push_str(&format!(
+        "Rooms (`posestream scenes --rooms`): held-out walks, heat maps with the error model, people hiding each other. \
+         World frame, no alignment, refined estimates (lag {} fused, {} single-view); the people's views are given. \
+         Assumed size {} m (the subjects'), for both.\n\n",
+        fusion.lag, config.estimator.window.lag, args.mean_limb_length
+    ));
+    out.push_str("| room | fused MPJPE mm | root mm | at once (lag 0) mm | best single-view mm | ratio | each camera alone mm | one view only | fitted bone length m | fused ms per person-frame |\n");
+    out.push_str("|---|---|---|---|---|---|---|---|---|---|\n");
+    for spec in &ROOMS {
+        let people = load_people(args, &mapping, &skel, spec)?;
+        let cameras = (spec.cameras)();
+        let room = room::render(&people, &skel, &cameras, &ErrorModel::default(), 1.2, 0.2)
+            .map_err(|e| CliError::Failed(format!("{}: {e}", spec.name)))?;
+        let metric = MetricSettings {
+            mean_limb_length: args.mean_limb_length,
+            ..MetricSettings::default()
+        };
+        let r = rooms::score(&room, &skel, &estimator, &window, &metric, &fusion)?;
+        let singles: Vec<f64> = r.single.iter().map(|e| e.mpjpe_mm()).collect();
+        let best = singles.iter().cloned().fold(f64::INFINITY, f64::min);
+        let fused = r.fused.mpjpe_mm();
+        out.push_str(&format!(
+            "| {} | {:.0} | {:.0} | {:.0} | {:.0} | {:.2} | {} | {:.0} % | {} | {:.2} |\n",
+            spec.name,
+            fused,
+            r.fused.root_mm(),
+            r.fused_newest.mpjpe_mm(),
+            best,
+            fused / best,
+            singles
+                .iter()
+                .map(|v| format!("{v:.0}"))
+                .collect::<Vec<_>>()
+                .join(" / "),
+            100.0 * r.fused.monocular as f64 / r.fused.frames.max(1) as f64,
+            r.sizes
+                .iter()
+                .map(|v| format!("{v:.3}"))
+                .collect::<Vec<_>>()
+                .join(" / "),
+            1000.0 * r.seconds / r.person_frames.max(1) as f64,
+        ));
+    }
+    Ok(out)
+}
+
+fn load_people(
+    args: &ScenesArgs,
+    mapping: &SkeletonMapping,
+    skel: &Skeleton,
+    spec: &RoomSpec,
+) -> Result<Vec<MappedSequence>, CliError> {
+    let mut takes = Vec::new();
+    for (file, _) in spec.people {
+        let path = args.data.join(file);
+        let bvh = Bvh::load(&path)?;
+        takes.push(mapping.apply(&bvh, &path.display().to_string())?);
+    }
+    let frames = takes.iter().map(|s| s.frames).min().unwrap_or(0);
+    for t in &mut takes {
+        *t = t.frames_from(0, frames).expect("every take has frames");
+    }
+    let first = takes[0].clone();
+    takes
+        .iter()
+        .zip(spec.people)
+        .enumerate()
+        .map(|(i, (take, (_, placement)))| match i {
+            0 => Ok(first.clone()),
+            _ => synth::place(&first, take, skel, placement).map_err(CliError::Failed),
+        })
+        .collect()
+}

@@ -1,0 +1,387 @@
+//! Several cameras, one skeleton: the multi-view EM ([`posestream::fusion`]) on rooms
+//! rendered from held-out motion capture ([`posestream::synth::room`]), against each
+//! camera alone, and fed hostile frames.
+
+mod common;
+
+use posestream::fusion::{FusedWindow, FusionSettings, ViewMaps};
+use posestream::metric::MetricSettings;
+use posestream::mocap::rooms::{self, Errors, Fused};
+use posestream::mocap::{Bvh, MappedSequence, SkeletonMapping};
+use posestream::streaming::{Scores, StreamSettings, WindowEstimator};
+use posestream::synth::room::{self, Room, RoomCamera};
+use posestream::synth::{ErrorModel, Placement, place};
+use posestream::{Estimator, Params, Skeleton};
+
+/// The held-out takes' subjects' mean bone length, metres.
+const SUBJECTS: f64 = 0.2235;
+
+fn mapping() -> SkeletonMapping {
+    SkeletonMapping::load(common::root().join("config/skeletons/bandai-namco.toml"))
+        .expect("mapping")
+}
+
+fn take(mapping: &SkeletonMapping, file: &str, frames: usize) -> MappedSequence {
+    let path = common::shared()
+        .join("data/mocap/bandai-namco-1")
+        .join(file);
+    let bvh = Bvh::load(&path).expect("take");
+    let seq = mapping.apply(&bvh, file).expect("mapped");
+    seq.frames_from(0, frames).expect("frames")
+}
+
+/// Two people walking past each other: the first at the room's centre, the second
+/// 1.5 m ahead and 1 m to the left of them.
+fn two_walkers(mapping: &SkeletonMapping, frames: usize) -> Vec<MappedSequence> {
+    let first = take(mapping, "dataset-1_walk-left_proud_001.bvh", frames);
+    let second = take(mapping, "dataset-1_walk-right_proud_001.bvh", frames);
+    let second = place(
+        &first,
+        &second,
+        &mapping.layout,
+        &Placement {
+            ahead: 1.5,
+            left: 1.0,
+            turn_deg: 0.0,
+            velocity: [0.0, 0.0],
+        },
+    )
+    .expect("placed");
+    vec![first, second]
+}
+
+fn estimator() -> Estimator {
+    let dict =
+        posestream::Dictionary::load(common::root().join("config/dictionaries/default-k128.json"))
+            .expect("dictionary");
+    Estimator::new(dict, Params::default()).expect("estimator")
+}
+
+fn fusion() -> FusionSettings {
+    FusionSettings {
+        mean_limb_length: SUBJECTS,
+        ..FusionSettings::default()
+    }
+}
+
+fn render(people: &[MappedSequence], skeleton: &Skeleton, cameras: &[RoomCamera]) -> Room {
+    room::render(people, skeleton, cameras, &ErrorModel::default(), 1.2, 0.2).expect("room")
+}
+
+fn ring(n: usize, distance: f64) -> Vec<RoomCamera> {
+    (0..n)
+        .map(|i| RoomCamera::at(20.0 + 360.0 * i as f64 / n as f64, distance))
+        .collect()
+}
+
+fn score(room: &Room, skeleton: &Skeleton) -> rooms::RoomScores {
+    let estimator = estimator();
+    let window =
+        WindowEstimator::new(estimator.clone(), StreamSettings::default()).expect("window");
+    let metric = MetricSettings {
+        mean_limb_length: SUBJECTS,
+        ..MetricSettings::default()
+    };
+    rooms::score(room, skeleton, &estimator, &window, &metric, &fusion()).expect("scored")
+}
+
+fn best(single: &[Errors]) -> f64 {
+    single
+        .iter()
+        .map(Errors::mpjpe_mm)
+        .fold(f64::INFINITY, f64::min)
+}
+
+#[test]
+fn three_cameras_see_two_walkers_within_half_the_best_single_camera_error() {
+    let mapping = mapping();
+    let skel = &mapping.layout;
+    let room = render(&two_walkers(&mapping, 150), skel, &ring(3, 5.0));
+    let s = score(&room, skel);
+    let (fused, best) = (s.fused.mpjpe_mm(), best(&s.single));
+    println!(
+        "fused {fused:.1} mm (root {:.1}, at once {:.1}), cameras alone {:?} mm, sizes {:?}",
+        s.fused.root_mm(),
+        s.fused_newest.mpjpe_mm(),
+        s.single.iter().map(Errors::mpjpe_mm).collect::<Vec<_>>(),
+        s.sizes
+    );
+    assert!(
+        s.fused.frames >= 2 * 130,
+        "{} frames scored",
+        s.fused.frames
+    );
+    assert!(fused <= 80.0, "fused MPJPE {fused:.1} mm");
+    assert!(
+        fused <= 0.5 * best,
+        "fused {fused:.1} mm, best single {best:.1} mm"
+    );
+    assert!(
+        s.fused.root_mm() <= 50.0,
+        "root {:.1} mm",
+        s.fused.root_mm()
+    );
+    assert_eq!(s.fused.monocular, 0, "every frame seen by three cameras");
+    // The size is seen, not assumed: within 10 % of the subjects'.
+    for size in &s.sizes {
+        assert!(
+            (size / SUBJECTS - 1.0).abs() < 0.1,
+            "fitted bone length {size}"
+        );
+    }
+}
+
+#[test]
+fn two_cameras_at_right_angles_place_the_walk_within_120_mm() {
+    let mapping = mapping();
+    let skel = &mapping.layout;
+    let people = vec![take(&mapping, "dataset-1_walk_proud_002.bvh", 150)];
+    let cameras = [RoomCamera::at(30.0, 9.0), RoomCamera::at(120.0, 9.0)];
+    let s = score(&render(&people, skel, &cameras), skel);
+    println!(
+        "fused {:.1} mm, cameras alone {:?} mm",
+        s.fused.mpjpe_mm(),
+        s.single.iter().map(Errors::mpjpe_mm).collect::<Vec<_>>()
+    );
+    assert!(
+        s.fused.mpjpe_mm() <= 120.0,
+        "fused {:.1} mm",
+        s.fused.mpjpe_mm()
+    );
+    assert!(s.fused.mpjpe_mm() < best(&s.single));
+}
+
+/// Per-frame MPJPE (mm) of a person's estimates at `lag`, by frame.
+fn errors_by_frame(room: &Room, person: usize, fused: &Fused, lag: usize) -> Vec<Option<f64>> {
+    let p = room.people[person].joints;
+    let mut out = vec![None; room.frames()];
+    for e in fused.estimates.iter().filter(|e| e.lag == lag) {
+        let t = room.frame_at(e.stamp_ns);
+        let truth = &room.people[person].positions[3 * p * t..3 * p * (t + 1)];
+        let mut err = Errors::default();
+        err.add(truth, &e.joints, 0);
+        out[t] = Some(err.mpjpe_mm());
+    }
+    out
+}
+
+#[test]
+fn a_camera_that_goes_silent_leaves_the_others_fusing_and_rejoins_when_it_returns() {
+    let mapping = mapping();
+    let skel = &mapping.layout;
+    let mut cameras = ring(3, 5.0);
+    cameras[0].dropped = Some([1.5, 3.0]);
+    let room = render(&two_walkers(&mapping, 150), skel, &cameras);
+    let fused = rooms::fuse(&room, 0, &estimator(), &fusion(), true).expect("fused");
+    // Every frame is estimated at once, the silent camera left out while silent and
+    // back after.
+    let newest: Vec<_> = fused.estimates.iter().filter(|e| e.lag == 0).collect();
+    assert_eq!(newest.len(), room.frames());
+    for e in &newest {
+        let t = room.frame_at(e.stamp_ns) as f64 / 30.0;
+        let has = e.views.contains(&0);
+        if (1.55..2.95).contains(&t) {
+            assert!(!has, "camera 0 used at {t:.2} s while silent");
+        } else if t >= 3.2 {
+            assert!(has, "camera 0 not back at {t:.2} s: {:?}", e.views);
+        }
+    }
+    let errors = errors_by_frame(&room, 0, &fused, 0);
+    let mean = |a: f64, b: f64| {
+        let v: Vec<f64> = errors
+            .iter()
+            .enumerate()
+            .filter(|(t, _)| (a..b).contains(&(*t as f64 / 30.0)))
+            .filter_map(|(_, e)| *e)
+            .collect();
+        v.iter().sum::<f64>() / v.len() as f64
+    };
+    let (before, during, after) = (mean(0.3, 1.5), mean(1.5, 3.0), mean(3.3, 5.0));
+    println!("lag 0 MPJPE before {before:.1}, silent {during:.1}, after {after:.1} mm");
+    assert!(during <= 150.0, "two cameras still fuse: {during:.1} mm");
+    assert!(after <= 100.0, "back to three: {after:.1} mm");
+}
+
+#[test]
+fn unsynchronised_cameras_at_different_rates_are_fused_at_their_capture_times() {
+    let mapping = mapping();
+    let skel = &mapping.layout;
+    let mut cameras = ring(3, 5.0);
+    cameras[1].offset_s = 0.5 / 30.0;
+    cameras[1].jitter_s = 0.003;
+    cameras[2].offset_s = -0.5 / 30.0;
+    cameras[2].jitter_s = 0.003;
+    cameras[2].every = 2;
+    let room = render(&two_walkers(&mapping, 150), skel, &cameras);
+    let (estimator, fusion) = (estimator(), fusion());
+    let mut with = Errors::default();
+    let mut without = Errors::default();
+    for person in 0..2 {
+        for (offsets, errors) in [(true, &mut with), (false, &mut without)] {
+            let fused = rooms::fuse(&room, person, &estimator, &fusion, offsets).expect("fused");
+            let p = room.people[person].joints;
+            for e in fused.estimates.iter().filter(|e| e.lag == fusion.lag) {
+                let t = room.frame_at(e.stamp_ns);
+                errors.add(
+                    &room.people[person].positions[3 * p * t..3 * p * (t + 1)],
+                    &e.joints,
+                    0,
+                );
+            }
+        }
+    }
+    println!(
+        "with capture times {:.1} mm (root {:.1}), as if synchronised {:.1} mm (root {:.1})",
+        with.mpjpe_mm(),
+        with.root_mm(),
+        without.mpjpe_mm(),
+        without.root_mm()
+    );
+    assert!(with.mpjpe_mm() <= 80.0, "{:.1} mm", with.mpjpe_mm());
+    assert!(with.mpjpe_mm() < without.mpjpe_mm());
+}
+
+#[test]
+fn a_person_one_camera_sees_is_estimated_and_marked_monocular() {
+    let mapping = mapping();
+    let skel = &mapping.layout;
+    let people = vec![take(&mapping, "dataset-1_walk-left_proud_001.bvh", 60)];
+    let room = render(&people, skel, &[RoomCamera::at(30.0, 5.0)]);
+    let fused = rooms::fuse(&room, 0, &estimator(), &fusion(), true).expect("fused");
+    assert_eq!(fused.estimates.iter().filter(|e| e.lag == 0).count(), 60);
+    for e in &fused.estimates {
+        assert!(e.monocular);
+        assert_eq!(e.views, [0]);
+        assert!(e.joints.iter().all(|v| v.is_finite()));
+    }
+}
+
+#[test]
+fn hostile_frames_are_refused_and_the_window_goes_on() {
+    let mapping = mapping();
+    let skel = &mapping.layout;
+    let people = vec![take(&mapping, "dataset-1_walk-left_proud_001.bvh", 3)];
+    let room = render(&people, skel, &ring(2, 5.0));
+    let mut window = FusedWindow::new(&estimator(), room.view_cameras(), fusion()).expect("window");
+    let maps = &room.seen[0][0].maps.maps;
+    let n = maps.joints * maps.height * maps.width;
+    let good = |view: usize, t: usize| ViewMaps {
+        view,
+        dt: 0.0,
+        to_image: room.seen[view][0].boxes[t].pixel_map(maps.width, maps.height),
+        height: maps.height,
+        width: maps.width,
+        values: Scores::F32(&room.seen[view][0].maps.maps.values[t * n..(t + 1) * n]),
+    };
+    let mut out = Vec::new();
+    window
+        .push(0, &[good(0, 0), good(1, 0)], &mut out)
+        .expect("a good frame");
+    assert_eq!(out.len(), 1);
+    let mut nan = room.seen[0][0].maps.maps.values[n..2 * n].to_vec();
+    nan[17] = f32::NAN;
+    let mut inf = nan.clone();
+    inf[17] = f32::INFINITY;
+    let short = &room.seen[0][0].maps.maps.values[..n - 1];
+    let bad: Vec<(&str, Vec<ViewMaps<'_>>, i64)> = vec![
+        (
+            "unknown camera",
+            vec![ViewMaps {
+                view: 2,
+                ..good(0, 1)
+            }],
+            1,
+        ),
+        ("a camera twice", vec![good(0, 1), good(0, 1)], 1),
+        (
+            "too few scores",
+            vec![ViewMaps {
+                values: Scores::F32(short),
+                ..good(0, 1)
+            }],
+            1,
+        ),
+        (
+            "NaN",
+            vec![ViewMaps {
+                values: Scores::F32(&nan),
+                ..good(0, 1)
+            }],
+            1,
+        ),
+        (
+            "infinity",
+            vec![ViewMaps {
+                values: Scores::F32(&inf),
+                ..good(0, 1)
+            }],
+            1,
+        ),
+        (
+            "u8 without a scale",
+            vec![ViewMaps {
+                values: Scores::U8 {
+                    values: &[0; 1],
+                    scale: 0.0,
+                },
+                height: 1,
+                ..good(0, 1)
+            }],
+            1,
+        ),
+        (
+            "a huge time offset",
+            vec![ViewMaps {
+                dt: 1e9,
+                ..good(0, 1)
+            }],
+            1,
+        ),
+        (
+            "NaN time offset",
+            vec![ViewMaps {
+                dt: f64::NAN,
+                ..good(0, 1)
+            }],
+            1,
+        ),
+        ("the same time again", vec![good(0, 1)], 0),
+        ("back in time", vec![good(0, 1)], -5),
+        (
+            "maps of 1 x 1",
+            vec![ViewMaps {
+                height: 1,
+                width: 1,
+                values: Scores::F32(&nan[..17]),
+                ..good(0, 1)
+            }],
+            1,
+        ),
+    ];
+    for (what, views, stamp) in bad {
+        out.clear();
+        assert!(
+            window.push(stamp, &views, &mut out).is_err(),
+            "{what} accepted"
+        );
+        assert!(out.is_empty(), "{what}: estimates out");
+    }
+    out.clear();
+    window
+        .push(33_333_333, &[good(0, 1), good(1, 1)], &mut out)
+        .expect("the next good frame");
+    assert_eq!(window.len(), 2, "the refused frames left the window alone");
+    assert!(out.iter().all(|e| e.joints.iter().all(|v| v.is_finite())));
+    // A frame no camera saw anything in is passed over.
+    out.clear();
+    let zeros = vec![0.0f32; n];
+    let empty = ViewMaps {
+        values: Scores::F32(&zeros),
+        ..good(0, 2)
+    };
+    window
+        .push(66_666_667, &[empty], &mut out)
+        .expect("passed over");
+    assert!(out.is_empty());
+    assert_eq!(window.len(), 2);
+}
