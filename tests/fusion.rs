@@ -385,3 +385,53 @@ fn hostile_frames_are_refused_and_the_window_goes_on() {
     assert!(out.is_empty());
     assert_eq!(window.len(), 2);
 }
+
+#[test]
+fn tracks_without_shared_ids_are_matched_into_people_by_geometry() {
+    let mapping = mapping();
+    let skel = &mapping.layout;
+    // Two walkers crossing 0.6 m apart and a third beside them, four cameras whose
+    // track ids agree with no other camera's.
+    let frames = 150;
+    let first = take(&mapping, "dataset-1_walk-left_proud_001.bvh", frames);
+    let crossing = place(
+        &first,
+        &take(&mapping, "dataset-1_walk-right_proud_001.bvh", frames),
+        skel,
+        &Placement {
+            ahead: 0.6,
+            left: 3.0,
+            turn_deg: 0.0,
+            velocity: [0.0, 0.0],
+        },
+    )
+    .expect("placed");
+    let third = place(
+        &first,
+        &take(&mapping, "dataset-1_walk_proud_001.bvh", frames),
+        skel,
+        &Placement {
+            ahead: -1.5,
+            left: 0.5,
+            turn_deg: 90.0,
+            velocity: [0.0, 0.0],
+        },
+    )
+    .expect("placed");
+    let room = render(&[first, crossing, third], skel, &ring(4, 6.0));
+    let fusion = fusion();
+    let matched =
+        rooms::fuse_matched(&room, &estimator(), &fusion, &fusion.matching).expect("matched");
+    let errors = rooms::score_matched(&room, skel, &matched, fusion.lag);
+    println!(
+        "IDF1 {:.3} over {} track-frames, {} people found, MPJPE {:.1} mm",
+        matched.idf1,
+        matched.observations,
+        matched.ids,
+        errors.mpjpe_mm()
+    );
+    assert!(matched.idf1 >= 0.95, "IDF1 {:.3}", matched.idf1);
+    assert_eq!(matched.ids, 3, "one fused track per person");
+    assert!(errors.mpjpe_mm() <= 80.0, "{:.1} mm", errors.mpjpe_mm());
+    assert!(errors.frames >= 3 * 130);
+}

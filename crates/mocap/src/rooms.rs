@@ -4,12 +4,16 @@
 //! Errors are in the world frame with no alignment, at each estimator's refined lag; the
 //! people's views are given (who is who across cameras is not scored here).
 
+use std::collections::BTreeMap;
 use std::time::Instant;
 
 use nalgebra::Point3;
 use posestream_math::Estimator;
 use posestream_math::error::EstimateError;
-use posestream_math::fusion::{FusedEstimate, FusedWindow, FusionSettings, ViewMaps};
+use posestream_math::fusion::matching::peaks_into;
+use posestream_math::fusion::{
+    FusedEstimate, FusedWindow, FusionSettings, MatchSettings, Matcher, TrackObservation, ViewMaps,
+};
 use posestream_math::metric::{MetricPose, MetricSettings, MetricStep};
 use posestream_math::skeleton::Skeleton;
 use posestream_math::streaming::{FrameEstimate, FrameMaps, Scores, WindowEstimator};
@@ -226,4 +230,175 @@ pub fn score(
         }
     }
     Ok(result)
+}
+
+/// Every person of a room, the cameras' tracks matched into people by
+/// [`Matcher`] (each camera's track ids scrambled: they agree with no other camera's),
+/// each person fused by a window of their own.
+#[derive(Debug, Clone)]
+pub struct Matched {
+    /// Per matched person id, their estimates.
+    pub estimates: BTreeMap<u64, Vec<FusedEstimate>>,
+    /// IDF1 over the camera-track-frames: the share whose matched person is the one
+    /// its true person is mapped to (one-to-one, the mapping that agrees most).
+    pub idf1: f64,
+    /// The true person of each matched id (the mapping of `idf1`).
+    pub truth_of: BTreeMap<u64, usize>,
+    /// Camera-track-frames matched.
+    pub observations: usize,
+    /// Distinct matched ids.
+    pub ids: usize,
+}
+
+/// The track id camera `view` gives person `person`: scrambled per camera.
+fn track_id(view: usize, person: usize) -> u64 {
+    (1000 * view + (7 * person + 3 * view) % 101) as u64
+}
+
+/// Matches and fuses every person of `room` (module docs of [`Matched`]).
+pub fn fuse_matched(
+    room: &Room,
+    estimator: &Estimator,
+    fusion: &FusionSettings,
+    matching: &MatchSettings,
+) -> Result<Matched, EstimateError> {
+    let cameras = room.view_cameras();
+    let mut matcher =
+        Matcher::new(matching.clone()).map_err(|e| EstimateError::Parameter(e.to_string()))?;
+    let mut windows: BTreeMap<u64, FusedWindow> = BTreeMap::new();
+    let mut estimates: BTreeMap<u64, Vec<FusedEstimate>> = BTreeMap::new();
+    // (true person, matched id) per camera-track-frame.
+    let mut pairs: Vec<(usize, u64)> = Vec::new();
+    let mut peaks: Vec<Vec<[f64; 3]>> = Vec::new();
+    let mut ids = Vec::new();
+    let mut out = Vec::new();
+    for t in 0..room.frames() {
+        // Every camera's tracks this frame.
+        let mut who: Vec<(usize, usize)> = Vec::new();
+        for (c, seen) in room.seen.iter().enumerate() {
+            for (i, s) in seen.iter().enumerate() {
+                if s.dt[t].is_some() {
+                    who.push((c, i));
+                }
+            }
+        }
+        peaks.resize(who.len(), Vec::new());
+        for (k, &(c, i)) in who.iter().enumerate() {
+            let s = &room.seen[c][i];
+            let maps = &s.maps.maps;
+            let n = maps.joints * maps.height * maps.width;
+            let to_image = s.boxes[t].pixel_map(maps.width, maps.height);
+            peaks_into(
+                &maps.values[t * n..(t + 1) * n],
+                maps.height,
+                maps.width,
+                &to_image,
+                &mut peaks[k],
+            );
+        }
+        let observations: Vec<TrackObservation<'_>> = who
+            .iter()
+            .enumerate()
+            .map(|(k, &(c, i))| TrackObservation {
+                view: c,
+                track: track_id(c, i),
+                peaks: &peaks[k],
+                box_size: room.seen[c][i].boxes[t]
+                    .width
+                    .max(room.seen[c][i].boxes[t].height),
+            })
+            .collect();
+        matcher.assign(room.frame_ns(t), &cameras, &observations, &mut ids);
+        for (k, id) in ids.iter().enumerate() {
+            if let Some(id) = id {
+                pairs.push((who[k].1, *id));
+            }
+        }
+        let mut people: Vec<u64> = ids.iter().flatten().copied().collect();
+        people.sort_unstable();
+        people.dedup();
+        for id in people {
+            let views: Vec<ViewMaps<'_>> = who
+                .iter()
+                .zip(&ids)
+                .filter(|(_, m)| **m == Some(id))
+                .map(|(&(c, i), _)| {
+                    let s = &room.seen[c][i];
+                    let maps = &s.maps.maps;
+                    let n = maps.joints * maps.height * maps.width;
+                    ViewMaps {
+                        view: c,
+                        dt: s.dt[t].unwrap_or(0.0),
+                        to_image: s.boxes[t].pixel_map(maps.width, maps.height),
+                        height: maps.height,
+                        width: maps.width,
+                        values: Scores::F32(&maps.values[t * n..(t + 1) * n]),
+                    }
+                })
+                .collect();
+            let window = match windows.entry(id) {
+                std::collections::btree_map::Entry::Occupied(e) => e.into_mut(),
+                std::collections::btree_map::Entry::Vacant(e) => e.insert(FusedWindow::new(
+                    estimator,
+                    cameras.clone(),
+                    fusion.clone(),
+                )?),
+            };
+            out.clear();
+            window.push(room.frame_ns(t), &views, &mut out)?;
+            if let Some(newest) = out.iter().find(|e| e.lag == 0) {
+                matcher.set_pose(id, &newest.joints);
+            }
+            estimates.entry(id).or_default().extend(out.drain(..));
+        }
+        let known: Vec<u64> = matcher.people().collect();
+        windows.retain(|id, _| known.contains(id));
+    }
+    // IDF1: the one-to-one mapping of true people to ids that agrees most (best pairs
+    // first: never more than the optimal, so the figure is conservative).
+    let mut counts: BTreeMap<(usize, u64), usize> = BTreeMap::new();
+    for &pair in &pairs {
+        *counts.entry(pair).or_default() += 1;
+    }
+    let mut ranked: Vec<((usize, u64), usize)> = counts.into_iter().collect();
+    ranked.sort_by(|a, b| b.1.cmp(&a.1));
+    let mut truth_of = BTreeMap::new();
+    let mut agree = 0;
+    for ((person, id), n) in ranked {
+        if truth_of.contains_key(&id) || truth_of.values().any(|&p| p == person) {
+            continue;
+        }
+        truth_of.insert(id, person);
+        agree += n;
+    }
+    Ok(Matched {
+        idf1: agree as f64 / pairs.len().max(1) as f64,
+        ids: estimates.len(),
+        observations: pairs.len(),
+        estimates,
+        truth_of,
+    })
+}
+
+/// Scores the fused estimates of a matched room at `lag`: each id's against the true
+/// person it is mapped to (ids mapped to nobody are left out, and counted by IDF1).
+pub fn score_matched(room: &Room, skel: &Skeleton, matched: &Matched, lag: usize) -> Errors {
+    let p = skel.len();
+    let mut errors = Errors::default();
+    for (id, estimates) in &matched.estimates {
+        let Some(&person) = matched.truth_of.get(id) else {
+            continue;
+        };
+        let seq = &room.people[person];
+        for e in estimates.iter().filter(|e| e.lag == lag) {
+            let t = room.frame_at(e.stamp_ns);
+            errors.add(
+                &seq.positions[3 * p * t..3 * p * (t + 1)],
+                &e.joints,
+                skel.root(),
+            );
+            errors.monocular += usize::from(e.monocular);
+        }
+    }
+    errors
 }

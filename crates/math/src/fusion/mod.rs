@@ -22,12 +22,16 @@
 //! - **Start** ([`start`]): the heat maps' peaks triangulated when two views see the
 //!   person, otherwise one camera's monocular start (marked so in the estimate).
 //!
-//! Nothing here knows about transports or ids: the caller groups one person's views per
-//! frame.
+//! - **Who is who** ([`matching`]): each camera's tracks grouped into people by geometry
+//!   (their pose's reprojection, their rays' distances), without ids agreeing between
+//!   cameras.
+//!
+//! Nothing here knows about transports.
 
 pub mod camera;
 mod estep;
 mod frame;
+pub mod matching;
 mod mstep;
 mod start;
 mod window;
@@ -36,6 +40,7 @@ use serde::{Deserialize, Serialize};
 
 pub use camera::ViewCamera;
 pub use frame::FusedPose;
+pub use matching::{MatchSettings, Matcher, TrackObservation};
 pub use window::FusedWindow;
 
 use crate::camera::PixelMap;
@@ -122,6 +127,8 @@ pub struct FusionSettings {
     pub depth_smoothing: f64,
     /// A gap longer than this, seconds, starts a new track.
     pub max_gap_seconds: f64,
+    /// Who is who across cameras (`[estimator.fusion.matching]`).
+    pub matching: MatchSettings,
 }
 
 impl Default for FusionSettings {
@@ -144,6 +151,7 @@ impl Default for FusionSettings {
             peak_threshold: 0.1,
             depth_smoothing: 2.0,
             max_gap_seconds: 0.5,
+            matching: MatchSettings::default(),
         }
     }
 }
@@ -174,6 +182,6 @@ impl FusionSettings {
         )?;
         check_real("depth_smoothing", self.depth_smoothing, 0.0, 1e6, false)?;
         check_real("max_gap_seconds", self.max_gap_seconds, 0.0, 3600.0, true)?;
-        Ok(())
+        self.matching.check().map_err(|e| e.within("matching"))
     }
 }

@@ -1,0 +1,590 @@
+//! Who is who across cameras: each camera's tracks (its detector's ids, which agree with
+//! no other camera's) grouped into people by geometry alone.
+//!
+//! Each frame, for every camera's track ([`TrackObservation`]: its heat maps' peaks as
+//! image points):
+//! 1. a track bound to a person stays bound while the person's last fused pose, projected
+//!    into the track's camera, lands on the track's peaks (the mean distance within
+//!    [`MatchSettings::reprojection_gate`] of the track's box size), or its peaks' rays
+//!    meet the rays of the person's tracks in other cameras this frame (the joints' ray
+//!    distances, median, within [`MatchSettings::ray_gate`] metres);
+//! 2. an unbound track joins the person it fits best by the same two tests (at most one
+//!    track per camera and person; the assignment of a camera's tracks solved jointly,
+//!    Hungarian, on the better of the two normalised costs);
+//! 3. tracks still unbound are grouped by their rays, pair by pair across cameras (best
+//!    pairs first, every member of a group consistent with the others); each group is a
+//!    new person, seen by one camera if alone (a monocular person, until another camera's
+//!    track joins it).
+//!
+//! People whose tracks have all ended for [`MatchSettings::forget_seconds`] are
+//! forgotten.
+
+use nalgebra::Vector3;
+use serde::{Deserialize, Serialize};
+
+use super::ViewCamera;
+use crate::camera::PixelMap;
+use crate::error::{OutOfDomain, check_real};
+use crate::heatmaps::argmax;
+
+/// Settings of the matching (`[estimator.fusion.matching]`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MatchSettings {
+    /// A person's pose reprojects onto a track when the mean distance of its joints from
+    /// the track's peaks is within this fraction of the track's box size.
+    pub reprojection_gate: f64,
+    /// Two tracks in two cameras see one person when the median distance between their
+    /// joints' rays is within this, metres.
+    pub ray_gate: f64,
+    /// A peak above this counts.
+    pub peak_threshold: f64,
+    /// A person none of whose tracks has been seen for this long is forgotten, seconds.
+    pub forget_seconds: f64,
+}
+
+impl Default for MatchSettings {
+    fn default() -> Self {
+        Self {
+            reprojection_gate: 0.2,
+            ray_gate: 0.2,
+            peak_threshold: 0.1,
+            forget_seconds: 1.0,
+        }
+    }
+}
+
+impl MatchSettings {
+    /// Checks every value is in its domain.
+    pub fn check(&self) -> Result<(), OutOfDomain> {
+        check_real("reprojection_gate", self.reprojection_gate, 0.0, 10.0, true)?;
+        check_real("ray_gate", self.ray_gate, 0.0, 100.0, true)?;
+        check_real("peak_threshold", self.peak_threshold, 0.0, 1e30, false)?;
+        check_real("forget_seconds", self.forget_seconds, 0.0, 3600.0, true)
+    }
+}
+
+/// One camera's track in one frame.
+#[derive(Debug, Clone, Copy)]
+pub struct TrackObservation<'a> {
+    /// The camera.
+    pub view: usize,
+    /// The camera's id of the track (its detector's; meaningless to other cameras).
+    pub track: u64,
+    /// Its heat maps' peaks, image pixels, and their scores: `[u, v, score]` per joint.
+    pub peaks: &'a [[f64; 3]],
+    /// The size of its box, pixels (its crop's larger side).
+    pub box_size: f64,
+}
+
+/// A person of the matching.
+#[derive(Debug, Clone, PartialEq)]
+struct Person {
+    id: u64,
+    /// `(view, track)` bound to the person.
+    tracks: Vec<(usize, u64)>,
+    last_seen_ns: i64,
+    /// The last fused pose, world frame (`[x, y, z]` per joint; empty before one).
+    pose: Vec<f64>,
+}
+
+/// Groups the cameras' tracks into people (module docs).
+#[derive(Debug, Clone)]
+pub struct Matcher {
+    settings: MatchSettings,
+    people: Vec<Person>,
+    next_id: u64,
+}
+
+impl Matcher {
+    /// An empty matcher.
+    pub fn new(settings: MatchSettings) -> Result<Self, OutOfDomain> {
+        settings.check()?;
+        Ok(Self {
+            settings,
+            people: Vec::new(),
+            next_id: 1,
+        })
+    }
+
+    /// Notes person `id`'s fused pose (world frame, `[x, y, z]` per joint): what the next
+    /// frames' tracks are matched against.
+    pub fn set_pose(&mut self, id: u64, joints: &[f64]) {
+        if let Some(p) = self.people.iter_mut().find(|p| p.id == id) {
+            p.pose.clear();
+            p.pose.extend_from_slice(joints);
+        }
+    }
+
+    /// The people known.
+    pub fn people(&self) -> impl Iterator<Item = u64> + '_ {
+        self.people.iter().map(|p| p.id)
+    }
+
+    /// Matches one frame's tracks: `out[i]` is the person of `tracks[i]`. Tracks of one
+    /// camera with the same id are refused (the second is given no person: `None`).
+    pub fn assign(
+        &mut self,
+        stamp_ns: i64,
+        cameras: &[ViewCamera],
+        tracks: &[TrackObservation<'_>],
+        out: &mut Vec<Option<u64>>,
+    ) {
+        out.clear();
+        out.resize(tracks.len(), None);
+        let valid: Vec<bool> = tracks
+            .iter()
+            .enumerate()
+            .map(|(i, t)| {
+                t.view < cameras.len()
+                    && !tracks[..i]
+                        .iter()
+                        .any(|o| o.view == t.view && o.track == t.track)
+            })
+            .collect();
+        // 1. Bound tracks that still fit.
+        for (i, t) in tracks.iter().enumerate() {
+            if !valid[i] {
+                continue;
+            }
+            let Some(k) = self
+                .people
+                .iter()
+                .position(|p| p.tracks.contains(&(t.view, t.track)))
+            else {
+                continue;
+            };
+            let cost = self.cost(k, i, tracks, out, cameras);
+            if cost <= 1.0 || self.people[k].pose.is_empty() {
+                out[i] = Some(self.people[k].id);
+            } else {
+                self.people[k].tracks.retain(|&b| b != (t.view, t.track));
+            }
+        }
+        // 2. Unbound tracks to known people, camera by camera.
+        let mut views: Vec<usize> = tracks.iter().map(|t| t.view).collect();
+        views.sort_unstable();
+        views.dedup();
+        for &v in &views {
+            let free: Vec<usize> = (0..tracks.len())
+                .filter(|&i| valid[i] && out[i].is_none() && tracks[i].view == v)
+                .collect();
+            let open: Vec<usize> = (0..self.people.len())
+                .filter(|&k| {
+                    !(0..tracks.len())
+                        .any(|i| tracks[i].view == v && out[i] == Some(self.people[k].id))
+                })
+                .collect();
+            if free.is_empty() || open.is_empty() {
+                continue;
+            }
+            let mut pairs = Vec::new();
+            for &i in &free {
+                for &k in &open {
+                    let c = self.cost(k, i, tracks, out, cameras);
+                    if c <= 1.0 {
+                        pairs.push((c, i, k));
+                    }
+                }
+            }
+            // Best pairs first (for the few tracks and people of a camera, as good as
+            // the optimal assignment and simpler).
+            pairs.sort_by(|a, b| a.0.total_cmp(&b.0));
+            let (mut used_i, mut used_k) = (Vec::new(), Vec::new());
+            for (_, i, k) in pairs {
+                if used_i.contains(&i) || used_k.contains(&k) {
+                    continue;
+                }
+                used_i.push(i);
+                used_k.push(k);
+                out[i] = Some(self.people[k].id);
+                self.people[k]
+                    .tracks
+                    .push((tracks[i].view, tracks[i].track));
+            }
+        }
+        // 3. New people from what is left, grouped by their rays.
+        let left: Vec<usize> = (0..tracks.len())
+            .filter(|&i| valid[i] && out[i].is_none())
+            .collect();
+        let mut pairs = Vec::new();
+        for (a, &i) in left.iter().enumerate() {
+            for &j in &left[a + 1..] {
+                if tracks[i].view == tracks[j].view {
+                    continue;
+                }
+                if let Some(d) = self.ray_distance(&tracks[i], &tracks[j], cameras) {
+                    if d <= self.settings.ray_gate {
+                        pairs.push((d, i, j));
+                    }
+                }
+            }
+        }
+        pairs.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let mut groups: Vec<Vec<usize>> = Vec::new();
+        let group_of =
+            |groups: &Vec<Vec<usize>>, i: usize| groups.iter().position(|g| g.contains(&i));
+        for (_, i, j) in pairs {
+            match (group_of(&groups, i), group_of(&groups, j)) {
+                (None, None) => groups.push(vec![i, j]),
+                (Some(g), None) | (None, Some(g)) => {
+                    let new = if group_of(&groups, i).is_some() { j } else { i };
+                    let fits = groups[g].iter().all(|&m| {
+                        tracks[m].view != tracks[new].view
+                            && self
+                                .ray_distance(&tracks[m], &tracks[new], cameras)
+                                .is_some_and(|d| d <= self.settings.ray_gate)
+                    });
+                    if fits {
+                        groups[g].push(new);
+                    }
+                }
+                (Some(_), Some(_)) => {}
+            }
+        }
+        for &i in &left {
+            if group_of(&groups, i).is_none() {
+                groups.push(vec![i]);
+            }
+        }
+        for g in groups {
+            let id = self.next_id;
+            self.next_id += 1;
+            for &i in &g {
+                out[i] = Some(id);
+            }
+            self.people.push(Person {
+                id,
+                tracks: g
+                    .iter()
+                    .map(|&i| (tracks[i].view, tracks[i].track))
+                    .collect(),
+                last_seen_ns: stamp_ns,
+                pose: Vec::new(),
+            });
+        }
+        // Seen now; forgotten after a while unseen.
+        for p in &mut self.people {
+            if out.contains(&Some(p.id)) {
+                p.last_seen_ns = stamp_ns;
+            }
+        }
+        let forget = (self.settings.forget_seconds * 1e9) as i64;
+        self.people
+            .retain(|p| stamp_ns.saturating_sub(p.last_seen_ns) <= forget && !p.tracks.is_empty());
+    }
+
+    /// How well track `i` fits person `k`, normalised so that 1 is the gate: the better
+    /// of its pose's reprojection and the track's rays against the person's tracks
+    /// matched this frame in other cameras. Infinite when neither can be measured.
+    fn cost(
+        &self,
+        k: usize,
+        i: usize,
+        tracks: &[TrackObservation<'_>],
+        out: &[Option<u64>],
+        cameras: &[ViewCamera],
+    ) -> f64 {
+        let person = &self.people[k];
+        let t = &tracks[i];
+        let mut best = f64::INFINITY;
+        if !person.pose.is_empty() {
+            if let Some(e) = reprojection(
+                &person.pose,
+                t,
+                &cameras[t.view],
+                self.settings.peak_threshold,
+            ) {
+                best = best.min(e / (self.settings.reprojection_gate * t.box_size.max(1.0)));
+            }
+        }
+        for (o, other) in tracks.iter().enumerate() {
+            if o == i || other.view == t.view || out[o] != Some(person.id) {
+                continue;
+            }
+            if let Some(d) = self.ray_distance(t, other, cameras) {
+                best = best.min(d / self.settings.ray_gate);
+            }
+        }
+        best
+    }
+
+    /// The median over joints both tracks see of the distance between their rays,
+    /// metres; `None` with fewer than 4 such joints or when a joint's closest points lie
+    /// behind a camera.
+    fn ray_distance(
+        &self,
+        a: &TrackObservation<'_>,
+        b: &TrackObservation<'_>,
+        cameras: &[ViewCamera],
+    ) -> Option<f64> {
+        let (ca, cb) = (&cameras[a.view], &cameras[b.view]);
+        let (oa, ob) = (ca.centre(), cb.centre());
+        let thr = self.settings.peak_threshold;
+        let mut d: Vec<f64> = Vec::with_capacity(a.peaks.len());
+        for (pa, pb) in a.peaks.iter().zip(b.peaks) {
+            if pa[2] <= thr || pb[2] <= thr {
+                continue;
+            }
+            let (da, db) = (ca.ray(pa[0], pa[1]), cb.ray(pb[0], pb[1]));
+            d.push(ray_gap(oa, da, ob, db)?);
+        }
+        if d.len() < 4 {
+            return None;
+        }
+        d.sort_by(f64::total_cmp);
+        Some(d[d.len() / 2])
+    }
+}
+
+/// The peaks of one track's maps (`p` maps of `height x width`, row-major), image
+/// pixels through `to_image`, with their scores: `[u, v, score]` per joint, into `out`.
+pub fn peaks_into(
+    maps: &[f32],
+    height: usize,
+    width: usize,
+    to_image: &PixelMap,
+    out: &mut Vec<[f64; 3]>,
+) {
+    out.clear();
+    let n = height * width;
+    if n == 0 {
+        return;
+    }
+    for map in maps.chunks_exact(n) {
+        let (x, y, score) = argmax(map, width);
+        let [u, v] = to_image.apply(x, y);
+        out.push([u, v, f64::from(score)]);
+    }
+}
+
+/// The distance between two rays (origins `o`, unit directions `d`) at their closest
+/// points; `None` when those lie behind either origin. Parallel rays: their distance.
+fn ray_gap(oa: Vector3<f64>, da: Vector3<f64>, ob: Vector3<f64>, db: Vector3<f64>) -> Option<f64> {
+    let w = oa - ob;
+    let b = da.dot(&db);
+    let denom = 1.0 - b * b;
+    if denom < 1e-9 {
+        return Some((w - da * da.dot(&w)).norm());
+    }
+    let (dw_a, dw_b) = (da.dot(&w), db.dot(&w));
+    let s = (b * dw_b - dw_a) / denom;
+    let t = (dw_b - b * dw_a) / denom;
+    if s <= 0.0 || t <= 0.0 {
+        return None;
+    }
+    Some(((oa + da * s) - (ob + db * t)).norm())
+}
+
+/// Mean distance (pixels) of a world pose's projection from a track's peaks; `None`
+/// with fewer than 4 peaks in front of the camera.
+fn reprojection(
+    pose: &[f64],
+    t: &TrackObservation<'_>,
+    camera: &ViewCamera,
+    thr: f64,
+) -> Option<f64> {
+    let (mut sum, mut n) = (0.0, 0);
+    for (j, peak) in t.peaks.iter().enumerate() {
+        if peak[2] <= thr || 3 * j + 2 >= pose.len() {
+            continue;
+        }
+        let p = Vector3::new(pose[3 * j], pose[3 * j + 1], pose[3 * j + 2]);
+        let Some(([u, v], _)) = camera.project(&p) else {
+            continue;
+        };
+        sum += (u - peak[0]).hypot(v - peak[1]);
+        n += 1;
+    }
+    (n >= 4).then(|| sum / n as f64)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::Intrinsics;
+    use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion};
+
+    fn camera(at: Vector3<f64>) -> ViewCamera {
+        // Looking at the origin, image down along world -z.
+        let forward = (-at).normalize();
+        let right = forward.cross(&Vector3::z()).normalize();
+        let down = forward.cross(&right);
+        let r = nalgebra::Matrix3::from_columns(&[right, down, forward]);
+        ViewCamera {
+            intrinsics: Intrinsics::new(800.0, 800.0, 640.0, 480.0).expect("valid"),
+            world_from_camera: Isometry3::from_parts(
+                Translation3::from(at),
+                UnitQuaternion::from_rotation_matrix(&nalgebra::Rotation3::from_matrix_unchecked(
+                    r,
+                )),
+            ),
+        }
+    }
+
+    /// A stick figure of 8 joints standing at `x, y`.
+    fn figure(x: f64, y: f64) -> Vec<f64> {
+        (0..8)
+            .flat_map(|j| {
+                [
+                    x + 0.1 * (j % 2) as f64,
+                    y + 0.05 * (j % 3) as f64,
+                    0.2 * j as f64,
+                ]
+            })
+            .collect()
+    }
+
+    fn peaks(cam: &ViewCamera, pose: &[f64]) -> Vec<[f64; 3]> {
+        pose.chunks_exact(3)
+            .map(|q| {
+                let ([u, v], _) = cam
+                    .project(&Vector3::new(q[0], q[1], q[2]))
+                    .expect("in front");
+                [u, v, 1.0]
+            })
+            .collect()
+    }
+
+    #[test]
+    fn rays_that_meet_are_apart_by_nothing_and_skew_ones_by_their_gap() {
+        let o = Vector3::zeros();
+        let p = Point3::new(1.0, 2.0, 3.0).coords;
+        let ob = Vector3::new(4.0, 0.0, 0.0);
+        let gap = ray_gap(o, p.normalize(), ob, (p - ob).normalize()).expect("in front");
+        assert!(gap < 1e-12);
+        // Two skew lines 0.5 apart along z.
+        let gap =
+            ray_gap(o, Vector3::x(), Vector3::new(1.0, -1.0, 0.5), Vector3::y()).expect("in front");
+        assert!((gap - 0.5).abs() < 1e-12);
+        // Closest points behind a camera: not a meeting.
+        assert!(ray_gap(o, Vector3::x(), Vector3::new(-1.0, -1.0, 0.5), Vector3::y()).is_none());
+    }
+
+    #[test]
+    fn a_person_one_camera_sees_first_is_joined_by_the_second_cameras_track() {
+        let cams = [
+            camera(Vector3::new(5.0, 0.0, 2.0)),
+            camera(Vector3::new(0.0, 5.0, 2.0)),
+        ];
+        let (a, b) = (figure(0.0, 0.0), figure(1.5, -1.0));
+        let mut m = Matcher::new(MatchSettings::default()).expect("settings");
+        let mut out = Vec::new();
+        // Frame 0: camera 0 sees both (ids 7, 9); camera 1 nobody yet.
+        let (pa0, pb0) = (peaks(&cams[0], &a), peaks(&cams[0], &b));
+        let tracks = [
+            TrackObservation {
+                view: 0,
+                track: 7,
+                peaks: &pa0,
+                box_size: 300.0,
+            },
+            TrackObservation {
+                view: 0,
+                track: 9,
+                peaks: &pb0,
+                box_size: 300.0,
+            },
+        ];
+        m.assign(0, &cams, &tracks, &mut out);
+        let (ida, idb) = (out[0].expect("a"), out[1].expect("b"));
+        assert_ne!(ida, idb);
+        m.set_pose(ida, &a);
+        m.set_pose(idb, &b);
+        // Frame 1: camera 1 sees them too, under its own ids (in the other order).
+        let (pa1, pb1) = (peaks(&cams[1], &a), peaks(&cams[1], &b));
+        let tracks = [
+            TrackObservation {
+                view: 0,
+                track: 7,
+                peaks: &pa0,
+                box_size: 300.0,
+            },
+            TrackObservation {
+                view: 0,
+                track: 9,
+                peaks: &pb0,
+                box_size: 300.0,
+            },
+            TrackObservation {
+                view: 1,
+                track: 2,
+                peaks: &pb1,
+                box_size: 300.0,
+            },
+            TrackObservation {
+                view: 1,
+                track: 1,
+                peaks: &pa1,
+                box_size: 300.0,
+            },
+        ];
+        m.assign(1, &cams, &tracks, &mut out);
+        assert_eq!(out, [Some(ida), Some(idb), Some(idb), Some(ida)]);
+        assert_eq!(m.people().count(), 2);
+        // A track id given twice by one camera: the second gets nobody.
+        let tracks = [
+            TrackObservation {
+                view: 0,
+                track: 7,
+                peaks: &pa0,
+                box_size: 300.0,
+            },
+            TrackObservation {
+                view: 0,
+                track: 7,
+                peaks: &pb0,
+                box_size: 300.0,
+            },
+        ];
+        m.assign(2, &cams, &tracks, &mut out);
+        assert_eq!(out, [Some(ida), None]);
+    }
+
+    #[test]
+    fn two_cameras_new_tracks_of_one_person_make_one_person_and_of_two_two() {
+        let cams = [
+            camera(Vector3::new(5.0, 0.0, 2.0)),
+            camera(Vector3::new(0.0, 5.0, 2.0)),
+        ];
+        let (a, b) = (figure(0.0, 0.0), figure(1.5, -1.0));
+        let (pa0, pb0, pa1, pb1) = (
+            peaks(&cams[0], &a),
+            peaks(&cams[0], &b),
+            peaks(&cams[1], &a),
+            peaks(&cams[1], &b),
+        );
+        let tracks = [
+            TrackObservation {
+                view: 0,
+                track: 1,
+                peaks: &pa0,
+                box_size: 300.0,
+            },
+            TrackObservation {
+                view: 1,
+                track: 1,
+                peaks: &pb1,
+                box_size: 300.0,
+            },
+            TrackObservation {
+                view: 0,
+                track: 2,
+                peaks: &pb0,
+                box_size: 300.0,
+            },
+            TrackObservation {
+                view: 1,
+                track: 2,
+                peaks: &pa1,
+                box_size: 300.0,
+            },
+        ];
+        let mut m = Matcher::new(MatchSettings::default()).expect("settings");
+        let mut out = Vec::new();
+        m.assign(0, &cams, &tracks, &mut out);
+        assert_eq!(out[0], out[3]);
+        assert_eq!(out[1], out[2]);
+        assert_ne!(out[0], out[1]);
+    }
+}
