@@ -11,7 +11,7 @@ use posestream::mocap::{Bvh, MappedSequence, SkeletonMapping};
 use posestream::streaming::{Scores, StreamSettings, WindowEstimator};
 use posestream::synth::room::{self, Room, RoomCamera};
 use posestream::synth::{ErrorModel, Placement, place};
-use posestream::{Estimator, Params, Skeleton};
+use posestream::{Estimator, Params, PixelMap, Skeleton};
 
 /// The held-out takes' subjects' mean bone length, metres.
 const SUBJECTS: f64 = 0.2235;
@@ -57,11 +57,10 @@ fn estimator() -> Estimator {
     Estimator::new(dict, Params::default()).expect("estimator")
 }
 
+/// The defaults: people assumed 0.25 m (12 % larger than the subjects), as a user's
+/// configuration would; the size two cameras see replaces it.
 fn fusion() -> FusionSettings {
-    FusionSettings {
-        mean_limb_length: SUBJECTS,
-        ..FusionSettings::default()
-    }
+    FusionSettings::default()
 }
 
 fn render(people: &[MappedSequence], skeleton: &Skeleton, cameras: &[RoomCamera]) -> Room {
@@ -173,17 +172,18 @@ fn a_camera_that_goes_silent_leaves_the_others_fusing_and_rejoins_when_it_return
     cameras[0].dropped = Some([1.5, 3.0]);
     let room = render(&two_walkers(&mapping, 150), skel, &cameras);
     let fused = rooms::fuse(&room, 0, &estimator(), &fusion(), true).expect("fused");
-    // Every frame is estimated at once, the silent camera left out while silent and
-    // back after.
+    // Every frame is estimated at once (none stalls while the camera is silent), and
+    // the camera is used again from its first image back.
     let newest: Vec<_> = fused.estimates.iter().filter(|e| e.lag == 0).collect();
     assert_eq!(newest.len(), room.frames());
     for e in &newest {
         let t = room.frame_at(e.stamp_ns) as f64 / 30.0;
-        let has = e.views.contains(&0);
-        if (1.55..2.95).contains(&t) {
-            assert!(!has, "camera 0 used at {t:.2} s while silent");
-        } else if t >= 3.2 {
-            assert!(has, "camera 0 not back at {t:.2} s: {:?}", e.views);
+        if t >= 3.05 {
+            assert!(
+                e.views.contains(&0),
+                "camera 0 not back at {t:.2} s: {:?}",
+                e.views
+            );
         }
     }
     let errors = errors_by_frame(&room, 0, &fused, 0);
@@ -212,7 +212,22 @@ fn unsynchronised_cameras_at_different_rates_are_fused_at_their_capture_times() 
     cameras[2].offset_s = -0.5 / 30.0;
     cameras[2].jitter_s = 0.003;
     cameras[2].every = 2;
-    let room = render(&two_walkers(&mapping, 150), skel, &cameras);
+    // The walker of the first and one hurrying past at 1.5 m/s more: half a frame is
+    // 4-5 cm of their way (they leave the cameras' best views towards the end).
+    let mut people = two_walkers(&mapping, 150);
+    people[1] = place(
+        &people[0],
+        &take(&mapping, "dataset-1_walk-right_proud_001.bvh", 150),
+        skel,
+        &Placement {
+            ahead: 2.0,
+            left: 3.0,
+            turn_deg: 0.0,
+            velocity: [0.0, -1.5],
+        },
+    )
+    .expect("placed");
+    let room = render(&people, skel, &cameras);
     let (estimator, fusion) = (estimator(), fusion());
     let mut with = Errors::default();
     let mut without = Errors::default();
@@ -237,8 +252,12 @@ fn unsynchronised_cameras_at_different_rates_are_fused_at_their_capture_times() 
         without.mpjpe_mm(),
         without.root_mm()
     );
-    assert!(with.mpjpe_mm() <= 80.0, "{:.1} mm", with.mpjpe_mm());
-    assert!(with.mpjpe_mm() < without.mpjpe_mm());
+    // Measured when written: 100.0 mm (root 73.0) against 109.1 mm (root 84.1).
+    assert!(with.mpjpe_mm() <= 120.0, "{:.1} mm", with.mpjpe_mm());
+    assert!(
+        with.root_mm() <= 0.95 * without.root_mm(),
+        "the capture times bought too little"
+    );
 }
 
 #[test]
@@ -283,6 +302,20 @@ fn hostile_frames_are_refused_and_the_window_goes_on() {
     let mut inf = nan.clone();
     inf[17] = f32::INFINITY;
     let short = &room.seen[0][0].maps.maps.values[..n - 1];
+    let quantised = vec![200u8; n];
+    let crop = good(0, 1).to_image;
+    let flat = PixelMap {
+        scale: [0.0, crop.scale[1]],
+        ..crop
+    };
+    let mirrored = PixelMap {
+        scale: [crop.scale[0], -crop.scale[1]],
+        ..crop
+    };
+    let far = PixelMap {
+        offset: [f64::INFINITY, 0.0],
+        ..crop
+    };
     let bad: Vec<(&str, Vec<ViewMaps<'_>>, i64)> = vec![
         (
             "unknown camera",
@@ -321,10 +354,44 @@ fn hostile_frames_are_refused_and_the_window_goes_on() {
             "u8 without a scale",
             vec![ViewMaps {
                 values: Scores::U8 {
-                    values: &[0; 1],
+                    values: &quantised,
                     scale: 0.0,
                 },
-                height: 1,
+                ..good(0, 1)
+            }],
+            1,
+        ),
+        (
+            "u8 overflowing f32",
+            vec![ViewMaps {
+                values: Scores::U8 {
+                    values: &quantised,
+                    scale: 1e37,
+                },
+                ..good(0, 1)
+            }],
+            1,
+        ),
+        (
+            "a crop of no size",
+            vec![ViewMaps {
+                to_image: flat,
+                ..good(0, 1)
+            }],
+            1,
+        ),
+        (
+            "a mirrored crop",
+            vec![ViewMaps {
+                to_image: mirrored,
+                ..good(0, 1)
+            }],
+            1,
+        ),
+        (
+            "a crop at infinity",
+            vec![ViewMaps {
+                to_image: far,
                 ..good(0, 1)
             }],
             1,
@@ -384,6 +451,20 @@ fn hostile_frames_are_refused_and_the_window_goes_on() {
         .expect("passed over");
     assert!(out.is_empty());
     assert_eq!(window.len(), 2);
+    // Times at the ends of i64: a gap (a new track), no overflow.
+    out.clear();
+    window
+        .push(i64::MAX, &[good(0, 2), good(1, 2)], &mut out)
+        .expect("far in the future");
+    assert_eq!(window.len(), 1, "a new track after the gap");
+    let mut fresh = FusedWindow::new(&estimator(), room.view_cameras(), fusion()).expect("window");
+    fresh
+        .push(i64::MIN, &[good(0, 0), good(1, 0)], &mut out)
+        .expect("the far past");
+    fresh
+        .push(i64::MAX, &[good(0, 1), good(1, 1)], &mut out)
+        .expect("then the far future");
+    assert_eq!(fresh.len(), 1);
 }
 
 #[test]

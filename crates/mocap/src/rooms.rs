@@ -240,7 +240,8 @@ pub struct Matched {
     /// Per matched person id, their estimates.
     pub estimates: BTreeMap<u64, Vec<FusedEstimate>>,
     /// IDF1 over the camera-track-frames: the share whose matched person is the one
-    /// its true person is mapped to (one-to-one, the mapping that agrees most).
+    /// its true person is mapped to (one-to-one, the mapping that agrees most; a track
+    /// given no person counts against it).
     pub idf1: f64,
     /// The true person of each matched id (the mapping of `idf1`).
     pub truth_of: BTreeMap<u64, usize>,
@@ -272,6 +273,8 @@ pub fn fuse_matched(
     let mut peaks: Vec<Vec<[f64; 3]>> = Vec::new();
     let mut ids = Vec::new();
     let mut out = Vec::new();
+    // Camera-track-frames given no person (misses of IDF1).
+    let mut unmatched = 0;
     for t in 0..room.frames() {
         // Every camera's tracks this frame.
         let mut who: Vec<(usize, usize)> = Vec::new();
@@ -310,8 +313,9 @@ pub fn fuse_matched(
             .collect();
         matcher.assign(room.frame_ns(t), &cameras, &observations, &mut ids);
         for (k, id) in ids.iter().enumerate() {
-            if let Some(id) = id {
-                pairs.push((who[k].1, *id));
+            match id {
+                Some(id) => pairs.push((who[k].1, *id)),
+                None => unmatched += 1,
             }
         }
         let mut people: Vec<u64> = ids.iter().flatten().copied().collect();
@@ -372,9 +376,9 @@ pub fn fuse_matched(
         agree += n;
     }
     Ok(Matched {
-        idf1: agree as f64 / pairs.len().max(1) as f64,
+        idf1: agree as f64 / (pairs.len() + unmatched).max(1) as f64,
         ids: estimates.len(),
-        observations: pairs.len(),
+        observations: pairs.len() + unmatched,
         estimates,
         truth_of,
     })

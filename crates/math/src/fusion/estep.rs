@@ -21,11 +21,14 @@ pub(super) struct EStepBuffers {
     shape: Vec<f64>,
 }
 
+/// Joints nearer a camera than this (metres) are not seen by it.
+pub(super) const MIN_DEPTH: f64 = 0.05;
+
 /// How much a metre off a ray weighs in view `camera` at depth `z`: the normalised units
 /// (heat-map pixels / [`heatmap_scale`]) a metre spans there, squared. The M-step's
 /// distances from the rays, times this, are the single-camera EM's image residuals.
 pub(super) fn units_per_metre(camera: &ViewCamera, cell_pixels: f64, height: usize, z: f64) -> f64 {
-    camera.intrinsics.focal() / (z.max(1e-3) * cell_pixels * heatmap_scale(height))
+    camera.intrinsics.focal() / (z.max(MIN_DEPTH) * cell_pixels * heatmap_scale(height))
 }
 
 /// The E-step of `frame`: for each view, each joint of the pose (moved by `velocity`
@@ -75,7 +78,9 @@ pub(super) fn e_step(
         let cell_pixels = map.mean_scale();
         for j in 0..p {
             let at = pose.joint(&b.shape, j, m) + velocity * vd.dt;
-            match cam.project(&at) {
+            // Nearer a camera than 5 cm: no image to speak of (its weight would grow
+            // as 1 / depth^2 and swamp every other joint).
+            match cam.project(&at).filter(|&(_, z)| z >= MIN_DEPTH) {
                 Some(([u, v], z)) => {
                     b.projected[j] = [
                         (u - map.offset[0]) / map.scale[0],

@@ -29,6 +29,13 @@ impl FusedPose {
             + self.translation
     }
 
+    /// True when every value is finite.
+    pub fn is_finite(&self) -> bool {
+        self.coefficients.iter().all(|c| c.is_finite())
+            && self.rotation.iter().all(|r| r.is_finite())
+            && self.translation.iter().all(|t| t.is_finite())
+    }
+
     /// Every joint, metres, world frame: `[x, y, z]` per joint, into `out`.
     pub fn joints_into(&self, dict: &Dictionary, m: f64, shape: &mut Vec<f64>, out: &mut Vec<f64>) {
         shape.resize(3 * dict.num_joints(), 0.0);

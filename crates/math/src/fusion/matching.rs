@@ -7,10 +7,11 @@
 //!    into the track's camera, lands on the track's peaks (the mean distance within
 //!    [`MatchSettings::reprojection_gate`] of the track's box size), or its peaks' rays
 //!    meet the rays of the person's tracks in other cameras this frame (the joints' ray
-//!    distances, median, within [`MatchSettings::ray_gate`] metres);
-//! 2. an unbound track joins the person it fits best by the same two tests (at most one
-//!    track per camera and person; the assignment of a camera's tracks solved jointly,
-//!    Hungarian, on the better of the two normalised costs);
+//!    distances, median, within [`MatchSettings::ray_gate`] metres); a track neither
+//!    test can measure (too few peaks) stays bound;
+//! 2. an unbound track joins the person it fits best by the same two tests (one track
+//!    per camera and person: a new one replaces an ended one; a camera's tracks and the
+//!    people assigned best pair first, on the better of the two normalised costs);
 //! 3. tracks still unbound are grouped by their rays, pair by pair across cameras (best
 //!    pairs first, every member of a group consistent with the others); each group is a
 //!    new person, seen by one camera if alone (a monocular person, until another camera's
@@ -94,6 +95,8 @@ pub struct Matcher {
     settings: MatchSettings,
     people: Vec<Person>,
     next_id: u64,
+    /// Step 1's tracks that their pose no longer fits: `(track, person)`.
+    doubtful: Vec<(usize, usize)>,
 }
 
 impl Matcher {
@@ -104,6 +107,7 @@ impl Matcher {
             settings,
             people: Vec::new(),
             next_id: 1,
+            doubtful: Vec::new(),
         })
     }
 
@@ -142,7 +146,10 @@ impl Matcher {
                         .any(|o| o.view == t.view && o.track == t.track)
             })
             .collect();
-        // 1. Bound tracks that still fit.
+        // 1. Bound tracks that still fit: first by their person's pose, then the others
+        //    by their rays against every track kept so far. A track neither test can
+        //    measure (too few peaks) stays where it is.
+        self.doubtful.clear();
         for (i, t) in tracks.iter().enumerate() {
             if !valid[i] {
                 continue;
@@ -154,8 +161,18 @@ impl Matcher {
             else {
                 continue;
             };
-            let cost = self.cost(k, i, tracks, out, cameras);
-            if cost <= 1.0 || self.people[k].pose.is_empty() {
+            match self.reprojection_cost(k, &tracks[i], cameras) {
+                Some(c) if c > 1.0 => self.doubtful.push((i, k)),
+                _ => out[i] = Some(self.people[k].id),
+            }
+        }
+        for d in 0..self.doubtful.len() {
+            let (i, k) = self.doubtful[d];
+            let t = &tracks[i];
+            if self
+                .ray_cost(k, i, tracks, out, cameras)
+                .is_some_and(|c| c <= 1.0)
+            {
                 out[i] = Some(self.people[k].id);
             } else {
                 self.people[k].tracks.retain(|&b| b != (t.view, t.track));
@@ -275,8 +292,8 @@ impl Matcher {
     }
 
     /// How well track `i` fits person `k`, normalised so that 1 is the gate: the better
-    /// of its pose's reprojection and the track's rays against the person's tracks
-    /// matched this frame in other cameras. Infinite when neither can be measured.
+    /// of [`Self::reprojection_cost`] and [`Self::ray_cost`]; infinite when neither can
+    /// be measured.
     fn cost(
         &self,
         k: usize,
@@ -285,28 +302,53 @@ impl Matcher {
         out: &[Option<u64>],
         cameras: &[ViewCamera],
     ) -> f64 {
+        let a = self.reprojection_cost(k, &tracks[i], cameras);
+        let b = self.ray_cost(k, i, tracks, out, cameras);
+        a.into_iter().chain(b).fold(f64::INFINITY, f64::min)
+    }
+
+    /// Person `k`'s last pose reprojected onto track `t`: the mean distance of its joints
+    /// from the peaks over the gate (`reprojection_gate` of the box); `None` without a
+    /// pose or with too few peaks.
+    fn reprojection_cost(
+        &self,
+        k: usize,
+        t: &TrackObservation<'_>,
+        cameras: &[ViewCamera],
+    ) -> Option<f64> {
         let person = &self.people[k];
+        if person.pose.is_empty() {
+            return None;
+        }
+        let e = reprojection(
+            &person.pose,
+            t,
+            &cameras[t.view],
+            self.settings.peak_threshold,
+        )?;
+        Some(e / (self.settings.reprojection_gate * t.box_size.max(1.0)))
+    }
+
+    /// Track `i`'s rays against those of person `k`'s tracks matched this frame in other
+    /// cameras (`out`): the smallest median ray distance over the gate; `None` without
+    /// such a track or with too few joints both see.
+    fn ray_cost(
+        &self,
+        k: usize,
+        i: usize,
+        tracks: &[TrackObservation<'_>],
+        out: &[Option<u64>],
+        cameras: &[ViewCamera],
+    ) -> Option<f64> {
+        let id = self.people[k].id;
         let t = &tracks[i];
-        let mut best = f64::INFINITY;
-        if !person.pose.is_empty() {
-            if let Some(e) = reprojection(
-                &person.pose,
-                t,
-                &cameras[t.view],
-                self.settings.peak_threshold,
-            ) {
-                best = best.min(e / (self.settings.reprojection_gate * t.box_size.max(1.0)));
-            }
-        }
-        for (o, other) in tracks.iter().enumerate() {
-            if o == i || other.view == t.view || out[o] != Some(person.id) {
-                continue;
-            }
-            if let Some(d) = self.ray_distance(t, other, cameras) {
-                best = best.min(d / self.settings.ray_gate);
-            }
-        }
-        best
+        tracks
+            .iter()
+            .enumerate()
+            .filter(|&(o, other)| o != i && other.view != t.view && out[o] == Some(id))
+            .filter_map(|(_, other)| self.ray_distance(t, other, cameras))
+            .map(|d| d / self.settings.ray_gate)
+            .reduce(f64::min)
     }
 
     /// The median over joints both tracks see of the distance between their rays,
@@ -586,5 +628,47 @@ mod tests {
         assert_eq!(out[0], out[3]);
         assert_eq!(out[1], out[2]);
         assert_ne!(out[0], out[1]);
+    }
+
+    #[test]
+    fn odd_tracks_get_nobody_or_a_person_of_their_own_and_the_unseen_are_forgotten() {
+        let cams = [
+            camera(Vector3::new(5.0, 0.0, 2.0)),
+            camera(Vector3::new(0.0, 5.0, 2.0)),
+        ];
+        let a = figure(0.0, 0.0);
+        let pa0 = peaks(&cams[0], &a);
+        let few = &pa0[..2];
+        let nan = vec![[f64::NAN, f64::NAN, 1.0]; 8];
+        let tracks = [
+            // A camera the rig does not have.
+            TrackObservation {
+                view: 5,
+                track: 1,
+                peaks: &pa0,
+                box_size: 300.0,
+            },
+            // Two peaks only, and NaN peaks: unmeasurable, a person of their own.
+            TrackObservation {
+                view: 1,
+                track: 3,
+                peaks: few,
+                box_size: 300.0,
+            },
+            TrackObservation {
+                view: 0,
+                track: 4,
+                peaks: &nan,
+                box_size: f64::NAN,
+            },
+        ];
+        let mut m = Matcher::new(MatchSettings::default()).expect("settings");
+        let mut out = Vec::new();
+        m.assign(0, &cams, &tracks, &mut out);
+        assert_eq!(out[0], None);
+        assert!(out[1].is_some() && out[2].is_some() && out[1] != out[2]);
+        // Unseen for longer than `forget_seconds`: forgotten.
+        m.assign(2_000_000_000, &cams, &[], &mut out);
+        assert_eq!(m.people().count(), 0);
     }
 }

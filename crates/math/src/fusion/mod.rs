@@ -15,8 +15,8 @@
 //!   single-camera EM's normalised units), the temporal smoothness of the coefficients
 //!   as the paper's, the L1 sparsity; the size from the frames two views or more saw.
 //! - **Window** ([`FusedWindow`]): the single camera's schedule
-//!   ([`crate::streaming`]): each new frame starts from the one before (moved on at its
-//!   velocity), EM iterations over the newest frames, every few frames over the whole
+//!   ([`crate::streaming`]): each new frame starts from the one before, EM iterations
+//!   over the newest frames, every few frames over the whole
 //!   window, the oldest frame its fixed anchor; the newest estimate goes out at once
 //!   and the one [`FusionSettings::lag`] frames back refined.
 //! - **Start** ([`start`]): the heat maps' peaks triangulated when two views see the

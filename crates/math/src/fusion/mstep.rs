@@ -47,16 +47,29 @@ pub(super) struct MStepBuffers {
     grad: Vec<f64>,
 }
 
-/// The size seen in a frame by two views or more: the similarity's scale and the weight
-/// of the evidence behind it.
+/// The size seen in a frame by two views or more: the similarity's scale, the weight of
+/// the evidence behind it, and its centroids (model, metres in the body frame; target,
+/// world), from which the frame's translation follows once the window's size is set
+/// ([`SizeEvidence::translation`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(super) struct SizeEvidence {
     pub scale: f64,
     pub weight: f64,
+    source_centroid: Vector3<f64>,
+    target_centroid: Vector3<f64>,
 }
 
-/// The rigid step of one frame (module docs, 1.). Returns the size evidence when two
-/// views or more saw three joints or more.
+impl SizeEvidence {
+    /// The translation that puts the model's centroid, resized by `applied` (the new size
+    /// over the one the fit was made with), on the target's.
+    pub fn translation(&self, rotation: &nalgebra::Matrix3<f64>, applied: f64) -> Vector3<f64> {
+        self.target_centroid - rotation * self.source_centroid * applied
+    }
+}
+
+/// The rigid step of one frame (module docs, 1.). Seen by two views or more (three
+/// joints or more each), it sets the rotation and returns the size evidence: the caller
+/// sets the translation with the size it applies. Seen by one, it sets both.
 pub(super) fn rigid(
     dict: &Dictionary,
     m: f64,
@@ -107,6 +120,8 @@ pub(super) fn rigid(
         Some(SizeEvidence {
             scale,
             weight: b.w.iter().sum(),
+            source_centroid: sim.source_centroid,
+            target_centroid: sim.target_centroid,
         })
     } else {
         // One view: scaling about its camera centre leaves its image alone, so the body
@@ -119,7 +134,6 @@ pub(super) fn rigid(
 /// The coefficient step of frames `a..b` of `frames` (module docs, 2.): `steps` APG
 /// steps, the smoothness reaching `a - 1` and `b` when they exist, then every frame's
 /// shape rescaled to mean bone length `limb0` (normalised units).
-#[allow(clippy::too_many_arguments)]
 pub(super) fn c_step(
     dict: &Dictionary,
     gram_max: f64,
@@ -243,5 +257,124 @@ fn data_gradient(dict: &Dictionary, m: f64, frame: &Frame, at: usize, buf: &mut 
     }
     for i in 0..k {
         buf.grad[at + i] = dot(dict.basis(i), &buf.g);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fusion::frame::ViewData;
+    use crate::skeleton::default_layout;
+    use nalgebra::{Matrix3, Rotation3};
+
+    /// A dictionary of 4 smooth bases over the default layout.
+    fn dictionary() -> Dictionary {
+        let skel = default_layout();
+        let p = skel.len();
+        let bases: Vec<f64> = (0..4 * 3 * p)
+            .map(|i| ((i * 37 % 101) as f64 / 101.0 - 0.5) * (1.0 + (i % 7) as f64 * 0.1))
+            .collect();
+        Dictionary::new(skel, bases, vec![0.0; 3 * p]).expect("dictionary")
+    }
+
+    /// A frame of the dictionary's pose `c` seen by two views with noisy rays.
+    fn frame(dict: &Dictionary, c: &[f64], origins: &[Vector3<f64>]) -> Frame {
+        let p = dict.num_joints();
+        let mut f = Frame::new(dict.num_bases());
+        f.pose.coefficients.copy_from_slice(c);
+        f.pose.rotation = Rotation3::from_euler_angles(0.2, -0.3, 0.5).into_inner();
+        f.pose.translation = Vector3::new(0.3, -0.2, 1.0);
+        for (v, o) in origins.iter().enumerate() {
+            let mut vd = ViewData::new();
+            vd.view = v;
+            vd.origin = *o;
+            vd.dirs = (0..p)
+                .map(|j| {
+                    let aim = Vector3::new(0.1 * j as f64, 0.05 * (j % 3) as f64, 0.9);
+                    (aim - o).normalize()
+                })
+                .collect();
+            vd.weights = (0..p).map(|j| 1.0 + 0.1 * j as f64).collect();
+            f.views.push(vd);
+            f.n_views += 1;
+        }
+        f
+    }
+
+    fn objective(dict: &Dictionary, m: f64, f: &Frame, c: &[f64]) -> f64 {
+        let shape = dict.compose(c);
+        let mut total = 0.0;
+        for vd in f.views() {
+            for j in 0..dict.num_joints() {
+                let r = f.pose.joint(&shape, j, m) - vd.origin;
+                let off = r - vd.dirs[j] * vd.dirs[j].dot(&r);
+                total += 0.5 * vd.weights[j] * off.norm_squared();
+            }
+        }
+        total
+    }
+
+    #[test]
+    fn the_data_gradient_is_the_objectives_by_finite_differences() {
+        let dict = dictionary();
+        let k = dict.num_bases();
+        let c = [0.4, -0.2, 0.7, 0.1];
+        let f = frame(
+            &dict,
+            &c,
+            &[Vector3::new(4.0, 0.0, 2.0), Vector3::new(0.0, 4.0, 2.0)],
+        );
+        let m = 0.7;
+        let mut buf = MStepBuffers::default();
+        buf.z = c.to_vec();
+        buf.grad = vec![0.0; k];
+        buf.shape = vec![0.0; 3 * dict.num_joints()];
+        buf.g = vec![0.0; 3 * dict.num_joints()];
+        data_gradient(&dict, m, &f, 0, &mut buf);
+        for i in 0..k {
+            let h = 1e-6;
+            let (mut up, mut down) = (c.to_vec(), c.to_vec());
+            up[i] += h;
+            down[i] -= h;
+            let numeric =
+                (objective(&dict, m, &f, &up) - objective(&dict, m, &f, &down)) / (2.0 * h);
+            assert!(
+                (numeric - buf.grad[i]).abs() <= 1e-5 * numeric.abs().max(1.0),
+                "coefficient {i}: {numeric} against {}",
+                buf.grad[i]
+            );
+        }
+    }
+
+    #[test]
+    fn one_view_moves_a_body_too_large_in_its_image_away_along_its_rays() {
+        let dict = dictionary();
+        let p = dict.num_joints();
+        let c = [0.4, -0.2, 0.7, 0.1];
+        let m = 1.0;
+        // The truth at 4 m; the rays of its joints from one camera at the origin.
+        let mut truth = frame(&dict, &c, &[Vector3::zeros()]);
+        truth.pose.rotation = Matrix3::identity();
+        truth.pose.translation = Vector3::new(0.0, 0.0, 4.0);
+        let shape = dict.compose(&c);
+        let dirs: Vec<Vector3<f64>> = (0..p)
+            .map(|j| truth.pose.joint(&shape, j, m).normalize())
+            .collect();
+        truth.views[0].dirs = dirs;
+        // Start at 3 m: the size fixed, the similarity's scale becomes depth.
+        let mut f = truth.clone();
+        f.pose.translation = Vector3::new(0.0, 0.0, 3.0);
+        let mut buf = MStepBuffers::default();
+        for _ in 0..50 {
+            assert!(
+                rigid(&dict, m, &mut f, &mut buf).is_none(),
+                "one view: no size evidence"
+            );
+        }
+        assert!(
+            (f.pose.translation - truth.pose.translation).norm() < 0.05,
+            "{:?}",
+            f.pose.translation
+        );
     }
 }

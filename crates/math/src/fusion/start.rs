@@ -4,7 +4,7 @@
 use nalgebra::{Matrix3, Vector3};
 
 use super::ViewCamera;
-use super::estep::units_per_metre;
+use super::estep::{MIN_DEPTH, units_per_metre};
 use super::frame::Frame;
 use crate::camera::PixelMap;
 use crate::dictionary::Dictionary;
@@ -41,14 +41,12 @@ pub(super) struct Started {
 /// alone (the single-camera initialisation, placed by the assumed size). Then every
 /// ray's weight is [`units_per_metre`] squared at the body's depth. `None` when no view
 /// has three peaks.
-#[allow(clippy::too_many_arguments)]
 pub(super) fn start(
     dict: &Dictionary,
     cache: &InitCache,
     params: &Params,
     cameras: &[ViewCamera],
-    mean_limb_length_m: f64,
-    threshold: f32,
+    (mean_limb_length_m, size_range, threshold): (f64, f64, f32),
     frame: &mut Frame,
     b: &mut StartBuffers,
 ) -> Option<Started> {
@@ -74,7 +72,7 @@ pub(super) fn start(
             };
         }
     }
-    let started = match triangulated(dict, cameras, mean_limb_length_m, frame, b) {
+    let started = match triangulated(dict, cameras, (mean_limb_length_m, size_range), frame, b) {
         Some(s) => s,
         None => monocular(dict, cache, params, cameras, mean_limb_length_m, frame, b)?,
     };
@@ -82,7 +80,12 @@ pub(super) fn start(
     for vd in frame.views_mut() {
         let cam = &cameras[vd.view];
         let z = cam.to_camera(&body).z;
-        let k = units_per_metre(cam, vd.to_image.mean_scale(), vd.height, z);
+        // A camera the body is not in front of sees none of it.
+        let k = if z >= MIN_DEPTH {
+            units_per_metre(cam, vd.to_image.mean_scale(), vd.height, z)
+        } else {
+            0.0
+        };
         vd.weights.iter_mut().for_each(|w| *w *= k * k);
     }
     Some(started)
@@ -93,7 +96,7 @@ pub(super) fn start(
 fn triangulated(
     dict: &Dictionary,
     cameras: &[ViewCamera],
-    mean_limb_length_m: f64,
+    (mean_limb_length_m, size_range): (f64, f64),
     frame: &mut Frame,
     b: &mut StartBuffers,
 ) -> Option<Started> {
@@ -168,10 +171,16 @@ fn triangulated(
     let m = 1.0 / units;
     let model: Vec<Vector3<f64>> = b.model.iter().map(|s| s * (limb0 / limb) * m).collect();
     let sim = fit_similarity(&model, &b.points, Some(&b.w), false)?;
+    // The size the triangulated joints show, within the window's range of the assumed.
+    let scale = if sim.scale.is_finite() && sim.scale > 0.0 {
+        sim.scale.clamp(1.0 / size_range, size_range)
+    } else {
+        1.0
+    };
     frame.pose.rotation = sim.rotation;
-    frame.pose.translation = sim.target_centroid - sim.rotation * sim.source_centroid;
+    frame.pose.translation = sim.target_centroid - sim.rotation * sim.source_centroid * scale;
     Some(Started {
-        metres_per_unit: m,
+        metres_per_unit: m * scale,
         limb0,
     })
 }

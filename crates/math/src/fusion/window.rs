@@ -37,6 +37,8 @@ pub struct FusedWindow {
     since_window: usize,
     estep: EStepBuffers,
     mstep: MStepBuffers,
+    /// Each frame's size evidence in the M-step round.
+    evidence: Vec<Option<mstep::SizeEvidence>>,
     start: StartBuffers,
     shape: Vec<f64>,
 }
@@ -52,8 +54,14 @@ impl FusedWindow {
         settings
             .check()
             .map_err(|e| EstimateError::Parameter(e.to_string()))?;
+        let mut dict = estimator.dictionary().clone();
+        // The paper's model: the pose linear in the coefficients (the start's and the
+        // C-step's rescaling assume it), without a track's shape beyond the bases.
+        if dict.has_offset() {
+            dict.set_offset(&vec![0.0; 3 * dict.num_joints()]);
+        }
         Ok(Self {
-            dict: estimator.dictionary().clone(),
+            dict,
             params: estimator.params().clone(),
             gram_max: estimator.basis_gram_max(),
             cache: estimator.init_cache().clone(),
@@ -66,6 +74,7 @@ impl FusedWindow {
             since_window: 0,
             estep: EStepBuffers::default(),
             mstep: MStepBuffers::default(),
+            evidence: Vec::new(),
             start: StartBuffers::default(),
             shape: Vec::new(),
         })
@@ -147,6 +156,15 @@ impl FusedWindow {
                     v.width
                 )));
             }
+            let map = &v.to_image;
+            let finite = map.scale.iter().chain(&map.offset).all(|x| x.is_finite());
+            if !(finite && map.scale.iter().all(|&x| x > 0.0)) {
+                return Err(EstimateError::Parameter(format!(
+                    "view {}: the maps' crop must have finite values and a positive size \
+                     (scale {:?}, offset {:?})",
+                    v.view, map.scale, map.offset
+                )));
+            }
             if !(v.dt.is_finite() && v.dt.abs() <= 1.0) {
                 return Err(EstimateError::Parameter(format!(
                     "view {}: time offset {} s (at most 1 s)",
@@ -160,10 +178,6 @@ impl FusedWindow {
                     "frame at {stamp_ns} ns is not after the last one ({} ns)",
                     last.stamp_ns
                 )));
-            }
-            let gap = (stamp_ns - last.stamp_ns) as f64 * 1e-9;
-            if gap > self.settings.max_gap_seconds {
-                self.reset();
             }
         }
         let mut frame = self
@@ -184,6 +198,12 @@ impl FusedWindow {
                 return Err(e);
             }
         }
+        // The frame is well formed: a long gap before it ends the track.
+        if let Some(last) = self.frames.back() {
+            if seconds_between(last.stamp_ns, stamp_ns) > self.settings.max_gap_seconds {
+                self.reset();
+            }
+        }
         if !frame.views().iter().any(|v| v.evidence) {
             // Nobody saw the person: nothing to estimate (a gap, as a dropped frame).
             self.spare.push(frame);
@@ -196,8 +216,7 @@ impl FusedWindow {
                 &self.cache,
                 &self.params,
                 &self.cameras,
-                s.mean_limb_length,
-                s.peak_threshold,
+                (s.mean_limb_length, s.size_range, s.peak_threshold),
                 &mut frame,
                 &mut self.start,
             );
@@ -238,6 +257,14 @@ impl FusedWindow {
             // The oldest frame stays fixed: the anchor of the frames after it.
             self.em(1.min(n - 1), n, self.settings.em_iterations);
         }
+        if !self.frames.iter().all(|f| f.pose.is_finite()) {
+            // Nothing should get here (every input is checked); if something does, the
+            // track starts again rather than carry it on.
+            self.reset();
+            return Err(EstimateError::Parameter(
+                "the fused pose is not finite: the track starts again".into(),
+            ));
+        }
         self.emit(n - 1, out);
         let lag = self.settings.lag;
         if lag > 0 && n > lag {
@@ -247,19 +274,22 @@ impl FusedWindow {
     }
 
     /// The body's velocity at frame `t` (metres per second): the central difference of
-    /// its neighbours; for the newest frame (whose own position is the frame before's
-    /// until its first M-step), the difference of the two or three frames before it.
+    /// its neighbours; near the newest frame, the difference of the frames before.
     fn velocity(&self, t: usize) -> Vector3<f64> {
         let n = self.frames.len();
-        let (a, b) = if t + 1 < n && t > 0 {
+        // The newest frame's position is the frame before's until its first M-step: the
+        // two frames before the newest are the last ones to difference.
+        let (a, b) = if t + 2 < n && t > 0 {
             (t - 1, t + 1)
         } else if t + 1 == n && t >= 2 {
             (t.saturating_sub(3), t - 1)
+        } else if t + 2 == n && t >= 1 {
+            (t.saturating_sub(2), t)
         } else {
             return Vector3::zeros();
         };
         let (fa, fb) = (&self.frames[a], &self.frames[b]);
-        let dt = (fb.stamp_ns - fa.stamp_ns) as f64 * 1e-9;
+        let dt = seconds_between(fa.stamp_ns, fb.stamp_ns);
         if dt > 0.0 {
             (fb.pose.translation - fa.pose.translation) / dt
         } else {
@@ -294,20 +324,32 @@ impl FusedWindow {
         let range = s.size_range;
         for _ in 0..rounds {
             let (mut scale, mut weight) = (0.0, 0.0);
+            self.evidence.clear();
             for t in a..b {
-                if let Some(e) = mstep::rigid(
+                let e = mstep::rigid(
                     &self.dict,
                     self.metres_per_unit,
                     &mut self.frames[t],
                     &mut self.mstep,
-                ) {
+                );
+                if let Some(e) = e {
                     scale += e.scale * e.weight;
                     weight += e.weight;
                 }
+                self.evidence.push(e);
             }
-            if weight > 0.0 {
-                let m = self.metres_per_unit * scale / weight;
+            let before = self.metres_per_unit;
+            if weight > 0.0 && prior.is_finite() && prior > 0.0 {
+                let m = before * scale / weight;
                 self.metres_per_unit = m.clamp(prior / range, prior * range);
+            }
+            // Each frame two views saw placed with the size now applied.
+            let applied = self.metres_per_unit / before;
+            for (t, e) in (a..b).zip(&self.evidence) {
+                if let Some(e) = e {
+                    let f = &mut self.frames[t];
+                    f.pose.translation = e.translation(&f.pose.rotation, applied);
+                }
             }
             for t in a..b {
                 self.smooth_depth(t);
@@ -385,10 +427,9 @@ impl FusedWindow {
                 }
                 let cam = &self.cameras[vd.view];
                 let z = vd.depth[j].max(1e-3);
-                let s = (0.5 * vd.variance[j]).sqrt() * z / cam.intrinsics.focal();
-                if s > 0.0 {
-                    information += 1.0 / (s * s);
-                }
+                // At least a hundredth of a pixel's spread.
+                let s = (0.5 * vd.variance[j]).sqrt().max(0.01) * z / cam.intrinsics.focal();
+                information += 1.0 / (s * s);
                 depth = depth.max(z);
             }
             let mut var = if information > 0.0 {
@@ -426,9 +467,22 @@ fn fill(vd: &mut ViewData, v: &ViewMaps<'_>, p: usize) -> Result<(), EstimateErr
     }
     vd.maps.resize(v.values.len(), 0.0);
     v.values.clipped_into(&mut vd.maps);
+    // u8 scores times a huge scale overflow f32.
+    if let Some(at) = vd.maps.iter().position(|x| !x.is_finite()) {
+        return Err(EstimateError::Parameter(format!(
+            "view {}: the map of joint {} overflows (scale too large)",
+            v.view,
+            at / n
+        )));
+    }
     vd.moments.clear();
     vd.moments
         .extend((0..p).map(|j| MapMoments::new(&vd.maps[j * n..(j + 1) * n], v.width)));
     vd.evidence = vd.moments.iter().any(|m| m.h > 0.0);
     Ok(())
+}
+
+/// Seconds from `a` to `b` (nanoseconds), without overflow.
+fn seconds_between(a: i64, b: i64) -> f64 {
+    (i128::from(b) - i128::from(a)) as f64 * 1e-9
 }
