@@ -4,7 +4,8 @@
 
 mod common;
 
-use posestream::fusion::{FusedWindow, FusionSettings, ViewMaps};
+use nalgebra::{UnitQuaternion, Vector3};
+use posestream::fusion::{FusedWindow, FusionSettings, ViewMaps, ViewResidual, suspects};
 use posestream::metric::MetricSettings;
 use posestream::mocap::rooms::{self, Errors, Fused};
 use posestream::mocap::{Bvh, MappedSequence, SkeletonMapping};
@@ -515,4 +516,36 @@ fn tracks_without_shared_ids_are_matched_into_people_by_geometry() {
     assert_eq!(matched.ids, 3, "one fused track per person");
     assert!(errors.mpjpe_mm() <= 80.0, "{:.1} mm", errors.mpjpe_mm());
     assert!(errors.frames >= 3 * 130);
+}
+
+#[test]
+fn a_camera_whose_extrinsics_are_wrong_is_named_and_the_right_ones_are_not() {
+    let mapping = mapping();
+    let skel = &mapping.layout;
+    let room = render(&two_walkers(&mapping, 150), skel, &ring(3, 5.0));
+    let (estimator, fusion) = (estimator(), fusion());
+    let named = |cameras: &[posestream::fusion::ViewCamera]| {
+        let mut residuals = vec![ViewResidual::default(); cameras.len()];
+        for person in 0..2 {
+            let fused =
+                rooms::fuse_with(&room, cameras, person, &estimator, &fusion, true).expect("fused");
+            for (r, o) in residuals.iter_mut().zip(&fused.residuals) {
+                r.merge(o);
+            }
+        }
+        println!(
+            "residuals {:?}",
+            residuals.iter().map(ViewResidual::mean).collect::<Vec<_>>()
+        );
+        suspects(&residuals, &fusion.extrinsics)
+    };
+    let truth = room.view_cameras();
+    assert!(named(&truth).is_empty(), "true extrinsics named");
+    // Camera 1 turned 3 degrees about the vertical and moved 10 cm.
+    let mut wrong = truth.clone();
+    let pose = &mut wrong[1].world_from_camera;
+    pose.rotation =
+        UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 3f64.to_radians()) * pose.rotation;
+    pose.translation.vector.x += 0.10;
+    assert_eq!(named(&wrong), [1]);
 }

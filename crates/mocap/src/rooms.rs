@@ -12,7 +12,8 @@ use posestream_math::Estimator;
 use posestream_math::error::EstimateError;
 use posestream_math::fusion::matching::peaks_into;
 use posestream_math::fusion::{
-    FusedEstimate, FusedWindow, FusionSettings, MatchSettings, Matcher, TrackObservation, ViewMaps,
+    FusedEstimate, FusedWindow, FusionSettings, MatchSettings, Matcher, TrackObservation,
+    ViewCamera, ViewMaps, ViewResidual,
 };
 use posestream_math::metric::{MetricPose, MetricSettings, MetricStep};
 use posestream_math::skeleton::Skeleton;
@@ -99,6 +100,8 @@ pub struct Fused {
     pub frames: usize,
     /// The person's mean bone length as fused at the end, metres.
     pub mean_limb_length: f64,
+    /// Each camera's residuals against the person's fused poses.
+    pub residuals: Vec<ViewResidual>,
 }
 
 /// Fuses person `person` of `room`: each frame, the views of the cameras that sent an
@@ -111,12 +114,32 @@ pub fn fuse(
     fusion: &FusionSettings,
     time_offsets: bool,
 ) -> Result<Fused, EstimateError> {
-    let mut window = FusedWindow::new(estimator, room.view_cameras(), fusion.clone())?;
+    fuse_with(
+        room,
+        &room.view_cameras(),
+        person,
+        estimator,
+        fusion,
+        time_offsets,
+    )
+}
+
+/// [`fuse`] through `cameras` instead of the room's own (extrinsics gone wrong, say).
+pub fn fuse_with(
+    room: &Room,
+    cameras: &[ViewCamera],
+    person: usize,
+    estimator: &Estimator,
+    fusion: &FusionSettings,
+    time_offsets: bool,
+) -> Result<Fused, EstimateError> {
+    let mut window = FusedWindow::new(estimator, cameras.to_vec(), fusion.clone())?;
     let mut out = Fused {
         estimates: Vec::new(),
         seconds: 0.0,
         frames: 0,
         mean_limb_length: 0.0,
+        residuals: Vec::new(),
     };
     let mut views = Vec::new();
     for t in 0..room.frames() {
@@ -141,6 +164,7 @@ pub fn fuse(
         out.frames += 1;
     }
     out.mean_limb_length = window.mean_limb_length();
+    out.residuals = window.residuals().to_vec();
     Ok(out)
 }
 

@@ -26,10 +26,14 @@
 //!   (their pose's reprojection, their rays' distances), without ids agreeing between
 //!   cameras.
 //!
+//! - **Wrong extrinsics** ([`extrinsics`]): each camera's residuals against the fused
+//!   poses; a camera far off while the others fit is named.
+//!
 //! Nothing here knows about transports.
 
 pub mod camera;
 mod estep;
+pub mod extrinsics;
 mod frame;
 pub mod matching;
 mod mstep;
@@ -39,6 +43,7 @@ mod window;
 use serde::{Deserialize, Serialize};
 
 pub use camera::ViewCamera;
+pub use extrinsics::{ExtrinsicsCheck, ViewResidual, suspects};
 pub use frame::FusedPose;
 pub use matching::{MatchSettings, Matcher, TrackObservation};
 pub use window::FusedWindow;
@@ -129,6 +134,8 @@ pub struct FusionSettings {
     pub max_gap_seconds: f64,
     /// Who is who across cameras (`[estimator.fusion.matching]`).
     pub matching: MatchSettings,
+    /// The check of the cameras' extrinsics (`[estimator.fusion.extrinsics]`).
+    pub extrinsics: ExtrinsicsCheck,
 }
 
 impl Default for FusionSettings {
@@ -152,6 +159,7 @@ impl Default for FusionSettings {
             depth_smoothing: 2.0,
             max_gap_seconds: 0.5,
             matching: MatchSettings::default(),
+            extrinsics: ExtrinsicsCheck::default(),
         }
     }
 }
@@ -182,6 +190,7 @@ impl FusionSettings {
         )?;
         check_real("depth_smoothing", self.depth_smoothing, 0.0, 1e6, false)?;
         check_real("max_gap_seconds", self.max_gap_seconds, 0.0, 3600.0, true)?;
-        self.matching.check().map_err(|e| e.within("matching"))
+        self.matching.check().map_err(|e| e.within("matching"))?;
+        self.extrinsics.check().map_err(|e| e.within("extrinsics"))
     }
 }

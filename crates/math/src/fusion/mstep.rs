@@ -325,11 +325,13 @@ mod tests {
             &[Vector3::new(4.0, 0.0, 2.0), Vector3::new(0.0, 4.0, 2.0)],
         );
         let m = 0.7;
-        let mut buf = MStepBuffers::default();
-        buf.z = c.to_vec();
-        buf.grad = vec![0.0; k];
-        buf.shape = vec![0.0; 3 * dict.num_joints()];
-        buf.g = vec![0.0; 3 * dict.num_joints()];
+        let mut buf = MStepBuffers {
+            z: c.to_vec(),
+            grad: vec![0.0; k],
+            shape: vec![0.0; 3 * dict.num_joints()],
+            g: vec![0.0; 3 * dict.num_joints()],
+            ..MStepBuffers::default()
+        };
         data_gradient(&dict, m, &f, 0, &mut buf);
         for i in 0..k {
             let h = 1e-6;

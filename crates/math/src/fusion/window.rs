@@ -5,6 +5,7 @@ use std::collections::VecDeque;
 use nalgebra::Vector3;
 
 use super::estep::{EStepBuffers, e_step};
+use super::extrinsics::ViewResidual;
 use super::frame::{Frame, ViewData};
 use super::mstep::{self, MStepBuffers};
 use super::start::{StartBuffers, start};
@@ -12,6 +13,7 @@ use super::{FusedEstimate, FusionSettings, ViewCamera, ViewMaps};
 use crate::dictionary::Dictionary;
 use crate::error::EstimateError;
 use crate::estimator::Estimator;
+use crate::heatmaps::argmax;
 use crate::solver::Params;
 use crate::solver::estep::MapMoments;
 use crate::solver::init::InitCache;
@@ -39,6 +41,9 @@ pub struct FusedWindow {
     mstep: MStepBuffers,
     /// Each frame's size evidence in the M-step round.
     evidence: Vec<Option<mstep::SizeEvidence>>,
+    /// Each camera's residuals against the fused poses ([`super::extrinsics`]).
+    residuals: Vec<ViewResidual>,
+    scratch: Vec<f64>,
     start: StartBuffers,
     shape: Vec<f64>,
 }
@@ -60,6 +65,7 @@ impl FusedWindow {
         if dict.has_offset() {
             dict.set_offset(&vec![0.0; 3 * dict.num_joints()]);
         }
+        let residuals = vec![ViewResidual::default(); cameras.len()];
         Ok(Self {
             dict,
             params: estimator.params().clone(),
@@ -75,6 +81,8 @@ impl FusedWindow {
             estep: EStepBuffers::default(),
             mstep: MStepBuffers::default(),
             evidence: Vec::new(),
+            residuals,
+            scratch: Vec::new(),
             start: StartBuffers::default(),
             shape: Vec::new(),
         })
@@ -93,7 +101,15 @@ impl FusedWindow {
             EstimateError::Parameter(format!("no camera {view} (the rig has {cameras})"))
         })?;
         *slot = camera;
+        // Its residuals were against the calibration it had.
+        self.residuals[view] = ViewResidual::default();
         Ok(())
+    }
+
+    /// Each camera's residuals against this person's refined fused poses, for the check
+    /// of their extrinsics ([`super::extrinsics::suspects`]; merge several people's).
+    pub fn residuals(&self) -> &[ViewResidual] {
+        &self.residuals
     }
 
     /// The person's mean bone length as fitted, metres (0 before the first frame).
@@ -412,6 +428,12 @@ impl FusedWindow {
         };
         f.pose
             .joints_into(&self.dict, m, &mut self.shape, &mut e.joints);
+        if lag == self.settings.lag && f.usable_views() >= 3 {
+            for vd in f.views().iter().filter(|v| v.usable()) {
+                let r = residual(&self.cameras[vd.view], vd, &e.joints, &mut self.scratch);
+                self.residuals[vd.view].add(r);
+            }
+        }
         e.views
             .extend(f.views().iter().filter(|v| v.usable()).map(|v| v.view));
         let scale_std = self.settings.scale_std;
@@ -480,6 +502,35 @@ fn fill(vd: &mut ViewData, v: &ViewMaps<'_>, p: usize) -> Result<(), EstimateErr
         .extend((0..p).map(|j| MapMoments::new(&vd.maps[j * n..(j + 1) * n], v.width)));
     vd.evidence = vd.moments.iter().any(|m| m.h > 0.0);
     Ok(())
+}
+
+/// A view's residual against fused joints (`[x, y, z]` per joint, world): the median
+/// distance of their projections from its heat maps' peaks (the raw evidence, not the
+/// E-step's, which leans towards the projection), over its box's size.
+fn residual(camera: &ViewCamera, vd: &ViewData, joints: &[f64], scratch: &mut Vec<f64>) -> f64 {
+    let box_pixels = vd.to_image.mean_scale() * vd.height.max(vd.width) as f64;
+    let n = vd.height * vd.width;
+    scratch.clear();
+    for (j, q) in joints.chunks_exact(3).enumerate() {
+        if vd.weights.get(j).is_none_or(|&w| w <= 0.0) {
+            continue;
+        }
+        let Some(([u, v], _)) = camera.project(&Vector3::new(q[0], q[1], q[2])) else {
+            continue;
+        };
+        let (x, y, peak) = argmax(&vd.maps[j * n..(j + 1) * n], vd.width);
+        if peak <= 0.0 {
+            continue;
+        }
+        let [ku, kv] = vd.to_image.apply(x, y);
+        scratch.push((u - ku).hypot(v - kv));
+    }
+    if scratch.len() < 3 || box_pixels <= 0.0 {
+        return f64::NAN;
+    }
+    let mid = scratch.len() / 2;
+    let (_, median, _) = scratch.select_nth_unstable_by(mid, f64::total_cmp);
+    *median / box_pixels
 }
 
 /// Seconds from `a` to `b` (nanoseconds), without overflow.
