@@ -96,7 +96,7 @@ fn bench(c: &mut Criterion) {
 /// or on a runtime (`run_estimator_on_runtime`).
 fn node(c: &mut Criterion, on_runtime: bool) {
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-    let mut config = ServiceConfig::load(root.join("config/default.toml")).expect("config");
+    let config = ServiceConfig::load(root.join("config/default.toml")).expect("config");
     let frames: Vec<HeatMaps> =
         read_topic::<HeatMaps>(&root.join("recordings/byebye.mcap"), "/posestream/heatmaps")
             .expect("reads")

@@ -377,7 +377,7 @@ pub fn fuse_matched(
             if let Some(newest) = out.iter().find(|e| e.lag == 0) {
                 matcher.set_pose(id, &newest.joints);
             }
-            estimates.entry(id).or_default().extend(out.drain(..));
+            estimates.entry(id).or_default().append(&mut out);
         }
         let known: Vec<u64> = matcher.people().collect();
         windows.retain(|id, _| known.contains(id));
@@ -389,7 +389,7 @@ pub fn fuse_matched(
         *counts.entry(pair).or_default() += 1;
     }
     let mut ranked: Vec<((usize, u64), usize)> = counts.into_iter().collect();
-    ranked.sort_by(|a, b| b.1.cmp(&a.1));
+    ranked.sort_by_key(|r| std::cmp::Reverse(r.1));
     let mut truth_of = BTreeMap::new();
     let mut agree = 0;
     for ((person, id), n) in ranked {
