@@ -1,10 +1,10 @@
 //! A camera whose extrinsics are wrong: its evidence misses the pose the other cameras
 //! agree on, frame after frame.
 //!
-//! For each frame three cameras or more saw, [`super::FusedWindow`] notes each camera's
-//! residual: the mean distance between the joints its heat maps place (the E-step's
-//! expectations) and the fused pose projected into it, as a fraction of the person's box
-//! in that image (so near and far cameras compare). Noise keeps every camera's small and
+//! For each refined frame three cameras or more saw, [`super::FusedWindow`] notes each
+//! camera's residual: the median distance between its heat maps' peaks and the fused
+//! pose projected into it, as a fraction of the person's box in that image (so near and
+//! far cameras compare). Noise keeps every camera's small and
 //! alike; a camera turned or moved from where its extrinsics say is far off in every
 //! frame, while the others fit. [`suspects`] names the cameras whose mean residual is
 //! above [`ExtrinsicsCheck::min_residual`] and [`ExtrinsicsCheck::ratio`] times the
@@ -21,8 +21,8 @@ use crate::error::{OutOfDomain, check_range, check_real};
 pub struct ExtrinsicsCheck {
     /// Frames a camera must have been checked in before it can be named.
     pub min_frames: usize,
-    /// A camera is named when its mean residual is this many times the median of the
-    /// other cameras' ...
+    /// A camera is named when its mean residual is this many times (more than 1) the
+    /// median of the other cameras' (the upper one of two) ...
     pub ratio: f64,
     /// ... and at least this (a fraction of the person's box).
     pub min_residual: f64,
@@ -42,7 +42,7 @@ impl ExtrinsicsCheck {
     /// Checks every value is in its domain.
     pub fn check(&self) -> Result<(), OutOfDomain> {
         check_range("min_frames", self.min_frames, 1, 1_000_000)?;
-        check_real("ratio", self.ratio, 1.0, 1e6, false)?;
+        check_real("ratio", self.ratio, 1.0, 1e6, true)?;
         check_real("min_residual", self.min_residual, 0.0, 100.0, false)
     }
 }

@@ -178,6 +178,17 @@ impl Matcher {
                 self.people[k].tracks.retain(|&b| b != (t.view, t.track));
             }
         }
+        // One track per camera and person (bindings from before the rule, or a track
+        // back beside its replacement): the first kept, the others go to steps 2-3.
+        for i in 0..tracks.len() {
+            let Some(id) = out[i] else { continue };
+            if (0..i).any(|o| out[o] == Some(id) && tracks[o].view == tracks[i].view) {
+                out[i] = None;
+                if let Some(p) = self.people.iter_mut().find(|p| p.id == id) {
+                    p.tracks.retain(|&b| b != (tracks[i].view, tracks[i].track));
+                }
+            }
+        }
         // 2. Unbound tracks to known people, camera by camera.
         let mut views: Vec<usize> = tracks.iter().map(|t| t.view).collect();
         views.sort_unstable();
@@ -215,9 +226,10 @@ impl Matcher {
                 used_i.push(i);
                 used_k.push(k);
                 out[i] = Some(self.people[k].id);
-                self.people[k]
-                    .tracks
-                    .push((tracks[i].view, tracks[i].track));
+                // One track per camera and person: this one replaces an ended one.
+                let person = &mut self.people[k];
+                person.tracks.retain(|&(view, _)| view != tracks[i].view);
+                person.tracks.push((tracks[i].view, tracks[i].track));
             }
         }
         // 3. New people from what is left, grouped by their rays.
@@ -670,5 +682,32 @@ mod tests {
         // Unseen for longer than `forget_seconds`: forgotten.
         m.assign(2_000_000_000, &cams, &[], &mut out);
         assert_eq!(m.people().count(), 0);
+    }
+
+    #[test]
+    fn a_track_back_beside_its_replacement_does_not_give_a_person_two_of_one_camera() {
+        let cams = [
+            camera(Vector3::new(5.0, 0.0, 2.0)),
+            camera(Vector3::new(0.0, 5.0, 2.0)),
+        ];
+        let a = figure(0.0, 0.0);
+        let pa = peaks(&cams[0], &a);
+        let obs = |track| TrackObservation {
+            view: 0,
+            track,
+            peaks: &pa,
+            box_size: 300.0,
+        };
+        let mut m = Matcher::new(MatchSettings::default()).expect("settings");
+        let mut out = Vec::new();
+        m.assign(0, &cams, &[obs(7)], &mut out);
+        let id = out[0].expect("a person");
+        m.set_pose(id, &a);
+        // Track 7 ends, 8 takes its place, then 7 comes back beside 8.
+        m.assign(1, &cams, &[obs(8)], &mut out);
+        assert_eq!(out, [Some(id)]);
+        m.assign(2, &cams, &[obs(8), obs(7)], &mut out);
+        assert_eq!(out[0], Some(id));
+        assert_ne!(out[1], Some(id), "two tracks of one camera on one person");
     }
 }
