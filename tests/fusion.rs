@@ -69,9 +69,7 @@ fn render(people: &[MappedSequence], skeleton: &Skeleton, cameras: &[RoomCamera]
 }
 
 fn ring(n: usize, distance: f64) -> Vec<RoomCamera> {
-    (0..n)
-        .map(|i| RoomCamera::at(20.0 + 360.0 * i as f64 / n as f64, distance))
-        .collect()
+    RoomCamera::ring(n, 20.0, distance)
 }
 
 fn score(room: &Room, skeleton: &Skeleton) -> rooms::RoomScores {
@@ -548,4 +546,55 @@ fn a_camera_whose_extrinsics_are_wrong_is_named_and_the_right_ones_are_not() {
         UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 3f64.to_radians()) * pose.rotation;
     pose.translation.vector.x += 0.10;
     assert_eq!(named(&wrong), [1]);
+}
+
+#[test]
+fn a_fusion_configuration_out_of_its_domain_is_one_error_naming_the_key() {
+    for (section, text, key) in [
+        ("fusion", "size = 1", "size"),
+        ("fusion", "size = 18446744073709551615", "size"),
+        ("fusion", "lag = 12", "lag"),
+        ("fusion", "local_frames = 0", "local_frames"),
+        ("fusion", "alpha = nan", "alpha"),
+        ("fusion", "beta = -1.0", "beta"),
+        ("fusion", "mean_limb_length = 0.0", "mean_limb_length"),
+        ("fusion", "size_range = 0.5", "size_range"),
+        ("fusion", "depth_smoothing = inf", "depth_smoothing"),
+        ("fusion", "peak_threshold = 1e308", "peak_threshold"),
+        ("fusion", "max_gap_seconds = 0.0", "max_gap_seconds"),
+        ("fusion", "cameras = 3", "cameras"),
+        ("fusion.matching", "ray_gate = 0.0", "ray_gate"),
+        (
+            "fusion.matching",
+            "reprojection_gate = nan",
+            "reprojection_gate",
+        ),
+        (
+            "fusion.matching",
+            "forget_seconds = 1e308",
+            "forget_seconds",
+        ),
+        ("fusion.extrinsics", "ratio = 1.0", "ratio"),
+        ("fusion.extrinsics", "min_frames = 0", "min_frames"),
+        ("fusion.extrinsics", "min_residual = -0.1", "min_residual"),
+    ] {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let file = dir.path().join("fusion.toml");
+        std::fs::write(&file, format!("[estimator.{section}]\n{text}\n")).expect("write");
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_posestream"))
+            .current_dir(common::root())
+            .args(["config", "--config"])
+            .arg(&file)
+            .output()
+            .expect("runs");
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{section}: {text}: accepted");
+        assert!(stderr.contains(key), "{section}: {text}: {stderr}");
+        assert_eq!(
+            stderr.matches("posestream: error").count(),
+            1,
+            "{text}: {stderr}"
+        );
+        assert!(!stderr.contains("panicked"), "{text}: {stderr}");
+    }
 }

@@ -43,12 +43,6 @@ const fn at(ahead: f64, left: f64, turn_deg: f64) -> Placement {
     }
 }
 
-fn ring(n: usize, first: f64, distance: f64) -> Vec<RoomCamera> {
-    (0..n)
-        .map(|i| RoomCamera::at(first + 360.0 * i as f64 / n as f64, distance))
-        .collect()
-}
-
 const FRAME: f64 = 1.0 / 30.0;
 
 const ROOMS: [RoomSpec; 10] = [
@@ -67,7 +61,7 @@ const ROOMS: [RoomSpec; 10] = [
     },
     RoomSpec {
         name: "3 cameras, 5 m; two people",
-        cameras: || ring(3, 20.0, 5.0),
+        cameras: || RoomCamera::ring(3, 20.0, 5.0),
         people: &[
             ("dataset-1_walk-left_proud_001.bvh", STILL),
             ("dataset-1_walk-right_proud_001.bvh", at(1.5, 1.0, 0.0)),
@@ -75,7 +69,7 @@ const ROOMS: [RoomSpec; 10] = [
     },
     RoomSpec {
         name: "4 cameras, 6 m; four people",
-        cameras: || ring(4, 45.0, 6.0),
+        cameras: || RoomCamera::ring(4, 45.0, 6.0),
         people: &[
             ("dataset-1_walk-left_proud_001.bvh", STILL),
             ("dataset-1_walk-right_proud_001.bvh", at(1.5, 1.0, 0.0)),
@@ -85,7 +79,7 @@ const ROOMS: [RoomSpec; 10] = [
     },
     RoomSpec {
         name: "3 cameras, 6 m; two people crossing 0.6 m apart",
-        cameras: || ring(3, 20.0, 6.0),
+        cameras: || RoomCamera::ring(3, 20.0, 6.0),
         people: &[
             ("dataset-1_walk-left_proud_001.bvh", STILL),
             ("dataset-1_walk-right_proud_001.bvh", at(0.6, 3.0, 0.0)),
@@ -93,7 +87,7 @@ const ROOMS: [RoomSpec; 10] = [
     },
     RoomSpec {
         name: "3 cameras, 10 m; two people",
-        cameras: || ring(3, 20.0, 10.0),
+        cameras: || RoomCamera::ring(3, 20.0, 10.0),
         people: &[
             ("dataset-1_walk_proud_002.bvh", STILL),
             ("dataset-1_walk-left_proud_001.bvh", at(2.0, 1.0, 180.0)),
@@ -101,7 +95,7 @@ const ROOMS: [RoomSpec; 10] = [
     },
     RoomSpec {
         name: "4 cameras, 12 m; three people",
-        cameras: || ring(4, 45.0, 12.0),
+        cameras: || RoomCamera::ring(4, 45.0, 12.0),
         people: &[
             ("dataset-1_walk_proud_002.bvh", STILL),
             ("dataset-1_walk-left_proud_001.bvh", at(2.0, 1.0, 180.0)),
@@ -111,7 +105,7 @@ const ROOMS: [RoomSpec; 10] = [
     RoomSpec {
         name: "3 cameras unsynchronised (+1/2, -1/3 frame, 3 ms jitter), one at 15 frames/s; two people",
         cameras: || {
-            let mut c = ring(3, 20.0, 5.0);
+            let mut c = RoomCamera::ring(3, 20.0, 5.0);
             c[1].offset_s = 0.5 * FRAME;
             c[1].jitter_s = 0.003;
             c[2].offset_s = -FRAME / 3.0;
@@ -127,7 +121,7 @@ const ROOMS: [RoomSpec; 10] = [
     RoomSpec {
         name: "3 cameras, one silent from 3 to 6 s; two people",
         cameras: || {
-            let mut c = ring(3, 20.0, 5.0);
+            let mut c = RoomCamera::ring(3, 20.0, 5.0);
             c[0].dropped = Some([3.0, 6.0]);
             c
         },

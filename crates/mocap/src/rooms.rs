@@ -16,6 +16,7 @@ use posestream_math::fusion::{
     ViewCamera, ViewMaps, ViewResidual,
 };
 use posestream_math::metric::{MetricPose, MetricSettings, MetricStep};
+use posestream_math::metrics::mpjpe;
 use posestream_math::skeleton::Skeleton;
 use posestream_math::streaming::{FrameEstimate, FrameMaps, Scores, WindowEstimator};
 
@@ -37,17 +38,10 @@ pub struct Errors {
 impl Errors {
     /// Adds a frame: its true and estimated joints (`[x, y, z]` per joint, metres).
     pub fn add(&mut self, truth: &[f64], joints: &[f64], root: usize) {
-        let p = truth.len() / 3;
-        let mut e = 0.0;
-        for j in 0..p {
-            e += dist(&truth[3 * j..3 * j + 3], &joints[3 * j..3 * j + 3]);
-        }
+        let at = 3 * root..3 * root + 3;
         self.frames += 1;
-        self.mpjpe += e / p as f64;
-        self.root += dist(
-            &truth[3 * root..3 * root + 3],
-            &joints[3 * root..3 * root + 3],
-        );
+        self.mpjpe += mpjpe(joints, truth);
+        self.root += mpjpe(&joints[at.clone()], &truth[at]);
     }
 
     fn mean(&self, v: f64) -> f64 {
@@ -67,10 +61,6 @@ impl Errors {
     pub fn root_mm(&self) -> f64 {
         self.mean(self.root)
     }
-}
-
-fn dist(a: &[f64], b: &[f64]) -> f64 {
-    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
 }
 
 /// What a room measured.

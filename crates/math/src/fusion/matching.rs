@@ -489,6 +489,16 @@ mod tests {
             .collect()
     }
 
+    /// A track of camera `view` with these peaks and a 300-pixel box.
+    fn seen(view: usize, track: u64, peaks: &[[f64; 3]]) -> TrackObservation<'_> {
+        TrackObservation {
+            view,
+            track,
+            peaks,
+            box_size: 300.0,
+        }
+    }
+
     fn peaks(cam: &ViewCamera, pose: &[f64]) -> Vec<[f64; 3]> {
         pose.chunks_exact(3)
             .map(|q| {
@@ -526,20 +536,7 @@ mod tests {
         let mut out = Vec::new();
         // Frame 0: camera 0 sees both (ids 7, 9); camera 1 nobody yet.
         let (pa0, pb0) = (peaks(&cams[0], &a), peaks(&cams[0], &b));
-        let tracks = [
-            TrackObservation {
-                view: 0,
-                track: 7,
-                peaks: &pa0,
-                box_size: 300.0,
-            },
-            TrackObservation {
-                view: 0,
-                track: 9,
-                peaks: &pb0,
-                box_size: 300.0,
-            },
-        ];
+        let tracks = [seen(0, 7, &pa0), seen(0, 9, &pb0)];
         m.assign(0, &cams, &tracks, &mut out);
         let (ida, idb) = (out[0].expect("a"), out[1].expect("b"));
         assert_ne!(ida, idb);
@@ -548,49 +545,16 @@ mod tests {
         // Frame 1: camera 1 sees them too, under its own ids (in the other order).
         let (pa1, pb1) = (peaks(&cams[1], &a), peaks(&cams[1], &b));
         let tracks = [
-            TrackObservation {
-                view: 0,
-                track: 7,
-                peaks: &pa0,
-                box_size: 300.0,
-            },
-            TrackObservation {
-                view: 0,
-                track: 9,
-                peaks: &pb0,
-                box_size: 300.0,
-            },
-            TrackObservation {
-                view: 1,
-                track: 2,
-                peaks: &pb1,
-                box_size: 300.0,
-            },
-            TrackObservation {
-                view: 1,
-                track: 1,
-                peaks: &pa1,
-                box_size: 300.0,
-            },
+            seen(0, 7, &pa0),
+            seen(0, 9, &pb0),
+            seen(1, 2, &pb1),
+            seen(1, 1, &pa1),
         ];
         m.assign(1, &cams, &tracks, &mut out);
         assert_eq!(out, [Some(ida), Some(idb), Some(idb), Some(ida)]);
         assert_eq!(m.people().count(), 2);
         // A track id given twice by one camera: the second gets nobody.
-        let tracks = [
-            TrackObservation {
-                view: 0,
-                track: 7,
-                peaks: &pa0,
-                box_size: 300.0,
-            },
-            TrackObservation {
-                view: 0,
-                track: 7,
-                peaks: &pb0,
-                box_size: 300.0,
-            },
-        ];
+        let tracks = [seen(0, 7, &pa0), seen(0, 7, &pb0)];
         m.assign(2, &cams, &tracks, &mut out);
         assert_eq!(out, [Some(ida), None]);
     }
@@ -609,30 +573,10 @@ mod tests {
             peaks(&cams[1], &b),
         );
         let tracks = [
-            TrackObservation {
-                view: 0,
-                track: 1,
-                peaks: &pa0,
-                box_size: 300.0,
-            },
-            TrackObservation {
-                view: 1,
-                track: 1,
-                peaks: &pb1,
-                box_size: 300.0,
-            },
-            TrackObservation {
-                view: 0,
-                track: 2,
-                peaks: &pb0,
-                box_size: 300.0,
-            },
-            TrackObservation {
-                view: 1,
-                track: 2,
-                peaks: &pa1,
-                box_size: 300.0,
-            },
+            seen(0, 1, &pa0),
+            seen(1, 1, &pb1),
+            seen(0, 2, &pb0),
+            seen(1, 2, &pa1),
         ];
         let mut m = Matcher::new(MatchSettings::default()).expect("settings");
         let mut out = Vec::new();
@@ -654,19 +598,9 @@ mod tests {
         let nan = vec![[f64::NAN, f64::NAN, 1.0]; 8];
         let tracks = [
             // A camera the rig does not have.
-            TrackObservation {
-                view: 5,
-                track: 1,
-                peaks: &pa0,
-                box_size: 300.0,
-            },
+            seen(5, 1, &pa0),
             // Two peaks only, and NaN peaks: unmeasurable, a person of their own.
-            TrackObservation {
-                view: 1,
-                track: 3,
-                peaks: few,
-                box_size: 300.0,
-            },
+            seen(1, 3, few),
             TrackObservation {
                 view: 0,
                 track: 4,
@@ -692,12 +626,7 @@ mod tests {
         ];
         let a = figure(0.0, 0.0);
         let pa = peaks(&cams[0], &a);
-        let obs = |track| TrackObservation {
-            view: 0,
-            track,
-            peaks: &pa,
-            box_size: 300.0,
-        };
+        let obs = |track| seen(0, track, &pa);
         let mut m = Matcher::new(MatchSettings::default()).expect("settings");
         let mut out = Vec::new();
         m.assign(0, &cams, &[obs(7)], &mut out);

@@ -117,12 +117,18 @@ impl CameraSpec {
 
     /// The pinhole intrinsics (also the orthographic camera's image centre and scale).
     pub fn intrinsics(&self) -> Intrinsics {
-        Intrinsics {
-            fx: self.focal,
-            fy: self.focal,
-            cx: 0.5 * self.image_size[0],
-            cy: 0.5 * self.image_size[1],
-        }
+        centred(self.focal, self.image_size)
+    }
+}
+
+/// A pinhole camera of focal length `focal` (pixels) with its principal point at the
+/// centre of an image of `size` (width, height) pixels.
+fn centred(focal: f64, size: [f64; 2]) -> Intrinsics {
+    Intrinsics {
+        fx: focal,
+        fy: focal,
+        cx: 0.5 * size[0],
+        cy: 0.5 * size[1],
     }
 }
 

@@ -58,14 +58,17 @@ impl RoomCamera {
         }
     }
 
+    /// `n` cameras [`RoomCamera::at`] `distance` m, evenly around the room from
+    /// `first_deg`.
+    pub fn ring(n: usize, first_deg: f64, distance: f64) -> Vec<Self> {
+        (0..n)
+            .map(|i| Self::at(first_deg + 360.0 * i as f64 / n as f64, distance))
+            .collect()
+    }
+
     /// Its pinhole intrinsics.
     pub fn intrinsics(&self) -> Intrinsics {
-        Intrinsics {
-            fx: self.focal,
-            fy: self.focal,
-            cx: 0.5 * self.image_size[0],
-            cy: 0.5 * self.image_size[1],
-        }
+        super::centred(self.focal, self.image_size)
     }
 
     fn validate(&self) -> Result<(), String> {
