@@ -280,7 +280,15 @@ fn hostile_frames_are_refused_and_the_window_goes_on() {
     let skel = &mapping.layout;
     let people = vec![take(&mapping, "dataset-1_walk-left_proud_001.bvh", 3)];
     let room = render(&people, skel, &ring(2, 5.0));
+    // Cameras with values no camera has are refused.
+    let mut bad = room.view_cameras();
+    bad[1].intrinsics.fx = f64::NAN;
+    assert!(FusedWindow::new(&estimator(), bad.clone(), fusion()).is_err());
+    bad[1] = room.view_cameras()[1];
+    bad[1].world_from_camera.translation.vector.x = f64::INFINITY;
+    assert!(FusedWindow::new(&estimator(), bad.clone(), fusion()).is_err());
     let mut window = FusedWindow::new(&estimator(), room.view_cameras(), fusion()).expect("window");
+    assert!(window.set_camera(1, bad[1]).is_err());
     let maps = &room.seen[0][0].maps.maps;
     let n = maps.joints * maps.height * maps.width;
     let good = |view: usize, t: usize| ViewMaps {
@@ -596,5 +604,30 @@ fn a_fusion_configuration_out_of_its_domain_is_one_error_naming_the_key() {
             "{text}: {stderr}"
         );
         assert!(!stderr.contains("panicked"), "{text}: {stderr}");
+    }
+}
+
+#[test]
+fn scenes_refuses_rooms_with_train_and_an_out_folder_that_is_not_there_before_any_work() {
+    for args in [
+        vec!["scenes", "--rooms", "--train"],
+        vec!["scenes", "--rooms", "--out", "/nonexistent/folder/rooms.md"],
+    ] {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_posestream"))
+            .current_dir(common::root())
+            .args(&args)
+            .output()
+            .expect("runs");
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{args:?} accepted");
+        assert!(
+            out.stdout.is_empty(),
+            "{args:?} ran: {}",
+            String::from_utf8_lossy(&out.stdout)
+        );
+        assert!(
+            stderr.contains("--train") || stderr.contains("/nonexistent/folder"),
+            "{stderr}"
+        );
     }
 }

@@ -59,7 +59,7 @@ pub struct ScenesArgs {
     pub train: bool,
     /// Rooms seen by several cameras instead: each person's views fused against each
     /// camera alone (`docs/results.md`).
-    #[arg(long, conflicts_with = "distances")]
+    #[arg(long, conflicts_with_all = ["distances", "train"])]
     pub rooms: bool,
 }
 
@@ -352,6 +352,16 @@ fn errors(
 
 /// Runs `scenes`.
 pub fn run(args: &ScenesArgs) -> Result<(), CliError> {
+    // Where the markdown goes, before minutes of work: its folder must be there.
+    if let Some(out) = &args.out {
+        let folder = out.parent().filter(|p| !p.as_os_str().is_empty());
+        if folder.is_some_and(|f| !f.is_dir()) {
+            return Err(CliError::Usage(format!(
+                "--out {}: its folder does not exist",
+                out.display()
+            )));
+        }
+    }
     super::data_at(
         &args.data,
         "the held-out takes the scenes are made of",

@@ -16,6 +16,20 @@ pub struct ViewCamera {
 }
 
 impl ViewCamera {
+    /// Checks the values: intrinsics as [`Intrinsics::new`] takes them, a finite pose.
+    pub fn check(&self) -> Result<(), String> {
+        let k = &self.intrinsics;
+        Intrinsics::new(k.fx, k.fy, k.cx, k.cy)?;
+        let pose = &self.world_from_camera;
+        let finite = pose.translation.vector.iter().all(|v| v.is_finite())
+            && pose.rotation.coords.iter().all(|v| v.is_finite());
+        if finite {
+            Ok(())
+        } else {
+            Err("the camera's pose must be finite".into())
+        }
+    }
+
     /// The camera centre, world frame.
     pub fn centre(&self) -> Vector3<f64> {
         self.world_from_camera.translation.vector

@@ -42,6 +42,8 @@ pub struct MatchSettings {
     pub peak_threshold: f64,
     /// A person none of whose tracks has been seen for this long is forgotten, seconds.
     pub forget_seconds: f64,
+    /// People known at once at most: tracks that would make more get nobody.
+    pub max_people: usize,
 }
 
 impl Default for MatchSettings {
@@ -51,6 +53,7 @@ impl Default for MatchSettings {
             ray_gate: 0.2,
             peak_threshold: 0.1,
             forget_seconds: 1.0,
+            max_people: 64,
         }
     }
 }
@@ -61,7 +64,8 @@ impl MatchSettings {
         check_real("reprojection_gate", self.reprojection_gate, 0.0, 10.0, true)?;
         check_real("ray_gate", self.ray_gate, 0.0, 100.0, true)?;
         check_real("peak_threshold", self.peak_threshold, 0.0, 1e30, false)?;
-        check_real("forget_seconds", self.forget_seconds, 0.0, 3600.0, true)
+        check_real("forget_seconds", self.forget_seconds, 0.0, 3600.0, true)?;
+        crate::error::check_range("max_people", self.max_people, 1, 10_000)
     }
 }
 
@@ -136,6 +140,16 @@ impl Matcher {
     ) {
         out.clear();
         out.resize(tracks.len(), None);
+        // Time going back further than people are remembered (a replay looping, a
+        // clock reset): nobody seen "later" stays.
+        let forget = (self.settings.forget_seconds * 1e9) as i64;
+        if self
+            .people
+            .iter()
+            .any(|p| p.last_seen_ns.saturating_sub(stamp_ns) > forget)
+        {
+            self.people.clear();
+        }
         let valid: Vec<bool> = tracks
             .iter()
             .enumerate()
@@ -277,6 +291,9 @@ impl Matcher {
             }
         }
         for g in groups {
+            if self.people.len() >= self.settings.max_people {
+                break;
+            }
             let id = self.next_id;
             self.next_id += 1;
             for &i in &g {
@@ -298,7 +315,6 @@ impl Matcher {
                 p.last_seen_ns = stamp_ns;
             }
         }
-        let forget = (self.settings.forget_seconds * 1e9) as i64;
         self.people
             .retain(|p| stamp_ns.saturating_sub(p.last_seen_ns) <= forget && !p.tracks.is_empty());
     }
@@ -377,7 +393,8 @@ impl Matcher {
         let thr = self.settings.peak_threshold;
         let mut d: Vec<f64> = Vec::with_capacity(a.peaks.len());
         for (pa, pb) in a.peaks.iter().zip(b.peaks) {
-            if pa[2] <= thr || pb[2] <= thr {
+            // A NaN score is no peak.
+            if !(pa[2] > thr && pb[2] > thr) {
                 continue;
             }
             let (da, db) = (ca.ray(pa[0], pa[1]), cb.ray(pb[0], pb[1]));
@@ -392,7 +409,8 @@ impl Matcher {
 }
 
 /// The peaks of one track's maps (`p` maps of `height x width`, row-major), image
-/// pixels through `to_image`, with their scores: `[u, v, score]` per joint, into `out`.
+/// pixels through `to_image`, with their scores: `[u, v, score]` per joint, into `out`
+/// (empty when `maps` is not whole maps of that size).
 pub fn peaks_into(
     maps: &[f32],
     height: usize,
@@ -401,10 +419,13 @@ pub fn peaks_into(
     out: &mut Vec<[f64; 3]>,
 ) {
     out.clear();
-    let n = height * width;
-    if n == 0 {
+    // Maps that do not fill whole `height x width` maps give no peaks.
+    let Some(n) = height
+        .checked_mul(width)
+        .filter(|&n| n > 0 && maps.len() % n == 0)
+    else {
         return;
-    }
+    };
     for map in maps.chunks_exact(n) {
         let (x, y, score) = argmax(map, width);
         let [u, v] = to_image.apply(x, y);
@@ -440,7 +461,7 @@ fn reprojection(
 ) -> Option<f64> {
     let (mut sum, mut n) = (0.0, 0);
     for (j, peak) in t.peaks.iter().enumerate() {
-        if peak[2] <= thr || 3 * j + 2 >= pose.len() {
+        if !(peak[2] > thr) || 3 * j + 2 >= pose.len() {
             continue;
         }
         let p = Vector3::new(pose[3 * j], pose[3 * j + 1], pose[3 * j + 2]);
@@ -638,5 +659,36 @@ mod tests {
         m.assign(2, &cams, &[obs(8), obs(7)], &mut out);
         assert_eq!(out[0], Some(id));
         assert_ne!(out[1], Some(id), "two tracks of one camera on one person");
+    }
+
+    #[test]
+    fn people_stay_bounded_when_the_clock_stands_still_and_are_dropped_when_it_goes_back() {
+        let cams = [camera(Vector3::new(5.0, 0.0, 2.0))];
+        let pa = peaks(&cams[0], &figure(0.0, 0.0));
+        let mut m = Matcher::new(MatchSettings::default()).expect("settings");
+        let mut out = Vec::new();
+        // A new track id every call at one time, nothing to match it by.
+        for track in 0..1000 {
+            m.assign(0, &cams, &[seen(0, track, &pa)], &mut out);
+        }
+        assert_eq!(m.people().count(), MatchSettings::default().max_people);
+        assert_eq!(out, [None], "beyond the cap: nobody");
+        // Seen at 10 s, then time goes back to 0: forgotten.
+        let mut m = Matcher::new(MatchSettings::default()).expect("settings");
+        m.assign(10_000_000_000, &cams, &[seen(0, 1, &pa)], &mut out);
+        m.assign(0, &cams, &[], &mut out);
+        assert_eq!(m.people().count(), 0);
+        // NaN scores are no peaks; maps that are not whole maps give none.
+        let mut p = Vec::new();
+        peaks_into(&[0.0; 10], 3, 3, &crate::camera::PixelMap::IDENTITY, &mut p);
+        assert!(p.is_empty());
+        peaks_into(
+            &[0.0; 9],
+            usize::MAX,
+            2,
+            &crate::camera::PixelMap::IDENTITY,
+            &mut p,
+        );
+        assert!(p.is_empty());
     }
 }

@@ -59,6 +59,11 @@ impl FusedWindow {
         settings
             .check()
             .map_err(|e| EstimateError::Parameter(e.to_string()))?;
+        for (v, camera) in cameras.iter().enumerate() {
+            camera
+                .check()
+                .map_err(|e| EstimateError::Parameter(format!("camera {v}: {e}")))?;
+        }
         let mut dict = estimator.dictionary().clone();
         // The paper's model: the pose linear in the coefficients (the start's and the
         // C-step's rescaling assume it), without a track's shape beyond the bases.
@@ -96,6 +101,9 @@ impl FusedWindow {
     /// Replaces camera `view`'s calibration (new extrinsics from TF, say); the frames
     /// already in the window keep the rays they had.
     pub fn set_camera(&mut self, view: usize, camera: ViewCamera) -> Result<(), EstimateError> {
+        camera
+            .check()
+            .map_err(|e| EstimateError::Parameter(format!("camera {view}: {e}")))?;
         let cameras = self.cameras.len();
         let slot = self.cameras.get_mut(view).ok_or_else(|| {
             EstimateError::Parameter(format!("no camera {view} (the rig has {cameras})"))
