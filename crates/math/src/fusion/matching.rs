@@ -393,8 +393,7 @@ impl Matcher {
         let thr = self.settings.peak_threshold;
         let mut d: Vec<f64> = Vec::with_capacity(a.peaks.len());
         for (pa, pb) in a.peaks.iter().zip(b.peaks) {
-            // A NaN score is no peak.
-            if !(pa[2] > thr && pb[2] > thr) {
+            if !(is_peak(pa[2], thr) && is_peak(pb[2], thr)) {
                 continue;
             }
             let (da, db) = (ca.ray(pa[0], pa[1]), cb.ray(pb[0], pb[1]));
@@ -433,6 +432,11 @@ pub fn peaks_into(
     }
 }
 
+/// A score above the threshold (a NaN score is no peak).
+fn is_peak(score: f64, threshold: f64) -> bool {
+    score > threshold
+}
+
 /// The distance between two rays (origins `o`, unit directions `d`) at their closest
 /// points; `None` when those lie behind either origin. Parallel rays: their distance.
 fn ray_gap(oa: Vector3<f64>, da: Vector3<f64>, ob: Vector3<f64>, db: Vector3<f64>) -> Option<f64> {
@@ -461,7 +465,7 @@ fn reprojection(
 ) -> Option<f64> {
     let (mut sum, mut n) = (0.0, 0);
     for (j, peak) in t.peaks.iter().enumerate() {
-        if !(peak[2] > thr) || 3 * j + 2 >= pose.len() {
+        if !is_peak(peak[2], thr) || 3 * j + 2 >= pose.len() {
             continue;
         }
         let p = Vector3::new(pose[3 * j], pose[3 * j + 1], pose[3 * j + 2]);
