@@ -38,6 +38,8 @@ fn skeleton(seq: u64) -> Skeleton3D {
         lag: (seq % 11) as u32,
         state: (seq % 3) as u8,
         metric_source: 1 + (seq % 2) as u8,
+        // Not in iceoryx2's fixed-size sample (one camera's skeletons have none).
+        views: Vec::new(),
     }
 }
 

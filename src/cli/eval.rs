@@ -56,7 +56,8 @@ pub struct EvalArgs {
     /// after the tables with its defaults; its section ends the markdown).
     #[arg(long, default_value = "../shared/data/mocap/bandai-namco-1")]
     pub scenes_data: PathBuf,
-    /// Leave the people-in-the-room scenes out.
+    /// Leave the people-in-the-room scenes out (and the rooms seen by several cameras,
+    /// fused against each camera alone, which follow them).
     #[arg(long)]
     pub no_scenes: bool,
     /// Evaluate the split's training files instead of its held-out ones (to calibrate
@@ -276,6 +277,13 @@ pub fn run(args: &EvalArgs) -> Result<(), CliError> {
         let stand = super::distances::markdown(scenes)?;
         print!("{stand}");
         write_results(args, &split, &format!("{tables}{people}{stand}"))?;
+        // Several cameras: each person's views fused against each camera alone.
+        let rooms = format!(
+            "\n## Several cameras (`posestream scenes --rooms`)\n\n{}",
+            super::rooms::markdown(scenes)?
+        );
+        print!("{rooms}");
+        write_results(args, &split, &format!("{tables}{people}{stand}{rooms}"))?;
     }
     Ok(())
 }

@@ -7,6 +7,7 @@ pub mod distances;
 pub mod error;
 pub mod estimator;
 pub mod eval;
+pub mod fuse;
 pub mod learn;
 pub mod lift;
 pub mod models;
@@ -68,6 +69,9 @@ enum Command {
     /// The estimator node: heat maps from ROS 2 or iceoryx2 in, skeletons and markers
     /// out on the configured outputs.
     Estimator(estimator::EstimatorArgs),
+    /// The fusion node: several calibrated cameras' heat maps (ROS 2, or a recording) in,
+    /// one skeleton per person out, in the world frame.
+    Fuse(fuse::FuseArgs),
     /// Detector and estimator in one process (in-memory channel), results on the
     /// configured outputs.
     Run(run::RunArgs),
@@ -98,6 +102,7 @@ impl Cli {
             Command::Replay(args) => replay::run(&args),
             Command::Detector(args) => detector::run(&args),
             Command::Estimator(args) => estimator::run(&args),
+            Command::Fuse(args) => fuse::run(&args),
             Command::Run(args) => run::run(&args),
             Command::Record(args) => record::run(&args),
             Command::Recover(args) => recover::run(&args),

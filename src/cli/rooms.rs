@@ -304,3 +304,191 @@ fn load_people(
         })
         .collect()
 }
+
+/// Writes room `index` (1-based, of the table `--rooms` prints) as the cameras of a
+/// deployment would send it, to the recording `path`: per camera `cam<c>`, its heat maps
+/// (`/cam<c><topics.heatmaps>`, `uint8`, frame id `cam<c>`, stamped and logged at its own
+/// capture times, track ids its own: they agree with no other camera's) and its
+/// calibration (`/cam<c><topics.camera_info>`, with every image); the cameras' poses
+/// under `world` once on `topics.tf_static`; each person's truth in the world frame on
+/// `topics.ground_truth`. Beside it, `<path>.toml`: the configuration `posestream fuse`
+/// reads it with. Returns what it wrote, for people.
+pub fn record(args: &ScenesArgs, index: usize, path: &std::path::Path) -> Result<String, CliError> {
+    use posestream::msgs::sensor::CameraInfo;
+    use posestream::msgs::tf::{TFMessage, TransformStamped};
+    use posestream::msgs::{
+        Header, HeatMapEncoding, HeatMaps, Skeleton3D, SkeletonState, Time, Units,
+    };
+    use posestream::nodes::config::FusionConfig;
+    use posestream::recording::Recorder;
+
+    let spec = ROOMS.get(index.wrapping_sub(1)).ok_or_else(|| {
+        CliError::Usage(format!(
+            "--room {index}: there are rooms 1 to {}",
+            ROOMS.len()
+        ))
+    })?;
+    let config = args.config.load()?;
+    let topics = &config.topics;
+    let mapping = SkeletonMapping::load(&args.mapping)?;
+    let skel = mapping.layout.clone();
+    let people = load_people(args, &mapping, &skel, spec)?;
+    let cameras = (spec.cameras)();
+    let room = room::render(&people, &skel, &cameras, &ErrorModel::default(), 1.2, 0.2)
+        .map_err(|e| CliError::Failed(format!("{}: {e}", spec.name)))?;
+    // Capture times start 1 s after the epoch: a camera ahead of the room's clock
+    // stamps no frame before it.
+    const START_NS: i64 = 1_000_000_000;
+    let frame_ns = |t: usize, dt: f64| START_NS + room.frame_ns(t) + (dt * 1e9).round() as i64;
+    let mut rec = Recorder::create(path)?;
+    let world = Header {
+        stamp: Time::from_nanos(0),
+        frame_id: "world".into(),
+    };
+    let poses = TFMessage {
+        transforms: room
+            .cameras
+            .iter()
+            .enumerate()
+            .map(|(c, pose)| {
+                let (q, x) = (pose.rotation, pose.translation.vector);
+                TransformStamped::new(
+                    world.clone(),
+                    format!("cam{c}"),
+                    [x.x, x.y, x.z],
+                    [q.i, q.j, q.k, q.w],
+                )
+            })
+            .collect(),
+    };
+    // Before any camera's first frame (one ahead of the room's clock stamps it earlier).
+    rec.write(&topics.tf_static, 0, &poses)?;
+    // Every message in capture-time order, as they would arrive.
+    let mut order: Vec<(i64, usize, usize, usize)> = Vec::new();
+    for (c, seen) in room.seen.iter().enumerate() {
+        for (i, s) in seen.iter().enumerate() {
+            for (t, dt) in s.dt.iter().enumerate() {
+                if let Some(dt) = dt {
+                    order.push((frame_ns(t, *dt), c, i, t));
+                }
+            }
+        }
+    }
+    order.sort_unstable();
+    let mut last_info = vec![None; room.cameras.len()];
+    for &(stamp, c, i, t) in &order {
+        let header = Header {
+            stamp: Time::from_nanos(stamp),
+            frame_id: format!("cam{c}"),
+        };
+        let name = format!("cam{c}");
+        let (maps_topic, info_topic) = FusionConfig::camera_topics(&name, topics);
+        if last_info[c] != Some(stamp) {
+            let (k, cam) = (&room.intrinsics[c], &cameras[c]);
+            let info = CameraInfo {
+                header: header.clone(),
+                width: cam.image_size[0].round() as u32,
+                height: cam.image_size[1].round() as u32,
+                k: [k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0],
+                r: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+                p: [
+                    k.fx, 0.0, k.cx, 0.0, 0.0, k.fy, k.cy, 0.0, 0.0, 0.0, 1.0, 0.0,
+                ],
+                ..CameraInfo::default()
+            };
+            rec.write(&info_topic, stamp as u64, &info)?;
+            last_info[c] = Some(stamp);
+        }
+        let s = &room.seen[c][i];
+        let maps = &s.maps.maps;
+        let n = maps.joints * maps.height * maps.width;
+        let mut message = HeatMaps::from_values(
+            header,
+            t as u64,
+            skel.joints.clone(),
+            maps.height as u32,
+            maps.width as u32,
+            s.boxes[t],
+            &maps.values[t * n..(t + 1) * n],
+            HeatMapEncoding::Uint8,
+        );
+        // Each camera numbers people its own way.
+        message.track_id = 1 + ((3 * i + 5 * c + 11) % 97) as u32;
+        rec.write(&maps_topic, stamp as u64, &message)?;
+    }
+    let p = skel.len();
+    for t in 0..room.frames() {
+        let stamp = START_NS + room.frame_ns(t);
+        for (i, person) in room.people.iter().enumerate() {
+            let truth = Skeleton3D {
+                header: Header {
+                    stamp: Time::from_nanos(stamp),
+                    frame_id: "world".into(),
+                },
+                sequence: t as u64,
+                track_id: i as u32 + 1,
+                joint_names: skel.joints.clone(),
+                units: Units::Metres as u8,
+                positions: person.positions[3 * p * t..3 * p * (t + 1)].to_vec(),
+                position_std: vec![0.0; 3 * p],
+                state: SkeletonState::Tracking as u8,
+                ..Skeleton3D::default()
+            };
+            rec.write(&topics.ground_truth, stamp as u64, &truth)?;
+        }
+    }
+    rec.finish()?;
+    let names: Vec<String> = (0..room.cameras.len())
+        .map(|c| format!("\"cam{c}\""))
+        .collect();
+    let intrinsics: String = room
+        .intrinsics
+        .iter()
+        .enumerate()
+        .map(|(c, k)| {
+            format!(
+                "cam{c} = [{:?}, {:?}, {:?}, {:?}]\n",
+                k.fx, k.fy, k.cx, k.cy
+            )
+        })
+        .collect();
+    let poses: String = room
+        .cameras
+        .iter()
+        .enumerate()
+        .map(|(c, pose)| {
+            let (q, x) = (pose.rotation, pose.translation.vector);
+            format!(
+                "cam{c} = [{}, {}, {}, {}, {}, {}, {}]\n",
+                x.x, x.y, x.z, q.i, q.j, q.k, q.w
+            )
+        })
+        .collect();
+    let toml = format!(
+        "# `posestream fuse --config {0}.toml --recording {0}`: room {index}, {1}.\n\
+         # The cameras' poses come from the recording's {2}; with extrinsics = \"config\"\n\
+         # the [fusion.poses] below are used instead (the same), and [fusion.intrinsics]\n\
+         # are the cameras' CameraInfo (which the recording also holds).\n\
+         [fusion]\ncameras = [{3}]\n\n[fusion.poses]\n{4}\n[fusion.intrinsics]\n{5}",
+        path.display(),
+        spec.name,
+        topics.tf_static,
+        names.join(", "),
+        poses,
+        intrinsics
+    );
+    let config_path = std::path::PathBuf::from(format!("{}.toml", path.display()));
+    std::fs::write(&config_path, toml).map_err(|source| CliError::File {
+        path: config_path.clone(),
+        source,
+    })?;
+    Ok(format!(
+        "room {index} ({}): {} cameras, {} people, {} frames -> {}\nthe fusion's configuration -> {}\n",
+        spec.name,
+        room.cameras.len(),
+        room.people.len(),
+        room.frames(),
+        path.display(),
+        config_path.display()
+    ))
+}

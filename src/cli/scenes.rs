@@ -61,6 +61,15 @@ pub struct ScenesArgs {
     /// camera alone (`docs/results.md`).
     #[arg(long, conflicts_with_all = ["distances", "train"])]
     pub rooms: bool,
+    /// With `--rooms`: instead of the tables, write room `--room` as its cameras would
+    /// send it to this recording (MCAP: each camera's heat maps and calibration, the
+    /// cameras' poses on /tf_static, the truth), and beside it FILE.toml, the
+    /// configuration `posestream fuse` reads it with.
+    #[arg(long, value_name = "FILE", requires = "rooms")]
+    pub record: Option<PathBuf>,
+    /// With `--record`: which room (1-based, as `--rooms` lists them).
+    #[arg(long, default_value_t = 3, requires = "record")]
+    pub room: usize,
 }
 
 /// A scene: its name and people, the first placed by the camera (5 m in front of it),
@@ -367,7 +376,9 @@ pub fn run(args: &ScenesArgs) -> Result<(), CliError> {
         "the held-out takes the scenes are made of",
         "--data",
     )?;
-    let text = if args.rooms {
+    let text = if let Some(path) = &args.record {
+        super::rooms::record(args, args.room, path)?
+    } else if args.rooms {
         super::rooms::markdown(args)?
     } else if args.distances {
         super::distances::markdown(args)?

@@ -29,6 +29,8 @@ pub struct ServiceConfig {
     pub detector: DetectorConfig,
     /// The estimator node.
     pub estimator: EstimatorConfig,
+    /// The fusion node: several cameras, one skeleton per person.
+    pub fusion: FusionConfig,
     /// Topic names.
     pub topics: Topics,
     /// Where the nodes publish.
@@ -262,6 +264,9 @@ impl ServiceConfig {
             .images
             .check()
             .map_err(|x| x.within("detector.images"))?;
+        self.fusion
+            .check(&self.topics)
+            .map_err(|x| x.within("fusion"))?;
         let t = &self.topics;
         let topics = [
             ("heatmaps", &t.heatmaps),
@@ -438,6 +443,175 @@ pub fn socket_address(text: &str) -> Result<std::net::SocketAddr, String> {
             .map(|p| std::net::SocketAddr::from(([127, 0, 0, 1], p)))
             .map_err(|_| expected()),
         _ => Err(expected()),
+    }
+}
+
+/// The fusion node (`[fusion]`, `posestream fuse`): which cameras, where each is in the
+/// world and how long a fused frame waits for them ([`crate::nodes::fusion`]); the
+/// multi-view EM's own settings are `[estimator.fusion]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct FusionConfig {
+    /// The cameras' names: camera `c`'s heat maps come on `/<c><topics.heatmaps>` and its
+    /// calibration on `/<c><topics.camera_info>`.
+    pub cameras: Vec<String>,
+    /// The frame the skeletons are in; with extrinsics from TF, each camera's frame (its
+    /// heat maps' `frame_id`) must be in its tree.
+    pub world_frame: String,
+    /// Where the cameras' poses come from.
+    pub extrinsics: ExtrinsicsSource,
+    /// Each camera's pose in the world frame, `[x, y, z, qx, qy, qz, qw]` (metres and a
+    /// unit quaternion of the camera's optical frame: x right, y down, z forward), by
+    /// camera name (`extrinsics = "config"`).
+    pub poses: std::collections::BTreeMap<String, Vec<f64>>,
+    /// Each camera's intrinsics `[fx, fy, cx, cy]` (pixels), by camera name, in place of
+    /// its `CameraInfo` (a camera not named here waits for its `CameraInfo`).
+    pub intrinsics: std::collections::BTreeMap<String, Vec<f64>>,
+    /// Fused frames per second: a camera's frame goes to the fused frame nearest its
+    /// capture time (the fastest camera's rate).
+    pub frame_rate: f64,
+    /// Seconds a fused frame waits for the cameras still sending to send a later one;
+    /// past it the frame is fused without them, and a camera silent this long is not
+    /// waited for (measured in the input's clock: arrival time live, log time in a
+    /// recording).
+    pub wait: f64,
+}
+
+impl Default for FusionConfig {
+    fn default() -> Self {
+        Self {
+            cameras: Vec::new(),
+            world_frame: "world".into(),
+            extrinsics: ExtrinsicsSource::Tf,
+            poses: Default::default(),
+            intrinsics: Default::default(),
+            frame_rate: 30.0,
+            wait: 0.2,
+        }
+    }
+}
+
+/// Where the fusion node's camera poses come from (`[fusion] extrinsics`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ExtrinsicsSource {
+    /// `topics.tf_static` and `topics.tf`: `world_frame` to each camera's frame, as a
+    /// robot publishes them.
+    Tf,
+    /// `[fusion.poses]`.
+    Config,
+}
+
+/// The most cameras one fusion node takes.
+pub const MAX_CAMERAS: usize = 16;
+
+impl FusionConfig {
+    /// Camera `name`'s heat-map and calibration topics.
+    pub fn camera_topics(name: &str, topics: &Topics) -> (String, String) {
+        (
+            format!("/{name}{}", topics.heatmaps),
+            format!("/{name}{}", topics.camera_info),
+        )
+    }
+
+    /// Checks every value is in its domain.
+    pub fn check(&self, topics: &Topics) -> Result<(), OutOfDomain> {
+        if self.cameras.len() > MAX_CAMERAS {
+            return Err(OutOfDomain::new(
+                "cameras",
+                format!("at most {MAX_CAMERAS} cameras"),
+                self.cameras.len(),
+            ));
+        }
+        for (i, name) in self.cameras.iter().enumerate() {
+            let token = name
+                .chars()
+                .next()
+                .is_some_and(|c| c.is_ascii_alphabetic() || c == '_')
+                && name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_');
+            if !token {
+                return Err(OutOfDomain::new(
+                    "cameras",
+                    "names of letters, digits and _, not starting with a digit (cam0)",
+                    format!("{name:?}"),
+                ));
+            }
+            if self.cameras[..i].contains(name) {
+                return Err(OutOfDomain::new(
+                    "cameras",
+                    "names each given once",
+                    format!("{name:?}"),
+                ));
+            }
+            let (maps, info) = Self::camera_topics(name, topics);
+            check_topic_name("cameras", &maps)?;
+            check_topic_name("cameras", &info)?;
+        }
+        let frame = self.world_frame.trim_start_matches('/');
+        if frame.is_empty()
+            || frame.len() > 255
+            || !frame
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '/')
+        {
+            return Err(OutOfDomain::new(
+                "world_frame",
+                "a frame id (letters, digits, _ and /)",
+                format!("{:?}", self.world_frame),
+            ));
+        }
+        for (key, table, len) in [
+            ("poses", &self.poses, 7),
+            ("intrinsics", &self.intrinsics, 4),
+        ] {
+            for (name, values) in table {
+                let key = format!("{key}.{name}");
+                if !self.cameras.contains(name) {
+                    return Err(OutOfDomain::new(
+                        &key,
+                        "a camera of fusion.cameras",
+                        format!("{name:?}"),
+                    ));
+                }
+                if values.len() != len || !values.iter().all(|v| v.is_finite()) {
+                    return Err(OutOfDomain::new(
+                        &key,
+                        format!("{len} finite numbers"),
+                        format!("{values:?}"),
+                    ));
+                }
+            }
+        }
+        for (name, q) in &self.poses {
+            let norm = q[3..].iter().map(|v| v * v).sum::<f64>().sqrt();
+            if !(0.99..=1.01).contains(&norm) {
+                return Err(OutOfDomain::new(
+                    &format!("poses.{name}"),
+                    "a unit quaternion [qx, qy, qz, qw] after the position",
+                    format!("{q:?} (norm {norm})"),
+                ));
+            }
+        }
+        for (name, k) in &self.intrinsics {
+            if !k.iter().all(|v| *v > 0.0) {
+                return Err(OutOfDomain::new(
+                    &format!("intrinsics.{name}"),
+                    "positive [fx, fy, cx, cy]",
+                    format!("{k:?}"),
+                ));
+            }
+        }
+        if self.extrinsics == ExtrinsicsSource::Config
+            && let Some(name) = self.cameras.iter().find(|c| !self.poses.contains_key(*c))
+        {
+            return Err(OutOfDomain::new(
+                &format!("poses.{name}"),
+                "a pose for every camera with extrinsics = \"config\"",
+                "none",
+            ));
+        }
+        crate::error::check_real("frame_rate", self.frame_rate, 0.0, 1000.0, true)?;
+        crate::error::check_real("wait", self.wait, 0.0, 10.0, false)
     }
 }
 

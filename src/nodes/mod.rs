@@ -12,12 +12,14 @@
 //! - [`frames`]: each person's body and joint frames for `/tf`;
 //! - [`hri`]: skeletons as REP-155 (ROS4HRI) bodies: ids, regions, 2D skeletons;
 //! - [`shown_images`]: the camera images as the Foxglove live view shows them;
-//! - [`unknown_ids`]: ids for people whose heat maps came without one.
+//! - [`unknown_ids`]: ids for people whose heat maps came without one;
+//! - [`fusion`]: several calibrated cameras' heat maps in, one skeleton per person out.
 
 pub mod arrays;
 pub mod camera;
 pub mod config;
 pub mod frames;
+pub mod fusion;
 pub mod hri;
 pub mod images;
 pub mod latency;
@@ -136,6 +138,40 @@ pub enum NodeError {
         /// The id given twice.
         track_id: u32,
     },
+    /// The fusion node: a frame of a fused frame already made (its camera is behind the
+    /// others by more than `[fusion] wait`): refused.
+    #[error(
+        "frame {sequence} of camera {camera}: {behind_ms:.0} ms behind the fused frames made; refused"
+    )]
+    Late {
+        /// The frame.
+        sequence: u64,
+        /// Its camera.
+        camera: String,
+        /// How far behind.
+        behind_ms: f64,
+    },
+    /// The fusion node: a frame of a camera whose intrinsics or pose are not known yet.
+    #[error(
+        "frame {sequence} of camera {camera}: not calibrated yet (waiting for {what}); refused"
+    )]
+    Uncalibrated {
+        /// The frame.
+        sequence: u64,
+        /// Its camera.
+        camera: String,
+        /// What is missing.
+        what: String,
+    },
+    /// The fusion node: a frame that does not fit its camera (another frame id, no frame
+    /// id, too many tracks).
+    #[error("frame {sequence}: {reason}; refused")]
+    Camera {
+        /// The frame.
+        sequence: u64,
+        /// What is wrong.
+        reason: String,
+    },
     /// A person without an id whom the tracker gave none: a box on a person already in
     /// the image, or no room.
     #[error(
@@ -167,6 +203,9 @@ impl NodeError {
             Self::NoTrack { .. } => "no-track",
             Self::CameraInfo { .. } => "camera-info",
             Self::Transform { .. } => "tf",
+            Self::Late { .. } => "late",
+            Self::Uncalibrated { .. } => "uncalibrated",
+            Self::Camera { .. } => "camera",
         }
     }
 }

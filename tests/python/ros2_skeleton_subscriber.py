@@ -40,6 +40,7 @@ class Skeleton3D(IdlStruct, typename="posestream_msgs::msg::dds_::Skeleton3D_"):
     lag: uint32
     state: uint8
     metric_source: uint8
+    views: sequence[str]
 
 
 qos = Qos(
@@ -73,6 +74,7 @@ while got < count and time.time() < deadline:
                     "lag": s.lag,
                     "state": s.state,
                     "metric_source": s.metric_source,
+                    "views": list(s.views),
                 }
             ),
             flush=True,

@@ -420,3 +420,70 @@ pub fn score_matched(room: &Room, skel: &Skeleton, matched: &Matched, lag: usize
     }
     errors
 }
+
+/// What [`score_skeletons`] measured.
+#[derive(Debug, Default, Clone, serde::Serialize)]
+pub struct SkeletonScores {
+    /// Skeletons scored (at the lag asked for).
+    pub frames: usize,
+    /// Their mean MPJPE against the truth, millimetres.
+    pub mpjpe_mm: f64,
+    /// Their mean root (pelvis) error, millimetres.
+    pub root_mm: f64,
+    /// Of them, those one camera alone placed (`views` of one).
+    pub monocular: usize,
+    /// Skeletons with no true person at their time.
+    pub unscored: usize,
+}
+
+/// Scores recorded fused skeletons (`posestream fuse`) of lag `lag` against a room's
+/// truth (`posestream scenes --rooms --record`, world frame): each against the true
+/// person nearest it (mean joint distance) at the truth frame nearest its stamp, in the
+/// world frame with no alignment. `root` is the skeleton's root joint.
+pub fn score_skeletons(
+    truth: &[posestream_msgs::Skeleton3D],
+    fused: &[posestream_msgs::Skeleton3D],
+    lag: u32,
+    root: usize,
+) -> SkeletonScores {
+    // The truth by stamp.
+    let mut at: BTreeMap<i64, Vec<&posestream_msgs::Skeleton3D>> = BTreeMap::new();
+    for t in truth {
+        at.entry(t.header.stamp.nanos()).or_default().push(t);
+    }
+    let mut errors = Errors::default();
+    let mut unscored = 0;
+    for s in fused.iter().filter(|s| s.lag == lag) {
+        let stamp = s.header.stamp.nanos();
+        let before = at.range(..=stamp).next_back();
+        let after = at.range(stamp..).next();
+        let nearest = match (before, after) {
+            (Some(b), Some(a)) if stamp - b.0 <= a.0 - stamp => Some(b.1),
+            (_, Some(a)) => Some(a.1),
+            (Some(b), None) => Some(b.1),
+            (None, None) => None,
+        };
+        let person = nearest.and_then(|people| {
+            people
+                .iter()
+                .filter(|t| t.positions.len() == s.positions.len())
+                .min_by(|a, b| {
+                    mpjpe(&a.positions, &s.positions).total_cmp(&mpjpe(&b.positions, &s.positions))
+                })
+        });
+        match person {
+            Some(t) if 3 * root + 3 <= s.positions.len() => {
+                errors.add(&t.positions, &s.positions, root);
+                errors.monocular += usize::from(s.views.len() == 1);
+            }
+            _ => unscored += 1,
+        }
+    }
+    SkeletonScores {
+        frames: errors.frames,
+        mpjpe_mm: errors.mpjpe_mm(),
+        root_mm: errors.root_mm(),
+        monocular: errors.monocular,
+        unscored,
+    }
+}

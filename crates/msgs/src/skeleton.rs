@@ -32,12 +32,14 @@ pub enum MetricSource {
     Size = 1,
     /// The person's feet on the floor.
     Floor = 2,
+    /// Several calibrated cameras (a fused skeleton, world frame).
+    Views = 3,
 }
 
 ros_message! {
     /// One estimated 3D skeleton (`msgs/msg/Skeleton3D.msg` documents each field).
     Skeleton3D = "posestream_msgs/msg/Skeleton3D", "posestream_msgs/Skeleton3D",
-        include_str!("../../../msgs/msg/Skeleton3D.msg"), added_tail = 1;
+        include_str!("../../../msgs/msg/Skeleton3D.msg"), added_tail = 8;
     /// Stamp of the frame described and the camera frame id.
     header: Header,
     /// Sequence number of the frame described.
@@ -62,9 +64,14 @@ ros_message! {
     lag: u32,
     /// `STATE_INITIALISING` (0), `STATE_TRACKING` (1) or `STATE_LOST` (2).
     state: u8,
-    /// `METRIC_NONE` (0), `METRIC_SIZE` (1) or `METRIC_FLOOR` (2); absent (older
-    /// recordings): 0 (`added_tail`).
+    /// `METRIC_NONE` (0), `METRIC_SIZE` (1), `METRIC_FLOOR` (2) or `METRIC_VIEWS` (3);
+    /// absent (older recordings): 0 (`added_tail`).
     metric_source: u8,
+    /// A fused skeleton: the frame ids of the cameras whose heat maps this frame's
+    /// estimate used; empty for one camera's (the header's). Absent (older recordings):
+    /// empty (`added_tail`: up to 3 bytes of alignment and the length, with the byte
+    /// before).
+    views: Vec<String>,
 }
 
 ros_message! {

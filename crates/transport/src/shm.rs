@@ -321,6 +321,9 @@ impl SkeletonSample {
             lag: self.lag,
             state: self.state,
             metric_source: self.metric_source,
+            // Not in the fixed-size sample (msgs/SHARED_MEMORY.md): a fused skeleton's
+            // views go over ROS 2 and recordings only.
+            views: Vec::new(),
         })
     }
 }

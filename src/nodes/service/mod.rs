@@ -3,10 +3,12 @@
 //! I/O on a tokio runtime, [`runtime`]; what the estimator reads beside its heat maps,
 //! [`side_inputs`]), and the wiring that builds those ends from the
 //! configuration ([`wiring`]), and what is said of bodies rather than skeletons (frames
-//! on `/tf`, REP-155's topics: [`bodies`]). What backend each end is
+//! on `/tf`, REP-155's topics: [`bodies`]), and the fusion node's loop over several cameras
+//! ([`fusion`]). What backend each end is
 //! comes from the configuration; the loops do not know.
 
 pub mod bodies;
+pub mod fusion;
 pub mod loops;
 pub mod runtime;
 pub mod side_inputs;

@@ -53,7 +53,7 @@ impl Middleware {
         })
     }
 
-    fn ros(&mut self) -> Result<&mut Ros2, TransportError> {
+    pub(crate) fn ros(&mut self) -> Result<&mut Ros2, TransportError> {
         self.ros.as_mut().ok_or_else(|| missing("ros2"))
     }
 
@@ -368,7 +368,7 @@ pub fn live_view(config: &ServiceConfig) -> Result<Option<LiveView>, TransportEr
 }
 
 /// Publishers of `M` on `topic` / `service` for every configured output.
-fn publishers<M: Message>(
+pub(super) fn publishers<M: Message>(
     config: &ServiceConfig,
     middleware: &mut Middleware,
     taps: &Taps,

@@ -1,0 +1,159 @@
+//! `posestream fuse`: the fusion node. Several calibrated cameras' heat maps (each
+//! camera's detector anywhere on the network, or a recording of them) in, one skeleton
+//! per person out, in the world frame.
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use clap::Args;
+use posestream::Estimator;
+use posestream::mocap::rooms;
+use posestream::msgs::Skeleton3D;
+use posestream::nodes::config::Transport;
+use posestream::nodes::fusion::FusionNode;
+use posestream::nodes::service::Wiring;
+use posestream::nodes::service::fusion::{FusionInput, FusionOutputs, FusionReport, run_fusion};
+use posestream::recording::read_topic;
+
+use super::CliError;
+use super::service::{Summary, print, stop_after, stop_flag};
+
+/// Options of `fuse`.
+#[derive(Debug, Args)]
+pub struct FuseArgs {
+    /// The service configuration (`--config FILE`): `[fusion]` names the cameras.
+    #[command(flatten)]
+    pub config: super::config::ConfigArgs,
+    /// Read the cameras' topics from this recording (MCAP) instead of ROS 2, as fast as
+    /// the node takes them.
+    #[arg(long, value_name = "FILE")]
+    pub recording: Option<PathBuf>,
+    /// Also record everything published to this MCAP file (overrides `outputs.record`).
+    #[arg(long, value_name = "FILE")]
+    pub record: Option<PathBuf>,
+    /// With `--recording` of a room (`posestream scenes --rooms --record`): score the
+    /// refined skeletons against the recording's truth (`topics.ground_truth`, world
+    /// frame), in the report.
+    #[arg(long, requires = "recording")]
+    pub truth: bool,
+    /// Stop after this many seconds, 0 to 1e9 (default: until Ctrl-C, or the
+    /// recording's end).
+    #[arg(long, value_parser = super::service::seconds)]
+    pub duration: Option<Duration>,
+    /// Print the report as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Runs `fuse`.
+pub fn run(args: &FuseArgs) -> Result<(), CliError> {
+    let mut config = args.config.load()?;
+    config.ros.or_named("posestream_fusion");
+    if let Some(record) = &args.record {
+        config.outputs.record = record.clone();
+    }
+    if config.fusion.cameras.is_empty() {
+        return Err(CliError::Usage(
+            "no cameras to fuse: name them in the configuration's [fusion] cameras \
+             (docs/fusion.md, \"The service\")"
+                .into(),
+        ));
+    }
+    let stop = stop_flag();
+    let dict = posestream::msgs::shipped::load_dictionary(&config.estimator.dictionary)?;
+    let estimator = Estimator::new(dict, config.estimator.params.clone())?;
+    let mut node = FusionNode::new(
+        estimator,
+        &config.fusion,
+        config.estimator.fusion.clone(),
+        config.limits.clone(),
+    )?;
+    let extra = args.recording.is_none().then_some(Transport::Ros2);
+    let mut wiring = Wiring::open(&config, extra)?;
+    wiring.start_recording(&config)?;
+    let input = match &args.recording {
+        Some(path) => FusionInput::recording(&config, path)?,
+        None => FusionInput::ros2(&config, &mut wiring.middleware)?,
+    };
+    let mut outputs = FusionOutputs::open(&config, &mut wiring.middleware, &wiring.taps, &node)?;
+    if args.truth {
+        outputs = outputs.keeping(node.lag());
+    }
+    stop_after(args.duration, &stop);
+    let mut report = run_fusion(&mut node, input, &mut outputs, &stop);
+    if let Some(path) = args.recording.as_ref().filter(|_| args.truth) {
+        let truth: Vec<Skeleton3D> = read_topic(path, &config.topics.ground_truth)
+            .map_err(|e| CliError::Failed(format!("--truth: {e}")))?
+            .into_iter()
+            .map(|(_, m)| m)
+            .collect();
+        report.truth = Some(rooms::score_skeletons(
+            &truth,
+            &outputs.kept(),
+            node.lag(),
+            node.root(),
+        ));
+    }
+    drop(outputs);
+    let concluded = wiring.conclude(report.input_error.as_deref());
+    print(args.json, &report)?;
+    concluded.map(|_| ()).map_err(CliError::from)
+}
+
+impl Summary for FusionReport {
+    fn summary(&self) -> String {
+        let c = &self.counters;
+        let mut text = format!(
+            "{} heat-map messages -> {} fused frames, {} skeletons of {} people ({} camera \
+             tracks matched to nobody); {} refused; update median {:.2} ms, p99 {:.2} ms; \
+             {} failed sends",
+            c.frames,
+            c.fused,
+            c.skeletons,
+            c.people,
+            c.unmatched,
+            self.refused.total(),
+            self.update.median_ms,
+            self.update.p99_ms,
+            self.failed_sends
+        );
+        for cam in &self.cameras {
+            text.push_str(&format!(
+                "\ncamera {} ({}): {} frames, {} used{}; residual {}{}",
+                cam.name,
+                if cam.frame_id.is_empty() {
+                    "?"
+                } else {
+                    &cam.frame_id
+                },
+                cam.frames,
+                cam.used,
+                if cam.calibrated {
+                    ""
+                } else {
+                    ", not calibrated"
+                },
+                cam.residual.map_or("-".to_string(), |r| format!(
+                    "{r:.3} over {} frames",
+                    cam.residual_frames
+                )),
+                if cam.suspect {
+                    " -- its extrinsics disagree with the others' (wrong pose?)"
+                } else {
+                    ""
+                }
+            ));
+        }
+        if let Some(t) = &self.truth {
+            text.push_str(&format!(
+                "\nagainst the truth: {} skeletons, MPJPE {:.0} mm, root {:.0} mm, {} from one \
+                 camera, {} with no true person",
+                t.frames, t.mpjpe_mm, t.root_mm, t.monocular, t.unscored
+            ));
+        }
+        if let Some(e) = &self.input_error {
+            text.push_str(&format!("\ninput ended early: {e}"));
+        }
+        text
+    }
+}

@@ -1,0 +1,753 @@
+//! The fusion node: several calibrated cameras' heat maps in, one [`Skeleton3D`] per
+//! person out, in the world frame (`posestream fuse`; docs/fusion.md, "The service").
+//! A thin adapter: the maths is [`crate::fusion`]'s.
+//!
+//! 1. Each camera's heat-map messages (any track ids: they agree with nobody's) are
+//!    checked against the limits and the dictionary's joints, dequantised once into a
+//!    buffer of the fused frame nearest their capture time (frames `1 / frame_rate`
+//!    apart from the first stamp heard), with their offset from it;
+//! 2. a fused frame is made once every camera still sending has sent a later frame, or
+//!    `wait` after its first message (in the input's clock), or when too many wait;
+//!    a message for a frame already made is refused (`late`);
+//! 3. the cameras' tracks are matched into people by geometry ([`Matcher`]), each
+//!    person's views go to their [`FusedWindow`], and its estimates become skeletons:
+//!    `frame_id` the world frame, metres, the cameras used in `views`.
+//!
+//! A camera is used once it is calibrated: intrinsics from its `CameraInfo` (or the
+//! configuration), its pose from TF (`world_frame` to the frame id of its heat maps) or
+//! the configuration. Frames of a camera not calibrated yet are refused (`uncalibrated`).
+
+use std::collections::{BTreeMap, VecDeque};
+
+use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
+
+use super::config::{ExtrinsicsSource, FusionConfig};
+use super::tf_buffer::TfBuffer;
+use super::{NodeError, Refusals, SetupError};
+use crate::camera::{CropBox, Intrinsics};
+use crate::estimator::Estimator;
+use crate::fusion::{
+    ExtrinsicsCheck, FusedEstimate, FusedWindow, FusionSettings, Matcher, TrackObservation,
+    ViewCamera, ViewMaps, ViewResidual, matching::peaks_into, suspects,
+};
+use crate::limits::Limits;
+use crate::msgs::sensor::CameraInfo;
+use crate::msgs::tf::TFMessage;
+use crate::msgs::{self, Header, HeatMaps, MetricSource, Skeleton3D, SkeletonState, Time, Units};
+use crate::skeleton::same_layout;
+use crate::streaming::Scores;
+
+/// Fused frames waiting at most: a frame further ahead makes the oldest ones now.
+const MAX_PENDING: usize = 64;
+
+/// One camera as the node knows it.
+#[derive(Debug, Clone)]
+struct Camera {
+    name: String,
+    /// Its frame id, from its first heat maps or calibration.
+    frame_id: Option<String>,
+    /// Intrinsics from the configuration (kept over any `CameraInfo`).
+    configured_intrinsics: Option<Intrinsics>,
+    intrinsics: Option<Intrinsics>,
+    pose: Option<Isometry3<f64>>,
+    /// The newest capture time sent, and when (the input's clock) it last sent.
+    newest_ns: Option<i64>,
+    heard_ns: Option<i64>,
+    /// Frames taken and frames its views were used in.
+    frames: u64,
+    used: u64,
+}
+
+impl Camera {
+    fn calibrated(&self) -> Option<ViewCamera> {
+        Some(ViewCamera {
+            intrinsics: self.intrinsics?,
+            world_from_camera: self.pose?,
+        })
+    }
+}
+
+/// One camera's frame of one track, waiting in its fused frame.
+#[derive(Debug, Default)]
+struct TrackFrame {
+    camera: usize,
+    track: u32,
+    /// Capture time minus the fused frame's, nanoseconds.
+    offset_ns: i64,
+    crop: Option<CropBox>,
+    height: usize,
+    width: usize,
+    /// The scores, dequantised: the frame's one copy.
+    values: Vec<f32>,
+}
+
+/// A fused frame being gathered.
+#[derive(Debug, Default)]
+struct Pending {
+    index: i64,
+    /// When its first message came (the input's clock).
+    first_heard_ns: i64,
+    frames: Vec<TrackFrame>,
+}
+
+/// What the node counted.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+pub struct FusionCounters {
+    /// Heat-map messages taken.
+    pub frames: u64,
+    /// Fused frames made.
+    pub fused: u64,
+    /// Skeletons made.
+    pub skeletons: u64,
+    /// People (matched ids) seen.
+    pub people: u64,
+    /// Camera tracks in fused frames that were matched to nobody.
+    pub unmatched: u64,
+}
+
+/// One camera in the node's report.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct CameraReport {
+    /// Its name.
+    pub name: String,
+    /// Its frame id (empty before its first message).
+    pub frame_id: String,
+    /// Whether it is calibrated (intrinsics and pose known).
+    pub calibrated: bool,
+    /// Heat-map messages taken.
+    pub frames: u64,
+    /// Of them, those whose views a person's fused frame used.
+    pub used: u64,
+    /// Its mean residual against the fused poses (a fraction of the person's box; NaN
+    /// before any, as JSON null), and the frames it is over.
+    pub residual: Option<f64>,
+    /// Frames of that residual.
+    pub residual_frames: usize,
+    /// Its extrinsics disagree with the other cameras' ([`crate::fusion::extrinsics`]).
+    pub suspect: bool,
+}
+
+/// The fusion node (module docs).
+pub struct FusionNode {
+    estimator: Estimator,
+    settings: FusionSettings,
+    check: ExtrinsicsCheck,
+    world_frame: String,
+    extrinsics: ExtrinsicsSource,
+    period_ns: i64,
+    wait_ns: i64,
+    limits: Limits,
+    joint_names: Vec<String>,
+    cameras: Vec<Camera>,
+    /// The cameras as the windows take them (placeholders for those not calibrated).
+    rig: Vec<ViewCamera>,
+    tf: TfBuffer,
+    /// The first stamp heard: fused frame 0.
+    epoch_ns: Option<i64>,
+    /// The first fused frame not made yet.
+    next_index: i64,
+    pending: VecDeque<Pending>,
+    spare_frames: Vec<TrackFrame>,
+    matcher: Matcher,
+    windows: BTreeMap<u64, FusedWindow>,
+    /// Residuals of the people forgotten.
+    ended_residuals: Vec<ViewResidual>,
+    /// The cameras named as suspects last.
+    suspects: Vec<usize>,
+    counters: FusionCounters,
+    refused: Refusals,
+    peaks: Vec<Vec<[f64; 3]>>,
+    ids: Vec<Option<u64>>,
+    estimates: Vec<FusedEstimate>,
+}
+
+impl FusionNode {
+    /// The node of `config`'s `[fusion]` cameras with `estimator` (the dictionary and
+    /// E-step parameters) and the multi-view settings.
+    pub fn new(
+        estimator: Estimator,
+        config: &FusionConfig,
+        settings: FusionSettings,
+        limits: Limits,
+    ) -> Result<Self, SetupError> {
+        let param = |e: String| SetupError::Parameter(crate::error::EstimateError::Parameter(e));
+        let placeholder = ViewCamera {
+            intrinsics: Intrinsics::new(1000.0, 1000.0, 500.0, 500.0).map_err(param)?,
+            world_from_camera: Isometry3::identity(),
+        };
+        let mut cameras = Vec::new();
+        for name in &config.cameras {
+            let configured_intrinsics = match config.intrinsics.get(name) {
+                Some(k) => Some(
+                    Intrinsics::new(k[0], k[1], k[2], k[3])
+                        .map_err(|e| param(format!("fusion.intrinsics.{name}: {e}")))?,
+                ),
+                None => None,
+            };
+            let configured_pose = match (config.extrinsics, config.poses.get(name)) {
+                (ExtrinsicsSource::Config, Some(p)) => Some(Isometry3::from_parts(
+                    Translation3::new(p[0], p[1], p[2]),
+                    UnitQuaternion::from_quaternion(Quaternion::new(p[6], p[3], p[4], p[5])),
+                )),
+                _ => None,
+            };
+            cameras.push(Camera {
+                name: name.clone(),
+                frame_id: None,
+                configured_intrinsics,
+                intrinsics: configured_intrinsics,
+                pose: configured_pose,
+                newest_ns: None,
+                heard_ns: None,
+                frames: 0,
+                used: 0,
+            });
+        }
+        if cameras.is_empty() {
+            return Err(param(
+                "fusion.cameras is empty: name the cameras to fuse (docs/fusion.md)".into(),
+            ));
+        }
+        settings
+            .check()
+            .map_err(|e| param(format!("estimator.fusion: {e}")))?;
+        let matcher = Matcher::new(settings.matching.clone())
+            .map_err(|e| param(format!("estimator.fusion.matching: {e}")))?;
+        let joint_names = estimator.dictionary().skeleton().joints.clone();
+        let n = cameras.len();
+        let mut node = Self {
+            check: settings.extrinsics.clone(),
+            estimator,
+            settings,
+            world_frame: config.world_frame.trim_start_matches('/').to_string(),
+            extrinsics: config.extrinsics,
+            period_ns: (1e9 / config.frame_rate).round() as i64,
+            wait_ns: (config.wait * 1e9).round() as i64,
+            limits,
+            joint_names,
+            cameras,
+            rig: vec![placeholder; n],
+            tf: TfBuffer::new(),
+            epoch_ns: None,
+            next_index: 0,
+            pending: VecDeque::new(),
+            spare_frames: Vec::new(),
+            matcher,
+            windows: BTreeMap::new(),
+            ended_residuals: vec![ViewResidual::default(); n],
+            suspects: Vec::new(),
+            counters: FusionCounters::default(),
+            refused: Refusals::default(),
+            peaks: Vec::new(),
+            ids: Vec::new(),
+            estimates: Vec::new(),
+        };
+        node.update_rig();
+        Ok(node)
+    }
+
+    /// The skeletons' joints.
+    pub fn joint_names(&self) -> &[String] {
+        &self.joint_names
+    }
+
+    /// The dictionary's bones.
+    pub fn bones(&self) -> Vec<(usize, usize)> {
+        self.estimator.dictionary().skeleton().bones().collect()
+    }
+
+    /// The skeleton's root joint (the pelvis).
+    pub fn root(&self) -> usize {
+        self.estimator.dictionary().skeleton().root()
+    }
+
+    /// The refined estimates' lag.
+    pub fn lag(&self) -> u32 {
+        self.settings.lag as u32
+    }
+
+    /// What was counted.
+    pub fn counters(&self) -> &FusionCounters {
+        &self.counters
+    }
+
+    /// Messages refused, by kind.
+    pub fn refused(&self) -> &Refusals {
+        &self.refused
+    }
+
+    /// Counts a message its transport refused.
+    pub fn count_refused(&mut self, error: &crate::transport::TransportError) {
+        let kind = match error {
+            crate::transport::TransportError::BeyondLimits { .. } => "beyond-limits",
+            _ => "undecodable",
+        };
+        self.refused.note(kind, error);
+    }
+
+    /// Each camera: calibration, frames, residual against the fused poses, whether its
+    /// extrinsics are suspect.
+    pub fn cameras(&self) -> Vec<CameraReport> {
+        let residuals = self.residuals();
+        self.cameras
+            .iter()
+            .zip(&residuals)
+            .enumerate()
+            .map(|(v, (c, r))| CameraReport {
+                name: c.name.clone(),
+                frame_id: c.frame_id.clone().unwrap_or_default(),
+                calibrated: c.calibrated().is_some(),
+                frames: c.frames,
+                used: c.used,
+                residual: Some(r.mean()).filter(|m| m.is_finite()),
+                residual_frames: r.frames,
+                suspect: self.suspects.contains(&v),
+            })
+            .collect()
+    }
+
+    /// Every camera's residuals: the people forgotten and those tracked.
+    fn residuals(&self) -> Vec<ViewResidual> {
+        let mut all = self.ended_residuals.clone();
+        for w in self.windows.values() {
+            for (a, r) in all.iter_mut().zip(w.residuals()) {
+                a.merge(r);
+            }
+        }
+        all
+    }
+
+    /// Takes camera `camera`'s calibration: its intrinsics (unless configured) and, the
+    /// first time, its frame id. A calibration that cannot be used is refused
+    /// (`camera-info`).
+    pub fn camera_info(&mut self, camera: usize, info: &CameraInfo) {
+        let k = &info.k;
+        let result = Intrinsics::new(k[0], k[4], k[2], k[5]).and_then(|intrinsics| {
+            self.limits
+                .image(u64::from(info.width), u64::from(info.height))
+                .map_err(|e| e.to_string())?;
+            Ok(intrinsics)
+        });
+        let Some(c) = self.cameras.get_mut(camera) else {
+            return;
+        };
+        match result {
+            Ok(intrinsics) => {
+                let mut changed = false;
+                if c.frame_id.is_none() && !info.header.frame_id.is_empty() {
+                    c.frame_id = Some(info.header.frame_id.trim_start_matches('/').to_string());
+                    changed = true;
+                }
+                if c.configured_intrinsics.is_none() && c.intrinsics != Some(intrinsics) {
+                    c.intrinsics = Some(intrinsics);
+                    changed = true;
+                }
+                if changed {
+                    self.update_rig();
+                }
+            }
+            Err(reason) => {
+                let e = NodeError::CameraInfo {
+                    reason: format!("camera {}: {reason}", c.name),
+                };
+                self.refused.note(e.kind(), &e);
+            }
+        }
+    }
+
+    /// Takes transforms (`/tf_static`, `/tf`): with extrinsics from TF, each camera's
+    /// pose is `world_frame` to its frame. Transforms the buffer cannot hold are
+    /// refused (`tf`); people's frames (ours, heard back) are passed over.
+    pub fn transforms(&mut self, message: &TFMessage) {
+        if self.extrinsics != ExtrinsicsSource::Tf {
+            return;
+        }
+        let wanted = |t: &msgs::tf::TransformStamped| {
+            !super::frames::is_body_transform(&t.header.frame_id, &t.child_frame_id)
+        };
+        for reason in self.tf.take_where(message, wanted) {
+            let e = NodeError::Transform { reason };
+            self.refused.note(e.kind(), &e);
+        }
+        self.update_rig();
+    }
+
+    /// Looks the cameras' poses up (TF) and hands the windows every change.
+    fn update_rig(&mut self) {
+        for (v, c) in self.cameras.iter_mut().enumerate() {
+            if self.extrinsics == ExtrinsicsSource::Tf
+                && let Some(frame) = &c.frame_id
+            {
+                c.pose = self.tf.lookup(&self.world_frame, frame);
+            }
+            let Some(now) = c.calibrated() else {
+                continue;
+            };
+            if now.check().is_err() || now == self.rig[v] {
+                continue;
+            }
+            self.rig[v] = now;
+            for w in self.windows.values_mut() {
+                // Checked above: cannot fail.
+                let _ = w.set_camera(v, now);
+            }
+        }
+    }
+
+    /// Takes camera `camera`'s heat maps, heard at `now_ns` (the input's clock: arrival
+    /// time live, log time in a recording), into their fused frame; then makes the fused
+    /// frames that are due, their skeletons appended to `out`. A bad message is refused,
+    /// counted and logged once per kind.
+    pub fn heat_maps(
+        &mut self,
+        camera: usize,
+        msg: &HeatMaps,
+        now_ns: i64,
+        out: &mut Vec<Skeleton3D>,
+    ) -> Result<(), NodeError> {
+        let taken = self.take(camera, msg, now_ns);
+        if let Err(e) = &taken {
+            self.refused.note(e.kind(), e);
+        }
+        self.step(now_ns, out);
+        taken
+    }
+
+    fn take(&mut self, camera: usize, msg: &HeatMaps, now_ns: i64) -> Result<(), NodeError> {
+        let sequence = msg.sequence;
+        let refuse = |reason: String| NodeError::Camera { sequence, reason };
+        let Some(c) = self.cameras.get_mut(camera) else {
+            return Err(refuse(format!("no camera {camera}")));
+        };
+        self.limits
+            .heatmap_values(
+                msg.joint_names.len() as u64,
+                u64::from(msg.height),
+                u64::from(msg.width),
+            )
+            .map_err(|source| NodeError::Limit { sequence, source })?;
+        if !same_layout(&msg.joint_names, &self.joint_names) {
+            return Err(NodeError::Joints {
+                sequence,
+                found: msg.joint_names.clone(),
+                expected: self.joint_names.clone(),
+            });
+        }
+        let crop = msg.crop()?;
+        let frame = msg.header.frame_id.trim_start_matches('/');
+        match &c.frame_id {
+            Some(known) if known != frame => {
+                return Err(refuse(format!(
+                    "camera {}: frame id {frame:?}, not its {known:?}",
+                    c.name
+                )));
+            }
+            Some(_) => {}
+            None if frame.is_empty() => {
+                return Err(refuse(format!("camera {}: no frame id", c.name)));
+            }
+            None => {
+                c.frame_id = Some(frame.to_string());
+                self.update_rig();
+            }
+        }
+        let c = &mut self.cameras[camera];
+        if c.calibrated().is_none() {
+            return Err(NodeError::Uncalibrated {
+                sequence,
+                camera: c.name.clone(),
+                what: match (c.intrinsics.is_some(), self.extrinsics) {
+                    (false, _) => "its CameraInfo (or [fusion.intrinsics])".into(),
+                    (true, ExtrinsicsSource::Tf) => format!(
+                        "its pose: {} to {} on TF",
+                        self.world_frame,
+                        c.frame_id.as_deref().unwrap_or("?")
+                    ),
+                    (true, ExtrinsicsSource::Config) => "its pose in [fusion.poses]".into(),
+                },
+            });
+        }
+        let stamp = msg.header.stamp.nanos();
+        let epoch = *self.epoch_ns.get_or_insert(stamp);
+        // The nearest fused frame (half a period rounds up).
+        let index = (stamp - epoch + self.period_ns / 2).div_euclid(self.period_ns);
+        if index < self.next_index {
+            return Err(NodeError::Late {
+                sequence,
+                camera: c.name.clone(),
+                behind_ms: (self.next_index - index) as f64 * self.period_ns as f64 * 1e-6,
+            });
+        }
+        c.newest_ns = Some(c.newest_ns.map_or(stamp, |n| n.max(stamp)));
+        c.heard_ns = Some(now_ns);
+        c.frames += 1;
+        self.counters.frames += 1;
+        let mut index = index;
+        let mut offset_ns = stamp - (epoch + index * self.period_ns);
+        // A camera whose clock runs about half a frame off the fused frames' puts two
+        // frames in one and none in the next: the later goes to the next.
+        if let Some(slot) = self.pending.iter().find(|s| s.index == index)
+            && slot
+                .frames
+                .iter()
+                .any(|f| f.camera == camera && f.track == msg.track_id && f.offset_ns < offset_ns)
+        {
+            index += 1;
+            offset_ns -= self.period_ns;
+        }
+        let p = match self.pending.iter().position(|s| s.index >= index) {
+            Some(p) if self.pending[p].index == index => p,
+            at => {
+                let at = at.unwrap_or(self.pending.len());
+                self.pending.insert(
+                    at,
+                    Pending {
+                        index,
+                        first_heard_ns: now_ns,
+                        frames: Vec::new(),
+                    },
+                );
+                at
+            }
+        };
+        let slot = &mut self.pending[p];
+        // A second frame of the track in this fused frame: the nearer one stays.
+        let frame = match slot
+            .frames
+            .iter()
+            .position(|f| f.camera == camera && f.track == msg.track_id)
+        {
+            Some(i) if slot.frames[i].offset_ns.abs() <= offset_ns.abs() => return Ok(()),
+            Some(i) => &mut slot.frames[i],
+            None => {
+                // At most max_people tracks per camera and fused frame.
+                let per_camera = slot.frames.iter().filter(|f| f.camera == camera).count();
+                if per_camera >= self.settings.matching.max_people {
+                    return Err(refuse(format!(
+                        "camera {}: more than {} tracks in one frame \
+                         (estimator.fusion.matching.max_people)",
+                        self.cameras[camera].name, self.settings.matching.max_people
+                    )));
+                }
+                slot.frames
+                    .push(self.spare_frames.pop().unwrap_or_default());
+                slot.frames.last_mut().expect("pushed")
+            }
+        };
+        frame.camera = camera;
+        frame.track = msg.track_id;
+        frame.offset_ns = offset_ns;
+        frame.crop = Some(crop);
+        frame.height = msg.height as usize;
+        frame.width = msg.width as usize;
+        msg.values_into(&mut frame.values)?;
+        Ok(())
+    }
+
+    /// Makes the fused frames that are due at `now_ns` (the input went quiet: call it
+    /// now and then); their skeletons appended to `out`.
+    pub fn step(&mut self, now_ns: i64, out: &mut Vec<Skeleton3D>) {
+        while let Some(first) = self.pending.front() {
+            if !self.due(first, now_ns) {
+                break;
+            }
+            let slot = self.pending.pop_front().expect("front");
+            self.fuse(slot, out);
+        }
+    }
+
+    /// Makes every fused frame waiting (the input ended).
+    pub fn finish(&mut self, out: &mut Vec<Skeleton3D>) {
+        while let Some(slot) = self.pending.pop_front() {
+            self.fuse(slot, out);
+        }
+    }
+
+    /// Whether fused frame `slot` is due at `now_ns`.
+    fn due(&self, slot: &Pending, now_ns: i64) -> bool {
+        if self.pending.len() > MAX_PENDING || now_ns - slot.first_heard_ns >= self.wait_ns {
+            return true;
+        }
+        let Some(epoch) = self.epoch_ns else {
+            return true;
+        };
+        // Every camera still sending has sent a frame past this one's half period.
+        let end = epoch + slot.index * self.period_ns + self.period_ns / 2;
+        self.cameras
+            .iter()
+            .all(|c| match (c.heard_ns, c.newest_ns) {
+                (Some(heard), Some(newest)) => now_ns - heard >= self.wait_ns || newest >= end,
+                _ => true,
+            })
+    }
+
+    /// Makes fused frame `slot`: matches its tracks into people, pushes each person's
+    /// views into their window, appends the estimates' skeletons to `out`.
+    fn fuse(&mut self, mut slot: Pending, out: &mut Vec<Skeleton3D>) {
+        self.next_index = self.next_index.max(slot.index + 1);
+        let epoch = self.epoch_ns.unwrap_or(0);
+        let stamp_ns = epoch + slot.index * self.period_ns;
+        self.counters.fused += 1;
+        // Frames of cameras that lost their calibration since (a TF change) wait no more.
+        let rig = &self.rig;
+        let cameras = &self.cameras;
+        slot.frames
+            .retain(|f| cameras[f.camera].calibrated().is_some() && rig.len() > f.camera);
+        self.peaks.resize_with(slot.frames.len(), Vec::new);
+        for (f, peaks) in slot.frames.iter().zip(self.peaks.iter_mut()) {
+            match f.crop {
+                Some(crop) => {
+                    let to_image = crop.pixel_map(f.width, f.height);
+                    peaks_into(&f.values, f.height, f.width, &to_image, peaks);
+                }
+                None => peaks.clear(),
+            }
+        }
+        let observations: Vec<TrackObservation<'_>> = slot
+            .frames
+            .iter()
+            .zip(&self.peaks)
+            .map(|(f, peaks)| TrackObservation {
+                view: f.camera,
+                track: u64::from(f.track),
+                peaks,
+                box_size: f.crop.map_or(0.0, |c| c.width.max(c.height)),
+            })
+            .collect();
+        self.matcher
+            .assign(stamp_ns, &self.rig, &observations, &mut self.ids);
+        drop(observations);
+        self.counters.unmatched += self.ids.iter().filter(|i| i.is_none()).count() as u64;
+        let mut people: Vec<u64> = self.ids.iter().flatten().copied().collect();
+        people.sort_unstable();
+        people.dedup();
+        for id in people {
+            let views: Vec<ViewMaps<'_>> = slot
+                .frames
+                .iter()
+                .zip(&self.ids)
+                .filter(|(_, m)| **m == Some(id))
+                .filter_map(|(f, _)| {
+                    Some(ViewMaps {
+                        view: f.camera,
+                        dt: f.offset_ns as f64 * 1e-9,
+                        to_image: f.crop?.pixel_map(f.width, f.height),
+                        height: f.height,
+                        width: f.width,
+                        values: Scores::F32(&f.values),
+                    })
+                })
+                .collect();
+            let window = match self.windows.entry(id) {
+                std::collections::btree_map::Entry::Occupied(e) => e.into_mut(),
+                std::collections::btree_map::Entry::Vacant(e) => {
+                    match FusedWindow::new(&self.estimator, self.rig.clone(), self.settings.clone())
+                    {
+                        Ok(w) => {
+                            self.counters.people += 1;
+                            e.insert(w)
+                        }
+                        Err(source) => {
+                            let e = NodeError::Estimate {
+                                sequence: slot.index as u64,
+                                source,
+                            };
+                            self.refused.note(e.kind(), &e);
+                            continue;
+                        }
+                    }
+                }
+            };
+            self.estimates.clear();
+            if let Err(source) = window.push(stamp_ns, &views, &mut self.estimates) {
+                let e = NodeError::Estimate {
+                    sequence: slot.index as u64,
+                    source,
+                };
+                self.refused.note(e.kind(), &e);
+                continue;
+            }
+            for v in &views {
+                self.cameras[v.view].used += 1;
+            }
+            if let Some(newest) = self.estimates.iter().find(|e| e.lag == 0) {
+                self.matcher.set_pose(id, &newest.joints);
+            }
+            for e in &self.estimates {
+                if !e.joints.iter().chain(&e.joint_std).all(|v| v.is_finite()) {
+                    let err = NodeError::NonFiniteOutput {
+                        sequence: slot.index as u64,
+                    };
+                    self.refused.note(err.kind(), &err);
+                    continue;
+                }
+                out.push(self.skeleton(id, e, epoch));
+                self.counters.skeletons += 1;
+            }
+        }
+        // People the matcher forgot: their windows go, their residuals stay counted.
+        let known: Vec<u64> = self.matcher.people().collect();
+        let ended = &mut self.ended_residuals;
+        self.windows.retain(|id, w| {
+            let keep = known.contains(id);
+            if !keep {
+                for (a, r) in ended.iter_mut().zip(w.residuals()) {
+                    a.merge(r);
+                }
+            }
+            keep
+        });
+        self.spare_frames.append(&mut slot.frames);
+        self.check_extrinsics();
+    }
+
+    /// Names the cameras whose extrinsics disagree with the others' (a warning when the
+    /// set changes).
+    fn check_extrinsics(&mut self) {
+        let now = suspects(&self.residuals(), &self.check);
+        if now != self.suspects {
+            for &v in now.iter().filter(|v| !self.suspects.contains(v)) {
+                tracing::warn!(
+                    "camera {}: its heat maps disagree with the fused poses' projections much \
+                     more than the other cameras' do: its extrinsics (pose in {}) are likely \
+                     wrong",
+                    self.cameras[v].name,
+                    self.world_frame
+                );
+            }
+            self.suspects = now;
+        }
+    }
+
+    /// The skeleton of person `id`'s estimate `e`.
+    fn skeleton(&self, id: u64, e: &FusedEstimate, epoch: i64) -> Skeleton3D {
+        let index = (e.stamp_ns - epoch).div_euclid(self.period_ns.max(1));
+        Skeleton3D {
+            header: Header {
+                stamp: Time::from_nanos(e.stamp_ns),
+                frame_id: self.world_frame.clone(),
+            },
+            sequence: index.max(0) as u64,
+            track_id: (id % u64::from(u32::MAX)) as u32,
+            joint_names: self.joint_names.clone(),
+            units: Units::Metres as u8,
+            positions: e.joints.clone(),
+            position_std: e.joint_std.clone(),
+            keypoints: Vec::new(),
+            keypoint_std: Vec::new(),
+            projected: Vec::new(),
+            lag: e.lag as u32,
+            state: SkeletonState::Tracking as u8,
+            metric_source: if e.monocular {
+                MetricSource::Size as u8
+            } else {
+                MetricSource::Views as u8
+            },
+            views: e
+                .views
+                .iter()
+                .map(|&v| self.cameras[v].frame_id.clone().unwrap_or_default())
+                .collect(),
+        }
+    }
+}
