@@ -216,7 +216,7 @@ fn messages_round_trip_through_cdr_with_the_encapsulation_header() {
 }
 
 #[test]
-fn a_skeleton_recorded_before_metric_source_decodes_with_none() {
+fn a_skeleton_recorded_before_metric_source_or_views_decodes_with_none() {
     let skel = Skeleton3D {
         sequence: 3,
         units: 1,
@@ -225,15 +225,34 @@ fn a_skeleton_recorded_before_metric_source_decodes_with_none() {
         ..Skeleton3D::default()
     };
     let bytes = msgs::encode(&skel).expect("encodes");
-    // The older layout: everything up to `state`, without the trailing byte.
-    let older: Skeleton3D = msgs::decode(&bytes[..bytes.len() - 1]).expect("decodes");
+    // `views` (empty) ends it: its length, 4 bytes, after the alignment (zeros) that
+    // follows `metric_source` (2, not zero).
+    let count = bytes.len() - 4;
+    let metric = bytes[..count]
+        .iter()
+        .rposition(|&b| b != 0)
+        .expect("metric_source");
+    assert_eq!(bytes[metric], msgs::MetricSource::Floor as u8);
+    // The layout before `views`: up to `metric_source`.
+    let before_views: Skeleton3D = msgs::decode(&bytes[..metric + 1]).expect("decodes");
+    assert_eq!(before_views, skel);
+    // The older layout: everything up to `state`.
+    let older: Skeleton3D = msgs::decode(&bytes[..metric]).expect("decodes");
     assert_eq!(
         older,
         Skeleton3D {
             metric_source: msgs::MetricSource::None as u8,
-            ..skel
+            ..skel.clone()
         }
     );
+    // A fused skeleton's views go and come back.
+    let fused = Skeleton3D {
+        views: vec!["cam0".into(), "cam2".into()],
+        metric_source: msgs::MetricSource::Views as u8,
+        ..skel
+    };
+    let back: Skeleton3D = msgs::decode(&msgs::encode(&fused).expect("encodes")).expect("decodes");
+    assert_eq!(back, fused);
 }
 
 #[test]

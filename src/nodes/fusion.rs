@@ -40,6 +40,10 @@ use crate::streaming::Scores;
 /// Fused frames waiting at most: a frame further ahead makes the oldest ones now.
 const MAX_PENDING: usize = 64;
 
+/// Camera frames waiting in them at most (each at most `[limits]`' frame): more make
+/// the oldest fused frames now.
+const MAX_BUFFERED: usize = 256;
+
 /// One camera as the node knows it.
 #[derive(Debug, Clone)]
 struct Camera {
@@ -565,7 +569,11 @@ impl FusionNode {
 
     /// Whether fused frame `slot` is due at `now_ns`.
     fn due(&self, slot: &Pending, now_ns: i64) -> bool {
-        if self.pending.len() > MAX_PENDING || now_ns - slot.first_heard_ns >= self.wait_ns {
+        let buffered: usize = self.pending.iter().map(|s| s.frames.len()).sum();
+        if self.pending.len() > MAX_PENDING
+            || buffered > MAX_BUFFERED
+            || now_ns - slot.first_heard_ns >= self.wait_ns
+        {
             return true;
         }
         let Some(epoch) = self.epoch_ns else {
