@@ -65,6 +65,9 @@ pub(super) struct ViewData {
     pub moments: Vec<MapMoments>,
     /// Whether any map has a positive score.
     pub evidence: bool,
+    /// A copy of the frame before's view of this camera, standing in for the one it did
+    /// not send ([`super::FusionSettings::bridge_seconds`]).
+    pub bridged: bool,
     /// The E-step: the ray's origin (the camera centre moved back by the body's motion
     /// over `dt`), each joint's unit ray direction and weight (0: not seen), the
     /// expected joint (image pixels) and its spread (trace of the covariance, image
@@ -90,6 +93,7 @@ impl ViewData {
             maps: Vec::new(),
             moments: Vec::new(),
             evidence: false,
+            bridged: false,
             origin: Vector3::zeros(),
             dirs: Vec::new(),
             weights: Vec::new(),

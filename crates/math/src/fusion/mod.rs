@@ -132,6 +132,10 @@ pub struct FusionSettings {
     pub depth_smoothing: f64,
     /// A gap longer than this, seconds, starts a new track.
     pub max_gap_seconds: f64,
+    /// A camera's view of the frame before that is missing from a frame (a camera at a
+    /// lower rate, a dropped frame) stands in for it, once, at its time offset, when the
+    /// frames are at most this far apart, seconds (0: never).
+    pub bridge_seconds: f64,
     /// Who is who across cameras (`[estimator.fusion.matching]`).
     pub matching: MatchSettings,
     /// The check of the cameras' extrinsics (`[estimator.fusion.extrinsics]`).
@@ -158,6 +162,7 @@ impl Default for FusionSettings {
             peak_threshold: 0.1,
             depth_smoothing: 2.0,
             max_gap_seconds: 0.5,
+            bridge_seconds: 0.1,
             matching: MatchSettings::default(),
             extrinsics: ExtrinsicsCheck::default(),
         }
@@ -190,6 +195,7 @@ impl FusionSettings {
         )?;
         check_real("depth_smoothing", self.depth_smoothing, 0.0, 1e6, false)?;
         check_real("max_gap_seconds", self.max_gap_seconds, 0.0, 3600.0, true)?;
+        check_real("bridge_seconds", self.bridge_seconds, 0.0, 0.5, false)?;
         self.matching.check().map_err(|e| e.within("matching"))?;
         self.extrinsics.check().map_err(|e| e.within("extrinsics"))
     }

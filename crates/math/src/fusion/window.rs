@@ -233,6 +233,7 @@ impl FusedWindow {
             self.spare.push(frame);
             return Ok(());
         }
+        self.bridge(&mut frame);
         if self.frames.is_empty() {
             let s = &self.settings;
             let started = start(
@@ -295,6 +296,42 @@ impl FusedWindow {
             self.emit(n - 1 - lag, out);
         }
         Ok(())
+    }
+
+    /// Adds to `frame` the views of the frame before (sent, not bridged themselves) of
+    /// the cameras `frame` has none of, at their time offsets from it, when the frames
+    /// are at most [`FusionSettings::bridge_seconds`] apart: a camera at half the rate,
+    /// or one that dropped a frame, still constrains the depth (the E-step moves the body
+    /// by its velocity over the offset).
+    fn bridge(&mut self, frame: &mut Frame) {
+        let Some(last) = self.frames.back() else {
+            return;
+        };
+        let gap = seconds_between(last.stamp_ns, frame.stamp_ns);
+        if gap > self.settings.bridge_seconds {
+            return;
+        }
+        for old in last.views() {
+            let dt = old.dt - gap;
+            let present = frame.views().iter().any(|v| v.view == old.view);
+            if old.bridged || present || !old.evidence || dt.abs() > 1.0 {
+                continue;
+            }
+            if frame.views.len() <= frame.n_views {
+                frame.views.push(ViewData::new());
+            }
+            let vd = &mut frame.views[frame.n_views];
+            vd.view = old.view;
+            vd.dt = dt;
+            vd.to_image = old.to_image;
+            vd.height = old.height;
+            vd.width = old.width;
+            vd.maps.clone_from(&old.maps);
+            vd.moments.clone_from(&old.moments);
+            vd.evidence = old.evidence;
+            vd.bridged = true;
+            frame.n_views += 1;
+        }
     }
 
     /// The body's velocity at frame `t` (metres per second): the central difference of
@@ -436,8 +473,10 @@ impl FusedWindow {
         };
         f.pose
             .joints_into(&self.dict, m, &mut self.shape, &mut e.joints);
-        if lag == self.settings.lag && f.usable_views() >= 3 {
-            for vd in f.views().iter().filter(|v| v.usable()) {
+        // The cameras' own views (not those bridged from the frame before).
+        let sent = |v: &&ViewData| v.usable() && !v.bridged;
+        if lag == self.settings.lag && f.views().iter().filter(sent).count() >= 3 {
+            for vd in f.views().iter().filter(sent) {
                 let r = residual(&self.cameras[vd.view], vd, &e.joints, &mut self.scratch);
                 self.residuals[vd.view].add(r);
             }
@@ -480,6 +519,7 @@ impl FusedWindow {
 fn fill(vd: &mut ViewData, v: &ViewMaps<'_>, p: usize) -> Result<(), EstimateError> {
     vd.view = v.view;
     vd.dt = v.dt;
+    vd.bridged = false;
     vd.to_image = v.to_image;
     vd.height = v.height;
     vd.width = v.width;
