@@ -938,3 +938,196 @@ fn the_fusion_node_refuses_what_it_cannot_use_and_says_why() {
         assert!(!stderr.contains("panicked"), "{stderr}");
     }
 }
+
+/// One message of a room's recording, any topic.
+enum Recorded {
+    Maps(posestream::msgs::HeatMaps),
+    Info(posestream::msgs::sensor::CameraInfo),
+    Tf(posestream::msgs::tf::TFMessage),
+    Truth(posestream::msgs::Skeleton3D),
+}
+
+/// Every message of room recording `path` (up to three cameras), in log-time order.
+fn room_messages(path: &std::path::Path) -> Vec<(u64, String, Recorded)> {
+    use posestream::recording::read_topic;
+    let mut all = Vec::new();
+    let topic = |t: &str| t.to_string();
+    for (t, m) in read_topic(path, "/tf_static").expect("tf") {
+        all.push((t, topic("/tf_static"), Recorded::Tf(m)));
+    }
+    for c in 0..3 {
+        let info = format!("/cam{c}/camera/camera_info");
+        for (t, m) in read_topic(path, &info).unwrap_or_default() {
+            all.push((t, info.clone(), Recorded::Info(m)));
+        }
+        let maps = format!("/cam{c}/posestream/heatmaps");
+        for (t, m) in read_topic(path, &maps).unwrap_or_default() {
+            all.push((t, maps.clone(), Recorded::Maps(m)));
+        }
+    }
+    for (t, m) in read_topic(path, "/posestream/ground_truth").expect("truth") {
+        all.push((t, topic("/posestream/ground_truth"), Recorded::Truth(m)));
+    }
+    all.sort_by_key(|m| m.0);
+    all
+}
+
+fn write_room(path: &std::path::Path, messages: &[(u64, String, Recorded)]) {
+    let mut rec = posestream::recording::Recorder::create(path).expect("create");
+    for (t, topic, m) in messages {
+        match m {
+            Recorded::Maps(m) => rec.write(topic, *t, m),
+            Recorded::Info(m) => rec.write(topic, *t, m),
+            Recorded::Tf(m) => rec.write(topic, *t, m),
+            Recorded::Truth(m) => rec.write(topic, *t, m),
+        }
+        .expect("write");
+    }
+    rec.finish().expect("finish");
+}
+
+fn fuse_json(config: &std::path::Path, room: &std::path::Path, truth: bool) -> serde_json::Value {
+    let mut args = vec![
+        "fuse",
+        "--config",
+        s(config),
+        "--recording",
+        s(room),
+        "--json",
+    ];
+    if truth {
+        args.push("--truth");
+    }
+    json_of(&posestream(&args))
+}
+
+#[test]
+fn a_refused_frame_takes_no_place_in_its_fused_frame() {
+    // Camera 0's heat maps with a quantisation scale that is not a number: each is
+    // refused, and none may be fused (the fused frame kept a place for it, with the
+    // scores a frame before had left there: 321 mm).
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (room, config) = recorded_room(dir.path(), 3, "");
+    let mut messages = room_messages(&room);
+    for (_, topic, m) in &mut messages {
+        if let (true, Recorded::Maps(m)) = (topic.starts_with("/cam0/"), m) {
+            m.quantization_scale = f32::NAN;
+        }
+    }
+    let bad = dir.path().join("bad.mcap");
+    write_room(&bad, &messages);
+    let report = fuse_json(&config, &bad, true);
+    assert_eq!(report["refused"]["invalid"], 276, "{report}");
+    assert_eq!(report["cameras"][0]["used"], 0, "{report}");
+    assert_eq!(
+        report["refused"].as_object().map(|r| r.len()),
+        Some(1),
+        "{report}"
+    );
+    // Two cameras left: measured 63 mm.
+    assert!(
+        report["truth"]["mpjpe_mm"].as_f64() <= Some(80.0),
+        "{report}"
+    );
+}
+
+#[test]
+fn a_camera_clock_far_off_is_refused_and_a_replay_that_starts_again_is_fused_again() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (room, config) = recorded_room(dir.path(), 3, "");
+    let messages = room_messages(&room);
+    // Camera 2 stamps its frames 100 s ahead (logged when they come): refused, the
+    // others fused as without it.
+    let mut ahead = room_messages(&room);
+    for (_, topic, m) in &mut ahead {
+        if let (true, Recorded::Maps(m)) = (topic.starts_with("/cam2/"), m) {
+            m.header.stamp =
+                posestream::msgs::Time::from_nanos(m.header.stamp.nanos() + 100_000_000_000);
+        }
+    }
+    let path = dir.path().join("ahead.mcap");
+    write_room(&path, &ahead);
+    let report = fuse_json(&config, &path, true);
+    assert_eq!(report["refused"]["clock"], 406, "{report}");
+    assert_eq!(report["counters"]["restarts"], 0, "{report}");
+    // Two cameras, camera 0 losing the people at its image's edge: a third of the
+    // frames from camera 1 alone (measured: 86 mm).
+    assert!(
+        report["truth"]["mpjpe_mm"].as_f64() <= Some(120.0),
+        "{report}"
+    );
+    // The room twice, the second time with the capture times it had the first (a
+    // replay started again): the fused frames start again, and it is fused again.
+    let end = messages.last().expect("messages").0;
+    let mut twice: Vec<(u64, String, Recorded)> = Vec::new();
+    for pass in 0..2u64 {
+        for (t, topic, m) in room_messages(&room) {
+            if pass == 1 && matches!(m, Recorded::Truth(_) | Recorded::Tf(_)) {
+                continue;
+            }
+            twice.push((t + pass * (end + 1_000_000_000), topic, m));
+        }
+    }
+    let path = dir.path().join("twice.mcap");
+    write_room(&path, &twice);
+    let report = fuse_json(&config, &path, false);
+    assert_eq!(report["counters"]["restarts"], 1, "{report}");
+    // All but the frame or two that came before most cameras had started again.
+    let fused = report["counters"]["fused"].as_u64().expect("fused");
+    assert!(fused >= 2 * 203 - 4, "{report}");
+}
+
+#[test]
+fn fuse_refuses_to_record_over_its_input_a_device_or_a_truth_that_is_not_there() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (room, config) = recorded_room(dir.path(), 1, "");
+    let size = std::fs::metadata(&room).expect("room").len();
+    for (args, said) in [
+        (vec!["--record", s(&room)], "is the recording read"),
+        (vec!["--record", "/dev/null"], "not a regular file"),
+    ] {
+        let mut all = vec!["fuse", "--config", s(&config), "--recording", s(&room)];
+        all.extend(args);
+        let out = posestream(&all);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{all:?}");
+        assert!(stderr.contains(said), "{stderr}");
+    }
+    assert_eq!(std::fs::metadata(&room).expect("room").len(), size);
+    {
+        use std::os::unix::fs::FileTypeExt;
+        let null = std::path::Path::new("/dev/null").metadata().expect("null");
+        assert!(
+            null.file_type().is_char_device(),
+            "/dev/null is still a device"
+        );
+    }
+    // No truth in it: one error before any work.
+    let without: Vec<_> = room_messages(&room)
+        .into_iter()
+        .filter(|m| !matches!(m.2, Recorded::Truth(_)))
+        .collect();
+    let path = dir.path().join("without.mcap");
+    write_room(&path, &without);
+    let out = posestream(&[
+        "fuse",
+        "--config",
+        s(&config),
+        "--recording",
+        s(&path),
+        "--truth",
+    ]);
+    assert!(!out.status.success());
+    assert!(out.stdout.is_empty());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("--truth") && stderr.contains("no messages on this topic"),
+        "{stderr}"
+    );
+    // Cut short: what is readable is fused and scored.
+    let bytes = std::fs::read(&room).expect("room");
+    let cut = dir.path().join("cut.mcap");
+    std::fs::write(&cut, &bytes[..bytes.len() - 1]).expect("write");
+    let report = fuse_json(&config, &cut, true);
+    assert!(report["truth"]["frames"].as_u64() > Some(150), "{report}");
+}

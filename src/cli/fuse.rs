@@ -9,11 +9,13 @@ use clap::Args;
 use posestream::Estimator;
 use posestream::mocap::rooms;
 use posestream::msgs::Skeleton3D;
+use posestream::nodes::config::ServiceConfig;
 use posestream::nodes::config::Transport;
 use posestream::nodes::fusion::FusionNode;
 use posestream::nodes::service::Wiring;
 use posestream::nodes::service::fusion::{FusionInput, FusionOutputs, FusionReport, run_fusion};
-use posestream::recording::read_topic;
+use posestream::transport::mcap::McapSource;
+use posestream::transport::{Received, Source};
 
 use super::CliError;
 use super::service::{Summary, print, stop_after, stop_flag};
@@ -52,6 +54,17 @@ pub fn run(args: &FuseArgs) -> Result<(), CliError> {
     if let Some(record) = &args.record {
         config.outputs.record = record.clone();
     }
+    // The output would replace the input when finished.
+    if let Some(input) = &args.recording
+        && !config.outputs.record.as_os_str().is_empty()
+        && same_file(input, &config.outputs.record)
+    {
+        return Err(CliError::Usage(format!(
+            "--record {} is the recording read (--recording): it would be replaced; \
+             record to another file",
+            config.outputs.record.display()
+        )));
+    }
     if config.fusion.cameras.is_empty() {
         return Err(CliError::Usage(
             "no cameras to fuse: name them in the configuration's [fusion] cameras \
@@ -59,6 +72,11 @@ pub fn run(args: &FuseArgs) -> Result<(), CliError> {
                 .into(),
         ));
     }
+    // The truth first: a run that cannot be scored is not started.
+    let truth = match args.recording.as_ref().filter(|_| args.truth) {
+        Some(path) => Some(read_truth(&config, path)?),
+        None => None,
+    };
     let stop = stop_flag();
     let dict = posestream::msgs::shipped::load_dictionary(&config.estimator.dictionary)?;
     let estimator = Estimator::new(dict, config.estimator.params.clone())?;
@@ -81,14 +99,9 @@ pub fn run(args: &FuseArgs) -> Result<(), CliError> {
     }
     stop_after(args.duration, &stop);
     let mut report = run_fusion(&mut node, input, &mut outputs, &stop);
-    if let Some(path) = args.recording.as_ref().filter(|_| args.truth) {
-        let truth: Vec<Skeleton3D> = read_topic(path, &config.topics.ground_truth)
-            .map_err(|e| CliError::Failed(format!("--truth: {e}")))?
-            .into_iter()
-            .map(|(_, m)| m)
-            .collect();
+    if let Some(truth) = &truth {
         report.truth = Some(rooms::score_skeletons(
-            &truth,
+            truth,
             &outputs.kept(),
             node.lag(),
             node.root(),
@@ -105,14 +118,17 @@ impl Summary for FusionReport {
         let c = &self.counters;
         let mut text = format!(
             "{} heat-map messages -> {} fused frames, {} skeletons of {} people ({} camera \
-             tracks matched to nobody); {} refused; update median {:.2} ms, p99 {:.2} ms; \
-             {} failed sends",
+             tracks matched to nobody, {} frames replaced by a nearer one, {} restarts); \
+             {} refused {:?}; update median {:.2} ms, p99 {:.2} ms; {} failed sends",
             c.frames,
             c.fused,
             c.skeletons,
             c.people,
             c.unmatched,
+            c.superseded,
+            c.restarts,
             self.refused.total(),
+            self.refused,
             self.update.median_ms,
             self.update.p99_ms,
             self.failed_sends
@@ -155,5 +171,58 @@ impl Summary for FusionReport {
             text.push_str(&format!("\ninput ended early: {e}"));
         }
         text
+    }
+}
+
+/// Whether `a` and `b` name one file (both there and the same once resolved).
+fn same_file(a: &std::path::Path, b: &std::path::Path) -> bool {
+    match (std::fs::canonicalize(a), std::fs::canonicalize(b)) {
+        (Ok(a), Ok(b)) => a == b,
+        _ => false,
+    }
+}
+
+/// The truth of a room's recording (`topics.ground_truth`), read as the inputs are (past
+/// damage unless `replay.strict`): one error if there is none, or it is in another frame
+/// than the skeletons'.
+fn read_truth(config: &ServiceConfig, path: &std::path::Path) -> Result<Vec<Skeleton3D>, CliError> {
+    let topic = &config.topics.ground_truth;
+    let failed = |e: &dyn std::fmt::Display| CliError::Failed(format!("--truth: {e}"));
+    let mut source = config
+        .replay
+        .source(
+            McapSource::<Skeleton3D>::open_with_limit(path, topic, config.limits.max_record_bytes)
+                .map_err(|e| failed(&e))?,
+        )
+        .map_err(|e| failed(&e))?;
+    let mut truth = Vec::new();
+    loop {
+        match source.recv(Duration::ZERO) {
+            Ok(Received::Message(m, _)) => truth.push(m),
+            Ok(Received::Idle) => {}
+            Ok(Received::Closed) => break,
+            // What was read before the damage is kept, as for the inputs.
+            Err(e) if !truth.is_empty() && !config.replay.strict => {
+                tracing::warn!("--truth: {e}; scored against the truth read before it");
+                break;
+            }
+            Err(e) => return Err(failed(&e)),
+        }
+    }
+    let world = config.fusion.world_frame.trim_start_matches('/');
+    match truth.first() {
+        None => Err(CliError::Usage(format!(
+            "--truth: {} has no truth on {topic} (a room written by `posestream scenes \
+             --rooms --record` has)",
+            path.display()
+        ))),
+        Some(t) if t.header.frame_id.trim_start_matches('/') != world => {
+            Err(CliError::Usage(format!(
+                "--truth: the truth is in frame {:?}, the skeletons in {world:?} \
+                 ([fusion] world_frame)",
+                t.header.frame_id
+            )))
+        }
+        Some(_) => Ok(truth),
     }
 }

@@ -57,6 +57,8 @@ struct Camera {
     /// The newest capture time sent, and when (the input's clock) it last sent.
     newest_ns: Option<i64>,
     heard_ns: Option<i64>,
+    /// When (the input's clock) its last frame far from the fused frames' time came.
+    off_clock_ns: Option<i64>,
     /// Frames taken and frames its views were used in.
     frames: u64,
     used: u64,
@@ -107,6 +109,11 @@ pub struct FusionCounters {
     pub people: u64,
     /// Camera tracks in fused frames that were matched to nobody.
     pub unmatched: u64,
+    /// Frames that a nearer frame of the same camera and track replaced in their fused
+    /// frame (a camera faster than `frame_rate`, or two people under one id).
+    pub superseded: u64,
+    /// Times the fused frames started again (the capture times jumped).
+    pub restarts: u64,
 }
 
 /// One camera in the node's report.
@@ -152,6 +159,8 @@ pub struct FusionNode {
     next_index: i64,
     pending: VecDeque<Pending>,
     spare_frames: Vec<TrackFrame>,
+    /// A message's scores, decoded before its frame takes a place (then swapped in).
+    decoded: Vec<f32>,
     matcher: Matcher,
     windows: BTreeMap<u64, FusedWindow>,
     /// Residuals of the people forgotten.
@@ -203,6 +212,7 @@ impl FusionNode {
                 pose: configured_pose,
                 newest_ns: None,
                 heard_ns: None,
+                off_clock_ns: None,
                 frames: 0,
                 used: 0,
             });
@@ -236,6 +246,7 @@ impl FusionNode {
             next_index: 0,
             pending: VecDeque::new(),
             spare_frames: Vec::new(),
+            decoded: Vec::new(),
             matcher,
             windows: BTreeMap::new(),
             ended_residuals: vec![ViewResidual::default(); n],
@@ -471,10 +482,59 @@ impl FusionNode {
                 },
             });
         }
+        if msg.track_id == 0 {
+            return Err(refuse(format!(
+                "camera {}: track id 0 (unknown): the fusion matches each camera's tracks, \
+                 which need ids of their own (the detector's tracker gives them)",
+                c.name
+            )));
+        }
+        // The scores, dequantised and checked before the frame takes a place.
+        msg.values_into(&mut self.decoded)?;
+        let cells = msg.joint_names.len() * msg.height as usize * msg.width as usize;
+        if self.decoded.len() != cells || cells == 0 {
+            return Err(refuse(format!(
+                "camera {}: {} scores for {} maps of {} x {}",
+                c.name,
+                self.decoded.len(),
+                msg.joint_names.len(),
+                msg.height,
+                msg.width
+            )));
+        }
         let stamp = msg.header.stamp.nanos();
-        let epoch = *self.epoch_ns.get_or_insert(stamp);
-        // The nearest fused frame (half a period rounds up).
-        let index = (stamp - epoch + self.period_ns / 2).div_euclid(self.period_ns);
+        let (mut index, mut offset_ns) = self.place(stamp);
+        // A frame far from the fused frames' time: a camera with a clock of its own (its
+        // frames refused while the others send on time), or the time started again (a
+        // replay, a clock reset: once most cameras say so, the fused frames start again).
+        let far = MAX_PENDING as i64;
+        if index < self.next_index - far || index > self.next_index + far {
+            self.cameras[camera].off_clock_ns = Some(now_ns);
+            let recent = |t: Option<i64>| t.is_some_and(|t| now_ns - t < self.wait_ns.max(1));
+            let off = self
+                .cameras
+                .iter()
+                .filter(|c| recent(c.off_clock_ns))
+                .count();
+            let on = self
+                .cameras
+                .iter()
+                .filter(|c| recent(c.heard_ns) && !recent(c.off_clock_ns))
+                .count();
+            if off > on {
+                self.restart();
+                (index, offset_ns) = self.place(stamp);
+            } else {
+                let c = &self.cameras[camera];
+                let seconds = (index - self.next_index) as f64 * self.period_ns as f64 * 1e-9;
+                return Err(NodeError::Clock {
+                    sequence,
+                    camera: c.name.clone(),
+                    seconds,
+                });
+            }
+        }
+        let c = &mut self.cameras[camera];
         if index < self.next_index {
             return Err(NodeError::Late {
                 sequence,
@@ -482,12 +542,11 @@ impl FusionNode {
                 behind_ms: (self.next_index - index) as f64 * self.period_ns as f64 * 1e-6,
             });
         }
+        c.off_clock_ns = None;
         c.newest_ns = Some(c.newest_ns.map_or(stamp, |n| n.max(stamp)));
         c.heard_ns = Some(now_ns);
         c.frames += 1;
         self.counters.frames += 1;
-        let mut index = index;
-        let mut offset_ns = stamp - (epoch + index * self.period_ns);
         // A camera whose clock runs about half a frame off the fused frames' puts two
         // frames in one and none in the next: the later goes to the next.
         if let Some(slot) = self.pending.iter().find(|s| s.index == index)
@@ -515,14 +574,21 @@ impl FusionNode {
             }
         };
         let slot = &mut self.pending[p];
-        // A second frame of the track in this fused frame: the nearer one stays.
+        // A second frame of the track in this fused frame (a camera faster than
+        // `frame_rate`): the nearer one stays, the other is counted.
         let frame = match slot
             .frames
             .iter()
             .position(|f| f.camera == camera && f.track == msg.track_id)
         {
-            Some(i) if slot.frames[i].offset_ns.abs() <= offset_ns.abs() => return Ok(()),
-            Some(i) => &mut slot.frames[i],
+            Some(i) if slot.frames[i].offset_ns.abs() <= offset_ns.abs() => {
+                self.counters.superseded += 1;
+                return Ok(());
+            }
+            Some(i) => {
+                self.counters.superseded += 1;
+                &mut slot.frames[i]
+            }
             None => {
                 // At most max_people tracks per camera and fused frame.
                 let per_camera = slot.frames.iter().filter(|f| f.camera == camera).count();
@@ -544,8 +610,47 @@ impl FusionNode {
         frame.crop = Some(crop);
         frame.height = msg.height as usize;
         frame.width = msg.width as usize;
-        msg.values_into(&mut frame.values)?;
+        std::mem::swap(&mut frame.values, &mut self.decoded);
         Ok(())
+    }
+
+    /// The fused frame nearest capture time `stamp` (the first stamp heard starts fused
+    /// frame 0; half a period rounds up) and the offset from it, nanoseconds.
+    fn place(&mut self, stamp: i64) -> (i64, i64) {
+        let epoch = *self.epoch_ns.get_or_insert(stamp);
+        let index = (stamp - epoch + self.period_ns / 2).div_euclid(self.period_ns);
+        (index, stamp - (epoch + index * self.period_ns))
+    }
+
+    /// The time started again: the fused frames waiting, the people and the cameras'
+    /// clocks are forgotten (their residuals stay counted); the next frame starts fused
+    /// frame 0.
+    fn restart(&mut self) {
+        tracing::warn!(
+            "the cameras' capture times jumped (a replay started again, a clock reset): the \
+             fused frames start again"
+        );
+        self.counters.restarts += 1;
+        for mut slot in self.pending.drain(..) {
+            self.spare_frames.append(&mut slot.frames);
+        }
+        let ended = &mut self.ended_residuals;
+        for (_, w) in std::mem::take(&mut self.windows) {
+            for (a, r) in ended.iter_mut().zip(w.residuals()) {
+                a.merge(r);
+            }
+        }
+        // Checked when the node was made: cannot fail.
+        if let Ok(m) = Matcher::new(self.settings.matching.clone()) {
+            self.matcher = m;
+        }
+        self.epoch_ns = None;
+        self.next_index = 0;
+        for c in &mut self.cameras {
+            c.newest_ns = None;
+            c.heard_ns = None;
+            c.off_clock_ns = None;
+        }
     }
 
     /// Makes the fused frames that are due at `now_ns` (the input went quiet: call it

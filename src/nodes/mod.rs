@@ -151,6 +151,19 @@ pub enum NodeError {
         /// How far behind.
         behind_ms: f64,
     },
+    /// The fusion node: a frame whose capture time is far from the other cameras' (its
+    /// camera's clock is off).
+    #[error(
+        "frame {sequence} of camera {camera}: its capture time is {seconds:+.1} s from the other cameras' fused frames (is its clock off?); refused"
+    )]
+    Clock {
+        /// The frame.
+        sequence: u64,
+        /// Its camera.
+        camera: String,
+        /// How far, seconds (positive: ahead).
+        seconds: f64,
+    },
     /// The fusion node: a frame of a camera whose intrinsics or pose are not known yet.
     #[error(
         "frame {sequence} of camera {camera}: not calibrated yet (waiting for {what}); refused"
@@ -204,6 +217,7 @@ impl NodeError {
             Self::CameraInfo { .. } => "camera-info",
             Self::Transform { .. } => "tf",
             Self::Late { .. } => "late",
+            Self::Clock { .. } => "clock",
             Self::Uncalibrated { .. } => "uncalibrated",
             Self::Camera { .. } => "camera",
         }

@@ -132,6 +132,13 @@ impl Recorder {
         } else {
             asked.to_path_buf()
         };
+        // The finished file replaces what is there: only a file (not a device or a pipe,
+        // which the rename would destroy).
+        if std::fs::metadata(&path).is_ok_and(|m| !m.is_file()) {
+            return Err(io(std::io::Error::other(
+                "is not a regular file (a device or a pipe): give a file's path",
+            )));
+        }
         let (partial, file) = crate::files::create_partial(&path).map_err(io)?;
         let writer = WriteOptions::new()
             .profile("ros2")

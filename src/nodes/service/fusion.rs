@@ -178,7 +178,11 @@ impl FusionInput {
                 ) => node.count_refused(&e),
                 // A recording without a topic (no /tf, calibration in the configuration).
                 Err(e @ TransportError::Broken { .. }) if self.recorded && !self.yielded[i] => {
-                    tracing::info!("{}: {e}", self.feeds[i].what());
+                    match &self.feeds[i] {
+                        // A camera without heat maps fuses nothing: said.
+                        Feed::Maps(..) => tracing::warn!("heat maps: {e}"),
+                        other => tracing::info!("{}: {e}", other.what()),
+                    }
                     self.feeds[i] = Feed::Transforms(Box::new(Closed));
                     return None;
                 }

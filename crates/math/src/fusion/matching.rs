@@ -53,7 +53,7 @@ impl Default for MatchSettings {
             ray_gate: 0.2,
             peak_threshold: 0.1,
             forget_seconds: 1.0,
-            max_people: 64,
+            max_people: 12,
         }
     }
 }
