@@ -1083,7 +1083,10 @@ fn fuse_refuses_to_record_over_its_input_a_device_or_a_truth_that_is_not_there()
     let (room, config) = recorded_room(dir.path(), 1, "");
     let size = std::fs::metadata(&room).expect("room").len();
     for (args, said) in [
-        (vec!["--record", s(&room)], "is the recording read"),
+        (
+            vec!["--record", s(&room)],
+            "the output is an input of this run",
+        ),
         (vec!["--record", "/dev/null"], "not a regular file"),
     ] {
         let mut all = vec!["fuse", "--config", s(&config), "--recording", s(&room)];

@@ -57,20 +57,9 @@ pub fn run(args: &FuseArgs) -> Result<(), CliError> {
     // The output would replace the input when finished.
     if let Some(input) = &args.recording
         && !config.outputs.record.as_os_str().is_empty()
-        && same_file(input, &config.outputs.record)
     {
-        return Err(CliError::Usage(format!(
-            "--record {} is the recording read (--recording): it would be replaced; \
-             record to another file",
-            config.outputs.record.display()
-        )));
-    }
-    if config.fusion.cameras.is_empty() {
-        return Err(CliError::Usage(
-            "no cameras to fuse: name them in the configuration's [fusion] cameras \
-             (docs/fusion.md, \"The service\")"
-                .into(),
-        ));
+        posestream::files::check_output(&config.outputs.record, &[input.as_path()])
+            .map_err(|e| CliError::Usage(e.to_string()))?;
     }
     // The truth first: a run that cannot be scored is not started.
     let truth = match args.recording.as_ref().filter(|_| args.truth) {
@@ -171,14 +160,6 @@ impl Summary for FusionReport {
             text.push_str(&format!("\ninput ended early: {e}"));
         }
         text
-    }
-}
-
-/// Whether `a` and `b` name one file (both there and the same once resolved).
-fn same_file(a: &std::path::Path, b: &std::path::Path) -> bool {
-    match (std::fs::canonicalize(a), std::fs::canonicalize(b)) {
-        (Ok(a), Ok(b)) => a == b,
-        _ => false,
     }
 }
 
