@@ -1134,3 +1134,139 @@ fn fuse_refuses_to_record_over_its_input_a_device_or_a_truth_that_is_not_there()
     let report = fuse_json(&config, &cut, true);
     assert!(report["truth"]["frames"].as_u64() > Some(150), "{report}");
 }
+
+#[test]
+fn the_fusion_node_takes_the_cameras_poses_from_tf_static_over_ros2() {
+    use std::io::{BufRead, BufReader};
+    use std::process::{Command, Stdio};
+    use std::time::{Duration, Instant};
+
+    use posestream::msgs::{HeatMaps, Skeleton3D};
+    use posestream::nodes::config::ServiceConfig;
+    use posestream::nodes::service::Middleware;
+    use posestream::transport::Sink;
+
+    let dir = tempfile::tempdir().expect("tempdir");
+    let room = dir.path().join("room.mcap");
+    let made = posestream(&["scenes", "--rooms", "--record", s(&room), "--room", "3"]);
+    assert!(
+        made.status.success(),
+        "{}",
+        String::from_utf8_lossy(&made.stderr)
+    );
+    // A domain of this test's own, on loopback.
+    let domain = (std::process::id() % 80) as u16 + 20;
+    let out = dir.path().join("fused.mcap");
+    let written = std::fs::read_to_string(format!("{}.toml", room.display())).expect("toml");
+    let config = dir.path().join("fuse.toml");
+    std::fs::write(
+        &config,
+        format!(
+            "{written}\n[outputs]\nros2 = true\nmarkers = false\nrecord = {:?}\n\
+             [ros]\ndomain_id = {domain}\nlocalhost_only = true\n",
+            s(&out)
+        ),
+    )
+    .expect("write");
+    // The cameras' poses, latched on /tf_static by another ROS 2 stack (Python's
+    // cyclonedds, as tf2's static broadcaster publishes them) before the fusion starts.
+    let mut publisher = Command::new(common::python())
+        .arg(common::root().join("tests/python/ros2_tf_static_publisher.py"))
+        .arg(domain.to_string())
+        .arg(&room)
+        .arg("60")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .expect("python runs (.ci/run installs cyclonedds, mcap and rosbags)");
+    let (line_tx, lines) = std::sync::mpsc::channel();
+    let stdout = publisher.stdout.take().expect("stdout");
+    common::spawn("tf-publisher-stdout", move || {
+        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+            let _ = line_tx.send(line);
+        }
+    });
+    let wait_for = |wanted: &str| {
+        let until = Instant::now() + Duration::from_secs(60);
+        loop {
+            let left = until.saturating_duration_since(Instant::now());
+            match lines.recv_timeout(left) {
+                Ok(line) if line.starts_with(wanted) => return,
+                Ok(_) => {}
+                Err(e) => panic!("no {wanted:?} from the TF publisher: {e}"),
+            }
+        }
+    };
+    wait_for("published");
+    let fuse = Command::new(env!("CARGO_BIN_EXE_posestream"))
+        .current_dir(common::root())
+        .env_remove("ROS_DOMAIN_ID")
+        .env_remove("ROS_LOCALHOST_ONLY")
+        .args(["fuse", "--config", s(&config), "--json"])
+        .stdout(Stdio::piped())
+        .spawn()
+        .expect("fuse starts");
+    wait_for("matched");
+    // The three cameras' heat maps over ROS 2 at their recorded pace, from this process.
+    let mut cameras = ServiceConfig::default();
+    cameras.ros.domain_id = domain;
+    cameras.ros.localhost_only = true;
+    cameras.ros.node_name = "cameras".into();
+    let middleware = Middleware::open(&cameras, None).expect("middleware");
+    let ros = middleware.ros.clone().expect("ros");
+    let topics: Vec<String> = (0..3)
+        .map(|c| format!("/cam{c}/posestream/heatmaps"))
+        .collect();
+    let mut sinks: Vec<_> = topics
+        .iter()
+        .map(|t| ros.sink::<HeatMaps>(t).expect("sink"))
+        .collect();
+    let start = Instant::now();
+    while topics.iter().any(|t| ros.subscriptions(t) == 0) {
+        assert!(
+            start.elapsed() < Duration::from_secs(30),
+            "no fusion discovered"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    std::thread::sleep(ros.match_settle());
+    let mut maps: Vec<(u64, usize, HeatMaps)> = Vec::new();
+    for (c, topic) in topics.iter().enumerate() {
+        for (t, m) in posestream::recording::read_topic::<HeatMaps>(&room, topic).expect("maps") {
+            maps.push((t, c, m));
+        }
+    }
+    maps.sort_by_key(|m| m.0);
+    let (first, start) = (maps[0].0, Instant::now());
+    for (t, c, m) in &maps {
+        let due = Duration::from_nanos(t - first);
+        if let Some(wait) = due.checked_sub(start.elapsed()) {
+            std::thread::sleep(wait);
+        }
+        sinks[*c].send(m, *t).expect("sent");
+    }
+    std::thread::sleep(Duration::from_secs(2));
+    let ok = Command::new("kill")
+        .args(["-INT", &fuse.id().to_string()])
+        .status()
+        .expect("kill")
+        .success();
+    assert!(ok);
+    let done = fuse.wait_with_output().expect("fuse");
+    let _ = publisher.kill();
+    let _ = publisher.wait();
+    drop(sinks);
+    drop(middleware);
+    let report = json_of(&done);
+    assert_eq!(report["counters"]["frames"], 1088, "{report}");
+    assert_eq!(report["counters"]["fused"], 203, "{report}");
+    assert_eq!(report["refused"], serde_json::json!({}), "{report}");
+    let fused: Vec<Skeleton3D> = common::messages(&out, "/posestream/skeletons");
+    let truth: Vec<Skeleton3D> = common::messages(&room, "/posestream/ground_truth");
+    let scores = rooms::score_skeletons(&truth, &fused, 10, mapping().layout.root());
+    // As from the recording: 62 mm.
+    assert!(
+        scores.mpjpe_mm <= 80.0 && scores.frames >= 380,
+        "{scores:?}"
+    );
+}
