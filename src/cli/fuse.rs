@@ -54,6 +54,13 @@ pub fn run(args: &FuseArgs) -> Result<(), CliError> {
     if let Some(record) = &args.record {
         config.outputs.record = record.clone();
     }
+    if config.fusion.cameras.is_empty() {
+        return Err(CliError::Usage(
+            "no cameras to fuse: name them in the configuration's [fusion] cameras \
+             (docs/fusion.md, \"The service\")"
+                .into(),
+        ));
+    }
     // The output would replace the input when finished.
     if let Some(input) = &args.recording
         && !config.outputs.record.as_os_str().is_empty()
