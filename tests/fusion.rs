@@ -1072,9 +1072,14 @@ fn a_camera_clock_far_off_is_refused_and_a_replay_that_starts_again_is_fused_aga
     write_room(&path, &twice);
     let report = fuse_json(&config, &path, false);
     assert_eq!(report["counters"]["restarts"], 1, "{report}");
-    // All but the frame or two that came before most cameras had started again.
+    // All but the frames before most cameras had said so for 15 frames (measured: 42
+    // camera frames refused as late, 399 of 406 fused frames made).
     let fused = report["counters"]["fused"].as_u64().expect("fused");
-    assert!(fused >= 2 * 203 - 4, "{report}");
+    assert!(fused >= 2 * 203 - 12, "{report}");
+    assert!(
+        report["refused"]["late"].as_u64() <= Some(3 * 30),
+        "{report}"
+    );
 }
 
 #[test]

@@ -611,7 +611,7 @@ impl FusionConfig {
             ));
         }
         crate::error::check_real("frame_rate", self.frame_rate, 0.1, 1000.0, false)?;
-        crate::error::check_real("wait", self.wait, 0.0, 10.0, false)
+        crate::error::check_real("wait", self.wait, 0.0, 10.0, true)
     }
 }
 

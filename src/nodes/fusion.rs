@@ -40,6 +40,18 @@ use crate::streaming::Scores;
 /// Fused frames waiting at most: a frame further ahead makes the oldest ones now.
 const MAX_PENDING: usize = 64;
 
+/// Frames in a row far from the fused frames' time that make a camera say the time
+/// jumped (fewer: a stray stamp, refused).
+const JUMP_FRAMES: usize = 15;
+
+/// What became of a frame.
+enum Taken {
+    /// It waits in its fused frame (or was replaced there by a nearer one).
+    Frame,
+    /// Most cameras' time jumped: the fused frames start again (it was not taken).
+    Restart,
+}
+
 /// Camera frames waiting in them at most (each at most `[limits]`' frame): more make
 /// the oldest fused frames now.
 const MAX_BUFFERED: usize = 256;
@@ -57,8 +69,9 @@ struct Camera {
     /// The newest capture time sent, and when (the input's clock) it last sent.
     newest_ns: Option<i64>,
     heard_ns: Option<i64>,
-    /// When (the input's clock) its last frame far from the fused frames' time came.
-    off_clock_ns: Option<i64>,
+    /// Frames in a row far from the fused frames' time, and when (the input's clock) the
+    /// last came.
+    off_clock: (usize, Option<i64>),
     /// Frames taken and frames its views were used in.
     frames: u64,
     used: u64,
@@ -212,7 +225,7 @@ impl FusionNode {
                 pose: configured_pose,
                 newest_ns: None,
                 heard_ns: None,
-                off_clock_ns: None,
+                off_clock: (0, None),
                 frames: 0,
                 used: 0,
             });
@@ -293,11 +306,7 @@ impl FusionNode {
 
     /// Counts a message its transport refused.
     pub fn count_refused(&mut self, error: &crate::transport::TransportError) {
-        let kind = match error {
-            crate::transport::TransportError::BeyondLimits { .. } => "beyond-limits",
-            _ => "undecodable",
-        };
-        self.refused.note(kind, error);
+        self.refused.note(super::transport_refusal(error), error);
     }
 
     /// Each camera: calibration, frames, residual against the fused poses, whether its
@@ -336,13 +345,7 @@ impl FusionNode {
     /// first time, its frame id. A calibration that cannot be used is refused
     /// (`camera-info`).
     pub fn camera_info(&mut self, camera: usize, info: &CameraInfo) {
-        let k = &info.k;
-        let result = Intrinsics::new(k[0], k[4], k[2], k[5]).and_then(|intrinsics| {
-            self.limits
-                .image(u64::from(info.width), u64::from(info.height))
-                .map_err(|e| e.to_string())?;
-            Ok(intrinsics)
-        });
+        let result = super::calibration(info, &self.limits).map(|(intrinsics, _)| intrinsics);
         let Some(c) = self.cameras.get_mut(camera) else {
             return;
         };
@@ -420,20 +423,27 @@ impl FusionNode {
         now_ns: i64,
         out: &mut Vec<Skeleton3D>,
     ) -> Result<(), NodeError> {
-        let taken = self.take(camera, msg, now_ns);
+        let mut taken = self.take(camera, msg, now_ns);
+        if let Ok(Taken::Restart) = taken {
+            // What waits is fused first; then the fused frames start from this one.
+            self.finish(out);
+            self.restart();
+            taken = self.take(camera, msg, now_ns);
+        }
         if let Err(e) = &taken {
             self.refused.note(e.kind(), e);
         }
         self.step(now_ns, out);
-        taken
+        taken.map(|_| ())
     }
 
-    fn take(&mut self, camera: usize, msg: &HeatMaps, now_ns: i64) -> Result<(), NodeError> {
+    fn take(&mut self, camera: usize, msg: &HeatMaps, now_ns: i64) -> Result<Taken, NodeError> {
         let sequence = msg.sequence;
         let refuse = |reason: String| NodeError::Camera { sequence, reason };
-        let Some(c) = self.cameras.get_mut(camera) else {
+        let Some(c) = self.cameras.get(camera) else {
             return Err(refuse(format!("no camera {camera}")));
         };
+        let name = c.name.clone();
         self.limits
             .heatmap_values(
                 msg.joint_names.len() as u64,
@@ -449,28 +459,46 @@ impl FusionNode {
             });
         }
         let crop = msg.crop()?;
+        if msg.track_id == 0 {
+            return Err(refuse(format!(
+                "camera {name}: track id 0 (unknown): the fusion matches each camera's \
+                 tracks, which need ids of their own (the detector's tracker gives them)"
+            )));
+        }
+        // The scores, dequantised and checked before the frame changes anything.
+        msg.values_into(&mut self.decoded)?;
+        let cells = msg.joint_names.len() * msg.height as usize * msg.width as usize;
+        if self.decoded.len() != cells || cells == 0 {
+            return Err(refuse(format!(
+                "camera {name}: {} scores for {} maps of {} x {}",
+                self.decoded.len(),
+                msg.joint_names.len(),
+                msg.height,
+                msg.width
+            )));
+        }
+        // A well-formed frame: its frame id is its camera's from now on.
         let frame = msg.header.frame_id.trim_start_matches('/');
-        match &c.frame_id {
+        match &self.cameras[camera].frame_id {
             Some(known) if known != frame => {
                 return Err(refuse(format!(
-                    "camera {}: frame id {frame:?}, not its {known:?}",
-                    c.name
+                    "camera {name}: frame id {frame:?}, not its {known:?}"
                 )));
             }
             Some(_) => {}
             None if frame.is_empty() => {
-                return Err(refuse(format!("camera {}: no frame id", c.name)));
+                return Err(refuse(format!("camera {name}: no frame id")));
             }
             None => {
-                c.frame_id = Some(frame.to_string());
+                self.cameras[camera].frame_id = Some(frame.to_string());
                 self.update_rig();
             }
         }
-        let c = &mut self.cameras[camera];
+        let c = &self.cameras[camera];
         if c.calibrated().is_none() {
             return Err(NodeError::Uncalibrated {
                 sequence,
-                camera: c.name.clone(),
+                camera: name,
                 what: match (c.intrinsics.is_some(), self.extrinsics) {
                     (false, _) => "its CameraInfo (or [fusion.intrinsics])".into(),
                     (true, ExtrinsicsSource::Tf) => format!(
@@ -482,123 +510,118 @@ impl FusionNode {
                 },
             });
         }
-        if msg.track_id == 0 {
-            return Err(refuse(format!(
-                "camera {}: track id 0 (unknown): the fusion matches each camera's tracks, \
-                 which need ids of their own (the detector's tracker gives them)",
-                c.name
-            )));
-        }
-        // The scores, dequantised and checked before the frame takes a place.
-        msg.values_into(&mut self.decoded)?;
-        let cells = msg.joint_names.len() * msg.height as usize * msg.width as usize;
-        if self.decoded.len() != cells || cells == 0 {
-            return Err(refuse(format!(
-                "camera {}: {} scores for {} maps of {} x {}",
-                c.name,
-                self.decoded.len(),
-                msg.joint_names.len(),
-                msg.height,
-                msg.width
-            )));
-        }
         let stamp = msg.header.stamp.nanos();
         let (mut index, mut offset_ns) = self.place(stamp);
-        // A frame far from the fused frames' time: a camera with a clock of its own (its
-        // frames refused while the others send on time), or the time started again (a
-        // replay, a clock reset: once most cameras say so, the fused frames start again).
+        // A frame far from the fused frames' time: its camera's clock is off (refused
+        // while the others send on time), or the time started again (a replay, a clock
+        // reset): once most cameras have sent `JUMP_FRAMES` such frames in a row, the
+        // fused frames start again.
         let far = MAX_PENDING as i64;
         if index < self.next_index - far || index > self.next_index + far {
-            self.cameras[camera].off_clock_ns = Some(now_ns);
+            let c = &mut self.cameras[camera];
+            c.off_clock = (c.off_clock.0 + 1, Some(now_ns));
             let recent = |t: Option<i64>| t.is_some_and(|t| now_ns - t < self.wait_ns.max(1));
-            let off = self
-                .cameras
-                .iter()
-                .filter(|c| recent(c.off_clock_ns))
-                .count();
+            let jumped = |c: &Camera| c.off_clock.0 >= JUMP_FRAMES && recent(c.off_clock.1);
+            let off = self.cameras.iter().filter(|c| jumped(c)).count();
             let on = self
                 .cameras
                 .iter()
-                .filter(|c| recent(c.heard_ns) && !recent(c.off_clock_ns))
+                .filter(|c| recent(c.heard_ns) && !recent(c.off_clock.1))
                 .count();
-            if off > on {
-                self.restart();
-                (index, offset_ns) = self.place(stamp);
-            } else {
-                let c = &self.cameras[camera];
+            if off > 0 && off > on {
+                return Ok(Taken::Restart);
+            }
+            if index > self.next_index {
                 let seconds = (index - self.next_index) as f64 * self.period_ns as f64 * 1e-9;
                 return Err(NodeError::Clock {
                     sequence,
-                    camera: c.name.clone(),
+                    camera: name,
                     seconds,
                 });
             }
         }
-        let c = &mut self.cameras[camera];
         if index < self.next_index {
             return Err(NodeError::Late {
                 sequence,
-                camera: c.name.clone(),
+                camera: name,
                 behind_ms: (self.next_index - index) as f64 * self.period_ns as f64 * 1e-6,
             });
         }
-        c.off_clock_ns = None;
-        c.newest_ns = Some(c.newest_ns.map_or(stamp, |n| n.max(stamp)));
-        c.heard_ns = Some(now_ns);
-        c.frames += 1;
-        self.counters.frames += 1;
-        // A camera whose clock runs about half a frame off the fused frames' puts two
-        // frames in one and none in the next: the later goes to the next.
-        if let Some(slot) = self.pending.iter().find(|s| s.index == index)
+        // A camera faster than the fused frames, or whose clock runs about half a frame
+        // off theirs, puts two frames in one and none in the next: one past the fused
+        // frame's time, where one before it is there already, goes to the next.
+        if offset_ns > 0
+            && let Some(slot) = self.pending.iter().find(|s| s.index == index)
             && slot
                 .frames
                 .iter()
-                .any(|f| f.camera == camera && f.track == msg.track_id && f.offset_ns < offset_ns)
+                .any(|f| f.camera == camera && f.track == msg.track_id && f.offset_ns < 0)
         {
             index += 1;
             offset_ns -= self.period_ns;
         }
-        let p = match self.pending.iter().position(|s| s.index >= index) {
-            Some(p) if self.pending[p].index == index => p,
-            at => {
-                let at = at.unwrap_or(self.pending.len());
-                self.pending.insert(
-                    at,
-                    Pending {
-                        index,
-                        first_heard_ns: now_ns,
-                        frames: Vec::new(),
-                    },
-                );
-                at
+        let p = self.pending.iter().position(|s| s.index >= index);
+        let existing = p.filter(|&p| self.pending[p].index == index).and_then(|p| {
+            self.pending[p]
+                .frames
+                .iter()
+                .position(|f| f.camera == camera && f.track == msg.track_id)
+                .map(|i| (p, i))
+        });
+        if existing.is_none() {
+            // At most max_people tracks per camera and fused frame.
+            let per_camera = p
+                .filter(|&p| self.pending[p].index == index)
+                .map_or(0, |p| {
+                    self.pending[p]
+                        .frames
+                        .iter()
+                        .filter(|f| f.camera == camera)
+                        .count()
+                });
+            if per_camera >= self.settings.matching.max_people {
+                return Err(refuse(format!(
+                    "camera {name}: more than {} tracks in one frame \
+                     (estimator.fusion.matching.max_people)",
+                    self.settings.matching.max_people
+                )));
             }
-        };
-        let slot = &mut self.pending[p];
-        // A second frame of the track in this fused frame (a camera faster than
-        // `frame_rate`): the nearer one stays, the other is counted.
-        let frame = match slot
-            .frames
-            .iter()
-            .position(|f| f.camera == camera && f.track == msg.track_id)
-        {
-            Some(i) if slot.frames[i].offset_ns.abs() <= offset_ns.abs() => {
+        }
+        // Taken.
+        let c = &mut self.cameras[camera];
+        c.off_clock = (0, None);
+        c.newest_ns = Some(c.newest_ns.map_or(stamp, |n| n.max(stamp)));
+        c.heard_ns = Some(now_ns);
+        c.frames += 1;
+        self.counters.frames += 1;
+        let frame = match existing {
+            // A second frame of the track in this fused frame: the nearer one stays, the
+            // other is counted.
+            Some((p, i)) => {
                 self.counters.superseded += 1;
-                return Ok(());
-            }
-            Some(i) => {
-                self.counters.superseded += 1;
-                &mut slot.frames[i]
+                let f = &mut self.pending[p].frames[i];
+                if f.offset_ns.abs() <= offset_ns.abs() {
+                    return Ok(Taken::Frame);
+                }
+                f
             }
             None => {
-                // At most max_people tracks per camera and fused frame.
-                let per_camera = slot.frames.iter().filter(|f| f.camera == camera).count();
-                if per_camera >= self.settings.matching.max_people {
-                    return Err(refuse(format!(
-                        "camera {}: more than {} tracks in one frame \
-                         (estimator.fusion.matching.max_people)",
-                        self.cameras[camera].name, self.settings.matching.max_people
-                    )));
-                }
+                let p = match p {
+                    Some(p) if self.pending[p].index == index => p,
+                    at => {
+                        let at = at.unwrap_or(self.pending.len());
+                        self.pending.insert(
+                            at,
+                            Pending {
+                                index,
+                                first_heard_ns: now_ns,
+                                frames: Vec::new(),
+                            },
+                        );
+                        at
+                    }
+                };
+                let slot = &mut self.pending[p];
                 slot.frames
                     .push(self.spare_frames.pop().unwrap_or_default());
                 slot.frames.last_mut().expect("pushed")
@@ -611,7 +634,7 @@ impl FusionNode {
         frame.height = msg.height as usize;
         frame.width = msg.width as usize;
         std::mem::swap(&mut frame.values, &mut self.decoded);
-        Ok(())
+        Ok(Taken::Frame)
     }
 
     /// The fused frame nearest capture time `stamp` (the first stamp heard starts fused
@@ -640,16 +663,15 @@ impl FusionNode {
                 a.merge(r);
             }
         }
-        // Checked when the node was made: cannot fail.
-        if let Ok(m) = Matcher::new(self.settings.matching.clone()) {
-            self.matcher = m;
-        }
+        // The matcher forgets its people itself when time goes back; its ids go on (a
+        // body's id is never given twice).
+        self.matcher.forget_all();
         self.epoch_ns = None;
         self.next_index = 0;
         for c in &mut self.cameras {
             c.newest_ns = None;
             c.heard_ns = None;
-            c.off_clock_ns = None;
+            c.off_clock = (0, None);
         }
     }
 
@@ -702,10 +724,16 @@ impl FusionNode {
         let stamp_ns = epoch + slot.index * self.period_ns;
         self.counters.fused += 1;
         // Frames of cameras that lost their calibration since (a TF change) wait no more.
-        let rig = &self.rig;
         let cameras = &self.cameras;
-        slot.frames
-            .retain(|f| cameras[f.camera].calibrated().is_some() && rig.len() > f.camera);
+        let spare = &mut self.spare_frames;
+        let mut i = 0;
+        while i < slot.frames.len() {
+            if cameras[slot.frames[i].camera].calibrated().is_some() {
+                i += 1;
+            } else {
+                spare.push(slot.frames.swap_remove(i));
+            }
+        }
         self.peaks.resize_with(slot.frames.len(), Vec::new);
         for (f, peaks) in slot.frames.iter().zip(self.peaks.iter_mut()) {
             match f.crop {
@@ -841,7 +869,8 @@ impl FusionNode {
                 frame_id: self.world_frame.clone(),
             },
             sequence: index.max(0) as u64,
-            track_id: (id % u64::from(u32::MAX)) as u32,
+            // Ids from 1; 0 is \"unknown\" in the messages.
+            track_id: ((id.max(1) - 1) % u64::from(u32::MAX)) as u32 + 1,
             joint_names: self.joint_names.clone(),
             units: Units::Metres as u8,
             positions: e.joints.clone(),
@@ -862,5 +891,126 @@ impl FusionNode {
                 .map(|&v| self.cameras[v].frame_id.clone().unwrap_or_default())
                 .collect(),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::msgs::HeatMapEncoding;
+
+    const PERIOD: i64 = 33_333_333;
+
+    /// A node of cameras `a` and `b` (poses and intrinsics configured), fused frames at
+    /// 30 per second, waiting up to 1 s.
+    fn node() -> FusionNode {
+        let dict = crate::msgs::shipped::load_dictionary(std::path::Path::new(
+            "builtin:dictionaries/default-k128.json",
+        ))
+        .expect("dictionary");
+        let estimator = Estimator::new(dict, crate::Params::default()).expect("estimator");
+        let mut config = FusionConfig {
+            cameras: vec!["a".into(), "b".into()],
+            extrinsics: ExtrinsicsSource::Config,
+            wait: 1.0,
+            ..FusionConfig::default()
+        };
+        for (name, x) in [("a", 0.0), ("b", 5.0)] {
+            config
+                .poses
+                .insert(name.into(), vec![x, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]);
+            config
+                .intrinsics
+                .insert(name.into(), vec![600.0, 600.0, 320.0, 240.0]);
+        }
+        config
+            .check(&super::super::config::Topics::default())
+            .expect("config");
+        FusionNode::new(
+            estimator,
+            &config,
+            FusionSettings::default(),
+            Limits::default(),
+        )
+        .expect("node")
+    }
+
+    /// Camera `camera`'s frame of track 1 at `stamp_ns` (maps without evidence: nothing
+    /// is estimated, the frames only placed).
+    fn frame(node: &FusionNode, camera: &str, stamp_ns: i64) -> HeatMaps {
+        let p = node.joint_names().len();
+        HeatMaps {
+            track_id: 1,
+            ..HeatMaps::from_values(
+                Header {
+                    stamp: Time::from_nanos(stamp_ns),
+                    frame_id: camera.into(),
+                },
+                0,
+                node.joint_names().to_vec(),
+                4,
+                4,
+                CropBox::new(100.0, 100.0, 80.0, 80.0).expect("crop"),
+                &vec![0.0; p * 16],
+                HeatMapEncoding::Float32,
+            )
+        }
+    }
+
+    #[test]
+    fn a_camera_twice_as_fast_as_the_fused_frames_gives_each_its_frame_at_its_time() {
+        let mut node = node();
+        let mut out = Vec::new();
+        for i in 0..40 {
+            let stamp = 1_000_000_000 + i * PERIOD / 2;
+            let msg = frame(&node, "a", stamp);
+            node.heat_maps(0, &msg, stamp, &mut out).expect("taken");
+            if i % 2 == 0 {
+                // On a fused frame's time: that frame holds it, at no offset.
+                let waiting: Vec<i64> = node
+                    .pending
+                    .iter()
+                    .flat_map(|s| s.frames.iter().map(|f| f.offset_ns))
+                    .collect();
+                assert!(waiting.iter().all(|o| o.abs() <= 1), "{i}: {waiting:?}");
+            }
+        }
+        // Every frame halfway between two fused frames gave way to one at its time.
+        assert_eq!(node.counters().superseded, 20);
+    }
+
+    #[test]
+    fn a_stray_stamp_is_refused_and_a_time_that_jumped_for_good_starts_again() {
+        let mut node = node();
+        let mut out = Vec::new();
+        let (mut now, mut stamp) = (0, 1_000_000_000_000);
+        let mut send = |node: &mut FusionNode, cameras: &[&str], shift: i64| {
+            now += PERIOD;
+            stamp += PERIOD;
+            for (c, name) in cameras.iter().enumerate() {
+                let msg = frame(node, name, stamp + shift);
+                let _ = node.heat_maps(c, &msg, now, &mut out);
+            }
+        };
+        for _ in 0..10 {
+            send(&mut node, &["a", "b"], 0);
+        }
+        // One camera's stray stamps, 100 s back or ahead: refused, nothing restarts.
+        for shift in [-100_000_000_000, 100_000_000_000] {
+            for _ in 0..JUMP_FRAMES + 5 {
+                send(&mut node, &["a"], shift);
+                send(&mut node, &["a", "b"], 0);
+            }
+        }
+        assert_eq!(node.counters().restarts, 0);
+        assert!(node.refused().of("late") > 0 && node.refused().of("clock") > 0);
+        // Both cameras 100 s back for good (a replay started again): once they have
+        // said so for JUMP_FRAMES frames, the fused frames start again, once.
+        let fused = node.counters().fused;
+        for _ in 0..JUMP_FRAMES + 10 {
+            send(&mut node, &["a", "b"], -100_000_000_000);
+        }
+        assert_eq!(node.counters().restarts, 1);
+        assert!(node.counters().fused > fused);
     }
 }

@@ -248,6 +248,33 @@ struct FrameInfo {
     frame_id: String,
 }
 
+/// The intrinsics and the image size (columns, rows) of a camera's calibration
+/// (`sensor_msgs/CameraInfo`'s `k`, `width`, `height`); why it cannot be used otherwise
+/// (focal lengths, no image size, an image beyond the limits).
+pub fn calibration(
+    info: &msgs::sensor::CameraInfo,
+    limits: &Limits,
+) -> Result<(Intrinsics, (f64, f64)), String> {
+    let k = &info.k;
+    let camera = Intrinsics::new(k[0], k[4], k[2], k[5])?;
+    if info.width == 0 || info.height == 0 {
+        return Err(format!("image size {} x {}", info.width, info.height));
+    }
+    limits
+        .image(u64::from(info.width), u64::from(info.height))
+        .map_err(|e| e.to_string())?;
+    Ok((camera, (f64::from(info.width), f64::from(info.height))))
+}
+
+/// The kind of refusal of a message its transport refused (`beyond-limits`, else
+/// `undecodable`).
+pub fn transport_refusal(error: &TransportError) -> &'static str {
+    match error {
+        TransportError::BeyondLimits { .. } => "beyond-limits",
+        _ => "undecodable",
+    }
+}
+
 /// Refusals counted by kind; the first of each kind is logged (a warning), the rest only
 /// counted, so a hostile stream cannot flood the log.
 #[derive(Debug, Clone, Default, PartialEq, Eq, serde::Serialize)]
@@ -558,19 +585,9 @@ impl EstimatorNode {
     }
 
     fn camera_info_inner(&mut self, info: &msgs::sensor::CameraInfo) -> Result<(), NodeError> {
-        let k = &info.k;
         let refuse = |reason: String| NodeError::CameraInfo { reason };
-        let camera = Intrinsics::new(k[0], k[4], k[2], k[5]).map_err(refuse)?;
-        if info.width == 0 || info.height == 0 {
-            return Err(refuse(format!(
-                "image size {} x {}",
-                info.width, info.height
-            )));
-        }
-        self.limits
-            .image(u64::from(info.width), u64::from(info.height))
-            .map_err(|e| refuse(e.to_string()))?;
-        let size = Some((f64::from(info.width), f64::from(info.height)));
+        let (camera, size) = calibration(info, &self.limits).map_err(refuse)?;
+        let size = Some(size);
         if let Some(m) = &self.metric
             && m.camera == camera
             && m.size == size
@@ -713,11 +730,7 @@ impl EstimatorNode {
     /// Counts a message the transport refused before it reached the node: one it could
     /// not decode, or one beyond the limits (an iceoryx2 sample).
     pub fn count_refused(&mut self, error: &TransportError) {
-        let kind = match error {
-            TransportError::BeyondLimits { .. } => "beyond-limits",
-            _ => "undecodable",
-        };
-        self.refused.note(kind, error);
+        self.refused.note(transport_refusal(error), error);
     }
 
     /// The window's settings.

@@ -162,7 +162,8 @@ impl FusionInput {
     /// The next message of feed `i`: `None` when it has none now (or no more: then it
     /// is dropped). A malformed message is refused and counted by `node`.
     fn poll(&mut self, i: usize, node: &mut FusionNode) -> Option<(Item, u64)> {
-        loop {
+        // A flood of malformed messages on one input: at most a turn's worth here.
+        for _ in 0..PER_TURN {
             match self.feeds[i].recv() {
                 Ok(Received::Message(m, t)) => {
                     self.yielded[i] = true;
@@ -195,6 +196,7 @@ impl FusionInput {
                 }
             }
         }
+        None
     }
 
     /// A recording's next message in log-time order; `None` at its end.
@@ -320,6 +322,8 @@ impl FusionOutputs {
                 self.frame.skeletons.push(s.clone());
             }
         }
+        // The node hands over whole fused frames: the last one's ids go now.
+        self.send_frame();
         skeletons.clear();
     }
 
@@ -411,9 +415,11 @@ pub fn run_fusion(
                     outputs.publish(&mut out);
                 }
             }
+            // Fused frames due by now go, whatever came (calibrations and transforms
+            // make none due).
+            node.step(live_now(), &mut out);
+            outputs.publish(&mut out);
             if !heard {
-                node.step(live_now(), &mut out);
-                outputs.publish(&mut out);
                 std::thread::sleep(IDLE);
             }
         }

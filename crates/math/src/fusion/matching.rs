@@ -129,6 +129,13 @@ impl Matcher {
         self.people.iter().map(|p| p.id)
     }
 
+    /// Forgets everyone (time started again); the ids go on from where they were, so no
+    /// id is given twice.
+    pub fn forget_all(&mut self) {
+        self.people.clear();
+        self.doubtful.clear();
+    }
+
     /// Matches one frame's tracks: `out[i]` is the person of `tracks[i]`. Tracks of one
     /// camera with the same id are refused (the second is given no person: `None`).
     pub fn assign(
