@@ -301,7 +301,7 @@ fn a_camera_at_half_the_rate_is_bridged_by_its_frame_before() {
     );
     assert!(
         alone.monocular * 3 >= alone.frames,
-        "half the frames had one view"
+        "a third of the frames or more had one view"
     );
     assert_eq!(bridged.monocular, 0);
     assert!(bridged.mpjpe_mm() < alone.mpjpe_mm());
@@ -744,11 +744,24 @@ fn the_fusion_node_fuses_a_recorded_room_of_three_cameras_in_the_world_frame() {
     let (room, config) = recorded_room(dir.path(), 3, "");
     let out = dir.path().join("fused.mcap");
     // Extrinsics from the recording's /tf_static (the default), intrinsics from the
-    // cameras' CameraInfo (the configuration names them too: the same).
+    // cameras' CameraInfo (the configuration's [fusion.intrinsics] left out).
+    let text = std::fs::read_to_string(&config).expect("config");
+    let (head, tail) = text
+        .split_once("\n[fusion.intrinsics]\n")
+        .expect("intrinsics");
+    let from_info = dir.path().join("from-info.toml");
+    std::fs::write(
+        &from_info,
+        format!(
+            "{head}\n{}",
+            &tail[tail.find("[outputs]").expect("outputs")..]
+        ),
+    )
+    .expect("write");
     let report = json_of(&posestream(&[
         "fuse",
         "--config",
-        s(&config),
+        s(&from_info),
         "--recording",
         s(&room),
         "--record",

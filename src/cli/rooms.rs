@@ -314,7 +314,6 @@ fn load_people(
 /// `topics.ground_truth`. Beside it, `<path>.toml`: the configuration `posestream fuse`
 /// reads it with. Returns what it wrote, for people.
 pub fn record(args: &ScenesArgs, index: usize, path: &std::path::Path) -> Result<String, CliError> {
-    use posestream::msgs::sensor::CameraInfo;
     use posestream::msgs::tf::{TFMessage, TransformStamped};
     use posestream::msgs::{
         Header, HeatMapEncoding, HeatMaps, Skeleton3D, SkeletonState, Time, Units,
@@ -384,18 +383,11 @@ pub fn record(args: &ScenesArgs, index: usize, path: &std::path::Path) -> Result
         let name = format!("cam{c}");
         let (maps_topic, info_topic) = FusionConfig::camera_topics(&name, topics);
         if last_info[c] != Some(stamp) {
-            let (k, cam) = (&room.intrinsics[c], &cameras[c]);
-            let info = CameraInfo {
-                header: header.clone(),
-                width: cam.image_size[0].round() as u32,
-                height: cam.image_size[1].round() as u32,
-                k: [k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0],
-                r: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
-                p: [
-                    k.fx, 0.0, k.cx, 0.0, 0.0, k.fy, k.cy, 0.0, 0.0, 0.0, 1.0, 0.0,
-                ],
-                ..CameraInfo::default()
-            };
+            let info = super::synth::camera_info(
+                header.clone(),
+                &room.intrinsics[c],
+                cameras[c].image_size,
+            );
             rec.write(&info_topic, stamp as u64, &info)?;
             last_info[c] = Some(stamp);
         }

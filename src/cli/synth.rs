@@ -440,17 +440,7 @@ fn write_recording(
         }
         if cam.projection == Projection::Pinhole {
             // The calibration with every image, as a camera driver publishes it.
-            let info = CameraInfo {
-                header: header.clone(),
-                width: cam.image_size[0].round() as u32,
-                height: cam.image_size[1].round() as u32,
-                k: [k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0],
-                r: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
-                p: [
-                    k.fx, 0.0, k.cx, 0.0, 0.0, k.fy, k.cy, 0.0, 0.0, 0.0, 1.0, 0.0,
-                ],
-                ..CameraInfo::default()
-            };
+            let info = camera_info(header.clone(), &k, cam.image_size);
             rec.write(&topics.camera_info, stamp_ns as u64, &info)?;
         }
         for (i, person) in people.iter().enumerate() {
@@ -488,4 +478,24 @@ fn write_recording(
     rec.finish()?;
     println!("recording -> {}", path.display());
     Ok(())
+}
+
+/// The `CameraInfo` of a pinhole camera of intrinsics `k` over images of `size` (columns,
+/// rows), as a camera driver publishes it (no distortion).
+pub(crate) fn camera_info(
+    header: Header,
+    k: &posestream::Intrinsics,
+    size: [f64; 2],
+) -> CameraInfo {
+    CameraInfo {
+        header,
+        width: size[0].round() as u32,
+        height: size[1].round() as u32,
+        k: [k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0],
+        r: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+        p: [
+            k.fx, 0.0, k.cx, 0.0, 0.0, k.fy, k.cy, 0.0, 0.0, 0.0, 1.0, 0.0,
+        ],
+        ..CameraInfo::default()
+    }
 }
