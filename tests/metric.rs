@@ -655,7 +655,7 @@ fn the_scenes_command_reports_every_person_and_the_tracker_s_ids() {
 fn eval_ends_with_every_person_of_the_scenes() {
     // docs/results.md is eval's output: the paper's tables, then the people in the room
     // (the scenes section `posestream scenes` writes), then where they stand (`scenes
-    // --distances`).
+    // --distances`), then several cameras fused against each alone (`scenes --rooms`).
     let dir = tempfile::tempdir().expect("tempdir");
     let md = dir.path().join("results.md");
     let mocap = common::shared().join("data/mocap");
@@ -679,7 +679,9 @@ fn eval_ends_with_every_person_of_the_scenes() {
     let table = text.find("## Table 1").expect("the tables");
     let people = text.find("## People in the room").expect("the scenes");
     let stand = text.find("## Where people stand").expect("the distances");
-    assert!(table < people && people < stand, "{text}");
+    let rooms = text.find("## Several cameras").expect("the rooms");
+    assert!(table < people && people < stand && stand < rooms, "{text}");
+    assert!(text.contains("| 4 cameras, 6 m; four people |"), "{text}");
     assert_eq!(
         text.matches("| floor from TF, assumed size |").count(),
         5,

@@ -137,6 +137,13 @@ const ROOMS: [RoomSpec; 10] = [
     },
 ];
 
+/// The takes the rooms are made of (checked before a long run needs them).
+pub fn takes() -> impl Iterator<Item = &'static str> {
+    ROOMS
+        .iter()
+        .flat_map(|room| room.people.iter().map(|(file, _)| *file))
+}
+
 /// The markdown of every room.
 pub fn markdown(args: &ScenesArgs) -> Result<String, CliError> {
     let config = args.config.load()?;

@@ -417,11 +417,13 @@ impl ScenesArgs {
         let args = ScenesCommand::try_parse_from(argv)
             .map_err(|e| CliError::Usage(e.to_string()))?
             .args;
-        // The people-in-the-room scenes' takes, and the walks of `--distances`.
+        // The people-in-the-room scenes' takes, the walks of `--distances` and the
+        // rooms'.
         let takes = SCENES
             .iter()
             .flat_map(|scene| scene.people.iter().map(|(file, _)| *file))
-            .chain(super::distances::takes());
+            .chain(super::distances::takes())
+            .chain(super::rooms::takes());
         for file in takes {
             let take = args.data.join(file);
             if !take.is_file() {

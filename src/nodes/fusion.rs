@@ -645,9 +645,9 @@ impl FusionNode {
         (index, stamp - (epoch + index * self.period_ns))
     }
 
-    /// The time started again: the fused frames waiting, the people and the cameras'
-    /// clocks are forgotten (their residuals stay counted); the next frame starts fused
-    /// frame 0.
+    /// The time started again (what waited was fused first): the people and the
+    /// cameras' clocks are forgotten (their residuals stay counted, their ids are not
+    /// given again); the next frame starts fused frame 0.
     fn restart(&mut self) {
         tracing::warn!(
             "the cameras' capture times jumped (a replay started again, a clock reset): the \
@@ -663,8 +663,7 @@ impl FusionNode {
                 a.merge(r);
             }
         }
-        // The matcher forgets its people itself when time goes back; its ids go on (a
-        // body's id is never given twice).
+        // Its ids go on: a body's id is never given twice.
         self.matcher.forget_all();
         self.epoch_ns = None;
         self.next_index = 0;
