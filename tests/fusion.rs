@@ -941,6 +941,29 @@ fn the_fusion_node_refuses_what_it_cannot_use_and_says_why() {
             "extrinsics = \"config\"\ncameras = [\"cam9\"]",
             "fusion.poses.cam9",
         ),
+        ("frame_rate = 1e-300", "fusion.frame_rate"),
+        (
+            "cameras = [\"c0\", \"c1\", \"c2\", \"c3\", \"c4\", \"c5\", \"c6\", \"c7\", \"c8\", \
+             \"c9\", \"c10\", \"c11\", \"c12\", \"c13\", \"c14\", \"c15\", \"c16\"]",
+            "fusion.cameras",
+        ),
+        (
+            "extrinsics = \"config\"\ncameras = [\"cam0\"]\n[fusion.poses]\n\
+             cam0 = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 2.0]",
+            "fusion.poses.cam0",
+        ),
+        (
+            "cameras = [\"cam0\"]\n[fusion.poses]\ncam0 = [nan, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]",
+            "fusion.poses.cam0",
+        ),
+        (
+            "cameras = [\"cam0\"]\n[fusion.intrinsics]\ncam0 = [-600.0, 600.0, 320.0, 240.0]",
+            "fusion.intrinsics.cam0",
+        ),
+        (
+            "cameras = [\"cam0\"]\n[fusion.intrinsics]\ncam0 = [600.0]",
+            "fusion.intrinsics.cam0",
+        ),
     ] {
         let bad = dir.path().join("bad.toml");
         std::fs::write(&bad, format!("[fusion]\n{extra}\n")).expect("write");

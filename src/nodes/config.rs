@@ -547,13 +547,7 @@ impl FusionConfig {
             check_topic_name("cameras", &maps)?;
             check_topic_name("cameras", &info)?;
         }
-        let frame = self.world_frame.trim_start_matches('/');
-        if frame.is_empty()
-            || frame.len() > 255
-            || !frame
-                .chars()
-                .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '/')
-        {
+        if !crate::floor::valid_frame_id(self.world_frame.trim_start_matches('/')) {
             return Err(OutOfDomain::new(
                 "world_frame",
                 "a frame id (letters, digits, _ and /)",

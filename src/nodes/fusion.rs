@@ -621,10 +621,10 @@ impl FusionNode {
                         at
                     }
                 };
-                let slot = &mut self.pending[p];
-                slot.frames
-                    .push(self.spare_frames.pop().unwrap_or_default());
-                slot.frames.last_mut().expect("pushed")
+                let frames = &mut self.pending[p].frames;
+                let at = frames.len();
+                frames.push(self.spare_frames.pop().unwrap_or_default());
+                &mut frames[at]
             }
         };
         frame.camera = camera;
@@ -677,12 +677,14 @@ impl FusionNode {
     /// Makes the fused frames that are due at `now_ns` (the input went quiet: call it
     /// now and then); their skeletons appended to `out`.
     pub fn step(&mut self, now_ns: i64, out: &mut Vec<Skeleton3D>) {
-        while let Some(first) = self.pending.front() {
-            if !self.due(first, now_ns) {
-                break;
+        while self
+            .pending
+            .front()
+            .is_some_and(|first| self.due(first, now_ns))
+        {
+            if let Some(slot) = self.pending.pop_front() {
+                self.fuse(slot, out);
             }
-            let slot = self.pending.pop_front().expect("front");
-            self.fuse(slot, out);
         }
     }
 
@@ -1011,5 +1013,60 @@ mod tests {
         }
         assert_eq!(node.counters().restarts, 1);
         assert!(node.counters().fused > fused);
+    }
+
+    #[test]
+    fn hostile_frames_are_refused_by_kind_and_change_nothing() {
+        let mut node = node();
+        let mut out = Vec::new();
+        let good = frame(&node, "a", 1_000_000_000);
+        node.heat_maps(0, &good, 0, &mut out).expect("taken");
+        let mut cases: Vec<(HeatMaps, &str)> = Vec::new();
+        cases.push((
+            HeatMaps {
+                track_id: 0,
+                ..good.clone()
+            },
+            "camera",
+        ));
+        cases.push((
+            HeatMaps {
+                crop_x: f64::NAN,
+                ..good.clone()
+            },
+            "invalid",
+        ));
+        let mut short = good.clone();
+        short.values.truncate(3);
+        cases.push((short, "invalid"));
+        let mut nan_scale = good.clone();
+        nan_scale.encoding = HeatMapEncoding::Uint8.code();
+        nan_scale.quantized_values = vec![1; good.values.len()];
+        nan_scale.values.clear();
+        nan_scale.quantization_scale = f32::NAN;
+        cases.push((nan_scale, "invalid"));
+        let mut other_frame = good.clone();
+        other_frame.header.frame_id = "b".into();
+        cases.push((other_frame, "camera"));
+        let mut huge = good.clone();
+        huge.height = u32::MAX;
+        huge.width = u32::MAX;
+        cases.push((huge, "beyond-limits"));
+        let mut joints = good.clone();
+        joints.joint_names.reverse();
+        cases.push((joints, "joints"));
+        for (stamp, kind) in [(i64::MIN, "late"), (i64::MAX, "clock")] {
+            let mut far = good.clone();
+            far.header.stamp = Time::from_nanos(stamp);
+            cases.push((far, kind));
+        }
+        for (msg, kind) in &cases {
+            let before = node.refused().of(kind);
+            assert!(node.heat_maps(0, msg, 1, &mut out).is_err(), "{kind}");
+            assert_eq!(node.refused().of(kind), before + 1, "{kind}");
+        }
+        // Only the good frame was taken; the camera's frame id is still its own.
+        assert_eq!(node.counters().frames, 1);
+        assert_eq!(node.cameras()[0].frame_id, "a");
     }
 }

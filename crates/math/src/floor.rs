@@ -143,7 +143,7 @@ impl FloorSettings {
 const ROBOT_FRAMES: [&str; 5] = ["map", "odom", "earth", "base_link", "base_footprint"];
 
 /// A TF frame id: not empty, at most 256 bytes, ASCII letters, digits, `_` and `/`.
-fn valid_frame_id(id: &str) -> bool {
+pub fn valid_frame_id(id: &str) -> bool {
     !id.is_empty()
         && id.len() <= 256
         && id

@@ -11,8 +11,8 @@ use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use super::bodies::{Bodies, TopicMaker};
-use super::wiring::{Middleware, Taps, publishers};
+use super::bodies::Bodies;
+use super::wiring::{Middleware, Taps, configured_bodies, publishers};
 use super::{Publishers, ServiceError};
 use crate::msgs::sensor::CameraInfo;
 use crate::msgs::tf::TFMessage;
@@ -249,24 +249,8 @@ impl FusionOutputs {
         } else {
             Publishers::default()
         };
-        let tf = if config.outputs.tf {
-            publishers(config, middleware, taps, &config.topics.tf, None)?
-        } else {
-            Publishers::default()
-        };
-        let hri = config.outputs.hri.then(|| {
-            let maker = TopicMaker {
-                ros: middleware.ros.clone().filter(|_| config.outputs.ros2),
-                taps: taps.clone(),
-            };
-            (
-                config.topics.hri_bodies.clone(),
-                maker,
-                config.outputs.hri_roi,
-            )
-        });
         // The newest estimates: the least delay, as TF and REP-155's readers want.
-        let bodies = Bodies::new(node.joint_names(), 0, tf, hri)?;
+        let bodies = configured_bodies(config, middleware, taps, node.joint_names(), 0)?;
         Ok(Self {
             skeletons,
             markers,

@@ -367,6 +367,34 @@ pub fn live_view(config: &ServiceConfig) -> Result<Option<LiveView>, TransportEr
     Ok(Some(live))
 }
 
+/// The configured descriptions of bodies (`[outputs] tf`, `hri`) of skeletons of
+/// `joint_names` at `lag`.
+pub(super) fn configured_bodies(
+    config: &ServiceConfig,
+    middleware: &mut Middleware,
+    taps: &Taps,
+    joint_names: &[String],
+    lag: u32,
+) -> Result<Bodies, ServiceError> {
+    let tf = if config.outputs.tf {
+        publishers(config, middleware, taps, &config.topics.tf, None)?
+    } else {
+        Publishers::default()
+    };
+    let hri = config.outputs.hri.then(|| {
+        let maker = TopicMaker {
+            ros: middleware.ros.clone().filter(|_| config.outputs.ros2),
+            taps: taps.clone(),
+        };
+        (
+            config.topics.hri_bodies.clone(),
+            maker,
+            config.outputs.hri_roi,
+        )
+    });
+    Bodies::new(joint_names, lag, tf, hri)
+}
+
 /// Publishers of `M` on `topic` / `service` for every configured output.
 pub(super) fn publishers<M: Message>(
     config: &ServiceConfig,
@@ -541,29 +569,13 @@ impl EstimatorOutputs {
         } else {
             Publishers::default()
         };
-        let tf = if config.outputs.tf {
-            publishers(config, middleware, taps, &config.topics.tf, None)?
-        } else {
-            Publishers::default()
-        };
-        let hri = config.outputs.hri.then(|| {
-            let maker = TopicMaker {
-                ros: middleware.ros.clone().filter(|_| config.outputs.ros2),
-                taps: taps.clone(),
-            };
-            (
-                config.topics.hri_bodies.clone(),
-                maker,
-                config.outputs.hri_roi,
-            )
-        });
         // The newest estimates when the window publishes them, else the refined ones.
         let settings = node.settings();
         let lag = match settings.outputs {
             crate::streaming::Outputs::Lagged => settings.lag as u32,
             _ => 0,
         };
-        let mut bodies = Bodies::new(node.joint_names(), lag, tf, hri)?;
+        let mut bodies = configured_bodies(config, middleware, taps, node.joint_names(), lag)?;
         let floor = &config.estimator.metric.floor;
         match floor.source {
             FloorSource::None => {}
