@@ -1129,6 +1129,10 @@ fn fuse_refuses_to_record_over_its_input_a_device_or_a_truth_that_is_not_there()
             "the output is an input of this run",
         ),
         (vec!["--record", "/dev/null"], "not a regular file"),
+        (
+            vec!["--record", s(&config)],
+            "the output is an input of this run",
+        ),
     ] {
         let mut all = vec!["fuse", "--config", s(&config), "--recording", s(&room)];
         all.extend(args);
@@ -1138,6 +1142,11 @@ fn fuse_refuses_to_record_over_its_input_a_device_or_a_truth_that_is_not_there()
         assert!(stderr.contains(said), "{stderr}");
     }
     assert_eq!(std::fs::metadata(&room).expect("room").len(), size);
+    assert!(
+        std::fs::read_to_string(&config)
+            .expect("config")
+            .contains("[fusion]")
+    );
     {
         use std::os::unix::fs::FileTypeExt;
         let null = std::path::Path::new("/dev/null").metadata().expect("null");
@@ -1310,4 +1319,36 @@ fn the_fusion_node_takes_the_cameras_poses_from_tf_static_over_ros2() {
         scores.mpjpe_mm <= 80.0 && scores.frames >= 380,
         "{scores:?}"
     );
+}
+
+#[test]
+fn a_room_of_a_take_without_frames_is_one_error_not_a_panic() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let take = "dataset-1_walk-left_proud_001.bvh";
+    let text = std::fs::read_to_string(
+        common::shared()
+            .join("data/mocap/bandai-namco-1")
+            .join(take),
+    )
+    .expect("take");
+    let (hierarchy, _) = text.split_once("MOTION").expect("motion");
+    std::fs::write(
+        dir.path().join(take),
+        format!("{hierarchy}MOTION\nFrames: 0\nFrame Time: 0.0333333\n"),
+    )
+    .expect("write");
+    let out = posestream(&[
+        "scenes",
+        "--rooms",
+        "--data",
+        s(dir.path()),
+        "--record",
+        s(&dir.path().join("room.mcap")),
+        "--room",
+        "1",
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert!(stderr.contains("no frames"), "{stderr}");
 }

@@ -61,11 +61,15 @@ pub fn run(args: &FuseArgs) -> Result<(), CliError> {
                 .into(),
         ));
     }
-    // The output would replace the input when finished.
-    if let Some(input) = &args.recording
-        && !config.outputs.record.as_os_str().is_empty()
-    {
-        posestream::files::check_output(&config.outputs.record, &[input.as_path()])
+    // The output would replace an input (the recording, the configuration) when
+    // finished.
+    if !config.outputs.record.as_os_str().is_empty() {
+        let inputs: Vec<&std::path::Path> = [&args.recording, &args.config.config]
+            .into_iter()
+            .flatten()
+            .map(|p| p.as_path())
+            .collect();
+        posestream::files::check_output(&config.outputs.record, &inputs)
             .map_err(|e| CliError::Usage(e.to_string()))?;
     }
     // The truth first: a run that cannot be scored is not started.

@@ -297,8 +297,13 @@ fn load_people(
         takes.push(mapping.apply(&bvh, &path.display().to_string())?);
     }
     let frames = takes.iter().map(|s| s.frames).min().unwrap_or(0);
-    for t in &mut takes {
-        *t = t.frames_from(0, frames).expect("every take has frames");
+    for (t, (file, _)) in takes.iter_mut().zip(spec.people) {
+        *t = t.frames_from(0, frames).ok_or_else(|| {
+            CliError::Failed(format!(
+                "{}: no frames (a room's takes need some)",
+                args.data.join(file).display()
+            ))
+        })?;
     }
     let first = takes[0].clone();
     takes
