@@ -12,6 +12,7 @@
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use posestream::CropBox;
+use posestream::LoadDictionary;
 use posestream::detector::crop::crop_input;
 use posestream::detector::mapping::ChannelMapping;
 use posestream::models::landmarks::{HEATMAP_CHANNELS, HEATMAP_SIZE, INPUT_SIZE, LandmarkNetwork};

@@ -12,6 +12,7 @@
 //!
 //! Run: `cargo bench --bench solver`.
 
+use posestream::LoadDictionary;
 use std::hint::black_box;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};

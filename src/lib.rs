@@ -9,14 +9,15 @@
 //!
 //! | crate | holds | re-exported as |
 //! |---|---|---|
+//! | `posestream-base` | what every layer shares: range checks, panic containment, a frame's crop box and scores, the ports (`Source`, `Sink`) | [`base`] |
 //! | `posestream-math` | skeleton, dictionary, camera, heat maps, solver, estimator, streaming window, metrics | [`camera`], [`dictionary`], [`estimator`], [`geometry`], [`heatmaps`], [`metrics`], [`skeleton`], [`solver`], [`streaming`] |
-//! | `posestream-msgs` | the ROS 2 messages, recordings (MCAP), NPY and TOML files, limits | [`msgs`], [`recording`], [`npy`], [`files`], [`limits`] |
-//! | `posestream-transport` | the Source and Sink traits: in-memory, MCAP, ROS 2, iceoryx2 | [`transport`] |
+//! | `posestream-msgs` | the ROS 2 messages, recordings (MCAP), the files the math is loaded from (dictionaries, intrinsics), NPY and TOML files, limits | [`msgs`], [`recording`], [`npy`], [`files`], [`limits`] |
+//! | `posestream-transport` | the backends of the ports: in-memory, MCAP, ROS 2, iceoryx2, Foxglove | [`transport`] |
 //! | `posestream-detector` | camera images, landmark models, the image detector, pictures | [`detector`], [`images`], [`models`], [`render`] |
 //! | `posestream-mocap` | BVH motion capture, synthesis, evaluation | [`mocap`], [`synth`], [`evaluation`] |
 //!
 //! ```no_run
-//! use posestream::{Dictionary, Estimator, Params};
+//! use posestream::{Dictionary, Estimator, LoadDictionary, Params};
 //! let dict = Dictionary::load("poseDict-all-K128.mat")?;
 //! let estimator = Estimator::new(dict, Params::default())?;
 //! # Ok::<(), Box<dyn std::error::Error>>(())
@@ -24,25 +25,38 @@
 
 pub use posestream_detector::{self as detector, images, models, render};
 pub use posestream_math::{
-    camera, dictionary, estimator, floor, fusion, geometry, heatmaps, learnt_floor, metric,
-    metrics, skeleton, solver, streaming,
+    camera, estimator, floor, fusion, geometry, heatmaps, learnt_floor, metric, metrics, skeleton,
+    solver, streaming,
 };
 pub use posestream_mocap::{self as mocap, evaluation, synth};
 pub use posestream_msgs::{self as msgs, files, limits, npy, recording};
 pub use posestream_transport as transport;
 
+pub use posestream_base::{self as base, CropBox, PixelMap};
 pub use posestream_math::{
-    CameraError, CropBox, Dictionary, DictionaryError, Estimate, EstimateError, Estimates,
-    Estimator, FrameEstimate, FrameMaps, HeatMapSequence, InitMethod, Intrinsics, Keypoints,
-    MetricEstimate, Params, PixelMap, Report, Skeleton, StreamSettings, WindowEstimator,
+    Dictionary, Estimate, EstimateError, Estimates, Estimator, FrameEstimate, FrameMaps,
+    HeatMapSequence, InitMethod, Intrinsics, Keypoints, MetricEstimate, Params, Report, Skeleton,
+    StreamSettings, WindowEstimator,
 };
 pub use posestream_mocap::BvhError;
-pub use posestream_msgs::error::ArrayError;
+pub use posestream_msgs::error::{ArrayError, CameraError, DictionaryError};
+pub use posestream_msgs::formats::{LoadDictionary, LoadIntrinsics};
+
+/// Pose dictionaries: the type and its learning (`posestream-math`), and the files they
+/// are loaded from and saved to (`posestream-msgs`' formats).
+pub mod dictionary {
+    pub use posestream_math::dictionary::*;
+    pub use posestream_msgs::formats::{
+        LoadDictionary, dictionary_json as json, dictionary_mat as mat,
+    };
+}
 
 pub mod nodes;
 
 /// The errors of every layer, in one place.
 pub mod error {
+    pub use posestream_base::domain::*;
+    pub use posestream_base::panics::*;
     pub use posestream_math::error::*;
     pub use posestream_mocap::error::*;
     pub use posestream_msgs::error::*;

@@ -23,6 +23,7 @@
 
 mod common;
 
+use posestream::LoadDictionary;
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::{Cell, RefCell};
 

@@ -1,6 +1,7 @@
 //! Shared helpers of the integration tests.
 #![allow(dead_code, reason = "each test binary uses some of the helpers")]
 
+use posestream::LoadDictionary;
 use std::path::PathBuf;
 
 use nalgebra::{Rotation3, Vector3};

@@ -3,6 +3,7 @@
 mod common;
 
 use common::shared;
+use posestream::LoadDictionary;
 use posestream::dictionary::json;
 use posestream::{Dictionary, DictionaryError};
 

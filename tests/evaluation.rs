@@ -5,6 +5,7 @@
 
 mod common;
 
+use posestream::LoadDictionary;
 use std::path::Path;
 
 use common::shared;

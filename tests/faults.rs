@@ -7,6 +7,7 @@
 
 mod common;
 
+use posestream::LoadDictionary;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};

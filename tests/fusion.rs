@@ -5,6 +5,7 @@
 mod common;
 
 use nalgebra::{UnitQuaternion, Vector3};
+use posestream::LoadDictionary;
 use posestream::fusion::{FusedWindow, FusionSettings, ViewMaps, ViewResidual, suspects};
 use posestream::metric::MetricSettings;
 use posestream::mocap::rooms::{self, Errors, Fused};

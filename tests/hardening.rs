@@ -5,6 +5,7 @@
 
 mod common;
 
+use posestream::LoadDictionary;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 

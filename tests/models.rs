@@ -5,6 +5,7 @@
 
 mod common;
 
+use posestream::LoadDictionary;
 use posestream::detector::mapping::ChannelMapping;
 use posestream::models::landmarks::{HEATMAP_SIZE, LandmarkNetwork};
 use posestream::streaming::{FrameMaps, StreamSettings, TrackState, WindowEstimator};
@@ -222,7 +223,7 @@ fn person_detector_matches_the_reference_runtime(models: &std::path::Path) {
 
 #[test]
 fn the_pedestrian_detector_is_fetched_converted_and_finds_the_people_of_a_photo() {
-    use posestream::camera::CropBox;
+    use posestream::CropBox;
     use posestream::detector::crop::crop_input_signed;
     use posestream::models::pedestrians::{INPUT_SIZE, PedestrianNetwork};
     let dir = tempfile::tempdir().expect("tempdir");

@@ -6,6 +6,7 @@
 mod common;
 
 use common::{fixture, k128, read};
+use posestream::LoadDictionary;
 use posestream::npy::{self, Array};
 use posestream::{Dictionary, Estimator, HeatMapSequence, Keypoints, Params, metrics};
 

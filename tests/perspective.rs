@@ -4,6 +4,7 @@ mod common;
 
 use common::{fixture, k128, read, small_dictionary, three_basis_sequence};
 use nalgebra::Vector3;
+use posestream::LoadDictionary;
 use posestream::metrics::root_aligned_mpjpe;
 use posestream::solver::perspective::PerspectiveParams;
 use posestream::{

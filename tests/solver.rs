@@ -4,6 +4,7 @@ mod common;
 
 use common::{fixture, k128, read, small_dictionary, three_basis_sequence};
 use nalgebra::{Rotation3, Vector3};
+use posestream::LoadDictionary;
 use posestream::solver::bcd::{self, BcdWorkspace};
 use posestream::solver::coefficients::{
     CoefficientProblem, CoefficientSolver, CoefficientWorkspace, basis_gram_max, lipschitz_bound,

@@ -4,6 +4,7 @@
 mod common;
 
 use common::{RECORDINGS, recording, root};
+use posestream::LoadDictionary;
 use posestream::metrics;
 use posestream::msgs::{self, Skeleton3D};
 use posestream::nodes::{EstimatorNode, ServiceConfig};

@@ -7,6 +7,7 @@
 //! input through the same functions (this file is included there with `#[path]`), so CI
 //! runs them without cargo-fuzz.
 
+use posestream::LoadDictionary;
 use std::io::Cursor;
 use std::path::Path;
 use std::sync::OnceLock;

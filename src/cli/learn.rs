@@ -3,10 +3,10 @@
 use std::path::PathBuf;
 
 use clap::Args;
-use posestream::dictionary::json;
 use posestream::dictionary::learn::{LearnParams, learn, normalise_poses};
 use posestream::mocap::split::list_bvh;
 use posestream::mocap::{Bvh, SkeletonMapping, Split};
+use posestream::msgs::formats::dictionary_json as json;
 
 use super::{CliError, progress_bar};
 

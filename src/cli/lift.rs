@@ -1,5 +1,6 @@
 //! `posestream lift`: a sequence of 2D keypoints or heat maps (NPY) to 3D poses (NPY).
 
+use posestream::LoadIntrinsics;
 use std::path::{Path, PathBuf};
 
 use clap::Args;
@@ -193,22 +194,22 @@ pub fn run(args: &LiftArgs) -> Result<(), CliError> {
             .map_err(|e| CliError::in_file(path, e))?
     } else if let Some(path) = &args.heatmaps {
         let maps = read_heatmaps(path, p)?;
-        if let Some(b) = &boxes {
-            if b.len() != maps.frames {
-                return Err(ArrayError::Domain {
-                    path: args
-                        .perspective
-                        .boxes
-                        .clone()
-                        .unwrap_or_else(|| path.clone()),
-                    detail: format!(
-                        "{} crop boxes for {} frames of heat maps",
-                        b.len(),
-                        maps.frames
-                    ),
-                }
-                .into());
+        if let Some(b) = &boxes
+            && b.len() != maps.frames
+        {
+            return Err(ArrayError::Domain {
+                path: args
+                    .perspective
+                    .boxes
+                    .clone()
+                    .unwrap_or_else(|| path.clone()),
+                detail: format!(
+                    "{} crop boxes for {} frames of heat maps",
+                    b.len(),
+                    maps.frames
+                ),
             }
+            .into());
         }
         map_size = Some((maps.width, maps.height));
         estimator

@@ -1,6 +1,7 @@
 //! The command line: one file per subcommand, each with its options (`XArgs`) and its
 //! handler (`run`); [`CliError`] for everything that stops a command.
 
+pub mod choice;
 pub mod config;
 pub mod detector;
 pub mod distances;

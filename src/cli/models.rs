@@ -30,7 +30,7 @@ pub enum ModelsCommand {
 #[derive(Debug, Args)]
 pub struct FetchArgs {
     /// Models to fetch.
-    #[arg(long, value_enum, value_delimiter = ',', default_values = ["lite", "full", "heavy"])]
+    #[arg(long, value_parser = super::choice::choice::<LandmarkModel>(), value_delimiter = ',', default_values = ["lite", "full", "heavy"])]
     pub models: Vec<LandmarkModel>,
     /// Cache folder (default: $POSESTREAM_MODELS, else $XDG_CACHE_HOME/posestream/models,
     /// else ~/.cache/posestream/models).

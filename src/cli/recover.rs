@@ -76,7 +76,7 @@ pub fn run(args: &RecoverArgs) -> Result<(), CliError> {
             return Err(e.into());
         }
         messages += 1;
-        if messages % 1024 == 0 {
+        if messages.is_multiple_of(1024) {
             bar.set_position(salvager.progress().0);
         }
     }

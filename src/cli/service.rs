@@ -193,11 +193,11 @@ pub struct SourceArgs {
     #[arg(long, value_delimiter = ',', allow_negative_numbers = true)]
     pub person_box: Option<Vec<f64>>,
     /// Landmark model (overrides `detector.images.model`).
-    #[arg(long, value_enum)]
+    #[arg(long, value_parser = super::choice::choice::<posestream::models::LandmarkModel>())]
     pub model: Option<posestream::models::LandmarkModel>,
     /// What runs the models (overrides `detector.images.runtime`; default `auto`: LiteRT
     /// when `posestream models fetch` has set it up, else tract).
-    #[arg(long, value_enum)]
+    #[arg(long, value_parser = super::choice::choice::<posestream::detector::Runtime>())]
     pub runtime: Option<posestream::detector::Runtime>,
     /// Pace of a replayed recording (overrides `detector.rate`).
     #[arg(long, value_enum)]

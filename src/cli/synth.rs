@@ -31,7 +31,7 @@ pub struct CameraArgs {
     #[arg(long, default_value_t = CameraSpec::default().orbit_deg_per_s)]
     pub orbit: f64,
     /// Projection model.
-    #[arg(long, value_enum, default_value_t = Projection::Pinhole)]
+    #[arg(long, value_parser = super::choice::choice::<Projection>(), default_value = "pinhole")]
     pub projection: Projection,
     /// Focal length, pixels (orthographic: focal / distance pixels per metre).
     #[arg(long, default_value_t = CameraSpec::default().focal)]

@@ -24,7 +24,7 @@ use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
 use super::config::{ExtrinsicsSource, FusionConfig};
 use super::tf_buffer::TfBuffer;
 use super::{NodeError, Refusals, SetupError};
-use crate::camera::{CropBox, Intrinsics};
+use crate::camera::Intrinsics;
 use crate::estimator::Estimator;
 use crate::fusion::{
     ExtrinsicsCheck, FusedEstimate, FusedWindow, FusionSettings, Matcher, TrackObservation,
@@ -35,7 +35,8 @@ use crate::msgs::sensor::CameraInfo;
 use crate::msgs::tf::TFMessage;
 use crate::msgs::{self, Header, HeatMaps, MetricSource, Skeleton3D, SkeletonState, Time, Units};
 use crate::skeleton::same_layout;
-use crate::streaming::Scores;
+use posestream_base::CropBox;
+use posestream_base::Scores;
 
 /// Fused frames waiting at most: a frame further ahead makes the oldest ones now.
 const MAX_PENDING: usize = 64;

@@ -35,7 +35,7 @@ use std::collections::{BTreeMap, VecDeque};
 use std::panic::AssertUnwindSafe;
 
 use self::tf_buffer::TfBuffer;
-use crate::camera::{CropBox, Intrinsics, PixelMap};
+use crate::camera::Intrinsics;
 use crate::error::EstimateError;
 use crate::estimator::Estimator;
 use crate::floor::{BodyScale, FloorModel, FloorSource};
@@ -49,6 +49,7 @@ use crate::streaming::{
     Estimates, FrameEstimate, FrameMaps, StreamCounters, TrackState, WindowEstimator,
 };
 use crate::transport::TransportError;
+use posestream_base::{CropBox, PixelMap};
 
 pub use config::ServiceConfig;
 

@@ -491,21 +491,22 @@ impl FrameSource for RecordingFrames<'_> {
                 // copy.
                 return self.hold_transforms(msg.topic, msg.log_time_ns, &msg.data);
             }
-            if let Some((taps, topic)) = self.ground_truth {
-                if msg.topic == topic && msg.schema == Skeleton3D::NAME {
-                    // Decoded and encoded again: a truth recorded before a field was
-                    // added to Skeleton3D goes out in the layout of the output's schema
-                    // (one that does not decode is left out). A failed write marks the
-                    // recording failed: the next message ends the replay, and finishing
-                    // the recording reports it.
-                    let truth = &mut self.truth;
-                    let again = msgs::decode::<Skeleton3D>(&msg.data).ok().filter(|s| {
-                        truth.clear();
-                        msgs::encode_into(s, truth).is_ok()
-                    });
-                    if again.is_some() {
-                        let _ = taps.send_encoded::<Skeleton3D>(topic, msg.log_time_ns, truth);
-                    }
+            if let Some((taps, topic)) = self.ground_truth
+                && msg.topic == topic
+                && msg.schema == Skeleton3D::NAME
+            {
+                // Decoded and encoded again: a truth recorded before a field was
+                // added to Skeleton3D goes out in the layout of the output's schema
+                // (one that does not decode is left out). A failed write marks the
+                // recording failed: the next message ends the replay, and finishing
+                // the recording reports it.
+                let truth = &mut self.truth;
+                let again = msgs::decode::<Skeleton3D>(&msg.data).ok().filter(|s| {
+                    truth.clear();
+                    msgs::encode_into(s, truth).is_ok()
+                });
+                if again.is_some() {
+                    let _ = taps.send_encoded::<Skeleton3D>(topic, msg.log_time_ns, truth);
                 }
             }
         }

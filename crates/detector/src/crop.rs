@@ -2,7 +2,7 @@
 //! comes from (the whole image, an explicit box, the previous frame's landmarks), and
 //! the resampling of that box of the image into the model's input.
 
-use posestream_math::camera::CropBox;
+use posestream_base::CropBox;
 
 /// The square box centred on the image whose side is the image's longer side (the
 /// image letterboxed): where to look when nothing better is known.

@@ -46,11 +46,10 @@ use crate::models::person::{
 use crate::models::{LandmarkModel, ModelFile};
 use crate::motion::Motion;
 use crate::tracker::{Assignment, Observation, Tracker, TrackerStats, TrackingSettings, iou};
-use posestream_math::camera::CropBox;
-use posestream_math::error::{OutOfDomain, check_real};
+use posestream_base::CropBox;
+use posestream_base::{OutOfDomain, check_real};
 use posestream_msgs::HeatMapEncoding;
-use posestream_transport::ros2::check_topic_name;
-use posestream_transport::shm::FRAME_ID_BYTES;
+use posestream_msgs::names::{FRAME_ID_BYTES, check_topic_name};
 
 /// BlazePose's alignment landmarks: the hips' midpoint and the body circle's scale point.
 const ALIGNMENT: [usize; 2] = [33, 34];
@@ -199,7 +198,7 @@ pub struct ImageSettings {
 }
 
 /// The landmark model's runtime.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Runtime {
     /// LiteRT when it is set up (`posestream models fetch` fetches it, or

@@ -265,9 +265,10 @@ mod tests {
     fn the_shipped_blazepose_mapping_fits_the_shipped_dictionary() {
         // The workspace root, two folders above this crate.
         let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
-        let dict =
-            posestream_math::Dictionary::load(root.join("config/dictionaries/default-k128.json"))
-                .expect("dictionary");
+        let dict = <posestream_math::Dictionary as posestream_msgs::formats::LoadDictionary>::load(
+            root.join("config/dictionaries/default-k128.json"),
+        )
+        .expect("dictionary");
         let m = ChannelMapping::load(
             root.join("config/detectors/blazepose.toml"),
             &dict.skeleton().joints,

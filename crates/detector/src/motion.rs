@@ -22,7 +22,7 @@
 use image::{GrayImage, Luma, RgbImage};
 use imageproc::distance_transform::Norm;
 use imageproc::region_labelling::{Connectivity, connected_components};
-use posestream_math::camera::CropBox;
+use posestream_base::CropBox;
 
 /// The background is kept at most this wide (px).
 pub const WIDTH: u32 = 384;

@@ -29,8 +29,8 @@ use pathfinding::kuhn_munkres::kuhn_munkres_min;
 use pathfinding::matrix::Matrix;
 use serde::{Deserialize, Serialize};
 
-use posestream_math::camera::CropBox;
-use posestream_math::error::{OutOfDomain, check_real};
+use posestream_base::CropBox;
+use posestream_base::{OutOfDomain, check_real};
 
 /// How people are tracked (`[detector.images.tracking]`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -18,7 +18,7 @@
 use nalgebra::{Rotation3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
-use crate::error::{OutOfDomain, check_range, check_real};
+use posestream_base::{OutOfDomain, check_range, check_real};
 
 /// Where the floor comes from (`[estimator.metric.floor] source`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]

@@ -1,7 +1,8 @@
 //! # posestream-math
 //!
-//! The math of posestream, and nothing else: no files of the service, no transports, no
-//! images (it depends on none of ros2-client, iceoryx2, mcap, tract, image or ureq).
+//! The math of posestream, and nothing else: it opens no file and catches no panic, knows
+//! no transport and no image (it depends on none of ros2-client, iceoryx2, mcap, tract,
+//! image or ureq); of posestream's crates only on the foundation, `posestream-base`.
 //!
 //!
 //! Monocular 3D human pose estimation after Zhou et al., "Sparseness Meets Deepness: 3D
@@ -12,9 +13,13 @@
 //! The math lives in [`solver`] and knows nothing of files or transports; [`Estimator`]
 //! is its entry point:
 //!
-//! ```no_run
+//! ```
+//! use posestream_math::skeleton::default_layout;
 //! use posestream_math::{Dictionary, Estimator, Params};
-//! let dict = Dictionary::load("poseDict-all-K128.mat")?;
+//! // A dictionary of 8 bases over the default 17 joints; a real one comes from a file
+//! // (`posestream_msgs::formats::LoadDictionary`: JSON, or the authors' MAT-files).
+//! let bases = (0..8 * 3 * 17).map(|i| ((i * 37 % 101) as f64 / 101.0 - 0.5)).collect();
+//! let dict = Dictionary::new(default_layout(), bases, vec![0.0; 3 * 17])?;
 //! let estimator = Estimator::new(dict, Params::default())?;
 //! // One frame of 17 joints, pixels (x right, y down).
 //! let xy: Vec<f64> = (0..34).map(|i| (i * 7 % 13) as f64).collect();
@@ -45,11 +50,11 @@ pub mod skeleton;
 pub mod solver;
 pub mod streaming;
 
-pub use camera::{CropBox, Intrinsics, PixelMap};
+pub use camera::Intrinsics;
 pub use dictionary::Dictionary;
-pub use error::{CameraError, DictionaryError, EstimateError};
+pub use error::EstimateError;
 pub use estimator::{Estimate, Estimator, Keypoints, MetricEstimate, Report};
 pub use heatmaps::HeatMapSequence;
 pub use skeleton::Skeleton;
 pub use solver::{InitMethod, Params};
-pub use streaming::{Estimates, FrameEstimate, FrameMaps, Scores, StreamSettings, WindowEstimator};
+pub use streaming::{Estimates, FrameEstimate, FrameMaps, StreamSettings, WindowEstimator};

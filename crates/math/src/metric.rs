@@ -26,15 +26,17 @@
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
-use crate::camera::{Intrinsics, PixelMap};
+use crate::camera::Intrinsics;
 use crate::dictionary::Dictionary;
-use crate::error::{EstimateError, OutOfDomain, check_range, check_real};
+use crate::error::EstimateError;
 use crate::estimator::Estimator;
 use crate::floor::{BodyScale, FloorModel, FloorSettings};
 use crate::solver::perspective::{
     self, PerspectiveFit, PerspectiveParams, PerspectiveWorkspace, start_from_weak_fit,
 };
 use crate::streaming::FrameEstimate;
+use posestream_base::PixelMap;
+use posestream_base::{OutOfDomain, check_range, check_real};
 
 /// Settings of the metric step (`[estimator.metric]`). The perspective adjustment's
 /// keys are listed here again rather than flattened from [`PerspectiveParams`]: serde

@@ -33,10 +33,10 @@ impl Skeleton {
             return Err(format!("expected one root joint, found {roots}"));
         }
         for (j, q) in parents.iter().enumerate() {
-            if let Some(q) = *q {
-                if q >= p {
-                    return Err(format!("joint {j} has parent index {q} out of range"));
-                }
+            if let Some(q) = *q
+                && q >= p
+            {
+                return Err(format!("joint {j} has parent index {q} out of range"));
             }
         }
         // Every joint must reach the root in fewer than p steps (no cycles).

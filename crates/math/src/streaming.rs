@@ -38,7 +38,7 @@ use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
 use crate::dictionary::Dictionary;
-use crate::error::{EstimateError, OutOfDomain, check_range, check_real};
+use crate::error::EstimateError;
 use crate::estimator::Estimator;
 use crate::heatmaps::HeatMapSequence;
 use crate::solver::adapt::ShapeStats;
@@ -47,6 +47,8 @@ use crate::solver::estep::MapMoments;
 use crate::solver::init::InitWorkspace;
 use crate::solver::normalise::heatmap_scale;
 use crate::solver::{Anchors, FrameFit, Observations, Params};
+pub use posestream_base::Scores;
+use posestream_base::{OutOfDomain, check_range, check_real};
 
 /// Which estimates the window emits for each new frame.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -220,64 +222,6 @@ pub struct FrameMaps<'a> {
     /// p maps of `height x width`, row-major, joint-major: borrowed from the message
     /// or sample that brought them (the window's ring is their one copy).
     pub values: Scores<'a>,
-}
-
-/// A frame's scores as they came, borrowed: f32, or u8 with a scale (`q x scale`). The
-/// window dequantises them (and clips negatives) once, into its ring.
-#[derive(Debug, Clone, Copy)]
-pub enum Scores<'a> {
-    /// Scores as f32.
-    F32(&'a [f32]),
-    /// Scores quantised to u8: each is `q x scale`.
-    U8 {
-        /// The quantised scores.
-        values: &'a [u8],
-        /// The score of q = 1 (finite and positive, or the frame is refused).
-        scale: f32,
-    },
-}
-
-impl Scores<'_> {
-    /// How many scores.
-    pub fn len(&self) -> usize {
-        match self {
-            Self::F32(v) => v.len(),
-            Self::U8 { values, .. } => values.len(),
-        }
-    }
-
-    /// True without scores.
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
-    }
-
-    /// Writes the scores as f32 into `out` (as long as they are), negatives clipped to 0.
-    pub(crate) fn clipped_into(&self, out: &mut [f32]) {
-        match *self {
-            Self::F32(v) => {
-                for (d, v) in out.iter_mut().zip(v) {
-                    *d = v.max(0.0);
-                }
-            }
-            Self::U8 { values, scale } => {
-                for (d, &q) in out.iter_mut().zip(values) {
-                    *d = (f32::from(q) * scale).max(0.0);
-                }
-            }
-        }
-    }
-}
-
-impl<'a> From<&'a [f32]> for Scores<'a> {
-    fn from(v: &'a [f32]) -> Self {
-        Self::F32(v)
-    }
-}
-
-impl<'a> From<&'a Vec<f32>> for Scores<'a> {
-    fn from(v: &'a Vec<f32>) -> Self {
-        Self::F32(v)
-    }
 }
 
 impl<'a> FrameMaps<'a> {
@@ -775,11 +719,13 @@ impl WindowEstimator {
     ///
     /// ```
     /// use posestream_math::streaming::{Estimates, FrameMaps, StreamSettings, WindowEstimator};
+    /// use posestream_math::skeleton::default_layout;
     /// use posestream_math::{Dictionary, Estimator, Params};
     ///
-    /// let root = concat!(env!("CARGO_MANIFEST_DIR"), "/../..");
-    /// let dict = Dictionary::load(format!("{root}/config/dictionaries/default-k128.json"))
-    ///     .expect("the shipped dictionary");
+    /// // A dictionary of 8 bases over the default 17 joints (a real one is loaded from a
+    /// // file: `posestream_msgs::formats::LoadDictionary`).
+    /// let bases = (0..8 * 3 * 17).map(|i| ((i * 37 % 101) as f64 / 101.0 - 0.5)).collect();
+    /// let dict = Dictionary::new(default_layout(), bases, vec![0.0; 3 * 17])?;
     /// let estimator = Estimator::new(dict, Params::default())?;
     /// let mut window = WindowEstimator::new(estimator, StreamSettings::default())?;
     /// let mut out = Estimates::default();
@@ -799,7 +745,7 @@ impl WindowEstimator {
     /// window.push_into(&frame, &mut out)?;
     /// assert_eq!(out.len(), 1); // the newest frame at lag 0; lagged ones come later
     /// assert_eq!(out[0].pose.len(), 3 * 17);
-    /// # Ok::<(), posestream_math::EstimateError>(())
+    /// # Ok::<(), Box<dyn std::error::Error>>(())
     /// ```
     pub fn push_into(
         &mut self,

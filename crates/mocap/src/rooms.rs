@@ -8,6 +8,7 @@ use std::collections::BTreeMap;
 use std::time::Instant;
 
 use nalgebra::Point3;
+use posestream_base::Scores;
 use posestream_math::Estimator;
 use posestream_math::error::EstimateError;
 use posestream_math::fusion::matching::peaks_into;
@@ -18,7 +19,7 @@ use posestream_math::fusion::{
 use posestream_math::metric::{MetricPose, MetricSettings, MetricStep};
 use posestream_math::metrics::mpjpe;
 use posestream_math::skeleton::Skeleton;
-use posestream_math::streaming::{FrameEstimate, FrameMaps, Scores, WindowEstimator};
+use posestream_math::streaming::{FrameEstimate, FrameMaps, WindowEstimator};
 
 use crate::synth::room::Room;
 

@@ -54,3 +54,91 @@ pub enum ArrayError {
         detail: String,
     },
 }
+
+/// Loading or validating a dictionary ([`posestream_math::Dictionary`]) failed.
+#[derive(Debug, thiserror::Error)]
+pub enum DictionaryError {
+    /// The file could not be read.
+    #[error("cannot read dictionary {path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// The file is not a MATLAB v5/v7 MAT-file the reader understands.
+    #[error("{path} is not a readable MATLAB MAT-file: {reason}")]
+    Mat {
+        /// The file.
+        path: PathBuf,
+        /// What the MAT reader said.
+        reason: String,
+    },
+    /// The file is not valid posestream dictionary JSON.
+    #[error("{path} is not a valid posestream dictionary: {source}")]
+    Json {
+        /// The file.
+        path: PathBuf,
+        /// The cause.
+        source: serde_json::Error,
+    },
+    /// A variable or field the format requires is absent or of the wrong kind.
+    #[error("dictionary {path}: missing or malformed `{what}`")]
+    Missing {
+        /// The file.
+        path: PathBuf,
+        /// The variable or field.
+        what: String,
+    },
+    /// Sizes do not agree (e.g. B is not 3k x p, or the skeleton has another joint count).
+    #[error("dictionary {path}: {detail}")]
+    Shape {
+        /// The file.
+        path: PathBuf,
+        /// What disagrees.
+        detail: String,
+    },
+    /// The bases or mean contain NaN or infinity.
+    #[error("dictionary {path}: non-finite value in `{what}`")]
+    NonFinite {
+        /// The file.
+        path: PathBuf,
+        /// The variable.
+        what: String,
+    },
+    /// The skeleton is not a tree over the joints (bad index, cycle, several roots).
+    #[error("dictionary {path}: invalid skeleton: {detail}")]
+    Skeleton {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        detail: String,
+    },
+    /// The file extension names no known dictionary format.
+    #[error("dictionary {path}: unknown format (expected .mat or .json)")]
+    UnknownFormat {
+        /// The file.
+        path: PathBuf,
+    },
+}
+
+/// Reading camera intrinsics failed.
+#[derive(Debug, thiserror::Error)]
+pub enum CameraError {
+    /// The file could not be read.
+    #[error("cannot read intrinsics {path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// The file is not valid intrinsics JSON, or holds impossible values.
+    #[error("intrinsics {path}: {detail}")]
+    Invalid {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        detail: String,
+    },
+}

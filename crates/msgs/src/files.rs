@@ -26,13 +26,13 @@ pub fn check_output(output: &Path, inputs: &[&Path]) -> Result<(), OutputIsInput
         return Ok(());
     };
     for input in inputs {
-        if let Ok(i) = std::fs::metadata(input) {
-            if (i.dev(), i.ino()) == (out.dev(), out.ino()) {
-                return Err(OutputIsInput {
-                    output: output.to_path_buf(),
-                    input: input.to_path_buf(),
-                });
-            }
+        if let Ok(i) = std::fs::metadata(input)
+            && (i.dev(), i.ino()) == (out.dev(), out.ino())
+        {
+            return Err(OutputIsInput {
+                output: output.to_path_buf(),
+                input: input.to_path_buf(),
+            });
         }
     }
     Ok(())

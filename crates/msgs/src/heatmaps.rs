@@ -2,8 +2,8 @@
 
 use super::{DecodeError, Header, Time};
 use crate::ros_message;
-use posestream_math::camera::CropBox;
-use posestream_math::streaming::Scores;
+use posestream_base::CropBox;
+use posestream_base::Scores;
 
 /// How the scores of a [`HeatMaps`] message are stored.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

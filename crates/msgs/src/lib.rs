@@ -16,14 +16,17 @@
 //! [`decode`]).
 //!
 //! Besides the messages, this crate holds the files they are kept in and read from:
-//! [`recording`] (rosbag2-compatible MCAP), [`npy`] arrays, [`toml_file`] (TOML
+//! [`recording`] (rosbag2-compatible MCAP), [`formats`] (pose dictionaries and camera
+//! intrinsics, which the math is loaded from), [`npy`] arrays, [`toml_file`] (TOML
 //! documents read into typed structs), [`files`] (outputs that never replace an input),
-//! [`limits`], the largest sizes taken from a peer or a file, and [`shipped`], the
-//! files built into the binary (`builtin:NAME` paths).
+//! [`limits`], the largest sizes taken from a peer or a file, [`names`], ROS 2 names
+//! checked, and [`shipped`], the files built into the binary (`builtin:NAME` paths).
 
 pub mod error;
 pub mod files;
+pub mod formats;
 pub mod limits;
+pub mod names;
 pub mod npy;
 pub mod recording;
 pub mod salvage;

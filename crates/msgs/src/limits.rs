@@ -9,7 +9,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use posestream_math::error::{OutOfDomain, check_range};
+use posestream_base::{OutOfDomain, check_range};
 
 /// `[limits]`: the largest inputs the service takes.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]

@@ -106,7 +106,7 @@ pub fn from_bytes<T: Element>(bytes: &[u8], path: &Path) -> Result<Array<T>, Arr
     // `npyz` multiplies the header's shape without checking for overflow (a panic with
     // overflow checks, found by fuzzing; release builds wrap, and the size check below
     // refuses the result): its parsing is contained.
-    let file = posestream_math::error::contain_panics(|| npyz::NpyFile::new(bytes))
+    let file = posestream_base::contain_panics(|| npyz::NpyFile::new(bytes))
         .map_err(|panic| fmt(format!("malformed header ({panic})")))?
         .map_err(|e| fmt(e.to_string()))?;
     let order = file.order();

@@ -363,10 +363,10 @@ impl Recorder {
         };
         std::fs::rename(&partial, &path).map_err(|e| unfinished(e.to_string()))?;
         // The rename itself is durable once the folder is.
-        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-            if let Ok(d) = File::open(dir) {
-                let _ = d.sync_all();
-            }
+        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty())
+            && let Ok(d) = File::open(dir)
+        {
+            let _ = d.sync_all();
         }
         Ok(summary)
     }
@@ -736,7 +736,7 @@ impl<R: Read + Seek> RecordingReader<R> {
     fn advance(&mut self) -> Option<Result<RecordedMessage, RecordingError>> {
         loop {
             let reader = &mut self.reader;
-            let event = match posestream_math::error::contain_panics(move || reader.next_event()) {
+            let event = match posestream_base::contain_panics(move || reader.next_event()) {
                 Ok(next) => match next? {
                     Ok(e) => e,
                     Err(e) => return Some(Err(self.classify(e))),
@@ -760,7 +760,7 @@ impl<R: Read + Seek> RecordingReader<R> {
                     }
                 }
                 LinearReadEvent::Record { opcode, data } => {
-                    let record = match posestream_math::error::contain_panics(|| {
+                    let record = match posestream_base::contain_panics(|| {
                         mcap::parse_record(opcode, data)
                     }) {
                         Ok(Ok(r)) => r,

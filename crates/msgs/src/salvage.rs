@@ -554,7 +554,7 @@ impl Salvager {
     /// channel is counted (`Ok(false)`).
     fn record(&mut self, opcode: u8, body: &[u8]) -> Result<bool, Damage> {
         // Parsed where it lies (nothing copied but what is kept).
-        let record = posestream_math::error::contain_panics(|| mcap::parse_record(opcode, body));
+        let record = posestream_base::contain_panics(|| mcap::parse_record(opcode, body));
         let Ok(Ok(record)) = record else {
             return Err(Damage::Unparsable);
         };
@@ -613,7 +613,7 @@ impl Salvager {
     /// messages before a record that does not parse are kept.
     fn chunk(&mut self, body: &[u8]) -> Result<(), Damage> {
         // Parsed where it lies; an uncompressed chunk's records are read there too.
-        let parsed = posestream_math::error::contain_panics(|| mcap::parse_record(op::CHUNK, body));
+        let parsed = posestream_base::contain_panics(|| mcap::parse_record(op::CHUNK, body));
         let Ok(Ok(Record::Chunk { header, data })) = parsed else {
             return Err(Damage::Unparsable);
         };

@@ -10,6 +10,7 @@
 //! `cargo install` installs binaries only, and a path beside the binary breaks when it is
 //! copied alone (a container, a robot's image).
 
+use crate::formats::LoadDictionary;
 use std::path::Path;
 
 /// The prefix of a shipped file's path.
@@ -120,19 +121,19 @@ pub fn read_to_string(path: &Path) -> std::io::Result<std::borrow::Cow<'static, 
 }
 
 /// Loads a pose dictionary: a shipped one (`builtin:dictionaries/NAME.json`) or a file
-/// ([`posestream_math::Dictionary::load`]: `.json` or the authors' `.mat`).
+/// ([`LoadDictionary::load`]: `.json` or the authors' `.mat`).
 pub fn load_dictionary(
     path: &Path,
-) -> Result<posestream_math::Dictionary, posestream_math::DictionaryError> {
+) -> Result<posestream_math::Dictionary, crate::error::DictionaryError> {
     match find(path) {
         Some(found) => {
-            let shipped = found.map_err(|e| posestream_math::DictionaryError::Io {
+            let shipped = found.map_err(|e| crate::error::DictionaryError::Io {
                 path: path.to_path_buf(),
                 source: e.into(),
             })?;
-            posestream_math::dictionary::json::from_bytes(shipped.bytes, path)
+            crate::formats::dictionary_json::from_bytes(shipped.bytes, path)
         }
-        None => posestream_math::Dictionary::load(path),
+        None => <posestream_math::Dictionary as LoadDictionary>::load(path),
     }
 }
 

@@ -39,7 +39,7 @@ pub enum ConfigError {
         /// The file.
         path: PathBuf,
         /// The key, its domain and the value found.
-        source: posestream_math::error::OutOfDomain,
+        source: posestream_base::OutOfDomain,
     },
 }
 

@@ -28,7 +28,9 @@ use serde::{Deserialize, Serialize};
 
 use super::runtime::AsyncSource;
 use super::{Message, Received, Sink, Source, TransportError};
-use posestream_math::error::{OutOfDomain, check_range, check_real};
+use posestream_base::{OutOfDomain, check_range, check_real};
+pub use posestream_msgs::names::check_topic_name;
+use posestream_msgs::names::is_ros_token;
 
 mod security;
 pub use security::{ENCLAVE_FILES, SecuritySettings};
@@ -170,32 +172,6 @@ impl RosSettings {
             })?;
         }
         Ok(())
-    }
-}
-
-/// A token of a ROS name: letters, digits and `_`, not starting with a digit.
-fn is_ros_token(t: &str) -> bool {
-    t.chars()
-        .next()
-        .is_some_and(|c| c.is_ascii_alphabetic() || c == '_')
-        && t.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
-}
-
-/// Checks that `name` is an absolute ROS 2 topic name: `/` then tokens of letters,
-/// digits and `_` (not starting with a digit) separated by single `/`.
-pub fn check_topic_name(key: &str, name: &str) -> Result<(), OutOfDomain> {
-    let ok = name.len() <= 255
-        && name
-            .strip_prefix('/')
-            .is_some_and(|rest| rest.split('/').all(is_ros_token));
-    if ok {
-        Ok(())
-    } else {
-        Err(OutOfDomain::new(
-            key,
-            "an absolute ROS 2 topic name (/a/b_c: letters, digits, _ and single /)",
-            format!("{name:?}"),
-        ))
     }
 }
 

@@ -152,7 +152,7 @@ impl<M: Send> AsyncSource<M> for Blocking<M> {
                 topic: name,
                 reason: format!(
                     "the source's thread panicked: {}",
-                    posestream_math::error::panic_text(payload.as_ref())
+                    posestream_base::panic_text(payload.as_ref())
                 ),
             }),
             Ok(()) => Ok(Received::Closed),

@@ -35,7 +35,7 @@ pub const MAX_JOINTS: usize = 32;
 /// Bytes of a joint name (NUL-padded UTF-8).
 pub const NAME_BYTES: usize = 24;
 /// Bytes of a frame id (NUL-padded UTF-8).
-pub const FRAME_ID_BYTES: usize = 64;
+pub use posestream_msgs::names::FRAME_ID_BYTES;
 /// Samples a subscriber holds before the oldest is overwritten (every client opening
 /// the services must ask for at most this many).
 pub const SUBSCRIBER_BUFFER: usize = 16;
@@ -52,10 +52,10 @@ pub struct ShmSettings {
 
 impl ShmSettings {
     /// Checks every value is in its domain; the error names the key (`[iceoryx2]`).
-    pub fn check(&self) -> Result<(), posestream_math::error::OutOfDomain> {
+    pub fn check(&self) -> Result<(), posestream_base::OutOfDomain> {
         for (key, name) in [("skeletons", &self.skeletons), ("heatmaps", &self.heatmaps)] {
             if name.is_empty() || name.len() > 255 || name.contains('\0') {
-                return Err(posestream_math::error::OutOfDomain::new(
+                return Err(posestream_base::OutOfDomain::new(
                     key,
                     "a service name of 1 to 255 bytes",
                     format!("{name:?}"),

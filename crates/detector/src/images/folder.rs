@@ -8,8 +8,8 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use super::ImageFrame;
+use posestream_base::{Received, Source, TransportError};
 use posestream_msgs::limits::Limits;
-use posestream_transport::{Received, Source, TransportError};
 
 /// File extensions read (lower case).
 pub const EXTENSIONS: [&str; 4] = ["png", "jpg", "jpeg", "gif"];

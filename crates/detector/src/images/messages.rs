@@ -5,9 +5,9 @@
 use std::time::Duration;
 
 use super::ImageFrame;
+use posestream_base::{Received, Source, TransportError};
 use posestream_msgs::limits::Limits;
 use posestream_msgs::{CompressedImage, Header, Image};
-use posestream_transport::{Received, Source, TransportError};
 
 /// An 8-bit RGB image from a `sensor_msgs/Image` (`rgb8`, `bgr8`, `rgba8`, `bgra8`,
 /// `mono8`). The message's width, height and row step are checked (checked arithmetic,

@@ -1,5 +1,5 @@
 //! Camera frames for the image detector, from any of its sources, as one type
-//! ([`ImageFrame`]): every source is a [`Source<ImageFrame>`](posestream_transport::Source),
+//! ([`ImageFrame`]): every source is a [`Source<ImageFrame>`](posestream_base::Source),
 //! so the detector does not know where its frames come from.
 //!
 //! - [`folder`]: the image files of a folder, in name order;
@@ -37,8 +37,8 @@ pub(crate) fn setup_error(
     transport: &'static str,
     path: &std::path::Path,
     reason: impl Into<String>,
-) -> posestream_transport::TransportError {
-    posestream_transport::TransportError::Setup {
+) -> posestream_base::TransportError {
+    posestream_base::TransportError::Setup {
         transport,
         what: path.display().to_string(),
         reason: reason.into(),
@@ -54,7 +54,7 @@ impl ImageFrame {
         frame_id: &str,
         name: String,
         rgb: image::RgbImage,
-    ) -> posestream_transport::Received<Self> {
+    ) -> posestream_base::Received<Self> {
         let stamp_ns = frame_stamp(index, fps);
         let frame = Self {
             sequence: index,
@@ -63,7 +63,7 @@ impl ImageFrame {
             name,
             rgb,
         };
-        posestream_transport::Received::Message(frame, stamp_ns)
+        posestream_base::Received::Message(frame, stamp_ns)
     }
 }
 
@@ -74,7 +74,7 @@ impl ImageFrame {
 /// zune-jpeg overflows on a crafted JPEG's DC coefficient, a panic where overflow is
 /// checked (`fuzz/regressions/sensor_image`).
 pub fn decode_bytes(bytes: &[u8], limits: &Limits) -> Result<image::RgbImage, String> {
-    posestream_math::error::contain_panics(|| decode_within(bytes, limits))
+    posestream_base::contain_panics(|| decode_within(bytes, limits))
         .map_err(|panic| format!("the image decoder failed: {panic}"))?
 }
 

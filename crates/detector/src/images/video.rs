@@ -9,8 +9,8 @@ use std::process::{Child, ChildStdout, Command, Stdio};
 use std::time::Duration;
 
 use super::ImageFrame;
+use posestream_base::{Received, Source, TransportError};
 use posestream_msgs::limits::Limits;
-use posestream_transport::{Received, Source, TransportError};
 
 /// One video being decoded.
 #[derive(Debug)]

@@ -24,7 +24,7 @@ pub enum Value {
 }
 
 fn pad_to(b: &mut Vec<u8>, align: usize) {
-    while b.len() % align != 0 {
+    while !b.len().is_multiple_of(align) {
         b.push(0);
     }
 }
@@ -39,7 +39,7 @@ pub fn set_forward(b: &mut [u8], at: usize, target: usize) -> Option<()> {
 /// Appends a vector: its length (u32) and `items`, the items aligned to `align`.
 /// Returns the vector's position (its length prefix).
 pub fn append_vector(b: &mut Vec<u8>, len: usize, items: &[u8], align: usize) -> usize {
-    while (b.len() + 4) % align != 0 {
+    while !(b.len() + 4).is_multiple_of(align) {
         b.push(0);
     }
     let at = b.len();
@@ -65,7 +65,7 @@ pub fn append_table(b: &mut Vec<u8>, fields: &[(u16, Value)]) -> Option<usize> {
     pad_to(b, 2);
     // The table must start 4-aligned right after the vtable: pad before the vtable.
     let vtable_len = 4 + 2 * slots;
-    while (b.len() + vtable_len) % 4 != 0 {
+    while !(b.len() + vtable_len).is_multiple_of(4) {
         b.extend_from_slice(&[0, 0]);
     }
     let vtable = b.len();

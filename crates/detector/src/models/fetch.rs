@@ -17,9 +17,7 @@ pub const PACKAGE_URL: &str =
 pub const PACKAGE_SHA256: &str = "8bb349a7b3a3ba699df23be804ddd3b3eab810b50b15406894be257859388a84";
 
 /// The three BlazePose landmark models.
-#[derive(
-    Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize, serde::Deserialize,
-)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum LandmarkModel {
     /// `pose_landmark_lite.tflite`.

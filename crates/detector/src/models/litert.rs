@@ -418,7 +418,7 @@ impl LiteRtNetwork {
         }
         // SAFETY: `handle` was just made.
         let status = unsafe { (api.buffer_packed_size)(handle, &raw mut packed) };
-        if status != 0 || packed % 4 != 0 || packed / 4 > ROOM_FLOATS {
+        if status != 0 || !packed.is_multiple_of(4) || packed / 4 > ROOM_FLOATS {
             // SAFETY: made above, not destroyed elsewhere.
             unsafe { (api.destroy_buffer)(handle) };
             return Err(error(

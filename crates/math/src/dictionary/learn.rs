@@ -119,7 +119,7 @@ pub fn learn(
     let d = 3 * skeleton.len();
     let n = poses.len() / d;
     let k = params.atoms;
-    if poses.len() % d != 0 || n == 0 {
+    if !poses.len().is_multiple_of(d) || n == 0 {
         return Err(format!(
             "{} values are not whole poses of 3 x {} joints",
             poses.len(),

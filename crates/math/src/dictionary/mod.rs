@@ -10,13 +10,8 @@
 //! Bases are centred on load (each basis has zero mean over the joints on every axis),
 //! as the reference solver assumes.
 
-pub mod json;
 pub mod learn;
-pub mod mat;
 
-use std::path::Path;
-
-use crate::error::DictionaryError;
 use crate::skeleton::Skeleton;
 
 /// `k` basis poses of `p` joints and a mean shape.
@@ -41,7 +36,7 @@ impl Dictionary {
     /// Centres every basis and the mean over the joints.
     pub fn new(skeleton: Skeleton, bases: Vec<f64>, mean: Vec<f64>) -> Result<Self, String> {
         let p = skeleton.len();
-        if bases.is_empty() || bases.len() % (3 * p) != 0 {
+        if bases.is_empty() || !bases.len().is_multiple_of(3 * p) {
             return Err(format!(
                 "bases hold {} values, not a multiple of 3 x {p} joints",
                 bases.len()
@@ -79,18 +74,6 @@ impl Dictionary {
             }
         }
         Ok(d)
-    }
-
-    /// Loads a dictionary, choosing the format by extension (`.mat` or `.json`).
-    pub fn load(path: impl AsRef<Path>) -> Result<Self, DictionaryError> {
-        let path = path.as_ref();
-        match path.extension().and_then(|e| e.to_str()) {
-            Some(e) if e.eq_ignore_ascii_case("mat") => mat::load(path),
-            Some(e) if e.eq_ignore_ascii_case("json") => json::load(path),
-            _ => Err(DictionaryError::UnknownFormat {
-                path: path.to_path_buf(),
-            }),
-        }
     }
 
     /// The joint layout.

@@ -13,7 +13,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::error::{OutOfDomain, check_range, check_real};
+use posestream_base::{OutOfDomain, check_range, check_real};
 
 /// Settings of the check (`[estimator.fusion.extrinsics]`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -3,9 +3,9 @@
 
 use nalgebra::{Matrix3, Vector3};
 
-use crate::camera::PixelMap;
 use crate::dictionary::Dictionary;
 use crate::solver::estep::MapMoments;
+use posestream_base::PixelMap;
 
 /// One person's pose in one frame, world frame: joint `j` is at `m R S_j(c) + T`, with
 /// `m` the window's metres per unit ([`super::FusedWindow`] holds it: one size per

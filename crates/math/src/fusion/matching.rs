@@ -24,9 +24,9 @@ use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
 use super::ViewCamera;
-use crate::camera::PixelMap;
-use crate::error::{OutOfDomain, check_real};
 use crate::heatmaps::argmax;
+use posestream_base::PixelMap;
+use posestream_base::{OutOfDomain, check_real};
 
 /// Settings of the matching (`[estimator.fusion.matching]`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -65,7 +65,7 @@ impl MatchSettings {
         check_real("ray_gate", self.ray_gate, 0.0, 100.0, true)?;
         check_real("peak_threshold", self.peak_threshold, 0.0, 1e30, false)?;
         check_real("forget_seconds", self.forget_seconds, 0.0, 3600.0, true)?;
-        crate::error::check_range("max_people", self.max_people, 1, 10_000)
+        posestream_base::check_range("max_people", self.max_people, 1, 10_000)
     }
 }
 
@@ -263,10 +263,10 @@ impl Matcher {
                 if tracks[i].view == tracks[j].view {
                     continue;
                 }
-                if let Some(d) = self.ray_distance(&tracks[i], &tracks[j], cameras) {
-                    if d <= self.settings.ray_gate {
-                        pairs.push((d, i, j));
-                    }
+                if let Some(d) = self.ray_distance(&tracks[i], &tracks[j], cameras)
+                    && d <= self.settings.ray_gate
+                {
+                    pairs.push((d, i, j));
                 }
             }
         }
@@ -428,7 +428,7 @@ pub fn peaks_into(
     // Maps that do not fill whole `height x width` maps give no peaks.
     let Some(n) = height
         .checked_mul(width)
-        .filter(|&n| n > 0 && maps.len() % n == 0)
+        .filter(|&n| n > 0 && maps.len().is_multiple_of(n))
     else {
         return;
     };
@@ -691,13 +691,19 @@ mod tests {
         assert_eq!(m.people().count(), 0);
         // NaN scores are no peaks; maps that are not whole maps give none.
         let mut p = Vec::new();
-        peaks_into(&[0.0; 10], 3, 3, &crate::camera::PixelMap::IDENTITY, &mut p);
+        peaks_into(
+            &[0.0; 10],
+            3,
+            3,
+            &posestream_base::PixelMap::IDENTITY,
+            &mut p,
+        );
         assert!(p.is_empty());
         peaks_into(
             &[0.0; 9],
             usize::MAX,
             2,
-            &crate::camera::PixelMap::IDENTITY,
+            &posestream_base::PixelMap::IDENTITY,
             &mut p,
         );
         assert!(p.is_empty());

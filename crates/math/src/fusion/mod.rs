@@ -48,9 +48,9 @@ pub use frame::FusedPose;
 pub use matching::{MatchSettings, Matcher, TrackObservation};
 pub use window::FusedWindow;
 
-use crate::camera::PixelMap;
-use crate::error::{OutOfDomain, check_range, check_real};
-use crate::streaming::Scores;
+use posestream_base::PixelMap;
+use posestream_base::Scores;
+use posestream_base::{OutOfDomain, check_range, check_real};
 
 /// One camera's heat maps of a person in one frame.
 #[derive(Debug, Clone, Copy)]

@@ -6,7 +6,6 @@ use nalgebra::{Matrix3, Vector3};
 use super::ViewCamera;
 use super::estep::{MIN_DEPTH, units_per_metre};
 use super::frame::Frame;
-use crate::camera::PixelMap;
 use crate::dictionary::Dictionary;
 use crate::geometry::fit_similarity;
 use crate::heatmaps::argmax;
@@ -14,6 +13,7 @@ use crate::solver::init::{InitCache, InitWorkspace, initialise_frame_into};
 use crate::solver::normalise::heatmap_scale;
 use crate::solver::perspective::{PerspectiveParams, mean_limb_length, start_from_weak_fit};
 use crate::solver::{FrameFit, InitMethod, Params};
+use posestream_base::PixelMap;
 
 /// Buffers of the start.
 #[derive(Debug, Clone, Default)]

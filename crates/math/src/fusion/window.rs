@@ -17,7 +17,7 @@ use crate::heatmaps::argmax;
 use crate::solver::Params;
 use crate::solver::estep::MapMoments;
 use crate::solver::init::InitCache;
-use crate::streaming::Scores;
+use posestream_base::Scores;
 
 /// The multi-view EM over a sliding window of one person's frames (module docs of
 /// [`super`]).
@@ -196,13 +196,13 @@ impl FusedWindow {
                 )));
             }
         }
-        if let Some(last) = self.frames.back() {
-            if stamp_ns <= last.stamp_ns {
-                return Err(EstimateError::Parameter(format!(
-                    "frame at {stamp_ns} ns is not after the last one ({} ns)",
-                    last.stamp_ns
-                )));
-            }
+        if let Some(last) = self.frames.back()
+            && stamp_ns <= last.stamp_ns
+        {
+            return Err(EstimateError::Parameter(format!(
+                "frame at {stamp_ns} ns is not after the last one ({} ns)",
+                last.stamp_ns
+            )));
         }
         let mut frame = self
             .spare
@@ -223,10 +223,10 @@ impl FusedWindow {
             }
         }
         // The frame is well formed: a long gap before it ends the track.
-        if let Some(last) = self.frames.back() {
-            if seconds_between(last.stamp_ns, stamp_ns) > self.settings.max_gap_seconds {
-                self.reset();
-            }
+        if let Some(last) = self.frames.back()
+            && seconds_between(last.stamp_ns, stamp_ns) > self.settings.max_gap_seconds
+        {
+            self.reset();
         }
         if !frame.views().iter().any(|v| v.evidence) {
             // Nobody saw the person: nothing to estimate (a gap, as a dropped frame).

@@ -27,7 +27,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{FrameFit, Observations};
 use crate::dictionary::Dictionary;
-use crate::error::{OutOfDomain, check_range, check_real};
+use posestream_base::{OutOfDomain, check_range, check_real};
 
 /// Settings of the shape adaptation (`[estimator.params.adaptation]`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -38,7 +38,8 @@ use nalgebra::{Matrix3, Vector2};
 use serde::{Deserialize, Serialize};
 
 use crate::dictionary::Dictionary;
-use crate::error::{EstimateError, OutOfDomain, check_range, check_real};
+use crate::error::EstimateError;
+use posestream_base::{OutOfDomain, check_range, check_real};
 
 /// How each frame is initialised before the joint optimisation.
 ///

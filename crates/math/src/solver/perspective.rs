@@ -37,11 +37,12 @@ use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
 
 use super::{FrameFit, dot, soft};
-use crate::camera::{Intrinsics, PixelMap};
+use crate::camera::Intrinsics;
 use crate::dictionary::Dictionary;
 use crate::error::EstimateError;
 use crate::geometry::fit_similarity;
 use crate::skeleton::Skeleton;
+use posestream_base::PixelMap;
 
 /// Settings of the perspective adjustment.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -16,7 +16,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 use serde::{Deserialize, Serialize};
 
-use posestream_math::camera::CropBox;
+use posestream_base::CropBox;
 use posestream_math::error::EstimateError;
 use posestream_math::heatmaps::HeatMapSequence;
 use posestream_math::skeleton::Skeleton;

@@ -12,13 +12,14 @@ use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::MappedSequence;
-use posestream_math::camera::{CropBox, Intrinsics};
+use posestream_base::CropBox;
+use posestream_math::camera::Intrinsics;
 use posestream_math::skeleton::Skeleton;
 
 pub use heatmaps::{ErrorModel, RenderedMaps};
 
 /// How the camera projects.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Projection {
     /// Parallel projection at `focal / distance` pixels per metre (the same image size as

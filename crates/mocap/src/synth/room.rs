@@ -11,7 +11,8 @@ use serde::{Deserialize, Serialize};
 
 use super::{ErrorModel, RenderedMaps, View, crop_boxes, heatmaps, hidden_by_others};
 use crate::MappedSequence;
-use posestream_math::camera::{CropBox, Intrinsics};
+use posestream_base::CropBox;
+use posestream_math::camera::Intrinsics;
 use posestream_math::error::EstimateError;
 use posestream_math::fusion::ViewCamera;
 use posestream_math::skeleton::Skeleton;

@@ -18,9 +18,10 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use super::Dictionary;
+use posestream_math::Dictionary;
+use posestream_math::skeleton::Skeleton;
+
 use crate::error::DictionaryError;
-use crate::skeleton::Skeleton;
 
 /// Magic value of the `format` field.
 pub const FORMAT: &str = "posestream-dictionary";
@@ -56,7 +57,7 @@ pub struct DictionaryFile {
 
 /// Loads a JSON dictionary.
 pub fn load(path: &Path) -> Result<Dictionary, DictionaryError> {
-    let text = std::fs::read(path).map_err(|source| DictionaryError::Io {
+    let text = super::read_file(path).map_err(|source| DictionaryError::Io {
         path: path.to_path_buf(),
         source,
     })?;

@@ -6,13 +6,14 @@ use std::path::Path;
 
 use matrw::MatVariable;
 
-use super::Dictionary;
+use posestream_math::Dictionary;
+use posestream_math::skeleton::Skeleton;
+
 use crate::error::DictionaryError;
-use crate::skeleton::Skeleton;
 
 /// Loads a MATLAB v5/v7 dictionary file.
 pub fn load(path: &Path) -> Result<Dictionary, DictionaryError> {
-    let bytes = std::fs::read(path).map_err(|source| DictionaryError::Io {
+    let bytes = super::read_file(path).map_err(|source| DictionaryError::Io {
         path: path.to_path_buf(),
         source,
     })?;
@@ -26,7 +27,7 @@ pub fn load(path: &Path) -> Result<Dictionary, DictionaryError> {
 /// kinds; found by fuzzing): the whole reading is one contained region, and a panic in it
 /// is reported as a malformed file.
 pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Dictionary, DictionaryError> {
-    crate::error::contain_panics(|| read(bytes, path)).unwrap_or_else(|_| {
+    posestream_base::contain_panics(|| read(bytes, path)).unwrap_or_else(|_| {
         Err(DictionaryError::Mat {
             path: path.to_path_buf(),
             reason: "malformed file".into(),
