@@ -18,9 +18,11 @@ use std::time::{Duration, Instant};
 use serde::Serialize;
 
 use super::config::{ReplayRate, ServiceConfig};
+use super::drivers::{pace, run_estimator};
 use super::frames::is_body_transform;
 use super::latency::LatencySummary;
-use super::service::{EstimatorOutputs, Publishers, Taps, live_view, pace, run_estimator};
+use super::publish::{EstimatorOutputs, Publishers};
+use super::service::{Taps, live_view};
 use super::{EstimatorNode, Refusals, SetupError};
 use crate::files::{OutputIsInput, check_output};
 use crate::msgs::sensor::CameraInfo;
@@ -30,7 +32,7 @@ use crate::recording::{RecordingError, RecordingReader, write_rosbag2_metadata};
 use crate::streaming::StreamCounters;
 use crate::transport::foxglove::LiveView;
 use crate::transport::mcap::SharedRecorder;
-use crate::transport::{FrameSource, Received, TransportError};
+use crate::transport::{FrameSource, Lent, Received, TransportError};
 
 /// What a replay did.
 #[derive(Debug, Clone, Serialize)]
@@ -189,9 +191,7 @@ pub fn replay(
         truth: Vec::new(),
         live: live.as_ref(),
         camera_topic: &topics.camera_info,
-        camera: None,
         tf_topics: [&topics.tf_static, &topics.tf],
-        tf: None,
         pace: (options.rate == ReplayRate::Recorded).then(|| (Instant::now(), None)),
         stop,
         heatmaps: 0,
@@ -299,8 +299,9 @@ fn replay_outputs(
         shown_only.outputs.iceoryx2 = false;
         let mut none = super::service::Middleware::default();
         let mut o = EstimatorOutputs::open(&shown_only, &mut none, &shown, node)?;
-        o.skeletons = skeletons;
-        o.arrays = arrays;
+        o.sinks.skeletons = skeletons;
+        o.planner = o.planner.with_arrays(!arrays.is_empty());
+        o.sinks.arrays = arrays;
         o
     } else {
         EstimatorOutputs::new(skeletons, Publishers::default(), node.bones()).with_arrays(arrays)
@@ -322,13 +323,10 @@ struct RecordingFrames<'a> {
     truth: Vec<u8>,
     /// The live view, which is shown the heat maps as they are read.
     live: Option<&'a LiveView>,
-    /// The camera-info topic, and the calibration read last (not yet taken).
+    /// The camera-info topic.
     camera_topic: &'a str,
-    camera: Option<CameraInfo>,
-    /// The transform topics (`/tf_static`, `/tf`), and the transforms read last (not
-    /// yet taken).
+    /// The transform topics (`/tf_static`, `/tf`).
     tf_topics: [&'a str; 2],
-    tf: Option<TFMessage>,
     /// When pacing: the start, and the first log time.
     pace: Option<(Instant, Option<u64>)>,
     stop: &'a AtomicBool,
@@ -339,13 +337,16 @@ struct RecordingFrames<'a> {
 }
 
 impl RecordingFrames<'_> {
-    /// [`Self::hold`] for transforms: the copy recorded leaves people's frames out (an
-    /// output recording's own body frames, replayed, are not this run's).
-    fn hold_transforms(
+    /// Records transforms read beside the heat maps (people's frames left out of the
+    /// copy: an output recording's own body frames, replayed, are not this run's), then
+    /// lends them to the estimator, before the frames after them; ones that do not decode
+    /// are refused and counted.
+    fn lend_transforms(
         &mut self,
         topic: String,
         stamp_ns: u64,
         data: &[u8],
+        take: &mut dyn FnMut(Lent<'_>, u64),
     ) -> Result<Received<()>, TransportError> {
         let tf = msgs::decode::<TFMessage>(data).map_err(|e| TransportError::Malformed {
             transport: "mcap",
@@ -361,27 +362,27 @@ impl RecordingFrames<'_> {
                 let _ = taps.send_encoded::<TFMessage>(&topic, stamp_ns, &self.truth);
             }
         }
-        self.tf = Some(tf);
-        Ok(Received::Idle)
+        take(Lent::Transforms(&tf), stamp_ns);
+        Ok(Received::Message((), stamp_ns))
     }
 
-    /// Records a message read beside the heat maps (`data`, as it came), then decodes it
-    /// into its slot for the estimator, which takes it before the frames after it
-    /// ([`Received::Idle`]); one that does not decode is refused and counted.
-    fn hold<M: crate::transport::Message>(
+    /// Records a calibration read beside the heat maps (`data`, as it came: the output
+    /// holds the calibration it was made with), then lends it to the estimator, before
+    /// the frames after it; one that does not decode is refused and counted.
+    fn lend_calibration(
         &mut self,
-        slot: impl FnOnce(&mut Self) -> &mut Option<M>,
         topic: String,
         stamp_ns: u64,
         data: &[u8],
+        take: &mut dyn FnMut(Lent<'_>, u64),
     ) -> Result<Received<()>, TransportError> {
         if let Some((taps, _)) = self.ground_truth {
-            let _ = taps.send_encoded::<M>(&topic, stamp_ns, data);
+            let _ = taps.send_encoded::<CameraInfo>(&topic, stamp_ns, data);
         }
-        match msgs::decode::<M>(data) {
-            Ok(m) => {
-                *slot(self) = Some(m);
-                Ok(Received::Idle)
+        match msgs::decode::<CameraInfo>(data) {
+            Ok(info) => {
+                take(Lent::Calibration(&info), stamp_ns);
+                Ok(Received::Message((), stamp_ns))
             }
             Err(e) => Err(TransportError::Malformed {
                 transport: "mcap",
@@ -398,19 +399,33 @@ impl FrameSource for RecordingFrames<'_> {
         false
     }
 
-    fn camera_info(&mut self) -> Option<CameraInfo> {
-        self.camera.take()
-    }
-
-    fn transforms(&mut self) -> Option<TFMessage> {
-        self.tf.take()
-    }
-
-    /// Never waits, but for the pace.
+    /// The next frame; the calibrations and transforms on the way are recorded and
+    /// passed over.
     fn recv_frame(
         &mut self,
-        _timeout: Duration,
+        timeout: Duration,
         take: &mut dyn FnMut(&HeatMapsView<'_>, u64),
+    ) -> Result<Received<()>, TransportError> {
+        loop {
+            let mut lent_frame = false;
+            let got = self.recv_input(timeout, &mut |lent, stamp| {
+                if let Lent::Frame(frame) = lent {
+                    lent_frame = true;
+                    take(frame, stamp);
+                }
+            })?;
+            if lent_frame || !matches!(got, Received::Message(..)) {
+                return Ok(got);
+            }
+        }
+    }
+
+    /// Never waits, but for the pace: the next heat-map frame, or a calibration or
+    /// transforms in their place among the frames.
+    fn recv_input(
+        &mut self,
+        _timeout: Duration,
+        take: &mut dyn FnMut(Lent<'_>, u64),
     ) -> Result<Received<()>, TransportError> {
         while let Some(next) = self.reader.next_message() {
             // A failed write (a full disk) ends the replay: its only output is the
@@ -458,7 +473,7 @@ impl FrameSource for RecordingFrames<'_> {
                 }
                 return match msgs::decode::<HeatMaps>(&msg.data) {
                     Ok(m) => {
-                        take(&m.view(), msg.log_time_ns);
+                        take(Lent::Frame(&m.view()), msg.log_time_ns);
                         Ok(Received::Message((), msg.log_time_ns))
                     }
                     Err(e) => Err(TransportError::Malformed {
@@ -479,17 +494,12 @@ impl FrameSource for RecordingFrames<'_> {
             if msg.topic == self.camera_topic {
                 // Recorded as it came (the output holds the calibration it was made
                 // with), then handed to the estimator before the frames after it.
-                return self.hold::<CameraInfo>(
-                    |s| &mut s.camera,
-                    msg.topic,
-                    msg.log_time_ns,
-                    &msg.data,
-                );
+                return self.lend_calibration(msg.topic, msg.log_time_ns, &msg.data, take);
             }
             if self.tf_topics.contains(&msg.topic.as_str()) && msg.schema == TFMessage::NAME {
                 // The same (the floor), people's frames of an earlier run left out of the
                 // copy.
-                return self.hold_transforms(msg.topic, msg.log_time_ns, &msg.data);
+                return self.lend_transforms(msg.topic, msg.log_time_ns, &msg.data, take);
             }
             if let Some((taps, topic)) = self.ground_truth
                 && msg.topic == topic

@@ -11,17 +11,19 @@ use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use super::bodies::Bodies;
-use super::wiring::{Middleware, Taps, configured_bodies, publishers};
-use super::{Publishers, ServiceError};
+use super::error::ServiceError;
+use super::middleware::Middleware;
+use super::taps::Taps;
+use super::wiring::{configured_bodies, publishers};
 use crate::msgs::sensor::CameraInfo;
 use crate::msgs::tf::TFMessage;
-use crate::msgs::{Header, HeatMaps, MarkerArray, Skeleton3D, Skeleton3DArray};
-use crate::nodes::Refusals;
+use crate::msgs::{Header, HeatMaps, Skeleton3D, Skeleton3DArray};
 use crate::nodes::config::{ExtrinsicsSource, FusionConfig, ServiceConfig};
 use crate::nodes::fusion::{CameraReport, FusionCounters, FusionNode};
 use crate::nodes::latency::{LatencyHistogram, LatencySummary};
 use crate::nodes::markers::skeleton_markers;
+use crate::nodes::publish::{BodyPlanner, Plan, Publication, Publishers, Sinks};
+use crate::nodes::refusals::Refusals;
 use crate::transport::mcap::McapSource;
 use crate::transport::{Received, Source, TransportError};
 
@@ -222,12 +224,15 @@ impl Source<TFMessage> for Closed {
     }
 }
 
-/// Where the fusion node's results go.
+/// Where the fusion node's results go: the plan of each step (skeletons, markers, what
+/// they say of bodies, REP-155's ids per fused frame) and its sinks.
 pub struct FusionOutputs {
-    skeletons: Publishers<Skeleton3D>,
-    markers: Publishers<MarkerArray>,
-    bodies: Bodies,
+    sinks: Sinks,
+    bodies: BodyPlanner,
     bones: Vec<(usize, usize)>,
+    markers: bool,
+    /// The plan in hand (reused).
+    plan: Plan,
     /// Each fused frame's newest skeletons, for REP-155's tracked ids (reused).
     frame: Skeleton3DArray,
     /// The skeletons of this lag, kept for the caller ([`FusionOutputs::keeping`]).
@@ -252,10 +257,17 @@ impl FusionOutputs {
         // The newest estimates: the least delay, as TF and REP-155's readers want.
         let bodies = configured_bodies(config, middleware, taps, node.joint_names(), 0)?;
         Ok(Self {
-            skeletons,
-            markers,
-            bodies,
+            markers: !markers.is_empty(),
+            sinks: Sinks {
+                skeletons,
+                markers,
+                tf: bodies.tf,
+                hri: bodies.hri,
+                ..Sinks::default()
+            },
+            bodies: bodies.planner,
             bones: node.bones(),
+            plan: Plan::default(),
             frame: Skeleton3DArray::default(),
             keep: None,
         })
@@ -279,15 +291,17 @@ impl FusionOutputs {
     /// Publishes `skeletons` (one fused frame's, or more), each stamped with its frame's
     /// time, and hands the vector back empty.
     fn publish(&mut self, skeletons: &mut Vec<Skeleton3D>) {
-        for s in skeletons.iter() {
+        let plan = &mut self.plan;
+        for (i, s) in skeletons.iter().enumerate() {
             let stamp = u64::try_from(s.header.stamp.nanos()).unwrap_or(0);
-            self.skeletons.publish(s, stamp);
-            if !self.markers.is_empty() {
-                self.markers
-                    .publish(&skeleton_markers(s, &self.bones), stamp);
+            plan.order.push((Publication::Skeleton(i), stamp));
+            if self.markers {
+                let (k, markers) = plan.markers.add();
+                *markers = skeleton_markers(s, &self.bones);
+                plan.order.push((Publication::Markers(k), stamp));
             }
             if !self.bodies.is_empty() {
-                self.bodies.publish(s, None, stamp);
+                self.bodies.plan(s, None, stamp, plan);
             }
             if let Some((lag, kept)) = &mut self.keep
                 && s.lag == *lag
@@ -296,7 +310,7 @@ impl FusionOutputs {
             }
             if s.lag == 0 {
                 if self.frame.sequence != s.sequence || self.frame.skeletons.is_empty() {
-                    self.send_frame();
+                    Self::plan_frame(&self.bodies, &mut self.frame, plan);
                     self.frame.header = Header {
                         stamp: s.header.stamp.clone(),
                         frame_id: s.header.frame_id.clone(),
@@ -307,28 +321,34 @@ impl FusionOutputs {
             }
         }
         // The node hands over whole fused frames: the last one's ids go now.
-        self.send_frame();
-        skeletons.clear();
+        Self::plan_frame(&self.bodies, &mut self.frame, plan);
+        plan.skeletons.append(skeletons);
+        self.sinks.send(plan);
+        plan.clear();
     }
 
     /// REP-155's tracked ids of the fused frame in hand.
-    fn send_frame(&mut self) {
-        if !self.frame.skeletons.is_empty() {
-            let stamp = u64::try_from(self.frame.header.stamp.nanos()).unwrap_or(0);
-            self.bodies.tracked(&self.frame, stamp);
-            self.frame.skeletons.clear();
+    fn plan_frame(bodies: &BodyPlanner, frame: &mut Skeleton3DArray, plan: &mut Plan) {
+        if !frame.skeletons.is_empty() {
+            let stamp = u64::try_from(frame.header.stamp.nanos()).unwrap_or(0);
+            if let Some(ids) = bodies.tracked(frame) {
+                let (k, slot) = plan.tracked.add();
+                *slot = ids;
+                plan.order.push((Publication::Tracked(k), stamp));
+            }
+            frame.skeletons.clear();
         }
     }
 
     fn flush(&mut self) {
-        self.send_frame();
-        self.skeletons.flush();
-        self.markers.flush();
-        self.bodies.flush();
+        Self::plan_frame(&self.bodies, &mut self.frame, &mut self.plan);
+        self.sinks.send(&self.plan);
+        self.plan.clear();
+        self.sinks.flush();
     }
 
     fn failed(&self) -> u64 {
-        self.skeletons.failed + self.markers.failed + self.bodies.failed()
+        self.sinks.failed()
     }
 }
 

@@ -307,7 +307,8 @@ impl FusionNode {
 
     /// Counts a message its transport refused.
     pub fn count_refused(&mut self, error: &crate::transport::TransportError) {
-        self.refused.note(super::transport_refusal(error), error);
+        self.refused
+            .note(error.refusal().unwrap_or("undecodable"), error);
     }
 
     /// Each camera: calibration, frames, residual against the fused poses, whether its

@@ -1,15 +1,15 @@
 //! What the estimator reads beside its heat maps: the camera's calibration
 //! (`sensor_msgs/CameraInfo`) and, with the floor from TF, transforms (`/tf_static`,
-//! `/tf`). Both are rare and small next to the heat maps; the solver takes what waits
-//! in them before each frame, on its own thread, so a frame is estimated with the
-//! calibration and floor that came before it.
+//! `/tf`). Both are rare and small next to the heat maps; a driver moves what waits in
+//! them to the estimator's core before each input (on the core's thread), so a frame is
+//! estimated with the calibration and floor that came before it.
 
 use std::time::Duration;
 
 use crate::msgs::sensor::CameraInfo;
 use crate::msgs::tf::TFMessage;
-use crate::nodes::EstimatorNode;
-use crate::transport::{Received, Source, TransportError};
+use crate::nodes::estimator::core::Input;
+use crate::transport::{Received, Source};
 
 /// Messages taken from one source before a frame, at most: a peer flooding `/tf` (or
 /// the camera-info topic) delays the frame by this many messages, not without bound (the
@@ -34,52 +34,40 @@ impl SideInputs {
         }
     }
 
-    /// Hands `node` what waits in each input (refusals counted by the node); an input
-    /// that closed or broke is not read again (a warning says why).
-    pub fn take(&mut self, node: &mut EstimatorNode) {
+    /// Moves what waits in each input to the node's core through `step` (as
+    /// [`Input::Calibration`], [`Input::Transforms`], a refused message as
+    /// [`Input::Refused`]); an input that closed or broke is not read again (a warning
+    /// says why).
+    pub fn take(&mut self, step: &mut dyn FnMut(Input<'_>)) {
         if let Some(source) = &mut self.camera
-            && !drain(
-                source.as_mut(),
-                node,
-                MESSAGES_PER_FRAME,
-                "camera info",
-                |node, info| {
-                    // Counted and logged by the node if refused.
-                    let _ = node.camera_info(info);
-                },
-            )
+            && !drain(source.as_mut(), "camera info", step, |m| {
+                Input::Calibration(m)
+            })
         {
             self.camera = None;
         }
         self.transforms.retain_mut(|source| {
-            drain(
-                source.as_mut(),
-                node,
-                MESSAGES_PER_FRAME,
-                "transforms",
-                EstimatorNode::transforms,
-            )
+            drain(source.as_mut(), "transforms", step, |m| {
+                Input::Transforms(m)
+            })
         });
     }
 }
 
-/// Takes up to `most` waiting messages of `source` into `node`; false when the source is
-/// closed or broken.
+/// Moves up to [`MESSAGES_PER_FRAME`] waiting messages of `source` to `step`; false when
+/// the source is closed or broken.
 fn drain<M>(
     source: &mut dyn Source<M>,
-    node: &mut EstimatorNode,
-    most: usize,
     what: &str,
-    take: impl Fn(&mut EstimatorNode, &M),
+    step: &mut dyn FnMut(Input<'_>),
+    input: impl Fn(&M) -> Input<'_>,
 ) -> bool {
-    for _ in 0..most {
+    for _ in 0..MESSAGES_PER_FRAME {
         match source.recv(Duration::ZERO) {
-            Ok(Received::Message(m, _)) => take(node, &m),
+            Ok(Received::Message(m, _)) => step(input(&m)),
             Ok(Received::Idle) => return true,
             Ok(Received::Closed) => return false,
-            Err(e @ (TransportError::Malformed { .. } | TransportError::BeyondLimits { .. })) => {
-                node.count_refused(&e)
-            }
+            Err(e) if e.refusal().is_some() => step(Input::Refused(&e)),
             Err(e) => {
                 tracing::warn!("{what}: {e}; no more is read");
                 return false;
