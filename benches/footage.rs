@@ -6,6 +6,7 @@
 //! python3 tests/python/sample_media.py target/footage-media --footage   # the clips
 //! cargo bench --bench footage -- [--runtime auto|tract|litert] [--config FILE] [--media DIR] [CLIP.json ...]
 //! ```
+//! `POSESTREAM_BIN=path/to/posestream` scores another build's binary on the same clips.
 //! Not in CI (the clips are 14 MB and the runs minutes); `tests/images.rs` scores a
 //! collage of photos with the same scorer.
 
@@ -41,6 +42,10 @@ fn main() {
     } else {
         args.iter().map(PathBuf::from).collect()
     };
+    // Another build's binary (`POSESTREAM_BIN`), to compare builds on the same clips.
+    let binary = std::env::var_os("POSESTREAM_BIN")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_BIN_EXE_posestream")));
     let out = root.join("target/footage");
     std::fs::create_dir_all(&out).expect("target/footage");
     println!(
@@ -70,7 +75,7 @@ fn main() {
             .expect("ffmpeg runs");
         assert!(status.success(), "cutting {}", video.display());
         let recording = out.join(format!("{stem}.mcap"));
-        let mut run = Command::new(env!("CARGO_BIN_EXE_posestream"));
+        let mut run = Command::new(&binary);
         run.args(["run", "--video"])
             .arg(&cut)
             .args(["--ros2", "false", "--json", "--record"])

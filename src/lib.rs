@@ -10,7 +10,7 @@
 //! | crate | holds | re-exported as |
 //! |---|---|---|
 //! | `posestream-base` | what every layer shares: range checks, panic containment, a frame's crop box and scores, the ports (`Source`, `Sink`) | [`base`] |
-//! | `posestream-math` | skeleton, dictionary, camera, heat maps, solver, estimator, streaming window, metrics | [`camera`], [`dictionary`], [`estimator`], [`geometry`], [`heatmaps`], [`metrics`], [`skeleton`], [`solver`], [`streaming`] |
+//! | `posestream-math` | skeleton, dictionary, camera, heat maps, solver, estimators (batch and streaming window), metres, accuracy against a truth | [`camera`], [`dictionary`], [`estimator`], [`geometry`], [`heatmaps`], [`metres`], [`accuracy`], [`skeleton`], [`solver`], [`streaming`] |
 //! | `posestream-msgs` | the ROS 2 messages, recordings (MCAP), the files the math is loaded from (dictionaries, intrinsics), NPY and TOML files, limits | [`msgs`], [`recording`], [`npy`], [`files`], [`limits`] |
 //! | `posestream-transport` | the backends of the ports: in-memory, MCAP, ROS 2, iceoryx2, Foxglove | [`transport`] |
 //! | `posestream-detector` | camera images, landmark models, the image detector, pictures | [`detector`], [`images`], [`models`], [`render`] |
@@ -25,7 +25,7 @@
 
 pub use posestream_detector::{self as detector, images, models, render};
 pub use posestream_math::{
-    camera, estimator, floor, fusion, geometry, heatmaps, learnt_floor, metric, metrics, skeleton,
+    accuracy, camera, estimator, floor, fusion, geometry, heatmaps, learnt_floor, metres, skeleton,
     solver, streaming,
 };
 pub use posestream_mocap::{self as mocap, evaluation, synth};

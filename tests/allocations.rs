@@ -14,10 +14,15 @@
 //!   scores read in shared memory, its names unpacked into reused strings) and
 //!   handled as above.
 //!
-//! Not counted: decoding a message from the wire (ROS 2, recordings) and encoding the
-//! skeletons (the transports' serialisation builds their buffers), publishing the
-//! samples, and markers. `POSESTREAM_ALLOC_TRACE=1`
-//! prints a backtrace of the first allocations, to find where they come from.
+//! - from the wire to the window: a ROS 2 heat-map message taken from its subscription
+//!   (decoded over a message handed back: `Ros2Source::recycler`) and handled as above,
+//!   and a recorded one decoded from its bytes (`msgs::decode_into`) and handled: at most
+//!   two allocations a frame (a u8 frame's bytes are read whole).
+//!
+//! Not counted: encoding the skeletons (the transports' serialisation builds their
+//! buffers), publishing the samples, markers, and what DDS does on threads of its own.
+//! `POSESTREAM_ALLOC_TRACE=1` prints a backtrace of the first allocations, to find where
+//! they come from.
 
 #![allow(unsafe_code, reason = "a global allocator is unsafe to implement")]
 
@@ -268,4 +273,192 @@ fn iceoryx2_frames_reach_the_window_without_an_allocation() {
     });
     assert_eq!(emitted, 2000, "two skeletons per frame");
     assert_eq!(allocations, 0, "allocations over 1000 warm frames");
+}
+
+/// The byebye frames in `encoding`, each with a tracked person's id.
+fn frames_in(encoding: HeatMapEncoding) -> Vec<msgs::HeatMaps> {
+    byebye()
+        .iter()
+        .map(|m| {
+            let mut values = Vec::new();
+            m.values_into(&mut values).expect("values");
+            let mut made = msgs::HeatMaps::from_values(
+                m.header.clone(),
+                m.sequence,
+                m.joint_names.clone(),
+                m.height,
+                m.width,
+                m.crop().expect("crop"),
+                &values,
+                encoding,
+            );
+            made.track_id = m.track_id;
+            made
+        })
+        .collect()
+}
+
+#[test]
+fn a_recorded_frame_costs_at_most_two_allocations_from_the_file_to_the_window() {
+    use posestream::recording::{RecordedMessage, Recorder, RecordingReader};
+    let dir = tempfile::tempdir().expect("temp dir");
+    for encoding in [HeatMapEncoding::Float32, HeatMapEncoding::Uint8] {
+        // A recording of the frames in this encoding, stamped in order.
+        let frames = frames_in(encoding);
+        let n = frames.len() as u64;
+        let (warm, counted) = (2 * n, 1000);
+        let path = dir.path().join(format!("{encoding:?}.mcap"));
+        let mut recorder = Recorder::create(&path).expect("recording");
+        for s in 0..warm + counted {
+            let mut m = frames[(s % n) as usize].clone();
+            m.sequence = s;
+            m.header.stamp = Time::from_nanos(s as i64 * 33_333_333);
+            recorder
+                .write("/posestream/heatmaps", s * 33_333_333, &m)
+                .expect("write");
+        }
+        recorder.finish().expect("finish");
+        // Read on past damage, as a replay does by default; then strictly.
+        for salvaging in [true, false] {
+            let reader = RecordingReader::open(&path).expect("opens");
+            let mut reader = if salvaging {
+                reader.salvaging().expect("salvaging")
+            } else {
+                reader
+            };
+            let mut node = EstimatorNode::new(window());
+            let (mut out, mut record) = (Vec::new(), RecordedMessage::default());
+            let mut frame = msgs::HeatMaps::default();
+            let mut take = |node: &mut EstimatorNode, out: &mut Vec<_>| {
+                reader
+                    .next_message_into(&mut record)
+                    .expect("a message")
+                    .expect("read");
+                msgs::decode_into(&record.data, &mut frame).expect("decodes");
+                node.handle(&frame, out).expect("a good frame");
+            };
+            for _ in 0..warm {
+                take(&mut node, &mut out);
+                node.recycle(&mut out);
+            }
+            let (mut allocations, mut emitted) = (0, 0);
+            for _ in 0..counted {
+                allocations += count(|| take(&mut node, &mut out));
+                emitted += out.len();
+                node.recycle(&mut out);
+            }
+            TRACES.with(|t| {
+                for trace in t.borrow_mut().drain(..) {
+                    eprintln!("allocation at:\n{trace}");
+                }
+            });
+            assert_eq!(emitted, 2000, "{encoding:?}: two skeletons per frame");
+            eprintln!(
+                "{encoding:?}, salvaging {salvaging}: {allocations} allocations over {counted} \
+                 recorded frames, file to window"
+            );
+            assert!(
+                allocations <= 2 * counted,
+                "{encoding:?}, salvaging {salvaging}: {allocations} allocations over {counted} frames"
+            );
+        }
+    }
+}
+
+#[test]
+fn a_ros2_frame_costs_at_most_two_allocations_from_the_wire_to_the_window() {
+    for (i, encoding) in [HeatMapEncoding::Float32, HeatMapEncoding::Uint8]
+        .into_iter()
+        .enumerate()
+    {
+        ros2_frames(encoding, (std::process::id() % 100) as u16 + 120 + i as u16);
+    }
+}
+
+/// 1,000 warm frames in `encoding` over ROS 2 on `domain`: at most two allocations each
+/// from the subscription to the window.
+fn ros2_frames(encoding: HeatMapEncoding, domain: u16) {
+    use posestream::transport::Source;
+    use posestream::transport::ros2::{Ros2, RosSettings};
+    let participant = |node: &str| {
+        Ros2::new(&RosSettings {
+            domain_id: domain,
+            localhost_only: true,
+            node_name: node.into(),
+            ..RosSettings::default()
+        })
+        .expect("ROS 2 participant")
+    };
+    let (publisher, subscriber) = (
+        participant("allocations_pub"),
+        participant("allocations_sub"),
+    );
+    let topic = "/posestream/heatmaps";
+    let mut source = subscriber
+        .source::<msgs::HeatMaps>(topic)
+        .expect("subscription");
+    let mut sink = publisher.sink::<msgs::HeatMaps>(topic).expect("publisher");
+    let recycler = source.recycler();
+    let frames = frames_in(encoding);
+    let n = frames.len() as u64;
+    let message = |s: u64| {
+        let mut m = frames[(s % n) as usize].clone();
+        m.sequence = s;
+        m.header.stamp = Time::from_nanos(s as i64 * 33_333_333);
+        m
+    };
+    // Discovery: probe until the subscription hears the publisher.
+    let start = std::time::Instant::now();
+    loop {
+        assert!(start.elapsed().as_secs() < 30, "discovery failed");
+        sink.send(&message(0), 0).expect("send");
+        if let Received::Message(m, _) = source
+            .recv(std::time::Duration::from_millis(50))
+            .expect("recv")
+        {
+            recycler.put(m);
+            break;
+        }
+    }
+    while let Received::Message(m, _) = source
+        .recv(std::time::Duration::from_millis(300))
+        .expect("recv")
+    {
+        recycler.put(m);
+    }
+    let mut node = EstimatorNode::new(window());
+    let mut out = Vec::new();
+    let warm = 2 * n;
+    let (mut allocations, mut emitted) = (0, 0);
+    for s in 1..warm + 1000 {
+        sink.send(&message(s), 0).expect("send");
+        let mut receive = || {
+            let got = source
+                .recv(std::time::Duration::from_secs(5))
+                .expect("receive");
+            let Received::Message(m, _) = got else {
+                panic!("frame {s} not received: {got:?}");
+            };
+            node.handle(&m, &mut out).expect("a good frame");
+            recycler.put(m);
+        };
+        if s < warm {
+            receive();
+        } else {
+            allocations += count(receive);
+            emitted += out.len();
+        }
+        node.recycle(&mut out);
+    }
+    TRACES.with(|t| {
+        for trace in t.borrow_mut().drain(..) {
+            eprintln!("allocation at:\n{trace}");
+        }
+    });
+    assert_eq!(emitted, 2000, "{encoding:?}: two skeletons per frame");
+    eprintln!("{encoding:?}: {allocations} allocations over 1000 ROS 2 frames");
+    assert!(
+        allocations <= 2 * 1000,
+        "{encoding:?}: {allocations} allocations over 1000 warm frames from ROS 2"
+    );
 }

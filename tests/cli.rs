@@ -83,7 +83,7 @@ fn lifts_heat_maps_to_metres_with_intrinsics_and_boxes() {
             .chunks_exact(2)
             .all(|q| (299.5..555.5).contains(&q[0]) && (99.5..355.5).contains(&q[1]))
     );
-    let reprojection = posestream::metrics::mean_error_2d(&proj.data, &w.data);
+    let reprojection = posestream::accuracy::mean_error_2d(&proj.data, &w.data);
     assert!(reprojection < 2.0, "reprojection {reprojection} px");
     let summary: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json summary");
     assert!(summary["perspective"]["mean_iterations"].as_f64() > Some(1.0));

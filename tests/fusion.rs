@@ -7,7 +7,7 @@ mod common;
 use nalgebra::{UnitQuaternion, Vector3};
 use posestream::LoadDictionary;
 use posestream::fusion::{FusedWindow, FusionSettings, ViewMaps, ViewResidual, suspects};
-use posestream::metric::MetricSettings;
+use posestream::metres::MetricSettings;
 use posestream::mocap::rooms::{self, Errors, Fused};
 use posestream::mocap::{Bvh, MappedSequence, SkeletonMapping};
 use posestream::streaming::{Scores, StreamSettings, WindowEstimator};

@@ -28,7 +28,7 @@ fn a_panic_in_one_frame_resets_the_track_and_the_stream_goes_on() {
     let panics: Vec<&str> = stderr.lines().filter(|l| l.contains("panic at")).collect();
     assert_eq!(panics.len(), 1, "{stderr}");
     assert!(
-        panics[0].contains("ERROR") && panics[0].contains("src/nodes/mod.rs:"),
+        panics[0].contains("ERROR") && panics[0].contains("src/nodes/estimator/mod.rs:"),
         "{stderr}"
     );
     assert!(panics[0].contains("injected panic"), "{stderr}");

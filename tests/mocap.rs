@@ -202,7 +202,7 @@ fn synth_writes_what_lift_reads() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     // Metric poses near the truth: root-aligned error under 15 cm.
     let pred: Array<f64> = npy::read(&dir.join("pred.npy")).expect("pred");
-    let e = posestream::metrics::root_aligned_mpjpe(&pred.data, &truth.data, 17, 0);
+    let e = posestream::accuracy::root_aligned_mpjpe(&pred.data, &truth.data, 17, 0);
     assert!(e < 0.15, "root-aligned MPJPE {e} m");
 }
 

@@ -8,7 +8,7 @@ mod common;
 use common::{fixture, k128, read};
 use posestream::LoadDictionary;
 use posestream::npy::{self, Array};
-use posestream::{Dictionary, Estimator, HeatMapSequence, Keypoints, Params, metrics};
+use posestream::{Dictionary, Estimator, HeatMapSequence, Keypoints, Params, accuracy};
 
 fn summary(name: &str) -> serde_json::Value {
     let path = fixture(name).join("reference/summary.json");
@@ -49,7 +49,7 @@ fn given_2d_is_within_5_percent_of_the_reference_on_s0() {
             confidence: None,
         })
         .expect("lift");
-    let err = metrics::p_mpjpe(&est.poses, &gt.data, 17);
+    let err = accuracy::p_mpjpe(&est.poses, &gt.data, 17);
     println!("{name} given 2D: P-MPJPE {err:.4} (bound {bound:.4})");
     assert!(err <= bound, "P-MPJPE {err} > {bound}");
 }
@@ -61,8 +61,8 @@ fn check_heatmaps(name: &str) {
     let gt = read(fixture(name).join("gt_3d.npy"));
     let gt2 = read(fixture(name).join("gt_2d_heatmap.npy"));
     let est = estimator().lift_heatmaps(&heatmaps(name)).expect("lift");
-    let err3d = metrics::p_mpjpe(&est.poses, &gt.data, 17);
-    let err2d = metrics::mean_error_2d(&est.keypoints, &gt2.data);
+    let err3d = accuracy::p_mpjpe(&est.poses, &gt.data, 17);
+    let err2d = accuracy::mean_error_2d(&est.keypoints, &gt2.data);
     let argmax = s["heatmap_altern"]["err2d_argmax_px"]
         .as_f64()
         .unwrap_or(f64::INFINITY);

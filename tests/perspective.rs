@@ -5,7 +5,7 @@ mod common;
 use common::{fixture, k128, read, small_dictionary, three_basis_sequence};
 use nalgebra::Vector3;
 use posestream::LoadDictionary;
-use posestream::metrics::root_aligned_mpjpe;
+use posestream::accuracy::root_aligned_mpjpe;
 use posestream::solver::perspective::PerspectiveParams;
 use posestream::{
     Dictionary, Estimate, Estimator, Intrinsics, Keypoints, MetricEstimate, Params, PixelMap,
@@ -136,8 +136,9 @@ fn recovers_a_three_basis_pose_seen_close_up_in_perspective() {
     );
     let weak_error = root_aligned_mpjpe(&weak_metric(&skel, &weak.poses), &truth, p, skel.root());
     let error = root_aligned_mpjpe(&adjusted.poses, &truth, p, skel.root());
-    let absolute = posestream::metrics::mpjpe(&adjusted.poses, &truth);
-    let reprojection = posestream::metrics::mean_error_2d(&adjusted.projected, &adjusted.keypoints);
+    let absolute = posestream::accuracy::mpjpe(&adjusted.poses, &truth);
+    let reprojection =
+        posestream::accuracy::mean_error_2d(&adjusted.projected, &adjusted.keypoints);
     eprintln!(
         "weak {weak_error:.5} m, perspective {error:.6} m root-aligned, {absolute:.6} m absolute, \
          reprojection {reprojection:.5} px, iterations {:?}",

@@ -386,7 +386,7 @@ fn adaptation_fits_a_person_outside_the_dictionary_s_span() {
         let est = Estimator::new(dict.clone(), params).expect("estimator");
         let e = est.lift_keypoints(&kp).expect("lift");
         (
-            posestream::metrics::p_mpjpe(&e.poses, &truth, p) / size,
+            posestream::accuracy::p_mpjpe(&e.poses, &truth, p) / size,
             e.offset,
         )
     };

@@ -5,7 +5,7 @@ mod common;
 
 use common::{RECORDINGS, recording, root};
 use posestream::LoadDictionary;
-use posestream::metrics;
+use posestream::accuracy;
 use posestream::msgs::{self, Skeleton3D};
 use posestream::nodes::{EstimatorNode, ServiceConfig};
 use posestream::recording::read_topic;
@@ -105,7 +105,7 @@ fn streaming_stays_within_5_percent_of_the_batch_em_at_lag_10_and_15_percent_at_
         }
         // Every frame once at lag 0 and once refined.
         assert!(seen.iter().all(|&s| s == (1, 1)), "{name}: {seen:?}");
-        let e = |poses: &[f64]| 1000.0 * metrics::p_mpjpe(poses, &truth, p);
+        let e = |poses: &[f64]| 1000.0 * accuracy::p_mpjpe(poses, &truth, p);
         let (b, r, n) = (e(&est.poses), e(&refined), e(&newest));
         println!("{name}: batch {b:.1} mm, lag 10 {r:.1} mm, lag 0 {n:.1} mm");
         batch += b * f as f64;

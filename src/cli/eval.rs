@@ -274,13 +274,13 @@ pub fn run(args: &EvalArgs) -> Result<(), CliError> {
         let people = super::scenes::markdown(scenes)?;
         print!("{people}");
         write_results(args, &split, &format!("{tables}{people}"))?;
-        let stand = super::distances::markdown(scenes)?;
+        let stand = super::scenes::distances::markdown(scenes)?;
         print!("{stand}");
         write_results(args, &split, &format!("{tables}{people}{stand}"))?;
         // Several cameras: each person's views fused against each camera alone.
         let rooms = format!(
             "\n## Several cameras (`posestream scenes --rooms`)\n\n{}",
-            super::rooms::markdown(scenes)?
+            super::scenes::rooms::markdown(scenes)?
         );
         print!("{rooms}");
         write_results(args, &split, &format!("{tables}{people}{stand}{rooms}"))?;

@@ -8,7 +8,7 @@ use posestream::npy::{self, Array};
 use posestream::solver::perspective::PerspectiveParams;
 use posestream::{
     ArrayError, CropBox, Estimate, EstimateError, Estimator, HeatMapSequence, Intrinsics,
-    Keypoints, PixelMap, metrics,
+    Keypoints, PixelMap, accuracy,
 };
 
 use super::CliError;
@@ -245,7 +245,7 @@ pub fn run(args: &LiftArgs) -> Result<(), CliError> {
             summary["perspective"] = serde_json::json!({
                 "mean_iterations": metric.fits.iter().map(|f| f.iterations as f64).sum::<f64>() / n,
                 "mean_ray_distance_m": metric.fits.iter().map(|f| f.ray_distance).sum::<f64>() / n,
-                "mean_reprojection_px": metrics::mean_error_2d(&metric.projected, &metric.keypoints),
+                "mean_reprojection_px": accuracy::mean_error_2d(&metric.projected, &metric.keypoints),
                 "seconds": metric.seconds,
             });
             (metric.poses, metric.keypoints, metric.projected, variance)

@@ -4,7 +4,6 @@
 pub mod choice;
 pub mod config;
 pub mod detector;
-pub mod distances;
 pub mod error;
 pub mod estimator;
 pub mod eval;
@@ -18,7 +17,6 @@ pub mod record;
 pub mod recover;
 pub mod render;
 pub mod replay;
-pub mod rooms;
 pub mod run;
 pub mod scenes;
 pub mod service;

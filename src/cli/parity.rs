@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use clap::Args;
 use posestream::npy::{self, Array};
-use posestream::{ArrayError, Estimator, Keypoints, metrics};
+use posestream::{ArrayError, Estimator, Keypoints, accuracy};
 
 use super::CliError;
 use super::lift::{read_heatmaps, read_keypoints};
@@ -115,7 +115,7 @@ pub fn run(args: &ParityArgs) -> Result<(), CliError> {
             })?;
             println!(
                 "| {name} | keypoints | {:.4} | {} | - | - | {:.4} | {} |",
-                metrics::p_mpjpe(&e.poses, &gt.data, p),
+                accuracy::p_mpjpe(&e.poses, &gt.data, p),
                 fmt(best("keypoints.npy", "p_mpjpe"), 4),
                 e.report.seconds / e.report.frames as f64,
                 fmt(default_mode("keypoints.npy", "seconds_per_frame"), 3),
@@ -125,9 +125,9 @@ pub fn run(args: &ParityArgs) -> Result<(), CliError> {
         let e = estimator.lift_heatmaps(&maps)?;
         println!(
             "| {name} | heat maps | {:.4} | {} | {:.4} | {} | {:.4} | {} |",
-            metrics::p_mpjpe(&e.poses, &gt.data, p),
+            accuracy::p_mpjpe(&e.poses, &gt.data, p),
             fmt(best("heatmaps.npy", "p_mpjpe"), 4),
-            metrics::mean_error_2d(&e.keypoints, &gt2.data),
+            accuracy::mean_error_2d(&e.keypoints, &gt2.data),
             fmt(best("heatmaps.npy", "err2d_px"), 4),
             e.report.seconds / e.report.frames as f64,
             fmt(default_mode("heatmaps.npy", "seconds_per_frame"), 3),

@@ -1,11 +1,14 @@
-//! Why a node did not use a message ([`NodeError`], counted by kind: [`Refusals`]), and
-//! why a node could not be set up ([`SetupError`]).
+//! Why a node did not use a message ([`NodeError`], counted by kind: [`Refusals`]), why
+//! a node could not be set up ([`SetupError`]), and why a service could not start or had
+//! to stop ([`ServiceError`]).
 
 use std::collections::BTreeMap;
 
 use crate::error::EstimateError;
 use crate::limits::LimitError;
 use crate::msgs::DecodeError;
+use crate::recording::RecordingError;
+use crate::transport::TransportError;
 
 /// Why a message was not used.
 #[derive(Debug, thiserror::Error)]
@@ -221,4 +224,36 @@ impl Refusals {
     pub fn of(&self, kind: &str) -> u64 {
         self.0.get(kind).copied().unwrap_or(0)
     }
+}
+
+/// Why a service could not start or had to stop.
+#[derive(Debug, thiserror::Error)]
+pub enum ServiceError {
+    /// The estimator could not be set up.
+    #[error(transparent)]
+    Setup(#[from] SetupError),
+    /// A transport could not be set up, or broke.
+    #[error(transparent)]
+    Transport(#[from] TransportError),
+    /// The output recording could not be written.
+    #[error(transparent)]
+    Recording(#[from] RecordingError),
+    /// The node's I/O runtime could not start.
+    #[error("cannot start the I/O runtime: {0}")]
+    Runtime(std::io::Error),
+    /// A thread of the pipeline panicked.
+    #[error("the {0} thread stopped unexpectedly")]
+    Thread(&'static str),
+    /// An output is one of the inputs.
+    #[error(transparent)]
+    OutputIsInput(#[from] crate::files::OutputIsInput),
+    /// The input broke part way (a corrupt recording): the outputs are left as they
+    /// were; what was recorded before is kept in the recording's `.partial` file.
+    #[error("{reason}{}", kept.as_ref().map(|k| format!("; what was recorded before is in {}", k.display())).unwrap_or_default())]
+    Input {
+        /// What was wrong with the input.
+        reason: String,
+        /// The output recording's temporary file, if recording.
+        kept: Option<std::path::PathBuf>,
+    },
 }

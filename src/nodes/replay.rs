@@ -22,13 +22,13 @@ use super::drivers::{pace, run_estimator};
 use super::frames::is_body_transform;
 use super::latency::LatencySummary;
 use super::publish::{EstimatorOutputs, Publishers};
-use super::service::{Taps, live_view};
+use super::publish::{Taps, live_view};
 use super::{EstimatorNode, Refusals, SetupError};
 use crate::files::{OutputIsInput, check_output};
 use crate::msgs::sensor::CameraInfo;
 use crate::msgs::tf::TFMessage;
 use crate::msgs::{self, HeatMaps, HeatMapsView, RosMessage, Skeleton3D};
-use crate::recording::{RecordingError, RecordingReader, write_rosbag2_metadata};
+use crate::recording::{RecordedMessage, RecordingError, RecordingReader, write_rosbag2_metadata};
 use crate::streaming::StreamCounters;
 use crate::transport::foxglove::LiveView;
 use crate::transport::mcap::SharedRecorder;
@@ -89,7 +89,7 @@ pub enum ReplayError {
     Live(#[from] TransportError),
     /// The live view's outputs could not be set up.
     #[error(transparent)]
-    Service(#[from] super::service::ServiceError),
+    Service(#[from] super::errors::ServiceError),
     /// Nothing of the input could be read (reading on past damage).
     #[error("{path}: nothing could be read: {skipped}")]
     Unreadable {
@@ -195,6 +195,8 @@ pub fn replay(
         pace: (options.rate == ReplayRate::Recorded).then(|| (Instant::now(), None)),
         stop,
         heatmaps: 0,
+        frame: HeatMaps::default(),
+        message: RecordedMessage::default(),
         truncated: None,
         error: None,
     };
@@ -297,7 +299,7 @@ fn replay_outputs(
         let mut shown_only = config.clone();
         shown_only.outputs.ros2 = false;
         shown_only.outputs.iceoryx2 = false;
-        let mut none = super::service::Middleware::default();
+        let mut none = super::middleware::Middleware::default();
         let mut o = EstimatorOutputs::open(&shown_only, &mut none, &shown, node)?;
         o.sinks.skeletons = skeletons;
         o.planner = o.planner.with_arrays(!arrays.is_empty());
@@ -332,6 +334,10 @@ struct RecordingFrames<'a> {
     stop: &'a AtomicBool,
     /// Heat-map messages read (decodable or not).
     heatmaps: u64,
+    /// The heat-map message in hand, decoded over the one before (its buffers reused).
+    frame: HeatMaps,
+    /// The record in hand, read over the one before.
+    message: RecordedMessage,
     truncated: Option<String>,
     error: Option<RecordingError>,
 }
@@ -343,23 +349,19 @@ impl RecordingFrames<'_> {
     /// are refused and counted.
     fn lend_transforms(
         &mut self,
-        topic: String,
+        topic: &str,
         stamp_ns: u64,
         data: &[u8],
         take: &mut dyn FnMut(Lent<'_>, u64),
     ) -> Result<Received<()>, TransportError> {
-        let tf = msgs::decode::<TFMessage>(data).map_err(|e| TransportError::Malformed {
-            transport: "mcap",
-            topic: topic.clone(),
-            reason: e.to_string(),
-        })?;
+        let tf = msgs::decode::<TFMessage>(data).map_err(|e| malformed(topic, e))?;
         if let Some((taps, _)) = self.ground_truth {
             let mut kept = tf.clone();
             kept.transforms
                 .retain(|t| !is_body_transform(&t.header.frame_id, &t.child_frame_id));
             self.truth.clear();
             if !kept.transforms.is_empty() && msgs::encode_into(&kept, &mut self.truth).is_ok() {
-                let _ = taps.send_encoded::<TFMessage>(&topic, stamp_ns, &self.truth);
+                let _ = taps.send_encoded::<TFMessage>(topic, stamp_ns, &self.truth);
             }
         }
         take(Lent::Transforms(&tf), stamp_ns);
@@ -371,25 +373,26 @@ impl RecordingFrames<'_> {
     /// the frames after it; one that does not decode is refused and counted.
     fn lend_calibration(
         &mut self,
-        topic: String,
+        topic: &str,
         stamp_ns: u64,
         data: &[u8],
         take: &mut dyn FnMut(Lent<'_>, u64),
     ) -> Result<Received<()>, TransportError> {
         if let Some((taps, _)) = self.ground_truth {
-            let _ = taps.send_encoded::<CameraInfo>(&topic, stamp_ns, data);
+            let _ = taps.send_encoded::<CameraInfo>(topic, stamp_ns, data);
         }
-        match msgs::decode::<CameraInfo>(data) {
-            Ok(info) => {
-                take(Lent::Calibration(&info), stamp_ns);
-                Ok(Received::Message((), stamp_ns))
-            }
-            Err(e) => Err(TransportError::Malformed {
-                transport: "mcap",
-                topic,
-                reason: e.to_string(),
-            }),
-        }
+        let info = msgs::decode::<CameraInfo>(data).map_err(|e| malformed(topic, e))?;
+        take(Lent::Calibration(&info), stamp_ns);
+        Ok(Received::Message((), stamp_ns))
+    }
+}
+
+/// A record of the recording's `topic` that does not decode: refused and counted.
+fn malformed(topic: &str, e: impl std::fmt::Display) -> TransportError {
+    TransportError::Malformed {
+        transport: "mcap",
+        topic: topic.to_owned(),
+        reason: e.to_string(),
     }
 }
 
@@ -427,7 +430,22 @@ impl FrameSource for RecordingFrames<'_> {
         _timeout: Duration,
         take: &mut dyn FnMut(Lent<'_>, u64),
     ) -> Result<Received<()>, TransportError> {
-        while let Some(next) = self.reader.next_message() {
+        // The record in hand, read over the one before (its buffers reused).
+        let mut msg = std::mem::take(&mut self.message);
+        let got = self.next_input(&mut msg, take);
+        self.message = msg;
+        got
+    }
+}
+
+impl RecordingFrames<'_> {
+    /// [`FrameSource::recv_input`] with the record in hand `msg`.
+    fn next_input(
+        &mut self,
+        msg: &mut RecordedMessage,
+        take: &mut dyn FnMut(Lent<'_>, u64),
+    ) -> Result<Received<()>, TransportError> {
+        while let Some(next) = self.reader.next_message_into(msg) {
             // A failed write (a full disk) ends the replay: its only output is the
             // recording, whose finishing then reports it.
             let failed = self
@@ -437,8 +455,8 @@ impl FrameSource for RecordingFrames<'_> {
             if failed || self.stop.load(Ordering::Relaxed) {
                 break;
             }
-            let msg = match next {
-                Ok(m) => m,
+            match next {
+                Ok(()) => {}
                 Err(e @ RecordingError::Truncated { .. }) => {
                     self.truncated = Some(e.to_string());
                     break;
@@ -452,7 +470,7 @@ impl FrameSource for RecordingFrames<'_> {
                     self.error = Some(e);
                     return Err(broken);
                 }
-            };
+            }
             if let Some((start, first)) = &mut self.pace {
                 let first = *first.get_or_insert(msg.log_time_ns);
                 let due = Duration::from_nanos(msg.log_time_ns.saturating_sub(first));
@@ -471,35 +489,30 @@ impl FrameSource for RecordingFrames<'_> {
                         &msg.data,
                     );
                 }
-                return match msgs::decode::<HeatMaps>(&msg.data) {
-                    Ok(m) => {
-                        take(Lent::Frame(&m.view()), msg.log_time_ns);
+                return match msgs::decode_into::<HeatMaps>(&msg.data, &mut self.frame) {
+                    Ok(()) => {
+                        take(Lent::Frame(&self.frame.view()), msg.log_time_ns);
                         Ok(Received::Message((), msg.log_time_ns))
                     }
-                    Err(e) => Err(TransportError::Malformed {
-                        transport: "mcap",
-                        topic: msg.topic,
-                        reason: e.to_string(),
-                    }),
+                    Err(e) => Err(malformed(&msg.topic, e)),
                 };
             }
             if msg.topic == self.camera_topic && msg.schema != CameraInfo::NAME {
                 // Not a calibration where one is expected: refused and counted.
-                return Err(TransportError::Malformed {
-                    transport: "mcap",
-                    topic: msg.topic,
-                    reason: format!("schema {:?}, expected {}", msg.schema, CameraInfo::NAME),
-                });
+                return Err(malformed(
+                    &msg.topic,
+                    format!("schema {:?}, expected {}", msg.schema, CameraInfo::NAME),
+                ));
             }
             if msg.topic == self.camera_topic {
                 // Recorded as it came (the output holds the calibration it was made
                 // with), then handed to the estimator before the frames after it.
-                return self.lend_calibration(msg.topic, msg.log_time_ns, &msg.data, take);
+                return self.lend_calibration(&msg.topic, msg.log_time_ns, &msg.data, take);
             }
             if self.tf_topics.contains(&msg.topic.as_str()) && msg.schema == TFMessage::NAME {
                 // The same (the floor), people's frames of an earlier run left out of the
                 // copy.
-                return self.lend_transforms(msg.topic, msg.log_time_ns, &msg.data, take);
+                return self.lend_transforms(&msg.topic, msg.log_time_ns, &msg.data, take);
             }
             if let Some((taps, topic)) = self.ground_truth
                 && msg.topic == topic

@@ -17,6 +17,17 @@ pub enum Received<M> {
     Closed,
 }
 
+impl<M> Received<M> {
+    /// The same with the message, if any, turned into `f(message, stamp)`.
+    pub fn map<N>(self, f: impl FnOnce(M, u64) -> N) -> Received<N> {
+        match self {
+            Self::Message(m, stamp) => Received::Message(f(m, stamp), stamp),
+            Self::Idle => Received::Idle,
+            Self::Closed => Received::Closed,
+        }
+    }
+}
+
 /// Why a transport failed.
 #[derive(Debug, thiserror::Error)]
 pub enum TransportError {

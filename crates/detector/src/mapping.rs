@@ -10,22 +10,23 @@ use serde::Deserialize;
 
 use posestream_msgs::toml_file::{ConfigError, load_toml};
 
-/// Where one joint's map comes from.
+/// Where a dictionary joint's heat map comes from among the detector's channels: one
+/// channel, the pixel-wise mean of several, or none.
 #[derive(Debug, Clone, PartialEq, Eq, Deserialize)]
 #[serde(untagged)]
-pub enum JointSource {
+pub enum ChannelSource {
     /// One channel.
-    Channel(ChannelSource),
+    Channel(SingleChannel),
     /// The pixel-wise mean of several channels.
     Mean(MeanSource),
     /// No channel: an all-zero map.
     Unobserved(Unobserved),
 }
 
-/// `{ channel = c }`.
+/// `{ channel = c }`: a joint's map is one channel's.
 #[derive(Debug, Clone, PartialEq, Eq, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct ChannelSource {
+pub struct SingleChannel {
     /// The channel.
     pub channel: usize,
 }
@@ -53,7 +54,7 @@ pub struct MappingFile {
     /// Channels the detector emits.
     pub channels: usize,
     /// Joint name to source.
-    pub joints: BTreeMap<String, JointSource>,
+    pub joints: BTreeMap<String, ChannelSource>,
 }
 
 /// Why a mapping is unusable.
@@ -113,15 +114,15 @@ impl ChannelMapping {
                 .get(joint)
                 .ok_or_else(|| ChannelMappingError::MissingJoint(joint.clone()))?;
             let channels = match source {
-                JointSource::Channel(c) => vec![c.channel],
-                JointSource::Mean(m) if m.mean.is_empty() => {
+                ChannelSource::Channel(c) => vec![c.channel],
+                ChannelSource::Mean(m) if m.mean.is_empty() => {
                     return Err(ChannelMappingError::Channel {
                         joint: joint.clone(),
                         reason: "a mean of no channels (write \"unobserved\")".into(),
                     });
                 }
-                JointSource::Mean(m) => m.mean.clone(),
-                JointSource::Unobserved(_) => Vec::new(),
+                ChannelSource::Mean(m) => m.mean.clone(),
+                ChannelSource::Unobserved(_) => Vec::new(),
             };
             if let Some(c) = channels.iter().find(|&&c| c >= file.channels) {
                 return Err(ChannelMappingError::Channel {

@@ -3,8 +3,27 @@
 //! window's fits ([`Params::start_from_window`]), and the perspective adjustment of its
 //! result ([`Estimator::adjust_perspective`]).
 
-use super::*;
+use std::borrow::Cow;
+use std::time::Instant;
+
+use nalgebra::Vector3;
+
+use crate::camera::Intrinsics;
+use crate::dictionary::Dictionary;
+use crate::error::EstimateError;
+use crate::estimator::*;
+use crate::heatmaps::HeatMapSequence;
+use crate::solver::adapt::{self, ShapeStats};
+use crate::solver::bcd::{self, BcdWorkspace};
+use crate::solver::em::{self, EmWorkspace, PreparedMaps};
+use crate::solver::init::{InitWorkspace, initialise_frame};
+use crate::solver::normalise::{heatmap_scale, keypoint_scale};
+use crate::solver::perspective::{
+    self, PerspectiveParams, PerspectiveWorkspace, start_from_weak_fit,
+};
+use crate::solver::{FrameFit, InitMethod, Observations};
 use crate::streaming::{Estimates, FrameMaps, Outputs, StreamSettings, WindowEstimator};
+use posestream_base::PixelMap;
 
 impl Estimator {
     /// Algorithm 1 on given 2D joints.

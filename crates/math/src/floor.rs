@@ -1,7 +1,7 @@
 //! The floor under the camera, and a person's size learnt from where their feet touch it.
 //!
 //! From one camera a person twice as large and twice as far gives the same image: the
-//! metric step ([`crate::metric`]) places a skeleton of an assumed size, so its distance
+//! metric step ([`crate::metres`]) places a skeleton of an assumed size, so its distance
 //! is off by as much as the person's size is (and by the fitted pose's flatness in depth,
 //! a bias of its own: a flatter pose projects larger, so it is put further away). Feet on
 //! a known floor fix it: the ankle in contact lies on the plane through its ray, and

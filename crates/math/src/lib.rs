@@ -35,6 +35,8 @@
 //! message of `posestream-msgs`); a
 //! [`solver::Window`] is the frames solved together.
 
+pub mod accuracy;
+pub mod batch;
 pub mod camera;
 pub mod dictionary;
 pub mod error;
@@ -44,8 +46,7 @@ pub mod fusion;
 pub mod geometry;
 pub mod heatmaps;
 pub mod learnt_floor;
-pub mod metric;
-pub mod metrics;
+pub mod metres;
 pub mod skeleton;
 pub mod solver;
 pub mod streaming;

@@ -159,7 +159,7 @@ pub struct MetricPose {
     /// Depth of the body's centroid, metres.
     pub depth: f64,
     /// Where the metric scale came from.
-    pub source: MetricSource,
+    pub source: PlacedBy,
     /// The root (the pelvis), camera frame, metres, placed by the assumed size whatever
     /// `source` is: what the floor is learnt from ([`crate::learnt_floor`]).
     pub root_at_size: Vector3<f64>,
@@ -167,7 +167,7 @@ pub struct MetricPose {
 
 /// Where a metric pose's scale came from (`Skeleton3D.metric_source`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum MetricSource {
+pub enum PlacedBy {
     /// The assumed body size ([`MetricSettings::mean_limb_length`]).
     #[default]
     Size = 1,
@@ -230,7 +230,7 @@ impl MetricStep {
     /// image pixels (the crop box), `camera` is the camera's. With a `floor` and the
     /// person's [`BodyScale`], the ankle in contact (its observed ray meets the floor
     /// nearest) is noted and the pose scaled about the camera centre by the person's
-    /// factor ([`MetricSource::Floor`]); without, it keeps the assumed size. An error (the pose has no size, or the result
+    /// factor ([`PlacedBy::Floor`]); without, it keeps the assumed size. An error (the pose has no size, or the result
     /// is not finite) leaves `out` to be ignored.
     pub fn adjust(
         &mut self,
@@ -305,17 +305,17 @@ impl MetricStep {
                 };
                 match contact.scale(fit, shape, &out.keypoints, camera, floor, e.sequence, scale) {
                     Some((factor, spread)) => {
-                        out.source = MetricSource::Floor;
+                        out.source = PlacedBy::Floor;
                         (factor, spread)
                     }
                     None => {
-                        out.source = MetricSource::Size;
+                        out.source = PlacedBy::Size;
                         (self.settings.depth_correction, self.settings.scale_std)
                     }
                 }
             }
             None => {
-                out.source = MetricSource::Size;
+                out.source = PlacedBy::Size;
                 (self.settings.depth_correction, self.settings.scale_std)
             }
         };
@@ -325,8 +325,8 @@ impl MetricStep {
         // Placed by the floor, the composed spread is scaled to what the errors were on
         // the training walks (`FloorSettings::std_factor`).
         let std_factor = match out.source {
-            MetricSource::Floor => self.settings.floor.std_factor,
-            MetricSource::Size => 1.0,
+            PlacedBy::Floor => self.settings.floor.std_factor,
+            PlacedBy::Size => 1.0,
         };
         for j in 0..p {
             let q = joint(fit, shape, j) * factor;

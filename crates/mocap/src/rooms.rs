@@ -10,14 +10,14 @@ use std::time::Instant;
 use nalgebra::Point3;
 use posestream_base::Scores;
 use posestream_math::Estimator;
+use posestream_math::accuracy::mpjpe;
 use posestream_math::error::EstimateError;
 use posestream_math::fusion::matching::peaks_into;
 use posestream_math::fusion::{
     FusedEstimate, FusedWindow, FusionSettings, MatchSettings, Matcher, TrackObservation,
     ViewCamera, ViewMaps, ViewResidual,
 };
-use posestream_math::metric::{MetricPose, MetricSettings, MetricStep};
-use posestream_math::metrics::mpjpe;
+use posestream_math::metres::{MetricPose, MetricSettings, MetricStep};
 use posestream_math::skeleton::Skeleton;
 use posestream_math::streaming::{FrameEstimate, FrameMaps, WindowEstimator};
 

@@ -266,3 +266,58 @@ impl<'a> HeatMapsView<'a> {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{decode, decode_into, encode};
+
+    fn frame(sequence: u64, joints: usize, side: u32, encoding: HeatMapEncoding) -> HeatMaps {
+        let values: Vec<f32> = (0..joints * (side * side) as usize)
+            .map(|i| ((i * 7919) % 1000) as f32 / 1000.0)
+            .collect();
+        HeatMaps::from_values(
+            Header {
+                stamp: Time::from_nanos(sequence as i64 * 33_333_333),
+                frame_id: format!("camera_{sequence}"),
+            },
+            sequence,
+            (0..joints).map(|j| format!("joint-{j}")).collect(),
+            side,
+            side,
+            CropBox::new(10.0, 20.0, 64.0, 64.0).expect("crop"),
+            &values,
+            encoding,
+        )
+    }
+
+    #[test]
+    fn a_frame_decoded_over_another_is_the_frame_and_keeps_its_buffers() {
+        for encoding in [HeatMapEncoding::Float32, HeatMapEncoding::Uint8] {
+            let mut place = frame(1, 17, 16, encoding);
+            let capacity = (place.values.capacity(), place.joint_names[3].capacity());
+            // Smaller, then larger, then of the same size as the first.
+            for next in [frame(2, 5, 8, encoding), frame(3, 17, 16, encoding)] {
+                let bytes = encode(&next).expect("encodes");
+                decode_into(&bytes, &mut place).expect("decodes");
+                assert_eq!(place, next);
+                assert_eq!(place, decode::<HeatMaps>(&bytes).expect("decodes"));
+            }
+            if encoding == HeatMapEncoding::Float32 {
+                assert_eq!(
+                    (place.values.capacity(), place.joint_names[3].capacity()),
+                    capacity,
+                    "the buffers were reused"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn a_frame_that_does_not_decode_is_an_error_over_another_too() {
+        let mut place = frame(1, 3, 4, HeatMapEncoding::Float32);
+        let bytes = encode(&frame(2, 3, 4, HeatMapEncoding::Float32)).expect("encodes");
+        assert!(decode_into(&bytes[..bytes.len() / 2], &mut place).is_err());
+        assert!(decode_into(&[9, 9, 9, 9, 0, 0], &mut place).is_err());
+    }
+}

@@ -283,25 +283,42 @@ pub fn encode_into<M: RosMessage>(msg: &M, out: &mut Vec<u8>) -> Result<(), Enco
 
 /// Decodes a CDR message with its encapsulation header.
 pub fn decode<M: RosMessage>(bytes: &[u8]) -> Result<M, DecodeError> {
+    decode_with::<M, M>(bytes, |body| {
+        cdr_encoding::from_bytes::<M, LittleEndian>(body).map(|(m, _)| m)
+    })
+}
+
+/// [`decode`] written over `place`: its strings and vectors are reused, so a message
+/// decoded over one of its size allocates nothing (but a u8 frame's bytes, which serde
+/// reads whole). On an error `place` holds what was read of it.
+pub fn decode_into<M: RosMessage>(bytes: &[u8], place: &mut M) -> Result<(), DecodeError> {
+    decode_with::<M, ()>(bytes, |body| {
+        let mut deserializer = cdr_encoding::CdrDeserializer::<LittleEndian>::new(body);
+        M::deserialize_in_place(&mut deserializer, place)
+    })
+}
+
+/// Checks the encapsulation header and reads the CDR body with `read`; a body that does
+/// not read may be an older version of the message, without the fields added at its end:
+/// read again with them zero (a copy, on this path only).
+fn decode_with<M: RosMessage, T>(
+    bytes: &[u8],
+    mut read: impl FnMut(&[u8]) -> Result<T, cdr_encoding::Error>,
+) -> Result<T, DecodeError> {
     match bytes.get(..4) {
         Some(h) if h == CDR_LE_HEADER => {}
         other => return Err(DecodeError::Encapsulation(other.unwrap_or(bytes).to_vec())),
     }
     let body = &bytes[4..];
-    cdr_encoding::from_bytes::<M, LittleEndian>(body)
-        .map(|(m, _)| m)
+    read(body)
         .or_else(|e| {
-            // An older version of the message, without the fields added at its end:
-            // read with them zero (a copy, on this path only).
             if M::ADDED_TAIL == 0 {
                 return Err(e);
             }
             let mut older = Vec::with_capacity(body.len() + M::ADDED_TAIL);
             older.extend_from_slice(body);
             older.resize(body.len() + M::ADDED_TAIL, 0);
-            cdr_encoding::from_bytes::<M, LittleEndian>(&older)
-                .map(|(m, _)| m)
-                .map_err(|_| e)
+            read(&older).map_err(|_| e)
         })
         .map_err(|e| DecodeError::Cdr {
             message: M::NAME,

@@ -29,7 +29,7 @@ use std::sync::{Arc, Mutex};
 
 use foxglove::{ChannelBuilder, Context, PartialMetadata, RawChannel, Schema, WebSocketServer};
 
-use super::{Message, Sink, TransportError};
+use super::{EncodedSink, Message, Sink, TransportError};
 
 const TRANSPORT: &str = "foxglove";
 
@@ -410,6 +410,25 @@ impl<M: Message> Sink<M> for LiveSink<M> {
         }
         self.channel
             .log_with_meta(&self.buffer, PartialMetadata::with_log_time(stamp_ns));
+        Ok(())
+    }
+}
+
+impl<M: Message> EncodedSink<M> for LiveSink<M> {
+    fn wanted(&self) -> bool {
+        self.channel.has_sinks()
+    }
+
+    fn send_encoded(&mut self, data: &[u8], stamp_ns: u64) -> Result<(), TransportError> {
+        if !self.channel.has_sinks() {
+            return Ok(());
+        }
+        if data.len() > LiveView::MAX_MESSAGE_BYTES {
+            self.oversized.fetch_add(1, Ordering::Relaxed);
+            return Ok(());
+        }
+        self.channel
+            .log_with_meta(data, PartialMetadata::with_log_time(stamp_ns));
         Ok(())
     }
 }

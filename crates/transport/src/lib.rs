@@ -21,6 +21,7 @@ pub mod foxglove;
 pub mod mcap;
 pub mod memory;
 pub mod read_ahead;
+pub mod recycle;
 pub mod ros2;
 pub mod runtime;
 pub mod shm;
@@ -31,12 +32,63 @@ use serde::Serialize;
 use serde::de::DeserializeOwned;
 
 pub use posestream_base::ports::{Received, Sink, Source, TransportError};
+use posestream_msgs::sensor::CameraInfo;
+use posestream_msgs::tf::TFMessage;
 use posestream_msgs::{HeatMaps, HeatMapsView, RosMessage};
 
 /// A message any transport can carry.
-pub trait Message: RosMessage + Serialize + DeserializeOwned + Clone + Send + 'static {}
+pub trait Message:
+    RosMessage + Serialize + DeserializeOwned + Clone + Default + Send + 'static
+{
+}
 
-impl<M: RosMessage + Serialize + DeserializeOwned + Clone + Send + 'static> Message for M {}
+impl<M: RosMessage + Serialize + DeserializeOwned + Clone + Default + Send + 'static> Message
+    for M
+{
+}
+
+/// Where encoded messages of type `M` go (CDR with its encapsulation header, as a
+/// recording holds them): the output recording and the live view take a message's bytes,
+/// so that one encoding serves every such sink of a publisher.
+pub trait EncodedSink<M>: Send {
+    /// Whether a message sent now would go anywhere (the live view: while a viewer
+    /// subscribes); one nobody wants is not encoded. True by default.
+    fn wanted(&self) -> bool {
+        true
+    }
+
+    /// Sends one encoded message, stamped `stamp_ns` (the log time in a recording).
+    fn send_encoded(&mut self, data: &[u8], stamp_ns: u64) -> Result<(), TransportError>;
+
+    /// As [`Sink::flush`].
+    fn flush(&mut self) -> Result<(), TransportError> {
+        Ok(())
+    }
+}
+
+impl<M, S: EncodedSink<M> + ?Sized> EncodedSink<M> for Box<S> {
+    fn wanted(&self) -> bool {
+        (**self).wanted()
+    }
+    fn send_encoded(&mut self, data: &[u8], stamp_ns: u64) -> Result<(), TransportError> {
+        (**self).send_encoded(data, stamp_ns)
+    }
+    fn flush(&mut self) -> Result<(), TransportError> {
+        (**self).flush()
+    }
+}
+
+/// What a [`FrameSource`] lends: a heat-map frame, or what comes in the same stream
+/// beside the frames (a recording's camera calibration and transforms), in stream order.
+#[derive(Debug, Clone, Copy)]
+pub enum Lent<'a> {
+    /// A heat-map frame.
+    Frame(&'a HeatMapsView<'a>),
+    /// The camera's calibration.
+    Calibration(&'a CameraInfo),
+    /// Transforms (`/tf_static`, `/tf`).
+    Transforms(&'a TFMessage),
+}
 
 /// Heat-map frames lent to the caller one at a time, instead of handed over as
 /// messages: a transport whose frames live in its own buffers (an iceoryx2 sample)
@@ -53,25 +105,22 @@ pub trait FrameSource: Send {
         take: &mut dyn FnMut(&HeatMapsView<'_>, u64),
     ) -> Result<Received<()>, TransportError>;
 
+    /// Waits up to `timeout` for the next thing the stream carries and lends it to `take`
+    /// with its stamp: a frame, as [`FrameSource::recv_frame`] does, or, from a source
+    /// that carries them in the same stream (a recording), the camera's calibration or
+    /// transforms in their place among the frames. By default, frames only.
+    fn recv_input(
+        &mut self,
+        timeout: Duration,
+        take: &mut dyn FnMut(Lent<'_>, u64),
+    ) -> Result<Received<()>, TransportError> {
+        self.recv_frame(timeout, &mut |frame, stamp| take(Lent::Frame(frame), stamp))
+    }
+
     /// Whether the frames arrive live, so that a pause in wall time is a pause of the
-    /// camera (true by default). A replayed recording's time is in its stamps: the
-    /// estimator then ends an idle track by those alone.
+    /// camera (true by default). A replayed recording's time is in its stamps.
     fn live(&self) -> bool {
         true
-    }
-
-    /// The camera's calibration, if one came since the last call. A source that carries
-    /// one beside the frames (a recording's camera-info topic) returns
-    /// `Received::Idle` from [`FrameSource::recv_frame`] when it read one, so that the
-    /// caller takes it before the frames after it.
-    fn camera_info(&mut self) -> Option<posestream_msgs::sensor::CameraInfo> {
-        None
-    }
-
-    /// Transforms (`/tf_static`, `/tf`), if some came since the last call; returned as
-    /// [`FrameSource::camera_info`] is.
-    fn transforms(&mut self) -> Option<posestream_msgs::tf::TFMessage> {
-        None
     }
 }
 
@@ -104,6 +153,13 @@ impl<S: FrameSource + ?Sized> FrameSource for Box<S> {
         take: &mut dyn FnMut(&HeatMapsView<'_>, u64),
     ) -> Result<Received<()>, TransportError> {
         (**self).recv_frame(timeout, take)
+    }
+    fn recv_input(
+        &mut self,
+        timeout: Duration,
+        take: &mut dyn FnMut(Lent<'_>, u64),
+    ) -> Result<Received<()>, TransportError> {
+        (**self).recv_input(timeout, take)
     }
     fn live(&self) -> bool {
         (**self).live()

@@ -7,7 +7,7 @@ use std::path::Path;
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 
-use super::{Message, Received, Sink, Source, TransportError};
+use super::{EncodedSink, Message, Received, Sink, Source, TransportError};
 use posestream_msgs as msgs;
 use posestream_msgs::recording::{Recorder, RecordingError, RecordingReader, RecordingSummary};
 
@@ -123,10 +123,13 @@ pub struct McapSink<M> {
     _message: PhantomData<fn(M)>,
 }
 
-impl<M: Message> Sink<M> for McapSink<M> {
-    /// Writes the message. The first failed write (a full disk) is an error; after it,
-    /// every sink of the recording is [`TransportError::Closed`].
-    fn send(&mut self, message: &M, stamp_ns: u64) -> Result<(), TransportError> {
+impl<M> McapSink<M> {
+    /// Writes with the recorder: the first failed write (a full disk) is an error; after
+    /// it, every sink of the recording is [`TransportError::Closed`].
+    fn write(
+        &mut self,
+        write: impl FnOnce(&mut Recorder, &str) -> Result<(), RecordingError>,
+    ) -> Result<(), TransportError> {
         let mut guard = self.recorder.lock();
         let recorder = guard.as_mut().ok_or_else(|| {
             self.recorder
@@ -135,9 +138,14 @@ impl<M: Message> Sink<M> for McapSink<M> {
         if recorder.failed() {
             return Err(self.recorder.closed(&self.topic));
         }
-        recorder
-            .write(&self.topic, stamp_ns, message)
-            .map_err(|e| self.recorder.error(&self.topic, e))
+        write(recorder, &self.topic).map_err(|e| self.recorder.error(&self.topic, e))
+    }
+}
+
+impl<M: Message> Sink<M> for McapSink<M> {
+    /// Writes the message ([`McapSink::write`]'s failures).
+    fn send(&mut self, message: &M, stamp_ns: u64) -> Result<(), TransportError> {
+        self.write(|r, topic| r.write(topic, stamp_ns, message))
     }
 
     fn flush(&mut self) -> Result<(), TransportError> {
@@ -146,6 +154,17 @@ impl<M: Message> Sink<M> for McapSink<M> {
             Some(r) => r.flush().map_err(|e| self.recorder.error(&self.topic, e)),
             None => Ok(()),
         }
+    }
+}
+
+impl<M: Message> EncodedSink<M> for McapSink<M> {
+    /// Writes the encoded message; failures as [`Sink::send`]'s.
+    fn send_encoded(&mut self, data: &[u8], stamp_ns: u64) -> Result<(), TransportError> {
+        self.write(|r, topic| r.write_encoded::<M>(topic, stamp_ns, data))
+    }
+
+    fn flush(&mut self) -> Result<(), TransportError> {
+        Sink::flush(self)
     }
 }
 

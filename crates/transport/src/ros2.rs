@@ -26,6 +26,7 @@ use ros2_client::{
 };
 use serde::{Deserialize, Serialize};
 
+use super::recycle::{Recycler, Reuse};
 use super::runtime::AsyncSource;
 use super::{Message, Received, Sink, Source, TransportError};
 use posestream_base::{OutOfDomain, check_range, check_real};
@@ -459,6 +460,7 @@ impl Ros2 {
             poll,
             events: Events::with_capacity(4),
             topic: topic.to_string(),
+            recycler: Recycler::default(),
         })
     }
 }
@@ -556,6 +558,8 @@ pub struct Ros2Source<M: Message> {
     poll: Poll,
     events: Events,
     topic: String,
+    /// Messages handed back, decoded over ([`Ros2Source::recycler`]).
+    recycler: Recycler<M>,
 }
 
 impl<M: Message> Source<M> for Ros2Source<M> {
@@ -564,7 +568,7 @@ impl<M: Message> Source<M> for Ros2Source<M> {
     fn recv(&mut self, timeout: Duration) -> Result<Received<M>, TransportError> {
         let deadline = std::time::Instant::now() + timeout;
         loop {
-            match self.subscription.take() {
+            match self.subscription.take_seed(Reuse(self.recycler.clone())) {
                 Ok(Some(taken)) => return Ok(self.stamped(taken)),
                 Ok(None) => {}
                 Err(e) => return Err(self.malformed(e)),
@@ -591,6 +595,12 @@ impl<M: Message> Source<M> for Ros2Source<M> {
 }
 
 impl<M: Message> Ros2Source<M> {
+    /// Where the messages taken are handed back once used: the next ones are decoded
+    /// over them (no allocation for a message of a size seen before).
+    pub fn recycler(&self) -> Recycler<M> {
+        self.recycler.clone()
+    }
+
     fn stamped(&self, taken: (M, ros2_client::MessageInfo)) -> Received<M> {
         let (m, info) = taken;
         let stamp = info
@@ -612,10 +622,22 @@ impl<M: Message + Sync> AsyncSource<M> for Ros2Source<M> {
     /// Waits for a sample on the runtime (`ros2-client`'s `async_take`); stamped as by
     /// [`Source::recv`].
     async fn next(&mut self) -> Result<Received<M>, TransportError> {
-        match self.subscription.async_take().await {
-            Ok(taken) => Ok(self.stamped(taken)),
-            Err(e) => Err(self.malformed(e)),
+        let taken = {
+            let stream = self
+                .subscription
+                .async_stream_seed(Reuse(self.recycler.clone()));
+            futures_util::pin_mut!(stream);
+            futures_util::StreamExt::next(&mut stream).await
+        };
+        match taken {
+            Some(Ok(taken)) => Ok(self.stamped(taken)),
+            Some(Err(e)) => Err(self.malformed(e)),
+            None => Ok(Received::Closed),
         }
+    }
+
+    fn recycler(&self) -> Option<Recycler<M>> {
+        Some(self.recycler.clone())
     }
 }
 

@@ -41,6 +41,7 @@ use std::time::Duration;
 
 use tokio::sync::mpsc;
 
+use crate::recycle::Recycler;
 use crate::{Received, Source, TransportError};
 
 /// How long the thread of a [`Blocking`] source waits in one call before it looks
@@ -60,11 +61,20 @@ pub trait AsyncSource<M>: Send {
     /// publishes it), and dropping its future then loses that message. Race it with a
     /// timer only where losing one is acceptable (at a stop).
     fn next(&mut self) -> impl Future<Output = Result<Received<M>, TransportError>> + Send;
+
+    /// Where messages are handed back once used, if the source decodes its next ones over
+    /// them ([`Recycler`]); none by default.
+    fn recycler(&self) -> Option<Recycler<M>> {
+        None
+    }
 }
 
 impl<M, S: AsyncSource<M> + ?Sized> AsyncSource<M> for &mut S {
     fn next(&mut self) -> impl Future<Output = Result<Received<M>, TransportError>> + Send {
         (**self).next()
+    }
+    fn recycler(&self) -> Option<Recycler<M>> {
+        (**self).recycler()
     }
 }
 

@@ -19,8 +19,8 @@ use posestream::nodes::config::{ReplayRate, ServiceConfig};
 use posestream::nodes::replay::{ReplayOptions, replay};
 use posestream::recording::read_topic;
 
-use super::CliError;
-use super::scenes::{FrameError, ScenesArgs, SynthCommand, frame_errors, track};
+use super::{FrameError, ScenesArgs, SynthCommand, frame_errors, track};
+use crate::cli::CliError;
 
 /// A scene of people walking at several distances: the camera's height, tilt, and where
 /// it stands from the first person (`synth --distance`, `--azimuth`), and the people
@@ -286,7 +286,7 @@ fn synth(args: &ScenesArgs, walk: &Walk, dir: &Path, recording: &Path) -> Result
     ]);
     let synth = SynthCommand::try_parse_from(&argv)
         .map_err(|e| CliError::Usage(format!("{}: {e}", walk.name)))?;
-    super::synth::run(&synth.args)
+    crate::cli::synth::run(&synth.args)
 }
 
 /// The configuration of one mode.
@@ -303,7 +303,7 @@ fn mode_config(
         config.estimator.metric.scale_std = KNOWN_SIZE_SCALE_STD;
     }
     config.estimator.metric.floor.source = mode.floor;
-    config.estimator.metric.floor.frame = super::synth::FLOOR_FRAME.into();
+    config.estimator.metric.floor.frame = crate::cli::synth::FLOOR_FRAME.into();
     config
         .validate()
         .map_err(|e| CliError::Usage(format!("{}: {e}", mode.name)))?;

@@ -8,6 +8,9 @@
 //! root position and depth error, the share of per-axis errors within 1 and 2
 //! `position_std`; per scene: id switches, IDF1, the estimator's frames per second.
 
+pub mod distances;
+pub mod rooms;
+
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
@@ -16,8 +19,8 @@ use std::time::Instant;
 use clap::{Args, Parser};
 use pathfinding::kuhn_munkres::kuhn_munkres;
 use pathfinding::matrix::Matrix;
+use posestream::accuracy::p_mpjpe;
 use posestream::detector::tracker::{Observation, Tracker, TrackingSettings, iou};
-use posestream::metrics::p_mpjpe;
 use posestream::msgs::sensor::CameraInfo;
 use posestream::msgs::tf::TFMessage;
 use posestream::msgs::{HeatMaps, Skeleton3D, SkeletonState, Units};
@@ -377,11 +380,11 @@ pub fn run(args: &ScenesArgs) -> Result<(), CliError> {
         "--data",
     )?;
     let text = if let Some(path) = &args.record {
-        super::rooms::record(args, args.room, path)?
+        rooms::record(args, args.room, path)?
     } else if args.rooms {
-        super::rooms::markdown(args)?
+        rooms::markdown(args)?
     } else if args.distances {
-        super::distances::markdown(args)?
+        distances::markdown(args)?
     } else {
         markdown(args)?
     };
@@ -422,8 +425,8 @@ impl ScenesArgs {
         let takes = SCENES
             .iter()
             .flat_map(|scene| scene.people.iter().map(|(file, _)| *file))
-            .chain(super::distances::takes())
-            .chain(super::rooms::takes());
+            .chain(distances::takes())
+            .chain(rooms::takes());
         for file in takes {
             let take = args.data.join(file);
             if !take.is_file() {

@@ -10,15 +10,15 @@
 //! found, their MPJPE).
 
 use posestream::fusion::{FusionSettings, ViewResidual, suspects};
-use posestream::metric::MetricSettings;
+use posestream::metres::MetricSettings;
 use posestream::mocap::{Bvh, MappedSequence, SkeletonMapping, rooms};
 use posestream::streaming::WindowEstimator;
 use posestream::synth::room::{self, RoomCamera};
 use posestream::synth::{self, ErrorModel, Placement};
 use posestream::{Estimator, Skeleton};
 
-use super::CliError;
-use super::scenes::ScenesArgs;
+use super::ScenesArgs;
+use crate::cli::CliError;
 
 /// A room: its cameras and people (a take and its placement relative to the first).
 struct RoomSpec {
@@ -395,7 +395,7 @@ pub fn record(args: &ScenesArgs, index: usize, path: &std::path::Path) -> Result
         let name = format!("cam{c}");
         let (maps_topic, info_topic) = FusionConfig::camera_topics(&name, topics);
         if last_info[c] != Some(stamp) {
-            let info = super::synth::camera_info(
+            let info = crate::cli::synth::camera_info(
                 header.clone(),
                 &room.intrinsics[c],
                 cameras[c].image_size,

@@ -5,10 +5,10 @@
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use super::POLL;
+use super::side_inputs::SideInputs;
 use crate::nodes::EstimatorNode;
 use crate::nodes::estimator::{Clock, EstimatorCore, EstimatorReport, Flow, Input};
 use crate::nodes::publish::{EstimatorOutputs, Plan};
-use crate::nodes::service::SideInputs;
 use crate::transport::FrameSource;
 
 /// Heat maps from `source` through `node` to `outputs`, until the source closes or

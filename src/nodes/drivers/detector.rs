@@ -14,10 +14,10 @@ use super::{POLL, due_wait, pace};
 use crate::detector::DetectorStats;
 use crate::msgs::HeatMaps;
 use crate::nodes::config::ReplayRate;
+use crate::nodes::errors::Refusals;
+use crate::nodes::errors::ServiceError;
 use crate::nodes::estimator::Flow;
 use crate::nodes::publish::Publishers;
-use crate::nodes::refusals::Refusals;
-use crate::nodes::service::ServiceError;
 use crate::transport::runtime::{AsyncSource, Blocking};
 use crate::transport::{Received, Source, TransportError};
 

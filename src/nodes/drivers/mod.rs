@@ -6,10 +6,13 @@
 //!   where they are, recordings);
 //! - [`tokio`]: the I/O on a tokio runtime (ROS 2), the core on a thread of its own;
 //! - [`detector`]: the detector's heat maps paced to their stamps and published, either
-//!   way.
+//!   way;
+//! - [`side_inputs`]: what the estimator reads beside its heat maps (calibration,
+//!   transforms), moved to the core before each input.
 
 pub mod blocking;
 pub mod detector;
+pub mod side_inputs;
 pub mod tokio;
 
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -17,12 +20,8 @@ use std::time::{Duration, Instant};
 
 pub use blocking::{run_estimator, run_estimator_with};
 pub use detector::{DetectorReport, DetectorSide, run_detector, run_detector_on_runtime};
+pub use side_inputs::SideInputs;
 pub use tokio::{run_estimator_on_runtime, run_estimator_on_runtime_with};
-
-use crate::nodes::EstimatorNode;
-use crate::nodes::estimator::EstimatorReport;
-use crate::nodes::publish::EstimatorOutputs;
-use crate::nodes::service::{EstimatorInput, ServiceError};
 
 /// How long a source is asked to wait before the loop checks for a stop.
 pub const POLL: Duration = Duration::from_millis(100);
@@ -41,26 +40,4 @@ pub fn pace(start: Instant, due: Duration, stop: &AtomicBool) -> bool {
 pub fn due_wait(start: Instant, due: Duration, stop: &AtomicBool) -> Option<Duration> {
     let wait = due.checked_sub(start.elapsed())?;
     (!stop.load(Ordering::Relaxed)).then(|| wait.min(POLL))
-}
-
-/// The estimator node over its configured input ([`EstimatorInput`]): ROS 2 on the tokio
-/// driver, iceoryx2 on the blocking one.
-pub fn serve_estimator(
-    node: &mut EstimatorNode,
-    input: EstimatorInput,
-    outputs: &mut EstimatorOutputs,
-    stop: &AtomicBool,
-) -> Result<EstimatorReport, ServiceError> {
-    match input {
-        EstimatorInput::Awaited { mut heatmaps, side } => {
-            run_estimator_on_runtime_with(node, &mut *heatmaps, side, true, outputs, stop)
-        }
-        EstimatorInput::Lent(mut source, mut side) => Ok(run_estimator_with(
-            node,
-            &mut source,
-            &mut side,
-            outputs,
-            stop,
-        )),
-    }
 }

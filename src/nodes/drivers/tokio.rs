@@ -24,9 +24,11 @@ use super::POLL;
 use super::blocking::step;
 use crate::msgs::HeatMaps;
 use crate::nodes::EstimatorNode;
+use crate::nodes::drivers::side_inputs::SideInputs;
+use crate::nodes::errors::ServiceError;
 use crate::nodes::estimator::{Clock, EstimatorCore, EstimatorReport, Flow, Input};
 use crate::nodes::publish::{EstimatorOutputs, Plan};
-use crate::nodes::service::{ServiceError, SideInputs};
+use crate::transport::recycle::Recycler;
 use crate::transport::runtime::AsyncSource;
 use crate::transport::{Received, TransportError};
 
@@ -68,20 +70,20 @@ pub fn run_estimator_on_runtime_with(
     let (work, work_rx) = mpsc::channel::<Work>(CHANNEL);
     let (plans, mut plans_rx) = mpsc::channel::<Plan>(CHANNEL);
     let (sent, sent_rx) = std::sync::mpsc::channel::<Plan>();
+    // The frames handed back once handled: the source decodes the next ones over them.
+    let recycler = source.recycler();
     let EstimatorOutputs { planner, sinks } = outputs;
     let core = std::thread::scope(|scope| {
         let solver = std::thread::Builder::new()
             .name("solver".into())
             .spawn_scoped(scope, move || {
                 let mut core = EstimatorCore::new(node, planner);
-                solve(
-                    &mut core,
-                    Clock::of(live),
-                    &mut side,
-                    work_rx,
-                    plans,
-                    sent_rx,
-                );
+                let inputs = Inputs {
+                    clock: Clock::of(live),
+                    side: &mut side,
+                    recycler,
+                };
+                solve(&mut core, inputs, work_rx, plans, sent_rx);
                 core
             })
             .map_err(|_| ServiceError::Thread("solver"))?;
@@ -127,16 +129,28 @@ pub fn run_estimator_on_runtime_with(
     Ok(core.report(&outputs.sinks))
 }
 
+/// What the solver thread reads besides its work: the clock, the side inputs, and where
+/// frames go back to once handled.
+struct Inputs<'s> {
+    clock: Clock,
+    side: &'s mut SideInputs,
+    recycler: Option<Recycler<HeatMaps>>,
+}
+
 /// The solver thread: each input through `core`, its plans to `plans`, until the input
 /// ends; then the tracks' last estimates.
 fn solve(
     core: &mut EstimatorCore<'_>,
-    mut clock: Clock,
-    side: &mut SideInputs,
+    inputs: Inputs<'_>,
     mut work: mpsc::Receiver<Work>,
     plans: mpsc::Sender<Plan>,
     sent: std::sync::mpsc::Receiver<Plan>,
 ) {
+    let Inputs {
+        mut clock,
+        side,
+        recycler,
+    } = inputs;
     let (mut plan, mut spare) = (Plan::default(), Vec::new());
     while let Some(next) = work.blocking_recv() {
         while let Ok(mut p) = sent.try_recv() {
@@ -152,7 +166,10 @@ fn solve(
                         &mut clock,
                         Input::Frame(&maps.view(), stamp),
                         &mut plan,
-                    )
+                    );
+                    if let Some(recycler) = &recycler {
+                        recycler.put(maps);
+                    }
                 })
             }),
             Work::Quiet => Ok(Received::Idle),

@@ -24,9 +24,9 @@ use super::{EstimatorNode, FloorReport, MetricTiming};
 use crate::msgs::sensor::CameraInfo;
 use crate::msgs::tf::TFMessage;
 use crate::msgs::{HeatMapsView, Skeleton3D};
+use crate::nodes::errors::Refusals;
 use crate::nodes::latency::{LatencyHistogram, LatencySummary};
 use crate::nodes::publish::{Plan, Planner, Sinks};
-use crate::nodes::refusals::Refusals;
 use crate::streaming::StreamCounters;
 use crate::transport::{Lent, Received, TransportError};
 

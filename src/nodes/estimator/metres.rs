@@ -3,19 +3,19 @@
 //! floor under the camera (configured, from TF, or learnt from the people seen).
 
 use super::EstimatorNode;
-use super::track::FrameInfo;
 use crate::camera::Intrinsics;
 use crate::error::EstimateError;
 use crate::floor::{BodyScale, FloorModel, FloorSource};
 use crate::learnt_floor::{FloorLearner, LearningSettings, LearningState, LearntFloor};
 use crate::limits::Limits;
-use crate::metric::{MetricPose, MetricSettings, MetricStep};
+use crate::metres::{MetricPose, MetricSettings, MetricStep};
 use crate::msgs::tf::TFMessage;
 use crate::msgs::{self};
+use crate::nodes::errors::{NodeError, SetupError};
 use crate::nodes::frames;
-use crate::nodes::refusals::{NodeError, SetupError};
 use crate::nodes::tf_buffer::TfBuffer;
 use crate::streaming::FrameEstimate;
+use posestream_base::PixelMap;
 
 /// The intrinsics and the image size (columns, rows) of a camera's calibration
 /// (`sensor_msgs/CameraInfo`'s `k`, `width`, `height`); why it cannot be used otherwise
@@ -346,14 +346,13 @@ pub(super) fn describe(f: &LearntFloor) -> String {
 pub(super) fn metric_pose(
     m: &mut Metric,
     e: &FrameEstimate,
-    info: &FrameInfo,
+    to_image: &PixelMap,
+    map_size: (f64, f64),
     scale: &mut BodyScale,
 ) -> Result<(), String> {
     if let Some((width, height)) = m.size {
-        let [x0, y0] = info.to_image.apply(-0.5, -0.5);
-        let [x1, y1] = info
-            .to_image
-            .apply(info.map_size.0 - 0.5, info.map_size.1 - 0.5);
+        let [x0, y0] = to_image.apply(-0.5, -0.5);
+        let [x1, y1] = to_image.apply(map_size.0 - 0.5, map_size.1 - 0.5);
         let overlaps = |a0: f64, a1: f64, n: f64| a0.min(a1) < n && a0.max(a1) > 0.0;
         if !(overlaps(x0, x1, width) && overlaps(y0, y1, height)) {
             return Err(format!(
@@ -366,7 +365,7 @@ pub(super) fn metric_pose(
         .step
         .adjust(
             e,
-            &info.to_image,
+            to_image,
             &m.camera,
             m.floor.as_ref().map(|f| (f, scale)),
             &mut m.pose,

@@ -17,10 +17,11 @@ use std::panic::AssertUnwindSafe;
 use crate::estimator::Estimator;
 use crate::floor::BodyScale;
 use crate::limits::Limits;
-use crate::metric::MetricSettings;
+use crate::metres::MetricSettings;
 use crate::msgs::{self, Skeleton3D};
-use crate::nodes::config::{self, ServiceConfig};
-use crate::nodes::refusals::{NodeError, Refusals, SetupError};
+use crate::nodes::config::{self, DEFAULT_MAX_TRACKS, ServiceConfig};
+use crate::nodes::errors::{NodeError, Refusals, SetupError};
+use crate::nodes::publish::outputs::SkeletonLayout;
 use crate::nodes::unknown_ids;
 use crate::skeleton::same_layout;
 use crate::streaming::{Estimates, FrameMaps, StreamCounters, WindowEstimator};
@@ -81,10 +82,6 @@ pub struct EstimatorNode {
     #[cfg(feature = "fault-injection")]
     panic_at: Option<u64>,
 }
-
-/// Tracks an estimator node runs at once unless configured otherwise
-/// (`[estimator] max_tracks`).
-pub const DEFAULT_MAX_TRACKS: usize = 12;
 
 impl EstimatorNode {
     /// A node whose tracks run `window`'s estimator and settings, with the default
@@ -609,6 +606,25 @@ impl EstimatorNode {
                 };
                 self.refused.note(e.kind(), &e);
             }
+        }
+    }
+}
+
+impl SkeletonLayout for EstimatorNode {
+    fn joint_names(&self) -> &[String] {
+        &self.joint_names
+    }
+
+    fn bones(&self) -> Vec<(usize, usize)> {
+        EstimatorNode::bones(self)
+    }
+
+    fn body_lag(&self) -> u32 {
+        // The newest estimates when the window publishes them, else the refined ones.
+        let settings = self.settings();
+        match settings.outputs {
+            crate::streaming::Outputs::Lagged => settings.lag as u32,
+            _ => 0,
         }
     }
 }

@@ -6,9 +6,9 @@ use std::collections::VecDeque;
 
 use super::metres::{Metric, learn_floor, metric_pose};
 use crate::floor::BodyScale;
-use crate::metric::MetricPose;
+use crate::metres::MetricPose;
 use crate::msgs::{self, Skeleton3D, Time, Units};
-use crate::nodes::refusals::{NodeError, Refusals};
+use crate::nodes::errors::{NodeError, Refusals};
 use crate::streaming::{Estimates, FrameEstimate, TrackState, WindowEstimator};
 use posestream_base::PixelMap;
 
@@ -69,7 +69,7 @@ pub(super) fn release(
             continue;
         };
         let metres = match metric.as_deref_mut() {
-            Some(m) => match metric_pose(m, e, info, &mut track.scale) {
+            Some(m) => match metric_pose(m, e, &info.to_image, info.map_size, &mut track.scale) {
                 Ok(()) => Some(&m.pose),
                 Err(error) => {
                     m.failures += 1;
@@ -132,8 +132,8 @@ pub(super) fn write_skeleton(
     if let Some(metres) = metres {
         m.units = Units::Metres as u8;
         m.metric_source = match metres.source {
-            crate::metric::MetricSource::Size => msgs::MetricSource::Size,
-            crate::metric::MetricSource::Floor => msgs::MetricSource::Floor,
+            crate::metres::PlacedBy::Size => msgs::MetricSource::Size,
+            crate::metres::PlacedBy::Floor => msgs::MetricSource::Floor,
         } as u8;
         m.positions.clone_from(&metres.positions);
         m.position_std.clone_from(&metres.position_std);

@@ -18,9 +18,9 @@ use crate::msgs::hri::IdsList;
 use crate::msgs::tf::{TFMessage, TransformStamped};
 use crate::msgs::{Header, Skeleton3D, Skeleton3DArray, SkeletonState};
 use crate::nodes::config::HriRoi;
+use crate::nodes::errors::ServiceError;
 use crate::nodes::frames::BodyFrames;
 use crate::nodes::hri::{HriBodies, normalized_roi, tracked};
-use crate::nodes::service::error::ServiceError;
 
 /// Plans what is said of bodies; see the module docs.
 pub struct BodyPlanner {

@@ -14,8 +14,9 @@ use super::publishers::Publishers;
 use crate::msgs::hri::{IdsList, NormalizedRegionOfInterest2D, Skeleton2D};
 use crate::msgs::sensor::RegionOfInterest;
 use crate::nodes::config::HriRoi;
+use crate::nodes::errors::ServiceError;
 use crate::nodes::hri::body_id;
-use crate::nodes::service::{ServiceError, Taps};
+use crate::nodes::publish::taps::Taps;
 use crate::transport::Message;
 use crate::transport::ros2::Ros2;
 

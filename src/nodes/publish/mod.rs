@@ -8,20 +8,26 @@
 //! - [`body_topics`]: REP-155's body topics, made and retired as people come and go;
 //! - [`sinks`]: a node's publishers, a plan sent to them ([`Sinks::send`],
 //!   [`Sinks::send_async`]);
+//! - [`taps`]: what sees everything a process publishes (the output recording, the live
+//!   view);
+//! - [`configured`]: one topic's publishers and the bodies' as configured;
 //! - [`outputs`]: the estimator's outputs as configured ([`EstimatorOutputs`]).
 
 pub mod bodies;
 pub mod body_topics;
+pub mod configured;
 pub mod outputs;
 pub mod plan;
 pub mod planner;
 pub mod publishers;
 pub mod sinks;
+pub mod taps;
 
 pub use bodies::{Bodies, BodyPlanner};
 pub use body_topics::{HriSinks, MAX_BODIES_MADE, MAX_BODY_TOPICS, RETIRE_AFTER, TopicMaker};
-pub use outputs::EstimatorOutputs;
+pub use outputs::{EstimatorOutputs, SkeletonLayout};
 pub use plan::{Plan, Publication};
 pub use planner::Planner;
 pub use publishers::Publishers;
 pub use sinks::Sinks;
+pub use taps::{Taps, live_view, output_recording};

@@ -9,13 +9,25 @@ use crate::floor::FloorSource;
 use crate::msgs::visualization::ImageMarker;
 use crate::msgs::{MarkerArray, Skeleton3D, Skeleton3DArray};
 use crate::nodes::config::ServiceConfig;
-use crate::nodes::estimator::EstimatorNode;
+use crate::nodes::errors::ServiceError;
 use crate::nodes::latency::FrameClock;
-use crate::nodes::service::error::ServiceError;
-use crate::nodes::service::middleware::Middleware;
-use crate::nodes::service::taps::Taps;
-use crate::nodes::service::wiring::{configured_bodies, publishers};
+use crate::nodes::middleware::Middleware;
+use crate::nodes::publish::configured::{configured_bodies, publishers};
+use crate::nodes::publish::taps::Taps;
 use crate::transport::Sink;
+
+/// What a node publishes skeletons of: their joints, the bones drawn between them, and the
+/// lag whose skeletons describe bodies.
+pub trait SkeletonLayout {
+    /// The joints of every skeleton, in order.
+    fn joint_names(&self) -> &[String];
+    /// The bones (joint index pairs), for drawing.
+    fn bones(&self) -> Vec<(usize, usize)>;
+    /// The lag whose skeletons describe bodies (`/tf`, REP-155): the newest estimates
+    /// when they are published (the least delay, as TF and HRI consumers want), else the
+    /// refined ones.
+    fn body_lag(&self) -> u32;
+}
 
 /// Where the estimator's results go: the plan of each step ([`Planner`], on the node's
 /// thread) and the publishers it is sent to ([`Sinks`], on the I/O's).
@@ -88,7 +100,7 @@ impl EstimatorOutputs {
         config: &ServiceConfig,
         middleware: &mut Middleware,
         taps: &Taps,
-        node: &EstimatorNode,
+        node: &impl SkeletonLayout,
     ) -> Result<Self, ServiceError> {
         let shm_sink = match (&middleware.shm, config.outputs.iceoryx2) {
             (Some(shm), true) => Some(
@@ -117,12 +129,7 @@ impl EstimatorOutputs {
         } else {
             Publishers::default()
         };
-        // The newest estimates when the window publishes them, else the refined ones.
-        let settings = node.settings();
-        let lag = match settings.outputs {
-            crate::streaming::Outputs::Lagged => settings.lag as u32,
-            _ => 0,
-        };
+        let lag = node.body_lag();
         let mut bodies = configured_bodies(config, middleware, taps, node.joint_names(), lag)?;
         let floor = &config.estimator.metric.floor;
         match floor.source {

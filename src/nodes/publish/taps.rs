@@ -1,8 +1,8 @@
 //! What sees every message a process publishes besides the middleware ([`Taps`]): the
 //! output recording (`[outputs] record`) and the live view (`[outputs] foxglove`).
 
-use super::ServiceError;
 use crate::nodes::config::ServiceConfig;
+use crate::nodes::errors::ServiceError;
 use crate::nodes::publish::Publishers;
 use crate::transport::foxglove::LiveView;
 use crate::transport::mcap::SharedRecorder;
@@ -33,17 +33,18 @@ pub struct Taps {
 }
 
 impl Taps {
-    /// Adds each tap's sink of `M` on `topic` to `out`.
+    /// Adds each tap's sink of `M` on `topic` to `out` (as sinks of bytes: they share one
+    /// encoding of each message).
     pub fn add_to<M: Message>(
         &self,
         out: &mut Publishers<M>,
         topic: &str,
     ) -> Result<(), TransportError> {
         if let Some(r) = &self.recorder {
-            out.add(format!("mcap {topic}"), Box::new(r.sink::<M>(topic)));
+            out.add_encoded(format!("mcap {topic}"), Box::new(r.sink::<M>(topic)));
         }
         if let Some(live) = &self.live {
-            out.add(
+            out.add_encoded(
                 format!("foxglove {topic}"),
                 Box::new(live.sink::<M>(topic)?),
             );

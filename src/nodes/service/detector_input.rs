@@ -4,19 +4,19 @@
 use std::path::Path;
 use std::time::Duration;
 
-use super::ServiceError;
-use super::middleware::Middleware;
-use super::taps::Taps;
-use super::wiring::publishers;
 use crate::detector::{DetectorStats, ImageDetector};
 use crate::msgs::HeatMaps;
 use crate::msgs::sensor::CameraInfo;
 use crate::nodes::camera::CameraTap;
 use crate::nodes::config::{DetectorSource, ReplayRate, ServiceConfig, Transport};
+use crate::nodes::errors::ServiceError;
+use crate::nodes::errors::SetupError;
 use crate::nodes::images::{ImageHeatMaps, SharedStats, image_frames};
 use crate::nodes::latency::FrameClock;
+use crate::nodes::middleware::Middleware;
+use crate::nodes::publish::configured::publishers;
 use crate::nodes::publish::publishers::Publishers;
-use crate::nodes::refusals::SetupError;
+use crate::nodes::publish::taps::Taps;
 use crate::nodes::shown_images::shown_images_topic;
 use crate::transport::foxglove::LiveView;
 use crate::transport::mcap::McapSource;

@@ -11,19 +11,19 @@ use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use super::error::ServiceError;
-use super::middleware::Middleware;
-use super::taps::Taps;
-use super::wiring::{configured_bodies, publishers};
 use crate::msgs::sensor::CameraInfo;
 use crate::msgs::tf::TFMessage;
 use crate::msgs::{Header, HeatMaps, Skeleton3D, Skeleton3DArray};
 use crate::nodes::config::{ExtrinsicsSource, FusionConfig, ServiceConfig};
+use crate::nodes::errors::Refusals;
+use crate::nodes::errors::ServiceError;
 use crate::nodes::fusion::{CameraReport, FusionCounters, FusionNode};
 use crate::nodes::latency::{LatencyHistogram, LatencySummary};
 use crate::nodes::markers::skeleton_markers;
+use crate::nodes::middleware::Middleware;
+use crate::nodes::publish::configured::{configured_bodies, publishers};
+use crate::nodes::publish::taps::Taps;
 use crate::nodes::publish::{BodyPlanner, Plan, Publication, Publishers, Sinks};
-use crate::nodes::refusals::Refusals;
 use crate::transport::mcap::McapSource;
 use crate::transport::{Received, Source, TransportError};
 

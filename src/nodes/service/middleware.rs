@@ -1,45 +1,25 @@
-//! The middleware of a process ([`Middleware`]: a ROS 2 node and an iceoryx2 node, each
-//! only if used), and the estimator's input from it ([`EstimatorInput`]).
+//! The estimator's input from the middleware ([`EstimatorInput`]), and the estimator
+//! node served over it ([`serve_estimator`]: ROS 2 on the tokio driver, iceoryx2 on the
+//! blocking one).
 
-use super::ServiceError;
-use super::side_inputs::SideInputs;
+use std::sync::atomic::AtomicBool;
+
 use crate::floor::FloorSource;
 use crate::msgs::HeatMaps;
 use crate::msgs::sensor::CameraInfo;
 use crate::msgs::tf::TFMessage;
 use crate::nodes::config::{ServiceConfig, Transport};
-use crate::transport::ros2::{QosSettings, Ros2, Ros2Source};
-use crate::transport::shm::Shm;
+use crate::nodes::drivers::side_inputs::SideInputs;
+use crate::nodes::drivers::{run_estimator_on_runtime_with, run_estimator_with};
+use crate::nodes::errors::ServiceError;
+use crate::nodes::estimator::EstimatorNode;
+use crate::nodes::estimator::core::EstimatorReport;
+use crate::nodes::middleware::Middleware;
+use crate::nodes::publish::outputs::EstimatorOutputs;
+use crate::transport::ros2::{QosSettings, Ros2Source};
 use crate::transport::{FrameSource, Source, TransportError};
 
-/// The middleware of a process: a ROS 2 node and an iceoryx2 node, each only if used.
-#[derive(Default)]
-pub struct Middleware {
-    /// The ROS 2 participant and node.
-    pub ros: Option<Ros2>,
-    /// The iceoryx2 node.
-    pub shm: Option<Shm>,
-}
-
 impl Middleware {
-    /// Opens what `config` (plus `extra`, a transport a node reads from) needs.
-    pub fn open(config: &ServiceConfig, extra: Option<Transport>) -> Result<Self, ServiceError> {
-        let ros = config.outputs.ros2 || extra == Some(Transport::Ros2);
-        let shm = config.outputs.iceoryx2 || extra == Some(Transport::Iceoryx2);
-        Ok(Self {
-            ros: ros.then(|| Ros2::new(&config.ros)).transpose()?,
-            shm: shm.then(Shm::new).transpose()?,
-        })
-    }
-
-    pub(crate) fn ros(&mut self) -> Result<&mut Ros2, TransportError> {
-        self.ros.as_mut().ok_or_else(|| missing("ros2"))
-    }
-
-    fn shm(&self) -> Result<&Shm, TransportError> {
-        self.shm.as_ref().ok_or_else(|| missing("iceoryx2"))
-    }
-
     /// The estimator's heat maps from `transport`: a ROS 2 subscription awaited on a
     /// runtime; iceoryx2 samples lent where they are, their scores read in shared
     /// memory by a blocking loop (docs/services.md, "Where the I/O runs").
@@ -103,9 +83,9 @@ impl Middleware {
 }
 
 /// Where the estimator node's heat maps come from, and so how its loop waits
-/// ([`serve_estimator`](super::serve_estimator)).
+/// ([`serve_estimator`]).
 pub enum EstimatorInput {
-    /// Messages awaited on a tokio runtime ([`run_estimator_on_runtime`](super::run_estimator_on_runtime)),
+    /// Messages awaited on a tokio runtime ([`run_estimator_on_runtime_with`]),
     /// and what is read beside them.
     Awaited {
         /// The heat maps.
@@ -113,15 +93,29 @@ pub enum EstimatorInput {
         /// The camera's calibration (`topics.camera_info`) and transforms.
         side: SideInputs,
     },
-    /// Frames lent by a blocking source ([`run_estimator`](super::run_estimator)), and
+    /// Frames lent by a blocking source ([`run_estimator_with`]), and
     /// what is read beside them.
     Lent(Box<dyn FrameSource>, SideInputs),
 }
 
-fn missing(transport: &'static str) -> TransportError {
-    TransportError::Setup {
-        transport,
-        what: "the node".into(),
-        reason: "not opened (enable it in [outputs] or as the input)".into(),
+/// The estimator node over its configured input ([`EstimatorInput`]): ROS 2 on the tokio
+/// driver, iceoryx2 on the blocking one.
+pub fn serve_estimator(
+    node: &mut EstimatorNode,
+    input: EstimatorInput,
+    outputs: &mut EstimatorOutputs,
+    stop: &AtomicBool,
+) -> Result<EstimatorReport, ServiceError> {
+    match input {
+        EstimatorInput::Awaited { mut heatmaps, side } => {
+            run_estimator_on_runtime_with(node, &mut *heatmaps, side, true, outputs, stop)
+        }
+        EstimatorInput::Lent(mut source, mut side) => Ok(run_estimator_with(
+            node,
+            &mut source,
+            &mut side,
+            outputs,
+            stop,
+        )),
     }
 }

@@ -8,15 +8,15 @@ use std::time::Instant;
 use serde::Serialize;
 
 use super::detector_input::{DetectorInput, detector_transport};
-use super::error::ServiceError;
-use super::side_inputs::SideInputs;
 use super::wiring::{Recorded, Wiring};
 use crate::detector::DetectorStats;
 use crate::msgs::HeatMaps;
 use crate::msgs::sensor::CameraInfo;
 use crate::nodes::camera::CameraTap;
 use crate::nodes::config::{DetectorSource, ServiceConfig};
+use crate::nodes::drivers::side_inputs::SideInputs;
 use crate::nodes::drivers::{DetectorReport, DetectorSide, run_estimator_on_runtime_with};
+use crate::nodes::errors::ServiceError;
 use crate::nodes::estimator::{EstimatorNode, EstimatorReport, MetricTiming};
 use crate::nodes::latency::{FrameClock, LatencySummary};
 use crate::recording::RecordingSummary;

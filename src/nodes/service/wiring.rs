@@ -5,67 +5,21 @@
 
 use std::time::Duration;
 
-use super::ServiceError;
 use super::detector_input::{DetectorInput, detector_input, detector_outputs};
-use super::middleware::{EstimatorInput, Middleware};
-use super::taps::{Taps, live_view, output_recording};
+use super::middleware::EstimatorInput;
 use crate::msgs::HeatMaps;
 use crate::msgs::sensor::CameraInfo;
 use crate::msgs::tf::TFMessage;
 use crate::nodes::config::{DetectorSource, ServiceConfig, Transport};
+use crate::nodes::errors::ServiceError;
 use crate::nodes::estimator::EstimatorNode;
 use crate::nodes::frames::is_body_transform;
-use crate::nodes::publish::{Bodies, EstimatorOutputs, Publishers, TopicMaker};
+use crate::nodes::middleware::Middleware;
+use crate::nodes::publish::configured::publishers;
+use crate::nodes::publish::taps::{Taps, live_view, output_recording};
+use crate::nodes::publish::{EstimatorOutputs, Publishers};
 use crate::recording::RecordingSummary;
-use crate::transport::{Message, Received, Sink, Source, TransportError};
-
-/// The configured descriptions of bodies (`[outputs] tf`, `hri`) of skeletons of
-/// `joint_names` at `lag`.
-pub(crate) fn configured_bodies(
-    config: &ServiceConfig,
-    middleware: &mut Middleware,
-    taps: &Taps,
-    joint_names: &[String],
-    lag: u32,
-) -> Result<Bodies, ServiceError> {
-    let tf = if config.outputs.tf {
-        publishers(config, middleware, taps, &config.topics.tf, None)?
-    } else {
-        Publishers::default()
-    };
-    let hri = config.outputs.hri.then(|| {
-        let maker = TopicMaker {
-            ros: middleware.ros.clone().filter(|_| config.outputs.ros2),
-            taps: taps.clone(),
-        };
-        (
-            config.topics.hri_bodies.clone(),
-            maker,
-            config.outputs.hri_roi,
-        )
-    });
-    Bodies::new(joint_names, lag, tf, hri)
-}
-
-/// Publishers of `M` on `topic` / `service` for every configured output.
-pub(crate) fn publishers<M: Message>(
-    config: &ServiceConfig,
-    middleware: &mut Middleware,
-    taps: &Taps,
-    topic: &str,
-    shm: Option<Result<Box<dyn Sink<M>>, TransportError>>,
-) -> Result<Publishers<M>, ServiceError> {
-    let mut out = Publishers::default();
-    if config.outputs.ros2 {
-        let ros = middleware.ros()?;
-        out.add_ros2(format!("ros2 {topic}"), ros.sink::<M>(topic)?);
-    }
-    if let Some(sink) = shm {
-        out.add(format!("iceoryx2 {topic}"), sink?);
-    }
-    taps.add_to(&mut out, topic)?;
-    Ok(out)
-}
+use crate::transport::{Message, Received, Source, TransportError};
 
 /// A wiring dropped without [`Wiring::conclude`] (a setup that failed after the
 /// recording started, a thread that died): a recording with nothing in it is removed;

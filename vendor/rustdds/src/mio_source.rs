@@ -90,13 +90,23 @@ macro_rules! socketpair_bridge {
 
       impl Source {
         pub fn drain(&self) {
-          let mut buf = Vec::with_capacity(16);
-          match self.rec.lock().unwrap().read_to_end(&mut buf) {
-            Ok(_) => (),
-            Err(err) => match err.kind() {
-              io::ErrorKind::WouldBlock => {}
-              other_kind => info!("PollEventSource.drain(): {other_kind}"),
-            },
+          // posestream patch (vendor/rustdds/PATCHES.md, fifth change): read into a
+          // buffer on the stack, not a new Vec on every take.
+          let mut buf = [0_u8; 64];
+          let mut rec = self.rec.lock().unwrap();
+          loop {
+            match rec.read(&mut buf) {
+              Ok(0) => break,
+              Ok(_) => {}
+              Err(err) if err.kind() == io::ErrorKind::Interrupted => {}
+              Err(err) => {
+                match err.kind() {
+                  io::ErrorKind::WouldBlock => {}
+                  other_kind => info!("PollEventSource.drain(): {other_kind}"),
+                }
+                break;
+              }
+            }
           }
         }
       }

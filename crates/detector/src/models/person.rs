@@ -26,7 +26,7 @@ pub const NMS_IOU: f32 = 0.3;
 
 /// One person found, in input coordinates normalised to [0, 1].
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Detection {
+pub struct PersonDetection {
     /// Probability.
     pub score: f32,
     /// Box centre x, y and width, height.
@@ -37,7 +37,7 @@ pub struct Detection {
     pub keypoints: [[f32; 2]; KEYPOINTS],
 }
 
-impl Detection {
+impl PersonDetection {
     fn iou(&self, other: &Self) -> f32 {
         let lo = |c: f32, s: f32| c - 0.5 * s;
         let hi = |c: f32, s: f32| c + 0.5 * s;
@@ -88,9 +88,9 @@ pub fn decode(
     scores: &[f32],
     anchors: &[[f32; 2]],
     threshold: f32,
-) -> Vec<Detection> {
+) -> Vec<PersonDetection> {
     let scale = INPUT_SIZE as f32;
-    let mut candidates: Vec<Detection> = anchors
+    let mut candidates: Vec<PersonDetection> = anchors
         .iter()
         .enumerate()
         .filter_map(|(i, anchor)| {
@@ -100,7 +100,7 @@ pub fn decode(
             }
             let raw = boxes.get(i * VALUES_PER_ANCHOR..(i + 1) * VALUES_PER_ANCHOR)?;
             let point = |k: usize| [raw[k] / scale + anchor[0], raw[k + 1] / scale + anchor[1]];
-            Some(Detection {
+            Some(PersonDetection {
                 score,
                 centre: point(0),
                 size: [raw[2] / scale, raw[3] / scale],
@@ -111,15 +111,15 @@ pub fn decode(
     candidates.sort_by(|a, b| b.score.total_cmp(&a.score));
     let mut out = Vec::new();
     while let Some(best) = candidates.first().copied() {
-        let (cluster, rest): (Vec<Detection>, Vec<Detection>) =
+        let (cluster, rest): (Vec<PersonDetection>, Vec<PersonDetection>) =
             candidates.into_iter().partition(|d| best.iou(d) > NMS_IOU);
         candidates = rest;
         // The cluster's box and keypoints, weighted by score; the best one's score.
         let total: f32 = cluster.iter().map(|d| d.score).sum();
-        let mean = |f: &dyn Fn(&Detection) -> f32| {
+        let mean = |f: &dyn Fn(&PersonDetection) -> f32| {
             cluster.iter().map(|d| d.score * f(d)).sum::<f32>() / total
         };
-        out.push(Detection {
+        out.push(PersonDetection {
             score: best.score,
             centre: [mean(&|d| d.centre[0]), mean(&|d| d.centre[1])],
             size: [mean(&|d| d.size[0]), mean(&|d| d.size[1])],
@@ -202,7 +202,7 @@ impl PersonNetwork {
         worker: Option<usize>,
         input: &[f32],
         threshold: f32,
-    ) -> Result<Vec<Detection>, NetworkError> {
+    ) -> Result<Vec<PersonDetection>, NetworkError> {
         let raw = self.run_raw(worker, input)?;
         Ok(decode(&raw.boxes, &raw.scores, &self.anchors, threshold))
     }

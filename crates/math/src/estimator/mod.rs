@@ -2,29 +2,14 @@
 //! sequence to 3D poses. The entry point of the library; the batch `lift` command and the
 //! streaming nodes are thin adapters over it.
 
-use std::borrow::Cow;
-use std::time::Instant;
-
-use nalgebra::Vector3;
 use serde::Serialize;
 
-use crate::camera::Intrinsics;
 use crate::dictionary::Dictionary;
 use crate::error::EstimateError;
-use crate::heatmaps::HeatMapSequence;
-use crate::solver::adapt::{self, ShapeStats};
-use crate::solver::bcd::{self, BcdWorkspace};
 use crate::solver::coefficients::basis_gram_max;
-use crate::solver::em::{self, EmWorkspace, PreparedMaps};
-use crate::solver::init::{InitCache, InitWorkspace, initialise_frame, initialise_frame_into};
-use crate::solver::normalise::{heatmap_scale, keypoint_scale};
-use crate::solver::perspective::{
-    self, PerspectiveFit, PerspectiveParams, PerspectiveWorkspace, start_from_weak_fit,
-};
-use crate::solver::{FrameFit, InitMethod, Observations, Params};
-use posestream_base::PixelMap;
-
-mod batch;
+use crate::solver::init::{InitCache, InitWorkspace, initialise_frame_into};
+use crate::solver::perspective::PerspectiveFit;
+use crate::solver::{FrameFit, InitMethod, Params};
 
 /// Frames running that the sliding window's initialisation swaps a left/right pair's
 /// maps back at most (a third of a second at 30 frames/s): a detector's swap is an
@@ -171,10 +156,10 @@ pub struct MetricEstimate {
 /// ```
 #[derive(Debug, Clone)]
 pub struct Estimator {
-    dict: Dictionary,
-    params: Params,
-    cache: InitCache,
-    gram_max: f64,
+    pub(crate) dict: Dictionary,
+    pub(crate) params: Params,
+    pub(crate) cache: InitCache,
+    pub(crate) gram_max: f64,
 }
 
 impl Estimator {

@@ -1,6 +1,7 @@
 //! The estimator's unit tests.
 
 use super::*;
+use crate::solver::normalise::heatmap_scale;
 
 /// The window's initialisation puts a left/right pair back in the track's order
 /// when its peaks jumped to each other's places (a detector's swap), not when two

@@ -1,0 +1,84 @@
+//! Unit tests of `shm`.
+
+use super::*;
+
+/// The tables of `msgs/SHARED_MEMORY.md`.
+#[test]
+fn payload_layouts_are_the_documented_ones() {
+    use std::mem::{align_of, offset_of, size_of};
+    assert_eq!(
+        (size_of::<SkeletonSample>(), align_of::<SkeletonSample>()),
+        (3680, 8)
+    );
+    let s = [
+        offset_of!(SkeletonSample, stamp_ns),
+        offset_of!(SkeletonSample, sequence),
+        offset_of!(SkeletonSample, track_id),
+        offset_of!(SkeletonSample, joints),
+        offset_of!(SkeletonSample, lag),
+        offset_of!(SkeletonSample, state),
+        offset_of!(SkeletonSample, units),
+        offset_of!(SkeletonSample, metric_source),
+        offset_of!(SkeletonSample, reserved),
+        offset_of!(SkeletonSample, frame_id),
+        offset_of!(SkeletonSample, joint_names),
+        offset_of!(SkeletonSample, positions),
+        offset_of!(SkeletonSample, position_std),
+        offset_of!(SkeletonSample, keypoints),
+        offset_of!(SkeletonSample, keypoint_std),
+        offset_of!(SkeletonSample, projected),
+    ];
+    assert_eq!(
+        s,
+        [
+            0, 8, 16, 20, 24, 28, 29, 30, 31, 32, 96, 864, 1632, 2400, 2912, 3168
+        ]
+    );
+    assert_eq!(
+        (size_of::<HeatMapsHeader>(), align_of::<HeatMapsHeader>()),
+        (896, 8)
+    );
+    let h = [
+        offset_of!(HeatMapsHeader, stamp_ns),
+        offset_of!(HeatMapsHeader, sequence),
+        offset_of!(HeatMapsHeader, track_id),
+        offset_of!(HeatMapsHeader, joints),
+        offset_of!(HeatMapsHeader, height),
+        offset_of!(HeatMapsHeader, width),
+        offset_of!(HeatMapsHeader, crop),
+        offset_of!(HeatMapsHeader, frame_id),
+        offset_of!(HeatMapsHeader, joint_names),
+    ];
+    assert_eq!(h, [0, 8, 16, 20, 24, 28, 32, 64, 128]);
+    let doc = include_str!("../../../../msgs/SHARED_MEMORY.md");
+    for line in [
+        "| 3168 | `projected`",
+        "| 30 | `metric_source`",
+        "| 1632 | `position_std`",
+        "| 128 | `joint_names`",
+        "3,680 bytes",
+        "896 bytes",
+    ] {
+        assert!(doc.contains(line), "{line}");
+    }
+}
+
+#[test]
+fn too_many_joints_and_long_names_are_refused() {
+    let mut m = Skeleton3D {
+        joint_names: vec!["j".into(); MAX_JOINTS + 1],
+        ..Skeleton3D::default()
+    };
+    assert!(SkeletonSample::from_message(&m).is_err());
+    m.joint_names = vec!["x".repeat(NAME_BYTES + 1)];
+    m.positions = vec![0.0; 3];
+    m.position_std = vec![0.0; 3];
+    m.keypoints = vec![0.0; 2];
+    m.keypoint_std = vec![0.0];
+    m.projected = vec![0.0; 2];
+    assert!(SkeletonSample::from_message(&m).is_err());
+    m.joint_names = vec!["x".into()];
+    assert!(SkeletonSample::from_message(&m).is_ok());
+    m.positions.pop();
+    assert!(SkeletonSample::from_message(&m).is_err());
+}

@@ -1,0 +1,127 @@
+//! The fusion node's cameras: their calibration (a `CameraInfo`, the configuration), their poses (TF, the configuration), and the check of their extrinsics against the fused poses.
+
+use super::*;
+
+impl FusionNode {
+    /// Each camera: calibration, frames, residual against the fused poses, whether its
+    /// extrinsics are suspect.
+    pub fn cameras(&self) -> Vec<CameraReport> {
+        let residuals = self.residuals();
+        self.cameras
+            .iter()
+            .zip(&residuals)
+            .enumerate()
+            .map(|(v, (c, r))| CameraReport {
+                name: c.name.clone(),
+                frame_id: c.frame_id.clone().unwrap_or_default(),
+                calibrated: c.calibrated().is_some(),
+                frames: c.frames,
+                used: c.used,
+                residual: Some(r.mean()).filter(|m| m.is_finite()),
+                residual_frames: r.frames,
+                suspect: self.suspects.contains(&v),
+            })
+            .collect()
+    }
+
+    /// Every camera's residuals: the people forgotten and those tracked.
+    pub(super) fn residuals(&self) -> Vec<ViewResidual> {
+        let mut all = self.ended_residuals.clone();
+        for w in self.windows.values() {
+            for (a, r) in all.iter_mut().zip(w.residuals()) {
+                a.merge(r);
+            }
+        }
+        all
+    }
+
+    /// Takes camera `camera`'s calibration: its intrinsics (unless configured) and, the
+    /// first time, its frame id. A calibration that cannot be used is refused
+    /// (`camera-info`).
+    pub fn camera_info(&mut self, camera: usize, info: &CameraInfo) {
+        let result = crate::nodes::estimator::metres::calibration(info, &self.limits)
+            .map(|(intrinsics, _)| intrinsics);
+        let Some(c) = self.cameras.get_mut(camera) else {
+            return;
+        };
+        match result {
+            Ok(intrinsics) => {
+                let mut changed = false;
+                if c.frame_id.is_none() && !info.header.frame_id.is_empty() {
+                    c.frame_id = Some(info.header.frame_id.trim_start_matches('/').to_string());
+                    changed = true;
+                }
+                if c.configured_intrinsics.is_none() && c.intrinsics != Some(intrinsics) {
+                    c.intrinsics = Some(intrinsics);
+                    changed = true;
+                }
+                if changed {
+                    self.update_rig();
+                }
+            }
+            Err(reason) => {
+                let e = NodeError::CameraInfo {
+                    reason: format!("camera {}: {reason}", c.name),
+                };
+                self.refused.note(e.kind(), &e);
+            }
+        }
+    }
+
+    /// Takes transforms (`/tf_static`, `/tf`): with extrinsics from TF, each camera's
+    /// pose is `world_frame` to its frame. Transforms the buffer cannot hold are
+    /// refused (`tf`); people's frames (ours, heard back) are passed over.
+    pub fn transforms(&mut self, message: &TFMessage) {
+        if self.extrinsics != ExtrinsicsSource::Tf {
+            return;
+        }
+        let wanted = |t: &msgs::tf::TransformStamped| {
+            !crate::nodes::frames::is_body_transform(&t.header.frame_id, &t.child_frame_id)
+        };
+        for reason in self.tf.take_where(message, wanted) {
+            let e = NodeError::Transform { reason };
+            self.refused.note(e.kind(), &e);
+        }
+        self.update_rig();
+    }
+
+    /// Looks the cameras' poses up (TF) and hands the windows every change.
+    pub(super) fn update_rig(&mut self) {
+        for (v, c) in self.cameras.iter_mut().enumerate() {
+            if self.extrinsics == ExtrinsicsSource::Tf
+                && let Some(frame) = &c.frame_id
+            {
+                c.pose = self.tf.lookup(&self.world_frame, frame);
+            }
+            let Some(now) = c.calibrated() else {
+                continue;
+            };
+            if now.check().is_err() || now == self.rig[v] {
+                continue;
+            }
+            self.rig[v] = now;
+            for w in self.windows.values_mut() {
+                // Checked above: cannot fail.
+                let _ = w.set_camera(v, now);
+            }
+        }
+    }
+
+    /// Names the cameras whose extrinsics disagree with the others' (a warning when the
+    /// set changes).
+    pub(super) fn check_extrinsics(&mut self) {
+        let now = suspects(&self.residuals(), &self.check);
+        if now != self.suspects {
+            for &v in now.iter().filter(|v| !self.suspects.contains(v)) {
+                tracing::warn!(
+                    "camera {}: its heat maps disagree with the fused poses' projections much \
+                     more than the other cameras' do: its extrinsics (pose in {}) are likely \
+                     wrong",
+                    self.cameras[v].name,
+                    self.world_frame
+                );
+            }
+            self.suspects = now;
+        }
+    }
+}
