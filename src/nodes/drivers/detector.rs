@@ -9,8 +9,7 @@ use std::time::{Duration, Instant};
 
 use serde::Serialize;
 
-use super::tokio::{runtime, stopped};
-use super::{POLL, due_wait, pace};
+use super::{POLL, due_wait, pace, runtime, stopped};
 use crate::detector::DetectorStats;
 use crate::msgs::HeatMaps;
 use crate::nodes::config::ReplayRate;

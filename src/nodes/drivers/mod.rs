@@ -18,6 +18,8 @@ pub mod tokio;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
+use crate::nodes::errors::ServiceError;
+
 pub use blocking::{run_estimator, run_estimator_with};
 pub use detector::{DetectorReport, DetectorSide, run_detector, run_detector_on_runtime};
 pub use side_inputs::SideInputs;
@@ -40,4 +42,21 @@ pub fn pace(start: Instant, due: Duration, stop: &AtomicBool) -> bool {
 pub fn due_wait(start: Instant, due: Duration, stop: &AtomicBool) -> Option<Duration> {
     let wait = due.checked_sub(start.elapsed())?;
     (!stop.load(Ordering::Relaxed)).then(|| wait.min(POLL))
+}
+
+/// Returns once `stop` is set, looking every [`POLL`].
+pub(crate) async fn stopped(stop: &AtomicBool) {
+    let mut tick = ::tokio::time::interval(POLL);
+    tick.set_missed_tick_behavior(::tokio::time::MissedTickBehavior::Delay);
+    while !stop.load(Ordering::Relaxed) {
+        tick.tick().await;
+    }
+}
+
+/// A runtime on this thread, with timers.
+pub(crate) fn runtime() -> Result<::tokio::runtime::Runtime, ServiceError> {
+    ::tokio::runtime::Builder::new_current_thread()
+        .enable_time()
+        .build()
+        .map_err(ServiceError::Runtime)
 }

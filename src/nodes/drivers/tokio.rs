@@ -12,25 +12,28 @@
 //!
 //! A full channel makes the side before it wait: a slow core slows the reading, slow
 //! sinks slow the core. What the runtime adds is a place for more than one thing to
-//! wait on (inputs, timers, ROS 2 publishers that wait for room without blocking).
+//! wait on (inputs, timers, ROS 2 publishers that wait for room without blocking). The
+//! solver runs the blocking driver's loop (`blocking::drive`) over what the runtime hands
+//! it ([`Handed`]), its plans handed back to the runtime ([`Handing`]): the two drivers
+//! differ in the send call only.
 
 use std::cell::Cell;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::time::Instant;
+use std::sync::atomic::AtomicBool;
+use std::time::{Duration, Instant};
 
 use tokio::sync::mpsc;
 
-use super::POLL;
-use super::blocking::step;
-use crate::msgs::HeatMaps;
-use crate::nodes::EstimatorNode;
-use crate::nodes::drivers::side_inputs::SideInputs;
+use super::blocking::{Outlet, drive};
+use super::side_inputs::SideInputs;
+use super::{POLL, runtime, stopped};
+use crate::msgs::{HeatMaps, HeatMapsView};
 use crate::nodes::errors::ServiceError;
-use crate::nodes::estimator::{Clock, EstimatorCore, EstimatorReport, Flow, Input};
+use crate::nodes::estimator::EstimatorNode;
+use crate::nodes::estimator::core::{Clock, EstimatorCore, EstimatorReport};
 use crate::nodes::publish::{EstimatorOutputs, Plan};
 use crate::transport::recycle::Recycler;
 use crate::transport::runtime::AsyncSource;
-use crate::transport::{Received, TransportError};
+use crate::transport::{FrameSource, Received, TransportError};
 
 /// Inputs (or plans) waiting between the runtime and the solver at most.
 const CHANNEL: usize = 4;
@@ -71,19 +74,26 @@ pub fn run_estimator_on_runtime_with(
     let (plans, mut plans_rx) = mpsc::channel::<Plan>(CHANNEL);
     let (sent, sent_rx) = std::sync::mpsc::channel::<Plan>();
     // The frames handed back once handled: the source decodes the next ones over them.
-    let recycler = source.recycler();
+    let mut handed = Handed(work_rx, source.recycler(), live);
     let EstimatorOutputs { planner, sinks } = outputs;
     let core = std::thread::scope(|scope| {
         let solver = std::thread::Builder::new()
             .name("solver".into())
             .spawn_scoped(scope, move || {
                 let mut core = EstimatorCore::new(node, planner);
-                let inputs = Inputs {
-                    clock: Clock::of(live),
-                    side: &mut side,
-                    recycler,
-                };
-                solve(&mut core, inputs, work_rx, plans, sent_rx);
+                let mut handing = Handing(plans, sent_rx, Vec::new());
+                // The input's end (the channel closed) ends the loop, not a stop: what
+                // was taken before is solved and sent.
+                let go_on = AtomicBool::new(false);
+                let clock = Clock::of(live);
+                drive(
+                    &mut core,
+                    clock,
+                    &mut handed,
+                    &mut side,
+                    &mut handing,
+                    &go_on,
+                );
                 core
             })
             .map_err(|_| ServiceError::Thread("solver"))?;
@@ -129,70 +139,53 @@ pub fn run_estimator_on_runtime_with(
     Ok(core.report(&outputs.sinks))
 }
 
-/// What the solver thread reads besides its work: the clock, the side inputs, and where
-/// frames go back to once handled.
-struct Inputs<'s> {
-    clock: Clock,
-    side: &'s mut SideInputs,
-    recycler: Option<Recycler<HeatMaps>>,
-}
+/// What the runtime hands the solver, as a lending source: each frame lent, then given
+/// back to the source's recycler (when it has one); whether the source is live.
+struct Handed(mpsc::Receiver<Work>, Option<Recycler<HeatMaps>>, bool);
 
-/// The solver thread: each input through `core`, its plans to `plans`, until the input
-/// ends; then the tracks' last estimates.
-fn solve(
-    core: &mut EstimatorCore<'_>,
-    inputs: Inputs<'_>,
-    mut work: mpsc::Receiver<Work>,
-    plans: mpsc::Sender<Plan>,
-    sent: std::sync::mpsc::Receiver<Plan>,
-) {
-    let Inputs {
-        mut clock,
-        side,
-        recycler,
-    } = inputs;
-    let (mut plan, mut spare) = (Plan::default(), Vec::new());
-    while let Some(next) = work.blocking_recv() {
-        while let Ok(mut p) = sent.try_recv() {
-            core.recycle(&mut p);
-            spare.push(p);
-        }
-        side.take(&mut |input| step(core, &mut clock, input, &mut plan));
-        let got = match next {
-            Work::Got(got) => got.map(|r| {
+impl FrameSource for Handed {
+    /// Waits for the runtime (it says when the input is quiet: `Idle`).
+    fn recv_frame(
+        &mut self,
+        _timeout: Duration,
+        take: &mut dyn FnMut(&HeatMapsView<'_>, u64),
+    ) -> Result<Received<()>, TransportError> {
+        match self.0.blocking_recv() {
+            None => Ok(Received::Closed),
+            Some(Work::Quiet) => Ok(Received::Idle),
+            Some(Work::Got(got)) => got.map(|r| {
                 r.map(|maps, stamp| {
-                    step(
-                        core,
-                        &mut clock,
-                        Input::Frame(&maps.view(), stamp),
-                        &mut plan,
-                    );
-                    if let Some(recycler) = &recycler {
+                    take(&maps.view(), stamp);
+                    if let Some(recycler) = &self.1 {
                         recycler.put(maps);
                     }
                 })
             }),
-            Work::Quiet => Ok(Received::Idle),
-        };
-        let flow = core.received(got, clock.now(&Input::Quiet), &mut plan);
-        if plan.is_empty() {
-            core.recycle(&mut plan);
-        } else {
-            let next = spare.pop().unwrap_or_default();
-            if plans
-                .blocking_send(std::mem::replace(&mut plan, next))
-                .is_err()
-            {
-                return;
-            }
-        }
-        if flow == Flow::End {
-            break;
         }
     }
-    core.close(&mut plan);
-    // The output gone (it cannot be, short of a panic) loses only these.
-    let _ = plans.blocking_send(plan);
+
+    fn live(&self) -> bool {
+        self.2
+    }
+}
+
+/// The solver's plans handed to the runtime's sending, and those sent coming back.
+struct Handing(
+    mpsc::Sender<Plan>,
+    std::sync::mpsc::Receiver<Plan>,
+    Vec<Plan>,
+);
+
+impl Outlet for Handing {
+    fn send(&mut self, core: &mut EstimatorCore<'_>, plan: &mut Plan) -> bool {
+        while let Ok(mut sent) = self.1.try_recv() {
+            core.recycle(&mut sent);
+            self.2.push(sent);
+        }
+        let next = self.2.pop().unwrap_or_default();
+        // The output gone (it cannot be, short of a panic) ends the loop.
+        self.0.blocking_send(std::mem::replace(plan, next)).is_ok()
+    }
 }
 
 /// Offers the solver a [`Work::Quiet`] every [`POLL`] in which nothing came (since
@@ -209,23 +202,6 @@ async fn quiet(last: &Cell<Instant>, work: &mpsc::Sender<Work>) {
             return;
         }
     }
-}
-
-/// Returns once `stop` is set, looking every [`POLL`].
-pub(super) async fn stopped(stop: &AtomicBool) {
-    let mut tick = tokio::time::interval(POLL);
-    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-    while !stop.load(Ordering::Relaxed) {
-        tick.tick().await;
-    }
-}
-
-/// A runtime on this thread, with timers.
-pub(super) fn runtime() -> Result<tokio::runtime::Runtime, ServiceError> {
-    tokio::runtime::Builder::new_current_thread()
-        .enable_time()
-        .build()
-        .map_err(ServiceError::Runtime)
 }
 
 #[cfg(test)]

@@ -278,3 +278,6 @@ impl<'a> EstimatorCore<'a> {
         }
     }
 }
+
+#[cfg(test)]
+mod tests;
