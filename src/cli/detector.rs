@@ -4,20 +4,14 @@ use clap::Args;
 use posestream::nodes::service::{self, Wiring, run_detector_on_runtime};
 
 use super::CliError;
-use super::service::{SourceArgs, print, stop_flag};
+use super::service::{DetectorNodeArgs, print, stop_flag};
 
 /// Options of `detector`.
 #[derive(Debug, Args)]
 pub struct DetectorArgs {
-    /// The service configuration (`--config FILE`).
+    /// The configuration, the source and the live view.
     #[command(flatten)]
-    pub config: super::config::ConfigArgs,
-    /// The source.
-    #[command(flatten)]
-    pub source: SourceArgs,
-    /// The live view (`--foxglove`).
-    #[command(flatten)]
-    pub live: super::config::LiveArgs,
+    pub node: DetectorNodeArgs,
     /// Print the report as JSON.
     #[arg(long)]
     pub json: bool,
@@ -26,9 +20,7 @@ pub struct DetectorArgs {
 /// Runs `detector`: heat maps from the configured source (a recording replayed, or the
 /// image detector on images) published to `[outputs]`.
 pub fn run(args: &DetectorArgs) -> Result<(), CliError> {
-    let mut config = args.config.load()?;
-    args.live.apply(&mut config);
-    args.source.apply(&mut config);
+    let mut config = args.node.load()?;
     config.ros.or_named("posestream_detector");
     let stop = stop_flag();
     let mut wiring = Wiring::open(&config, service::detector_transport(&config))?;

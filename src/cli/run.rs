@@ -6,20 +6,14 @@ use clap::Args;
 use posestream::nodes::service;
 
 use super::CliError;
-use super::service::{SourceArgs, print, stop_flag};
+use super::service::{DetectorNodeArgs, print, stop_flag};
 
 /// Options of `run`.
 #[derive(Debug, Args)]
 pub struct RunArgs {
-    /// The service configuration (`--config FILE`).
+    /// The configuration, the source and the live view.
     #[command(flatten)]
-    pub config: super::config::ConfigArgs,
-    /// The source.
-    #[command(flatten)]
-    pub source: SourceArgs,
-    /// The live view (`--foxglove`).
-    #[command(flatten)]
-    pub live: super::config::LiveArgs,
+    pub node: DetectorNodeArgs,
     /// Record the outputs (and the heat maps) to this MCAP file (overrides
     /// `outputs.record`).
     #[arg(long)]
@@ -34,9 +28,7 @@ pub struct RunArgs {
 
 /// Runs `run`: detector and estimator in one process.
 pub fn run(args: &RunArgs) -> Result<(), CliError> {
-    let mut config = args.config.load()?;
-    args.live.apply(&mut config);
-    args.source.apply(&mut config);
+    let mut config = args.node.load()?;
     if let Some(r) = &args.record {
         config.outputs.record = r.clone();
     }

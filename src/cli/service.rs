@@ -176,6 +176,31 @@ pub(crate) fn print<T: Serialize + Summary>(json: bool, report: &T) -> Result<()
     Ok(())
 }
 
+/// What the detector's commands (`detector`, `run`) are given: the service configuration
+/// (`--config FILE`), the source, and the live view (`--foxglove`).
+#[derive(Debug, Args)]
+pub struct DetectorNodeArgs {
+    /// The service configuration (`--config FILE`).
+    #[command(flatten)]
+    pub config: super::config::ConfigArgs,
+    /// The source.
+    #[command(flatten)]
+    pub source: SourceArgs,
+    /// The live view (`--foxglove`).
+    #[command(flatten)]
+    pub live: super::config::LiveArgs,
+}
+
+impl DetectorNodeArgs {
+    /// The configuration with the source and the live view applied.
+    pub fn load(&self) -> Result<posestream::nodes::ServiceConfig, CliError> {
+        let mut config = self.config.load()?;
+        self.live.apply(&mut config);
+        self.source.apply(&mut config);
+        Ok(config)
+    }
+}
+
 /// Where the detector's frames come from (each overrides `[detector]`).
 #[derive(Debug, Args)]
 pub struct SourceArgs {

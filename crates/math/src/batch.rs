@@ -22,7 +22,7 @@ use crate::solver::perspective::{
     self, PerspectiveParams, PerspectiveWorkspace, start_from_weak_fit,
 };
 use crate::solver::{FrameFit, InitMethod, Observations};
-use crate::streaming::{Estimates, FrameMaps, Outputs, StreamSettings, WindowEstimator};
+use crate::streaming::{Emitted, Estimates, FrameMaps, StreamSettings, WindowEstimator};
 use posestream_base::PixelMap;
 
 impl Estimator {
@@ -304,7 +304,7 @@ impl Estimator {
         started: &mut [bool],
     ) -> Result<(), EstimateError> {
         let settings = StreamSettings {
-            outputs: Outputs::Lagged,
+            outputs: Emitted::Lagged,
             lag: START_LAG,
             ..StreamSettings::default()
         };

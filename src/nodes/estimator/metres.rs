@@ -158,7 +158,7 @@ impl EstimatorNode {
             };
             let window = self.template.settings();
             let lag = match window.outputs {
-                crate::streaming::Outputs::Newest => 0,
+                crate::streaming::Emitted::Newest => 0,
                 _ => window.lag,
             };
             (FloorLearner::new(settings), lag)

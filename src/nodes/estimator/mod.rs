@@ -623,7 +623,7 @@ impl SkeletonLayout for EstimatorNode {
         // The newest estimates when the window publishes them, else the refined ones.
         let settings = self.settings();
         match settings.outputs {
-            crate::streaming::Outputs::Lagged => settings.lag as u32,
+            crate::streaming::Emitted::Lagged => settings.lag as u32,
             _ => 0,
         }
     }

@@ -16,7 +16,7 @@ use super::litert::{CompiledModels, LiteRt, LiteRtNetwork};
 /// One output of a detector network: its shape in tract's plan and, the same values,
 /// its size in floats for LiteRT (which names outputs by size).
 #[derive(Debug, Clone, Copy)]
-pub(crate) struct Output<'a> {
+pub struct Output<'a> {
     /// The output's shape (tract).
     pub shape: &'a [usize],
     /// Its values, in floats (LiteRT).
@@ -82,5 +82,82 @@ impl Engine {
             }
         }
         Ok(values)
+    }
+}
+
+/// A single-shot detector network: its input, its two outputs, its anchors, and how its
+/// raw outputs become what it found ([`Network`] runs it on tract or LiteRT).
+pub trait Detector {
+    /// Input side, pixels (`side x side x 3`).
+    const INPUT_SIZE: usize;
+    /// Its two outputs, in order.
+    const OUTPUTS: [Output<'static>; 2];
+    /// Whether LiteRT also compiles a model on all the workers' threads for a lone run.
+    const LONE_RUN: bool;
+    /// One anchor.
+    type Anchor;
+    /// The raw outputs of one run.
+    type Raw;
+    /// What it finds.
+    type Found;
+    /// Its anchors, in the order of its outputs.
+    fn anchors() -> Vec<Self::Anchor>;
+    /// The raw outputs of one run, from its two outputs' values.
+    fn raw(outputs: [Vec<f32>; 2]) -> Self::Raw;
+    /// What `raw` finds scoring at least `threshold`, best first.
+    fn found(raw: &Self::Raw, anchors: &[Self::Anchor], threshold: f32) -> Vec<Self::Found>;
+}
+
+/// A loaded [`Detector`].
+pub struct Network<D: Detector> {
+    engine: Engine,
+    anchors: Vec<D::Anchor>,
+}
+
+impl<D: Detector> Network<D> {
+    /// Loads the model at `path` (rewritten or converted for tract) for tract.
+    pub fn load(path: &Path) -> Result<Self, NetworkError> {
+        Ok(Self {
+            engine: Engine::tract(path)?,
+            anchors: D::anchors(),
+        })
+    }
+
+    /// Compiles the model at `path` with LiteRT, one compiled model per worker of
+    /// parallel runs (and one for a lone run: [`Detector::LONE_RUN`]).
+    pub fn load_litert(
+        runtime: &LiteRt,
+        path: &Path,
+        workers: usize,
+    ) -> Result<Self, NetworkError> {
+        Ok(Self {
+            engine: Engine::litert(
+                runtime,
+                path,
+                workers,
+                D::LONE_RUN,
+                D::INPUT_SIZE,
+                &D::OUTPUTS,
+            )?,
+            anchors: D::anchors(),
+        })
+    }
+
+    /// Raw outputs for `input`: `INPUT_SIZE x INPUT_SIZE x 3`, row-major, values in
+    /// [-1, 1]; `worker` picks LiteRT's compiled model (`None`: the lone run's).
+    pub fn run_raw(&self, worker: Option<usize>, input: &[f32]) -> Result<D::Raw, NetworkError> {
+        let outputs = self.engine.run(worker, D::INPUT_SIZE, input, D::OUTPUTS)?;
+        Ok(D::raw(outputs))
+    }
+
+    /// What `input` holds scoring at least `threshold`, best first.
+    pub fn detect(
+        &self,
+        worker: Option<usize>,
+        input: &[f32],
+        threshold: f32,
+    ) -> Result<Vec<D::Found>, NetworkError> {
+        let raw = self.run_raw(worker, input)?;
+        Ok(D::found(&raw, &self.anchors, threshold))
     }
 }

@@ -17,6 +17,7 @@ pub mod rewrite;
 
 use std::path::PathBuf;
 
+pub use engine::{Detector, Network, Output};
 pub use fetch::{FetchError, LandmarkModel, ModelFile, fetch};
 
 /// The model cache folder.

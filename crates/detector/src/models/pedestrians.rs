@@ -13,14 +13,12 @@
 //! sigmoid scores, hard non-maximum suppression.
 
 use std::collections::{HashMap, HashSet};
-use std::path::Path;
 
 use tract_tensorflow::prelude::InferenceModelExt;
 use tract_tflite::prelude::*;
 
-use super::engine::{Engine, Output};
+use super::engine::{Detector, Network, Output};
 use super::landmarks::NetworkError;
-use super::litert::LiteRt;
 
 /// Input side, pixels (the whole input is one image region squeezed to a square, as
 /// the model was trained).
@@ -239,68 +237,43 @@ pub struct PedestrianOutput {
     pub logits: Vec<f32>,
 }
 
-/// Its outputs: box codes, class logits.
-const OUTPUTS: [Output<'static>; 2] = [
-    Output {
-        shape: &[1, ANCHORS, 1, 4],
-        floats: ANCHORS * 4,
-    },
-    Output {
-        shape: &[1, ANCHORS, CLASSES],
-        floats: ANCHORS * CLASSES,
-    },
-];
+/// The pedestrian detector (SSDLite), as a [`Detector`].
+#[derive(Debug)]
+pub struct PedestrianDetector;
 
-/// A loaded pedestrian detector.
-pub struct PedestrianNetwork {
-    engine: Engine,
-    anchors: Vec<[f32; 4]>,
-}
+impl Detector for PedestrianDetector {
+    const INPUT_SIZE: usize = INPUT_SIZE;
+    /// Box codes, class logits.
+    const OUTPUTS: [Output<'static>; 2] = [
+        Output {
+            shape: &[1, ANCHORS, 1, 4],
+            floats: ANCHORS * 4,
+        },
+        Output {
+            shape: &[1, ANCHORS, CLASSES],
+            floats: ANCHORS * CLASSES,
+        },
+    ];
+    const LONE_RUN: bool = false;
+    type Anchor = [f32; 4];
+    type Raw = PedestrianOutput;
+    type Found = Pedestrian;
 
-impl PedestrianNetwork {
-    /// Loads the converted detector ([`convert`]) for tract.
-    pub fn load(path: &Path) -> Result<Self, NetworkError> {
-        Ok(Self {
-            engine: Engine::tract(path)?,
-            anchors: anchors(),
-        })
+    fn anchors() -> Vec<[f32; 4]> {
+        anchors()
     }
 
-    /// Compiles the converted detector at `path` with LiteRT, one compiled model per
-    /// worker of parallel runs.
-    pub fn load_litert(
-        runtime: &LiteRt,
-        path: &Path,
-        workers: usize,
-    ) -> Result<Self, NetworkError> {
-        Ok(Self {
-            engine: Engine::litert(runtime, path, workers, false, INPUT_SIZE, &OUTPUTS)?,
-            anchors: anchors(),
-        })
+    fn raw([codes, logits]: [Vec<f32>; 2]) -> PedestrianOutput {
+        PedestrianOutput { codes, logits }
     }
 
-    /// Raw outputs for `input`: `300 x 300 x 3`, row-major, values in [-1, 1];
-    /// `worker` picks LiteRT's compiled model (`None`: the lone run's).
-    pub fn run_raw(
-        &self,
-        worker: Option<usize>,
-        input: &[f32],
-    ) -> Result<PedestrianOutput, NetworkError> {
-        let [codes, logits] = self.engine.run(worker, INPUT_SIZE, input, OUTPUTS)?;
-        Ok(PedestrianOutput { codes, logits })
-    }
-
-    /// The pedestrians in `input` scoring at least `threshold`, best first.
-    pub fn detect(
-        &self,
-        worker: Option<usize>,
-        input: &[f32],
-        threshold: f32,
-    ) -> Result<Vec<Pedestrian>, NetworkError> {
-        let raw = self.run_raw(worker, input)?;
-        Ok(decode(&raw.codes, &raw.logits, &self.anchors, threshold))
+    fn found(raw: &PedestrianOutput, anchors: &[[f32; 4]], threshold: f32) -> Vec<Pedestrian> {
+        decode(&raw.codes, &raw.logits, anchors, threshold)
     }
 }
+
+/// A loaded pedestrian detector: the converted model ([`convert`]) on tract or LiteRT.
+pub type PedestrianNetwork = Network<PedestrianDetector>;
 
 #[cfg(test)]
 mod tests {

@@ -7,11 +7,7 @@
 //! fixed size, 2254 in all), box decoding with scale 224, sigmoid scores, and weighted
 //! non-maximum suppression (IoU 0.3).
 
-use std::path::Path;
-
-use super::engine::{Engine, Output};
-use super::landmarks::NetworkError;
-use super::litert::LiteRt;
+use super::engine::{Detector, Network, Output};
 
 /// Input side, pixels.
 pub const INPUT_SIZE: usize = 224;
@@ -143,70 +139,47 @@ pub struct PersonOutput {
     pub scores: Vec<f32>,
 }
 
-/// Its outputs: box values, score logits.
-const OUTPUTS: [Output<'static>; 2] = [
-    Output {
-        shape: &[1, ANCHORS, VALUES_PER_ANCHOR],
-        floats: ANCHORS * VALUES_PER_ANCHOR,
-    },
-    Output {
-        shape: &[1, ANCHORS, 1],
-        floats: ANCHORS,
-    },
-];
+/// BlazePose's person detector, as a [`Detector`].
+#[derive(Debug)]
+pub struct PersonDetector;
 
-/// A loaded person detector.
-pub struct PersonNetwork {
-    engine: Engine,
-    anchors: Vec<[f32; 2]>,
-}
+impl Detector for PersonDetector {
+    const INPUT_SIZE: usize = INPUT_SIZE;
+    /// Box values, score logits.
+    const OUTPUTS: [Output<'static>; 2] = [
+        Output {
+            shape: &[1, ANCHORS, VALUES_PER_ANCHOR],
+            floats: ANCHORS * VALUES_PER_ANCHOR,
+        },
+        Output {
+            shape: &[1, ANCHORS, 1],
+            floats: ANCHORS,
+        },
+    ];
+    /// A search's lone run (the whole image while nobody is followed) on all the
+    /// workers' threads: bikes.mp4's mean run 11.2-12.2 -> 10.1-10.8 ms, lone and
+    /// parallel ones together.
+    const LONE_RUN: bool = true;
+    type Anchor = [f32; 2];
+    type Raw = PersonOutput;
+    type Found = PersonDetection;
 
-impl PersonNetwork {
-    /// Loads the detector rewritten for tract ([`super::rewrite`]).
-    pub fn load(path: &Path) -> Result<Self, NetworkError> {
-        Ok(Self {
-            engine: Engine::tract(path)?,
-            anchors: anchors(),
-        })
+    fn anchors() -> Vec<[f32; 2]> {
+        anchors()
     }
 
-    /// Compiles the original detector at `path` with LiteRT, one compiled model per
-    /// worker of parallel runs and one on all their threads for a search's lone run (the
-    /// whole image while nobody is followed; bikes.mp4: the mean run 11.2-12.2 ->
-    /// 10.1-10.8 ms, lone and parallel ones together).
-    pub fn load_litert(
-        runtime: &LiteRt,
-        path: &Path,
-        workers: usize,
-    ) -> Result<Self, NetworkError> {
-        Ok(Self {
-            engine: Engine::litert(runtime, path, workers, true, INPUT_SIZE, &OUTPUTS)?,
-            anchors: anchors(),
-        })
+    fn raw([boxes, scores]: [Vec<f32>; 2]) -> PersonOutput {
+        PersonOutput { boxes, scores }
     }
 
-    /// Raw outputs for `input`: `224 x 224 x 3`, row-major, values in [-1, 1];
-    /// `worker` picks LiteRT's compiled model (`None`: the lone run's).
-    pub fn run_raw(
-        &self,
-        worker: Option<usize>,
-        input: &[f32],
-    ) -> Result<PersonOutput, NetworkError> {
-        let [boxes, scores] = self.engine.run(worker, INPUT_SIZE, input, OUTPUTS)?;
-        Ok(PersonOutput { boxes, scores })
-    }
-
-    /// The people in `input` scoring at least `threshold`, best first.
-    pub fn detect(
-        &self,
-        worker: Option<usize>,
-        input: &[f32],
-        threshold: f32,
-    ) -> Result<Vec<PersonDetection>, NetworkError> {
-        let raw = self.run_raw(worker, input)?;
-        Ok(decode(&raw.boxes, &raw.scores, &self.anchors, threshold))
+    fn found(raw: &PersonOutput, anchors: &[[f32; 2]], threshold: f32) -> Vec<PersonDetection> {
+        decode(&raw.boxes, &raw.scores, anchors, threshold)
     }
 }
+
+/// A loaded person detector: the original model on LiteRT, or the one rewritten for
+/// tract ([`super::rewrite`]).
+pub type PersonNetwork = Network<PersonDetector>;
 
 #[cfg(test)]
 mod tests {

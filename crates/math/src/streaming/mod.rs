@@ -54,7 +54,7 @@ mod tests;
 
 pub use frames::{CheckedFrame, Estimates, FrameEstimate, FrameMaps, StreamCounters, TrackState};
 use ring::{MapRing, Slot, Sweep, Tail, Which};
-pub use settings::{Outputs, StreamSettings};
+pub use settings::{Emitted, StreamSettings};
 
 /// EM over a sliding window of heat-map frames: the core of the estimator node.
 #[derive(Debug, Clone)]
@@ -358,11 +358,11 @@ impl WindowEstimator {
         } else {
             TrackState::Tracking
         };
-        if self.settings.outputs != Outputs::Newest && newest >= self.settings.lag {
+        if self.settings.outputs != Emitted::Newest && newest >= self.settings.lag {
             let t = newest - self.settings.lag;
             self.estimate(t, TrackState::Tracking, out.next_slot());
         }
-        if self.settings.outputs != Outputs::Lagged {
+        if self.settings.outputs != Emitted::Lagged {
             self.estimate(newest, state, out.next_slot());
         }
     }
@@ -375,7 +375,7 @@ impl WindowEstimator {
 
     /// [`WindowEstimator::finish`] into reused estimates.
     pub fn finish_into(&mut self, out: &mut Estimates) {
-        if self.settings.outputs != Outputs::Newest {
+        if self.settings.outputs != Emitted::Newest {
             let n = self.slots.len();
             let first_owed = n.saturating_sub(self.settings.lag);
             for t in first_owed..n {

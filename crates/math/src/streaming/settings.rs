@@ -1,5 +1,5 @@
 //! The window's settings: [`StreamSettings`] (`[estimator.window]` in the configuration)
-//! and which estimates it emits ([`Outputs`]).
+//! and which estimates it emits ([`Emitted`]).
 
 use serde::{Deserialize, Serialize};
 
@@ -9,7 +9,7 @@ use posestream_base::{OutOfDomain, check_range, check_real};
 /// Which estimates the window emits for each new frame.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
-pub enum Outputs {
+pub enum Emitted {
     /// Only the newest frame, at once (lag 0).
     Newest,
     /// Only the frame `lag` frames back (refined by the frames after it).
@@ -27,7 +27,7 @@ pub struct StreamSettings {
     /// Frames back of the refined estimate (L < N).
     pub lag: usize,
     /// Which estimates to emit.
-    pub outputs: Outputs,
+    pub outputs: Emitted,
     /// EM iterations over the window per new frame at most.
     pub em_iterations: usize,
     /// Start each new frame from the previous frame's fit instead of its own
@@ -95,7 +95,7 @@ impl Default for StreamSettings {
         Self {
             size: 30,
             lag: 10,
-            outputs: Outputs::Both,
+            outputs: Emitted::Both,
             em_iterations: 1,
             warm_start: false,
             local_frames: 3,

@@ -11,7 +11,7 @@ use posestream_math::estimator::{Estimate, Estimator, Keypoints};
 use posestream_math::heatmaps::HeatMapSequence;
 use posestream_math::solver::Params;
 use posestream_math::streaming::{
-    FrameEstimate, FrameMaps, Outputs, StreamSettings, WindowEstimator,
+    Emitted, FrameEstimate, FrameMaps, StreamSettings, WindowEstimator,
 };
 
 fn timed(
@@ -129,7 +129,7 @@ impl Evaluator {
     ) -> Result<Self, EstimateError> {
         let estimator = Estimator::new(dict.clone(), params.clone())?;
         let stream = StreamSettings {
-            outputs: Outputs::Both,
+            outputs: Emitted::Both,
             ..StreamSettings::default()
         };
         let names = HEATMAP_METHODS
