@@ -19,6 +19,9 @@
 //!   and a recorded one decoded from its bytes (`msgs::decode_into`) and handled: at most
 //!   two allocations a frame (a u8 frame's bytes are read whole).
 //!
+//! - a skeleton published to ROS 2 from a plan: shared with the DDS writer, not copied
+//!   (what is left is RustDDS's serialisation).
+//!
 //! Not counted: encoding the skeletons (the transports' serialisation builds their
 //! buffers), publishing the samples, markers, and what DDS does on threads of its own.
 //! `POSESTREAM_ALLOC_TRACE=1` prints a backtrace of the first allocations, to find where
@@ -460,5 +463,58 @@ fn ros2_frames(encoding: HeatMapEncoding, domain: u16) {
     assert!(
         allocations <= 2 * 1000,
         "{encoding:?}: {allocations} allocations over 1000 warm frames from ROS 2"
+    );
+}
+
+#[test]
+fn a_skeleton_goes_to_ros2_without_a_copy() {
+    use posestream::nodes::publish::Publishers;
+    use posestream::transport::ros2::{Ros2, RosSettings};
+    use std::sync::Arc;
+    let ros = Ros2::new(&RosSettings {
+        domain_id: (std::process::id() % 100) as u16 + 125,
+        localhost_only: true,
+        node_name: "allocations_out".into(),
+        ..RosSettings::default()
+    })
+    .expect("ROS 2 participant");
+    let mut publishers = Publishers::<msgs::Skeleton3D>::default();
+    publishers.add_ros2(
+        "ros2",
+        ros.sink("/posestream/test/skeletons").expect("publisher"),
+    );
+    // A skeleton as the estimator writes it: 17 joint names, positions, keypoints.
+    let mut node = EstimatorNode::new(window());
+    let mut out = Vec::new();
+    for m in byebye().iter().take(20) {
+        node.handle(m, &mut out).expect("a good frame");
+    }
+    let skeleton = Arc::new(out.pop().expect("a skeleton"));
+    let runs = 200;
+    for _ in 0..20 {
+        publishers.publish_shared(&skeleton, 0);
+        publishers.publish(&skeleton, 0);
+    }
+    let shared = count(|| {
+        for _ in 0..runs {
+            publishers.publish_shared(&skeleton, 0);
+        }
+    });
+    let copied = count(|| {
+        for _ in 0..runs {
+            publishers.publish(&skeleton, 0);
+        }
+    });
+    TRACES.with(|t| t.borrow_mut().clear());
+    eprintln!(
+        "to ROS 2, per skeleton: {} allocations shared, {} copied",
+        shared / runs,
+        copied / runs
+    );
+    // A copy is a new message: every joint name and array allocated again.
+    let names = skeleton.joint_names.len() as u64;
+    assert!(
+        copied >= shared + names * runs,
+        "shared {shared}, copied {copied} allocations over {runs} skeletons"
     );
 }

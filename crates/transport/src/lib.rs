@@ -38,12 +38,12 @@ use posestream_msgs::{HeatMaps, HeatMapsView, RosMessage};
 
 /// A message any transport can carry.
 pub trait Message:
-    RosMessage + Serialize + DeserializeOwned + Clone + Default + Send + 'static
+    RosMessage + Serialize + DeserializeOwned + Clone + Default + Send + Sync + 'static
 {
 }
 
-impl<M: RosMessage + Serialize + DeserializeOwned + Clone + Default + Send + 'static> Message
-    for M
+impl<M> Message for M where
+    M: RosMessage + Serialize + DeserializeOwned + Clone + Default + Send + Sync + 'static
 {
 }
 

@@ -417,7 +417,7 @@ impl Ros2 {
         let mut node = self.node();
         let t = self.topic::<M>(&mut node, topic)?;
         let publisher = node
-            .create_publisher::<M>(&t, Some(self.qos.clone()))
+            .create_publisher::<Shared<M>>(&t, Some(self.qos.clone()))
             .map_err(|e| setup_error(format!("a publisher on {topic}"), e))?;
         Ok(Ros2Sink {
             publisher,
@@ -490,9 +490,21 @@ fn type_name<M: Message>() -> Result<(&'static str, &'static str), TransportErro
     }
 }
 
+/// A message shared with the publisher that serialises it: ros2-client takes what it
+/// publishes by value, and an `Arc` of a message the caller keeps is passed without
+/// copying it (the DDS writer serialises it at once and drops its handle).
+#[derive(Debug)]
+struct Shared<M>(Arc<M>);
+
+impl<M: Serialize> Serialize for Shared<M> {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        self.0.serialize(serializer)
+    }
+}
+
 /// Publishes `M` on a ROS 2 topic.
 pub struct Ros2Sink<M: Message> {
-    publisher: Publisher<M>,
+    publisher: Publisher<Shared<M>>,
     topic: String,
     /// When a message went last ([`Sink::flush`] lets DDS deliver it).
     last_sent: Mutex<Option<std::time::Instant>>,
@@ -514,8 +526,14 @@ impl<M: Message> Ros2Sink<M> {
     /// at its time limit only when woken, and a matched reader that stops
     /// acknowledging never wakes it: the limit is kept here.)
     pub async fn send_async(&self, message: &M) -> Result<(), TransportError> {
+        self.send_shared_async(&Arc::new(message.clone())).await
+    }
+
+    /// [`Ros2Sink::send_async`] of a message the caller keeps: not copied.
+    pub async fn send_shared_async(&self, message: &Arc<M>) -> Result<(), TransportError> {
         self.sent_now();
-        match tokio::time::timeout(FULL_WAIT, self.publisher.async_publish(message.clone())).await {
+        let publishing = self.publisher.async_publish(Shared(message.clone()));
+        match tokio::time::timeout(FULL_WAIT, publishing).await {
             Ok(sent) => sent.map_err(|e| self.failed(e.to_string())),
             Err(_) => Err(self.failed(format!(
                 "no room for the message in {} ms (readers behind on acknowledgements, or \
@@ -527,6 +545,14 @@ impl<M: Message> Ros2Sink<M> {
 }
 
 impl<M: Message> Ros2Sink<M> {
+    /// [`Sink::send`] of a message the caller keeps: not copied.
+    pub fn send_shared(&self, message: &Arc<M>) -> Result<(), TransportError> {
+        self.sent_now();
+        self.publisher
+            .publish(Shared(message.clone()))
+            .map_err(|e| self.failed(e.to_string()))
+    }
+
     fn sent_now(&self) {
         *self.last_sent.lock().unwrap_or_else(|e| e.into_inner()) = Some(std::time::Instant::now());
     }
@@ -535,10 +561,7 @@ impl<M: Message> Ros2Sink<M> {
 impl<M: Message> Sink<M> for Ros2Sink<M> {
     /// Publishes (the stamp travels in the message's header; DDS adds its own).
     fn send(&mut self, message: &M, _stamp_ns: u64) -> Result<(), TransportError> {
-        self.sent_now();
-        self.publisher
-            .publish(message.clone())
-            .map_err(|e| self.failed(e.to_string()))
+        self.send_shared(&Arc::new(message.clone()))
     }
 
     /// Waits until [`LINGER`] after the last message, so that DDS delivers it before the

@@ -235,7 +235,6 @@ impl<'a> EstimatorCore<'a> {
 
     /// Takes back a plan that was sent: its skeletons and arrays are written over next.
     pub fn recycle(&mut self, plan: &mut Plan) {
-        self.node.recycle(&mut plan.skeletons);
         self.planner.recycle(&mut plan.arrays);
         plan.clear();
     }
@@ -264,6 +263,8 @@ impl<'a> EstimatorCore<'a> {
         let (size, floor) = (self.node.image_size(), self.node.floor());
         self.planner
             .skeletons(image, &mut self.out, size, floor, plan);
+        // What the plan's skeletons held before, to be written over by the node.
+        self.node.recycle(&mut self.out);
     }
 
     /// Ends the tracks when no frame was taken for the window's gap.

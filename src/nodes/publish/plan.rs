@@ -3,6 +3,8 @@
 //! hands it to the sinks ([`super::Sinks::send`], or awaited on a runtime), then back to
 //! the core, whose next plan is written over it (its messages' buffers reused).
 
+use std::sync::Arc;
+
 use crate::msgs::hri::{IdsList, NormalizedRegionOfInterest2D, Skeleton2D};
 use crate::msgs::sensor::RegionOfInterest;
 use crate::msgs::tf::TFMessage;
@@ -108,8 +110,11 @@ impl<T> Pool<T> {
 pub struct Plan {
     /// Each message with its stamp (the log time in a recording), in the order sent.
     pub order: Vec<(Publication, u64)>,
-    /// Skeletons (handed back to the node that wrote them, to be written over).
-    pub skeletons: Vec<Skeleton3D>,
+    /// Skeletons, shared with the publishers that serialise them (ROS 2 takes them
+    /// without a copy); [`Plan::add_skeletons`] writes them.
+    pub skeletons: Vec<Arc<Skeleton3D>>,
+    /// Skeletons of plans sent, written over by the next ones.
+    spare_skeletons: Vec<Arc<Skeleton3D>>,
     /// Each skeleton's markers.
     pub markers: Pool<MarkerArray>,
     /// Images' skeletons together (handed back to the grouping that made them).
@@ -130,11 +135,25 @@ impl Plan {
         self.order.is_empty()
     }
 
-    /// Forgets what was sent; the messages stay to be written over. (Skeletons and arrays
-    /// go back to their makers first: [`super::Planner::recycle`].)
+    /// Moves `skeletons` into the plan, each into a skeleton of a plan sent before (its
+    /// contents swapped: `skeletons` is left holding theirs, to be handed back to the node
+    /// that wrote them and written over; a skeleton still shared is not reused).
+    pub fn add_skeletons(&mut self, skeletons: &mut [Skeleton3D]) {
+        for s in skeletons {
+            let mut kept = self.spare_skeletons.pop().unwrap_or_default();
+            match Arc::get_mut(&mut kept) {
+                Some(slot) => std::mem::swap(slot, s),
+                None => kept = Arc::new(std::mem::take(s)),
+            }
+            self.skeletons.push(kept);
+        }
+    }
+
+    /// Forgets what was sent; the messages stay to be written over. (Arrays go back to
+    /// their grouping first: [`super::Planner::recycle`].)
     pub fn clear(&mut self) {
         self.order.clear();
-        self.skeletons.clear();
+        self.spare_skeletons.append(&mut self.skeletons);
         self.markers.clear();
         self.arrays.clear();
         self.image_markers.clear();

@@ -82,12 +82,13 @@ impl Planner {
     /// Plans the `skeletons` released by a heat-map message of `image` (its capture time
     /// and frame number; `None`: by none, as when a track ends at the end of the
     /// stream), of images of `image_size` on `floor` (the node's, when known), and moves
-    /// them into the plan. The previous image's arrays go first when this is another
+    /// them into the plan ([`Plan::add_skeletons`]: `skeletons` is left with messages to
+    /// hand back to the node). The previous image's arrays go first when this is another
     /// image.
     pub fn skeletons(
         &mut self,
         image: Option<(i64, u64)>,
-        skeletons: &mut Vec<Skeleton3D>,
+        skeletons: &mut [Skeleton3D],
         image_size: Option<(f64, f64)>,
         floor: Option<FloorModel>,
         plan: &mut Plan,
@@ -111,7 +112,7 @@ impl Planner {
                 self.bodies.plan(s, image_size, stamp, plan);
             }
         }
-        plan.skeletons.append(skeletons);
+        plan.add_skeletons(skeletons);
     }
 
     /// Plans the arrays of an image that may not be complete yet (the input went quiet,

@@ -4,7 +4,10 @@
 //! sinks that take its bytes (the output recording, the live view), which share one
 //! encoding of each message. A failed send is counted and the first failure of each sink
 //! logged; the other sinks go on. Each message goes to the ROS 2 publishers first, then
-//! to the others, each kind in the order added.
+//! to the others, each kind in the order added. A message kept in an `Arc`
+//! ([`Publishers::publish_shared`]) goes to ROS 2 without a copy.
+
+use std::sync::Arc;
 
 use crate::transport::ros2::Ros2Sink;
 use crate::transport::{EncodedSink, Message, Sink, TransportError};
@@ -86,6 +89,27 @@ impl<M: Message> Publishers<M> {
         self.sent += 1;
         for s in &mut self.ros2 {
             let sent = s.sink.send_async(message).await;
+            note(&mut self.failed, s, sent);
+        }
+        self.send_others(message, stamp_ns, self.typed.len());
+    }
+
+    /// [`Publishers::publish`] of a message kept shared: ROS 2 takes it without a copy.
+    pub fn publish_shared(&mut self, message: &Arc<M>, stamp_ns: u64) {
+        self.sent += 1;
+        for s in &mut self.ros2 {
+            let sent = s.sink.send_shared(message);
+            note(&mut self.failed, s, sent);
+        }
+        self.send_others(message, stamp_ns, self.typed.len());
+    }
+
+    /// [`Publishers::publish_async`] of a message kept shared: ROS 2 takes it without a
+    /// copy.
+    pub async fn publish_shared_async(&mut self, message: &Arc<M>, stamp_ns: u64) {
+        self.sent += 1;
+        for s in &mut self.ros2 {
+            let sent = s.sink.send_shared_async(message).await;
             note(&mut self.failed, s, sent);
         }
         self.send_others(message, stamp_ns, self.typed.len());

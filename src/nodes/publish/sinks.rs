@@ -3,6 +3,8 @@
 //! loop), [`Sinks::send_async`] awaits room there and lets a new body's topics settle
 //! (the tokio driver).
 
+use std::sync::Arc;
+
 use super::body_topics::{BodyTopics, HriSinks, RoiSend};
 use super::plan::{Plan, Publication};
 use super::publishers::Publishers;
@@ -32,7 +34,7 @@ pub struct Sinks {
 
 /// One message of a plan with the publishers it goes to.
 enum Send<'s, 'p> {
-    Skeleton(&'s mut Publishers<Skeleton3D>, &'p Skeleton3D),
+    Skeleton(&'s mut Publishers<Skeleton3D>, &'p Arc<Skeleton3D>),
     Markers(&'s mut Publishers<MarkerArray>, &'p MarkerArray),
     Array(&'s mut Publishers<Skeleton3DArray>, &'p Skeleton3DArray),
     ImageMarker(&'s mut Publishers<ImageMarker>, &'p ImageMarker),
@@ -51,7 +53,7 @@ impl Sinks {
         for &(publication, stamp) in &plan.order {
             match self.route(plan, publication) {
                 Send::Skeleton(p, m) => {
-                    p.publish(m, stamp);
+                    p.publish_shared(m, stamp);
                     self.note_latency(m);
                 }
                 Send::Markers(p, m) => p.publish(m, stamp),
@@ -84,7 +86,7 @@ impl Sinks {
         for &(publication, stamp) in &plan.order {
             match self.route(plan, publication) {
                 Send::Skeleton(p, m) => {
-                    p.publish_async(m, stamp).await;
+                    p.publish_shared_async(m, stamp).await;
                     self.note_latency(m);
                 }
                 Send::Markers(p, m) => p.publish_async(m, stamp).await,

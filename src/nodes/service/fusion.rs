@@ -322,7 +322,8 @@ impl FusionOutputs {
         }
         // The node hands over whole fused frames: the last one's ids go now.
         Self::plan_frame(&self.bodies, &mut self.frame, plan);
-        plan.skeletons.append(skeletons);
+        plan.add_skeletons(skeletons);
+        skeletons.clear();
         self.sinks.send(plan);
         plan.clear();
     }

@@ -36,7 +36,7 @@ fn skeletons(plan: &Plan) -> Vec<&crate::msgs::Skeleton3D> {
     plan.order
         .iter()
         .filter_map(|(p, _)| match p {
-            Publication::Skeleton(i) => plan.skeletons.get(*i),
+            Publication::Skeleton(i) => plan.skeletons.get(*i).map(|s| &**s),
             _ => None,
         })
         .collect()
