@@ -20,4 +20,4 @@ pub mod ports;
 pub use domain::{OutOfDomain, check_range, check_real};
 pub use frame::{CropBox, PixelMap, Scores};
 pub use panics::{contain_panics, panic_is_contained, panic_text};
-pub use ports::{Received, Sink, Source, TransportError};
+pub use ports::{Received, Sink, Source, TransportError, ended};

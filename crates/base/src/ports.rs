@@ -92,6 +92,16 @@ pub enum TransportError {
     },
 }
 
+/// Whether a source that gave `got` has ended: it closed, or broke (a refused message,
+/// [`TransportError::refusal`], is no end).
+pub fn ended<M>(got: &Result<Received<M>, TransportError>) -> bool {
+    match got {
+        Ok(Received::Closed) => true,
+        Ok(_) => false,
+        Err(e) => e.refusal().is_none(),
+    }
+}
+
 impl TransportError {
     /// The kind of refusal of a message its transport refused before it reached a node,
     /// as nodes count them (`undecodable`, `beyond-limits`): `Some` for

@@ -108,20 +108,28 @@ pub trait FrameSource: Send {
     /// Waits up to `timeout` for the next thing the stream carries and lends it to `take`
     /// with its stamp: a frame, as [`FrameSource::recv_frame`] does, or, from a source
     /// that carries them in the same stream (a recording), the camera's calibration or
-    /// transforms in their place among the frames. By default, frames only.
+    /// transforms in their place among the frames. A source of frames only lends them
+    /// ([`frames_only`]); required, so that no wrapper loses what a source carries.
     fn recv_input(
         &mut self,
         timeout: Duration,
         take: &mut dyn FnMut(Lent<'_>, u64),
-    ) -> Result<Received<()>, TransportError> {
-        self.recv_frame(timeout, &mut |frame, stamp| take(Lent::Frame(frame), stamp))
-    }
+    ) -> Result<Received<()>, TransportError>;
 
     /// Whether the frames arrive live, so that a pause in wall time is a pause of the
     /// camera (true by default). A replayed recording's time is in its stamps.
     fn live(&self) -> bool {
         true
     }
+}
+
+/// [`FrameSource::recv_input`] of a source of frames only: its frames lent as such.
+pub fn frames_only<S: FrameSource + ?Sized>(
+    source: &mut S,
+    timeout: Duration,
+    take: &mut dyn FnMut(Lent<'_>, u64),
+) -> Result<Received<()>, TransportError> {
+    source.recv_frame(timeout, &mut |frame, stamp| take(Lent::Frame(frame), stamp))
 }
 
 /// A [`Source`] of [`HeatMaps`] messages as a [`FrameSource`]: each message is lent as
@@ -143,6 +151,14 @@ impl<S: Source<HeatMaps>> FrameSource for Lend<S> {
             Received::Idle => Received::Idle,
             Received::Closed => Received::Closed,
         })
+    }
+
+    fn recv_input(
+        &mut self,
+        timeout: Duration,
+        take: &mut dyn FnMut(Lent<'_>, u64),
+    ) -> Result<Received<()>, TransportError> {
+        frames_only(self, timeout, take)
     }
 }
 

@@ -715,6 +715,14 @@ impl FrameSource for ShmHeatMapsSource {
             None => Received::Idle,
         })
     }
+
+    fn recv_input(
+        &mut self,
+        timeout: Duration,
+        take: &mut dyn FnMut(crate::Lent<'_>, u64),
+    ) -> Result<Received<()>, TransportError> {
+        crate::frames_only(self, timeout, take)
+    }
 }
 
 impl Source<HeatMaps> for ShmHeatMapsSource {

@@ -27,8 +27,8 @@ impl Outlet for Sinks {
     }
 }
 
-/// The loop: what `source` lends (and what waits in `side`, taken before each input and
-/// after each wait) through `core`, its plans to `outlet`, until the source ends or
+/// The loop: what `source` lends (and what waits in `side`, taken before each input, or
+/// after a wait that lent nothing) through `core`, its plans to `outlet`, until the source ends or
 /// `stop` is set; then the tracks' last estimates.
 pub(super) fn drive(
     core: &mut EstimatorCore<'_>,
@@ -40,11 +40,15 @@ pub(super) fn drive(
 ) {
     let mut plan = Plan::default();
     while !stop.load(Ordering::Relaxed) {
+        let mut lent_any = false;
         let got = source.recv_input(POLL, &mut |lent, stamp| {
             side.take(&mut |input| step(core, &mut clock, input, &mut plan));
             step(core, &mut clock, Input::lent(lent, stamp), &mut plan);
+            lent_any = true;
         });
-        side.take(&mut |input| step(core, &mut clock, input, &mut plan));
+        if !lent_any {
+            side.take(&mut |input| step(core, &mut clock, input, &mut plan));
+        }
         let flow = core.received(got, clock.now(&Input::Quiet), &mut plan);
         if plan.is_empty() {
             core.recycle(&mut plan);

@@ -15,7 +15,8 @@
 //! wait on (inputs, timers, ROS 2 publishers that wait for room without blocking). The
 //! solver runs the blocking driver's loop (`blocking::drive`) over what the runtime hands
 //! it ([`Handed`]), its plans handed back to the runtime ([`Handing`]): the two drivers
-//! differ in the send call only.
+//! share the core and the loop, and differ in how they wait (a quiet input comes from the
+//! runtime's timer here, from the source's own timeout there) and in the send call.
 
 use std::cell::Cell;
 use std::sync::atomic::AtomicBool;
@@ -33,7 +34,8 @@ use crate::nodes::estimator::core::{Clock, EstimatorCore, EstimatorReport};
 use crate::nodes::publish::{EstimatorOutputs, Plan};
 use crate::transport::recycle::Recycler;
 use crate::transport::runtime::AsyncSource;
-use crate::transport::{FrameSource, Received, TransportError};
+use crate::transport::{FrameSource, Lent, Received, TransportError};
+use posestream_base::ended;
 
 /// Inputs (or plans) waiting between the runtime and the solver at most.
 const CHANNEL: usize = 4;
@@ -74,7 +76,8 @@ pub fn run_estimator_on_runtime_with(
     let (plans, mut plans_rx) = mpsc::channel::<Plan>(CHANNEL);
     let (sent, sent_rx) = std::sync::mpsc::channel::<Plan>();
     // The frames handed back once handled: the source decodes the next ones over them.
-    let mut handed = Handed(work_rx, source.recycler(), live);
+    let keep = node.limits().max_message_bytes;
+    let mut handed = Handed(work_rx, source.recycler().map(|r| (r, keep)), live);
     let EstimatorOutputs { planner, sinks } = outputs;
     let core = std::thread::scope(|scope| {
         let solver = std::thread::Builder::new()
@@ -98,30 +101,39 @@ pub fn run_estimator_on_runtime_with(
             })
             .map_err(|_| ServiceError::Thread("solver"))?;
         let input = async move {
-            // When something came last: the quiet timer says so after POLL of nothing.
-            let last = Cell::new(Instant::now());
+            // Since when the reader has waited for a message (kept over refused ones;
+            // none while it hands one over): the quiet timer says so after POLL of it.
+            let waiting = Cell::new(None);
             let reading = async {
                 // A stop ends the wait for the next message (a source in the middle of
                 // one is cut off there: see `AsyncSource::next`).
                 let stopping = stopped(stop);
                 tokio::pin!(stopping);
+                let mut since = Instant::now();
                 loop {
+                    waiting.set(Some(since));
                     let got = tokio::select! {
                         // A source that always has a message does not delay a stop.
                         biased;
                         () = &mut stopping => return,
                         got = source.next() => got,
                     };
-                    last.set(Instant::now());
-                    // The solver gone (it ended, or panicked) ends the input.
-                    if work.send(Work::Got(got)).await.is_err() {
+                    waiting.set(None);
+                    let message = matches!(got, Ok(Received::Message(..)));
+                    let end = ended(&got);
+                    // The solver gone (it ended, or panicked) ends the input; so does the
+                    // source's end (it is not asked again).
+                    if work.send(Work::Got(got)).await.is_err() || end {
                         return;
+                    }
+                    if message {
+                        since = Instant::now();
                     }
                 }
             };
             tokio::select! {
                 () = reading => {}
-                () = quiet(&last, &work) => {}
+                () = quiet(&waiting, &work) => {}
             }
             // Dropping the sender ends the solver: it ends the tracks, sends its last plan.
         };
@@ -140,8 +152,14 @@ pub fn run_estimator_on_runtime_with(
 }
 
 /// What the runtime hands the solver, as a lending source: each frame lent, then given
-/// back to the source's recycler (when it has one); whether the source is live.
-struct Handed(mpsc::Receiver<Work>, Option<Recycler<HeatMaps>>, bool);
+/// back to the source's recycler (when it has one; a frame whose scores take more than
+/// the given bytes, one the node refuses as too large, is freed instead); whether the
+/// source is live.
+struct Handed(
+    mpsc::Receiver<Work>,
+    Option<(Recycler<HeatMaps>, usize)>,
+    bool,
+);
 
 impl FrameSource for Handed {
     /// Waits for the runtime (it says when the input is quiet: `Idle`).
@@ -156,12 +174,22 @@ impl FrameSource for Handed {
             Some(Work::Got(got)) => got.map(|r| {
                 r.map(|maps, stamp| {
                     take(&maps.view(), stamp);
-                    if let Some(recycler) = &self.1 {
+                    if let Some((recycler, keep)) = &self.1
+                        && maps.values.capacity() * 4 + maps.quantized_values.capacity() <= *keep
+                    {
                         recycler.put(maps);
                     }
                 })
             }),
         }
+    }
+
+    fn recv_input(
+        &mut self,
+        timeout: Duration,
+        take: &mut dyn FnMut(Lent<'_>, u64),
+    ) -> Result<Received<()>, TransportError> {
+        crate::transport::frames_only(self, timeout, take)
     }
 
     fn live(&self) -> bool {
@@ -188,15 +216,17 @@ impl Outlet for Handing {
     }
 }
 
-/// Offers the solver a [`Work::Quiet`] every [`POLL`] in which nothing came (since
-/// `last`; a full channel gives it work enough). Returns once the solver is gone (it
-/// ended, or panicked), so that a quiet input does not hide that.
-async fn quiet(last: &Cell<Instant>, work: &mpsc::Sender<Work>) {
+/// Offers the solver a [`Work::Quiet`] every [`POLL`] while the reader has waited for a
+/// message that long (`waiting`: since when; a refused one does not restart it, and no
+/// quiet input overtakes a message being handed over; a full channel gives the solver
+/// work enough). Returns once the solver is gone (it ended, or panicked), so that a quiet
+/// input does not hide that.
+async fn quiet(waiting: &Cell<Option<Instant>>, work: &mpsc::Sender<Work>) {
     let mut tick = tokio::time::interval(POLL);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     loop {
         tick.tick().await;
-        if last.get().elapsed() >= POLL
+        if waiting.get().is_some_and(|since| since.elapsed() >= POLL)
             && let Err(mpsc::error::TrySendError::Closed(_)) = work.try_send(Work::Quiet)
         {
             return;
@@ -212,10 +242,10 @@ mod tests {
     fn the_quiet_timer_ends_when_the_solver_is_gone() {
         let (work, solver) = mpsc::channel::<Work>(1);
         drop(solver);
-        let last = Cell::new(Instant::now());
+        let waiting = Cell::new(Some(Instant::now()));
         let ended = runtime()
             .expect("runtime")
-            .block_on(async { tokio::time::timeout(POLL * 10, quiet(&last, &work)).await });
+            .block_on(async { tokio::time::timeout(POLL * 10, quiet(&waiting, &work)).await });
         assert!(
             ended.is_ok(),
             "the timer ticks on for a solver that is gone"
@@ -232,24 +262,41 @@ mod tests {
     }
 
     #[test]
-    fn the_quiet_timer_says_nothing_while_messages_come() {
+    fn the_quiet_timer_says_nothing_while_messages_come_or_one_is_handed_over() {
         let (work, mut solver) = mpsc::channel::<Work>(8);
-        let last = Cell::new(Instant::now());
+        let waiting = Cell::new(Some(Instant::now()));
         runtime().expect("runtime").block_on(async {
             let feeding = async {
                 for _ in 0..10 {
                     tokio::time::sleep(POLL / 4).await;
-                    last.set(Instant::now());
+                    waiting.set(Some(Instant::now()));
                 }
+                // A message handed over for longer than POLL (the solver behind): no
+                // quiet input overtakes it.
+                waiting.set(None);
+                tokio::time::sleep(POLL * 3).await;
             };
             tokio::select! {
                 () = feeding => {}
-                () = quiet(&last, &work) => {}
+                () = quiet(&waiting, &work) => {}
             }
         });
         assert!(
             solver.try_recv().is_err(),
             "a quiet input while messages came"
         );
+    }
+
+    #[test]
+    fn the_quiet_timer_speaks_after_a_wait_without_messages() {
+        let (work, mut solver) = mpsc::channel::<Work>(8);
+        let waiting = Cell::new(Some(Instant::now()));
+        runtime().expect("runtime").block_on(async {
+            tokio::select! {
+                () = tokio::time::sleep(POLL * 3) => {}
+                () = quiet(&waiting, &work) => {}
+            }
+        });
+        assert!(matches!(solver.try_recv(), Ok(Work::Quiet)));
     }
 }

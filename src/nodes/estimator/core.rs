@@ -9,8 +9,9 @@
 //! - a quiet input (nothing for a while) completes the image in hand: its people
 //!   without ids get theirs, its arrays go;
 //! - a track is ended, its owed estimates published, once no frame was taken for the
-//!   window's `max_gap_seconds` on the clock: wall time for a live source, the recorded
-//!   stamps in a replay (so a replay ends tracks where the live node did);
+//!   window's `max_gap_seconds` on the clock, at the first input that shows it: a quiet
+//!   input or a refused message live (wall time), the next frame in a replay (the
+//!   recorded stamps: a replay's result does not depend on how fast it runs);
 //! - the camera's calibration and transforms are taken where they come, before the
 //!   frames after them;
 //! - a message the transport refused is counted by kind; an error that ends the source
@@ -166,6 +167,9 @@ impl<'a> EstimatorCore<'a> {
             Input::Frame(frame, stamp) => {
                 self.frames += 1;
                 self.planner.frame_stamp(stamp);
+                // A frame after the gap (a replay's stamps jump over a quiet spell) ends
+                // the tracks first, as the quiet spell did live.
+                self.end_idle(now_ns, plan);
                 let taken = self.node.frames_accepted();
                 let began = Instant::now();
                 // A refused message is counted and logged by the node.
@@ -184,7 +188,11 @@ impl<'a> EstimatorCore<'a> {
                 let _ = self.node.camera_info(info);
             }
             Input::Transforms(tf) => self.node.transforms(tf),
-            Input::Refused(error) => self.node.count_refused(error),
+            Input::Refused(error) => {
+                self.node.count_refused(error);
+                // A stream of refused messages holds no idle track open.
+                self.end_idle(now_ns, plan);
+            }
             Input::Quiet => {
                 // The image handled last is complete (its people without ids are given
                 // theirs and estimated).

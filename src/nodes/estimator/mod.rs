@@ -180,6 +180,11 @@ impl EstimatorNode {
             .note(error.refusal().unwrap_or("undecodable"), error);
     }
 
+    /// The limits it refuses frames beyond.
+    pub fn limits(&self) -> &Limits {
+        &self.limits
+    }
+
     /// The window's settings.
     pub fn settings(&self) -> &crate::streaming::StreamSettings {
         self.template.settings()

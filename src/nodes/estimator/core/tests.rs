@@ -175,3 +175,62 @@ fn what_a_source_gives_is_counted_or_ends_the_loop() {
     assert_eq!(report.refused.of("beyond-limits"), 1);
     assert!(report.input_error.is_some_and(|e| e.contains("cut")));
 }
+
+#[test]
+fn refused_messages_hold_no_idle_track_open() {
+    let frames = frames();
+    let mut node = node();
+    let gap_ns = (node.settings().max_gap_seconds * 1e9) as u64;
+    let mut planner = Planner::new(node.bones(), false);
+    let mut core = EstimatorCore::new(&mut node, &mut planner);
+    let mut plan = Plan::default();
+    feed(&mut core, &frames, 20, &mut plan);
+    core.recycle(&mut plan);
+    let refused = TransportError::Malformed {
+        transport: "test",
+        topic: "/t".into(),
+        reason: "bad".into(),
+    };
+    // A flood of refused messages, every 10 ms past the last frame taken.
+    let last = 19 * FRAME_NS;
+    let mut ended = 0;
+    for k in 1..=200 {
+        core.step(Input::Refused(&refused), last + k * 10_000_000, &mut plan);
+        ended += skeletons(&plan).len();
+        core.recycle(&mut plan);
+        if k * 10_000_000 <= gap_ns {
+            assert_eq!(ended, 0, "ended before the gap");
+        }
+    }
+    assert!(
+        ended > 0,
+        "the track outlived the gap under a flood of refusals"
+    );
+}
+
+#[test]
+fn a_replayed_frame_after_a_gap_ends_the_tracks_before_it_is_taken() {
+    let frames = frames();
+    let mut node = node();
+    let gap_ns = (node.settings().max_gap_seconds * 1e9) as u64;
+    let mut planner = Planner::new(node.bones(), false);
+    let mut core = EstimatorCore::new(&mut node, &mut planner);
+    let mut plan = Plan::default();
+    feed(&mut core, &frames, 20, &mut plan);
+    core.recycle(&mut plan);
+    // The stamps jump over a quiet spell longer than the gap (a replay's clock).
+    let later = 19 * FRAME_NS + gap_ns + FRAME_NS;
+    let view = frames[20].view();
+    core.step(Input::Frame(&view, later), later, &mut plan);
+    let out = skeletons(&plan);
+    let lost = out
+        .iter()
+        .filter(|s| s.state == SkeletonState::Lost as u8)
+        .count();
+    assert!(lost > 0, "the old track's owed estimates, lost");
+    // The old track's estimates come before the new frame's.
+    let first_new = out
+        .iter()
+        .position(|s| s.state != SkeletonState::Lost as u8);
+    assert!(first_new.is_none_or(|i| i >= lost));
+}
