@@ -4,7 +4,8 @@
 //!
 //! - [`blocking`]: a loop on this thread over a lending source (iceoryx2 samples read
 //!   where they are, recordings);
-//! - [`tokio`]: the I/O on a tokio runtime (ROS 2), the core on a thread of its own;
+//! - [`tokio`]: the I/O on a tokio runtime (ROS 2), the core on a thread of its own
+//!   (`handoff`: the channels' ends between them);
 //! - [`detector`]: the detector's heat maps paced to their stamps and published, either
 //!   way;
 //! - [`side_inputs`]: what the estimator reads beside its heat maps (calibration,
@@ -12,6 +13,7 @@
 
 pub mod blocking;
 pub mod detector;
+mod handoff;
 pub mod side_inputs;
 pub mod tokio;
 
@@ -59,4 +61,18 @@ pub(crate) fn runtime() -> Result<::tokio::runtime::Runtime, ServiceError> {
         .enable_time()
         .build()
         .map_err(ServiceError::Runtime)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_wait_for_a_stop_ends_once_it_is_set() {
+        let stop = AtomicBool::new(true);
+        let ended = runtime()
+            .expect("runtime")
+            .block_on(async { ::tokio::time::timeout(POLL * 10, stopped(&stop)).await });
+        assert!(ended.is_ok());
+    }
 }
