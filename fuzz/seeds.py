@@ -221,6 +221,36 @@ Frame Time: 0.033333
         c.seq([v % 256 for v in range(step * h)], "u8")
         write("sensor_image", f"raw-{enc}", b"\x00" + c.bytes())
 
+    # live_view: a viewer's upgrade request and frames (masked: a ping, a subscribe in
+    # two fragments, a pong, a close), read in 8-byte pieces; a page request; a server's
+    # answer and frames.
+    def frame(fin, opcode, payload, mask=True):
+        f = bytes([(0x80 if fin else 0) | opcode])
+        n = len(payload)
+        m = 0x80 if mask else 0
+        if n < 126:
+            f += bytes([m | n])
+        elif n < 65536:
+            f += bytes([m | 126]) + struct.pack(">H", n)
+        else:
+            f += bytes([m | 127]) + struct.pack(">Q", n)
+        if mask:
+            key = b"\x01\x02\x03\x04"
+            f += key + bytes(b ^ key[i % 4] for i, b in enumerate(payload))
+        else:
+            f += payload
+        return f
+    upgrade = (b"GET / HTTP/1.1\r\nHost: 127.0.0.1:8765\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+               b"Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n"
+               b"Sec-WebSocket-Protocol: foxglove.sdk.v1\r\n\r\n")
+    subscribe = b'{"op":"subscribe","subscriptions":[{"id":1,"channelId":1}]}'
+    viewer = (frame(True, 0x9, b"ping") + frame(False, 0x1, subscribe[:20]) + frame(True, 0x0, subscribe[20:])
+              + frame(True, 0xA, b"") + frame(True, 0x8, b"\x03\xe8"))
+    write("live_view", "viewer", b"\x01" + upgrade + viewer)
+    write("live_view", "page", b"\x00GET / HTTP/1.1\r\nHost: x\r\n\r\n")
+    server = frame(True, 0xA, b"ping", mask=False) + frame(True, 0x2, bytes(300), mask=False)
+    write("live_view", "server", b"\x03HTTP/1.1 101 Switching Protocols\r\nUpgrade: websocket\r\n\r\n" + server)
+
 
 if __name__ == "__main__":
     main()

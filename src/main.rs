@@ -22,6 +22,8 @@ fn main() -> ExitCode {
         .init();
     cli::process::install_panic_hook();
     cli::process::ignore_file_size_signal();
+    // Every file a command reads is one of its inputs: no output is written onto it.
+    posestream::base::files::inputs::remember();
     match cli::Cli::parse().run() {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

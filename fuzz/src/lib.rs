@@ -41,6 +41,7 @@ pub const TARGETS: &[Target] = &[
     ("tflite", tflite),
     ("image_file", image_file),
     ("sensor_image", sensor_image),
+    ("live_view", live_view),
 ];
 
 /// Makes every panic fail the run (libFuzzer's hook aborts on any panic), except those
@@ -248,6 +249,34 @@ pub fn mcap(data: &[u8]) {
     }
     let skipped = reader.skips().expect("salvaging");
     assert!(skipped.bytes <= data.len() as u64, "{skipped:?}");
+}
+
+/// What a live-view client sends the door (`transport::foxglove::wire`): after the first
+/// byte (which says how the rest is cut into reads), a request head if one ends within
+/// the limit (checked, and read as a server's answer too), then frames, read as a
+/// viewer's and, from the same bytes, as the server's, until one is refused.
+pub fn live_view(data: &[u8]) {
+    use posestream::transport::foxglove::wire::{self, Frames, Seen};
+    let Some((&first, rest)) = data.split_first() else {
+        return;
+    };
+    let frames = match wire::head_end(rest) {
+        Ok(Some(end)) => {
+            let _ = wire::check_request(&rest[..end]);
+            let _ = wire::upgraded(&rest[..end]);
+            &rest[end..]
+        }
+        _ => rest,
+    };
+    let read = usize::from(first) * 7 + 1;
+    for mut stream in [Frames::from_viewer(), Frames::from_server()] {
+        let mut seen = Seen::default();
+        for piece in frames.chunks(read) {
+            if stream.scan(piece, &mut seen).is_err() {
+                break;
+            }
+        }
+    }
 }
 
 /// An NPY array, as f64 and as f32.

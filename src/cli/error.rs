@@ -81,7 +81,10 @@ pub enum CliError {
         source: EstimateError,
     },
     /// A file could not be opened or created (the cause says which).
-    #[error("{}: {source}", path.display())]
+    #[error(transparent)]
+    Output(#[from] posestream::files::OutputError),
+    /// A file could not be read or written.
+    #[error("{}: {}", path.display(), posestream::files::io_text(source))]
     File {
         /// The file.
         path: PathBuf,
@@ -89,7 +92,7 @@ pub enum CliError {
         source: std::io::Error,
     },
     /// A file or folder could not be created or written.
-    #[error("cannot {action} {}: {source}", path.display())]
+    #[error("cannot {action} {}: {}", path.display(), posestream::files::io_text(source))]
     Io {
         /// `create` or `write`.
         action: &'static str,
@@ -132,15 +135,6 @@ impl CliError {
     pub fn create(path: &Path, source: std::io::Error) -> Self {
         Self::Io {
             action: "create",
-            path: path.to_path_buf(),
-            source,
-        }
-    }
-
-    /// `path` could not be written.
-    pub fn write(path: &Path, source: std::io::Error) -> Self {
-        Self::Io {
-            action: "write",
             path: path.to_path_buf(),
             source,
         }

@@ -303,7 +303,7 @@ shows the held-out contents). Dictionaries: {}.\n\n{text}",
             split.test_styles.join(", "),
             args.dict.join("; ")
         );
-        std::fs::write(path, doc).map_err(|e| CliError::write(path, e))?;
+        posestream::files::write_output(path, &[args.split.as_path()], doc.as_bytes())?;
     }
     Ok(())
 }

@@ -53,6 +53,13 @@ pub fn run(args: &LearnArgs) -> Result<(), CliError> {
     if args.stride == 0 {
         return Err(CliError::Usage("--stride must be at least 1".into()));
     }
+    let inputs: Vec<&std::path::Path> = [Some(&args.mapping), args.split.as_ref()]
+        .into_iter()
+        .flatten()
+        .map(PathBuf::as_path)
+        .collect();
+    posestream::files::check_output(&args.out, &inputs)
+        .map_err(posestream::files::OutputError::from)?;
     let mapping = SkeletonMapping::load(&args.mapping)?;
     let split = match &args.split {
         Some(path) => Split::load(path)?,

@@ -135,6 +135,30 @@ pub(super) fn read_heatmaps(path: &Path, p: usize) -> Result<HeatMapSequence, Cl
 
 /// Runs `lift`.
 pub fn run(args: &LiftArgs) -> Result<(), CliError> {
+    let inputs: Vec<&std::path::Path> = [
+        Some(&args.dict),
+        args.keypoints.as_ref(),
+        args.confidence.as_ref(),
+        args.heatmaps.as_ref(),
+        args.perspective.intrinsics.as_ref(),
+        args.perspective.boxes.as_ref(),
+    ]
+    .into_iter()
+    .flatten()
+    .map(PathBuf::as_path)
+    .collect();
+    for out in [
+        Some(&args.out),
+        args.out_2d.as_ref(),
+        args.out_proj.as_ref(),
+        args.out_var.as_ref(),
+    ]
+    .into_iter()
+    .flatten()
+    {
+        posestream::files::check_output(out, &inputs)
+            .map_err(posestream::files::OutputError::from)?;
+    }
     let dict = posestream::msgs::shipped::load_dictionary(&args.dict)?;
     let p = dict.num_joints();
     let estimator = Estimator::new(dict, args.solver.params())?;

@@ -72,8 +72,21 @@ pub fn run(args: &RecoverArgs) -> Result<(), CliError> {
         };
         let schema = salvager.schema(channel.schema_id);
         if let Err(e) = recorder.write_raw(schema, channel, &m) {
+            // A clean copy half written is of no use: it goes, and the error names the
+            // output, not the removed temporary file.
             recorder.abandon();
-            return Err(e.into());
+            return Err(match e {
+                RecordingError::Io { source, .. } => CliError::Io {
+                    action: "write",
+                    path: args.output.clone(),
+                    source,
+                },
+                RecordingError::Unfinished { reason, .. } => CliError::Failed(format!(
+                    "cannot write {}: {reason} (nothing was written)",
+                    args.output.display()
+                )),
+                other => other.into(),
+            });
         }
         messages += 1;
         if messages.is_multiple_of(1024) {

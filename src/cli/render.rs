@@ -8,6 +8,7 @@ use std::time::Duration;
 use clap::Args;
 use image::codecs::gif::{GifEncoder, Repeat};
 use image::{Delay, Frame};
+use posestream::files::OutputFile;
 use posestream::msgs::{HeatMaps, Skeleton3D};
 use posestream::nodes::config::DetectorSource;
 use posestream::nodes::images::image_frames;
@@ -106,6 +107,17 @@ pub fn run(args: &RenderArgs) -> Result<(), CliError> {
         Some(e) if e.eq_ignore_ascii_case("png") => false,
         _ => return Err(CliError::Usage("--output must end in .png or .gif".into())),
     };
+    // The picture is written under a temporary name and renamed at the end; never onto
+    // the recording, the video, one of the images or the configuration.
+    let mut inputs = vec![args.recording.clone(), config.detector.images.path.clone()];
+    if config.detector.source == DetectorSource::Images
+        && let Ok(entries) = std::fs::read_dir(&config.detector.images.path)
+    {
+        inputs.extend(entries.flatten().map(|e| e.path()));
+    }
+    inputs.extend(args.config.config.clone());
+    let inputs: Vec<&std::path::Path> = inputs.iter().map(PathBuf::as_path).collect();
+    let mut output = OutputFile::create(&args.output, &inputs)?;
     let dictionary = posestream::msgs::shipped::load_dictionary(&config.estimator.dictionary)?;
     let bones: Vec<(usize, usize)> = dictionary.skeleton().bones().collect();
     // Per frame and person, the estimate to draw: the most refined one unless --newest.
@@ -201,16 +213,12 @@ pub fn run(args: &RenderArgs) -> Result<(), CliError> {
             "none of the images has a skeleton in the recording (another run?)".into(),
         ));
     }
+    let picture_error = |source| CliError::Picture {
+        path: args.output.clone(),
+        source,
+    };
     if gif {
-        let file = std::fs::File::create(&args.output).map_err(|source| CliError::File {
-            path: args.output.clone(),
-            source,
-        })?;
-        let picture_error = |source| CliError::Picture {
-            path: args.output.clone(),
-            source,
-        };
-        let mut encoder = GifEncoder::new_with_speed(std::io::BufWriter::new(file), 10);
+        let mut encoder = GifEncoder::new_with_speed(output.writer(), 10);
         encoder
             .set_repeat(Repeat::Infinite)
             .map_err(picture_error)?;
@@ -225,14 +233,14 @@ pub fn run(args: &RenderArgs) -> Result<(), CliError> {
                 .encode_frame(Frame::from_parts(rgba, 0, 0, delay))
                 .map_err(picture_error)?;
         }
+        drop(encoder);
+        output.commit()?;
         println!("{} frames -> {}", stamps.len(), args.output.display());
     } else {
         pictures[0]
-            .save(&args.output)
-            .map_err(|source| CliError::Picture {
-                path: args.output.clone(),
-                source,
-            })?;
+            .write_to(output.writer(), image::ImageFormat::Png)
+            .map_err(picture_error)?;
+        output.commit()?;
         println!("frame {wanted} -> {}", args.output.display());
     }
     Ok(())

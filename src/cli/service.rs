@@ -6,7 +6,7 @@
 
 use std::path::PathBuf;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use std::time::Duration;
 
 use clap::Args;
@@ -18,12 +18,22 @@ use serde::Serialize;
 use super::CliError;
 
 /// A flag set by Ctrl-C (SIGINT), SIGTERM or SIGHUP: the command then stops and still
-/// finalises its outputs.
+/// finalises its outputs. The signal also ends a read of a user's file under way
+/// (`posestream_base::files::stop`); a second signal ends the process at once (exit
+/// status 130), leaving an output being written under its `.partial` name.
 pub(crate) fn stop_flag() -> Arc<AtomicBool> {
+    static SIGNALS: AtomicU32 = AtomicU32::new(0);
     let stop = Arc::new(AtomicBool::new(false));
     let flag = stop.clone();
     // Without a handler (one is installed already), the signal simply ends the process.
-    let _ = ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed));
+    let _ = ctrlc::set_handler(move || {
+        if SIGNALS.fetch_add(1, Ordering::Relaxed) > 0 {
+            eprintln!("posestream: a second signal: ending at once");
+            std::process::exit(130);
+        }
+        posestream::base::files::stop::request();
+        flag.store(true, Ordering::Relaxed);
+    });
     stop
 }
 

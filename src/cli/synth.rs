@@ -371,7 +371,9 @@ fn write_npy(
             path: out(name),
             source,
         })?;
-        std::fs::write(out(name), text).map_err(|e| CliError::write(&out(name), e))
+        let inputs: Vec<&std::path::Path> = args.bvh.iter().map(PathBuf::as_path).collect();
+        posestream::files::write_output(&out(name), &inputs, text.as_bytes())
+            .map_err(CliError::from)
     };
     write_json("meta.json", &meta)?;
     if cam.projection == Projection::Pinhole {

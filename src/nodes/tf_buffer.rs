@@ -5,8 +5,8 @@
 //! over the floor, which a fixed camera or a robot standing still keeps).
 //!
 //! Bounded: at most [`MAX_FRAMES`] frames (never evicted: a frame once known stays
-//! until the node ends); a transform of one more, with a non-finite value, a quaternion
-//! not of unit length, an empty or over-long frame id, or making a frame its own
+//! until the node ends); a transform of one more, with a non-finite value, a translation
+//! beyond [`MAX_TRANSLATION_M`], a quaternion not of unit length, an empty or over-long frame id, or making a frame its own
 //! ancestor (within 64 parents) is refused (its reason returned), and what was known
 //! stays.
 
@@ -22,6 +22,10 @@ pub const MAX_FRAMES: usize = 256;
 const MAX_DEPTH: usize = 64;
 /// A frame id's bytes at most.
 const MAX_FRAME_ID: usize = 256;
+/// The farthest a frame may be from its parent, metres, on each axis: 1,000 km, far beyond
+/// any room, robot or map a camera's pose is given in; a translation beyond it is a
+/// broken publisher's (a sum over a chain of such frames stays finite).
+pub const MAX_TRANSLATION_M: f64 = 1e6;
 
 /// The newest transform of each frame, under its parent.
 #[derive(Debug, Clone, Default)]
@@ -83,6 +87,11 @@ impl TfBuffer {
         let values = [v.x, v.y, v.z, r.x, r.y, r.z, r.w];
         if values.iter().any(|x| !x.is_finite()) {
             return Err(format!("{parent} -> {child}: a value is not finite"));
+        }
+        if [v.x, v.y, v.z].iter().any(|x| x.abs() > MAX_TRANSLATION_M) {
+            return Err(format!(
+                "{parent} -> {child}: a translation of more than {MAX_TRANSLATION_M:e} m"
+            ));
         }
         let q = Quaternion::new(r.w, r.x, r.y, r.z);
         // A rotation's quaternion is of unit length (tf2 refuses others too); this also
@@ -231,12 +240,13 @@ mod tests {
                 tf("c", "a", [0.0; 3], id),
                 tf("a", "a", [0.0; 3], id),
                 tf("a", "d", [f64::NAN, 0.0, 0.0], id),
+                tf("a", "h", [0.0, 1e300, 0.0], id),
                 tf("a", "e", [0.0; 3], [0.0; 4]),
                 tf("", "f", [0.0; 3], id),
                 tf("a", &"g".repeat(MAX_FRAME_ID + 1), [0.0; 3], id),
             ],
         });
-        assert_eq!(bad.len(), 6, "{bad:?}");
+        assert_eq!(bad.len(), 7, "{bad:?}");
         assert!(b.lookup("a", "c").is_some());
         let version = b.version();
         let many = TFMessage {

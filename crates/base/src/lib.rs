@@ -7,12 +7,15 @@
 //!   [`check_range`], [`check_real`]);
 //! - [`panics`]: a dependency's panic on outside data contained at the call
 //!   ([`contain_panics`]), the text of a panic ([`panic_text`]);
+//! - [`files`]: reading a user's file: regular files only, at most a format's cap,
+//!   ended by a signal's [`files::stop`];
 //! - [`frame`]: the geometry and scores of one frame of heat maps ([`CropBox`],
 //!   [`PixelMap`], [`Scores`]);
 //! - [`ports`]: the traits every transport implements ([`Source`], [`Sink`]), what a
 //!   source [`Received`], and the [`TransportError`] with its refusal kind.
 
 pub mod domain;
+pub mod files;
 pub mod frame;
 pub mod panics;
 pub mod ports;

@@ -146,14 +146,21 @@ impl<'a> Tokens<'a> {
     }
 }
 
+/// The largest BVH file read (a take of 10 minutes at 120 frames/s of 60 joints is about
+/// 40 MB).
+pub const MAX_BVH_BYTES: u64 = 128 << 20;
+
 impl Bvh {
-    /// Reads and parses a BVH file.
+    /// Reads and parses a BVH file (a regular file of at most [`MAX_BVH_BYTES`]).
     pub fn load(path: impl AsRef<Path>) -> Result<Self, BvhError> {
         let path = path.as_ref();
-        let text = std::fs::read_to_string(path).map_err(|source| BvhError::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        let text =
+            posestream_base::files::read_capped_string(path, MAX_BVH_BYTES).map_err(|source| {
+                BvhError::Io {
+                    path: path.to_path_buf(),
+                    source,
+                }
+            })?;
         Self::parse(&text).map_err(|e| e.in_file(path))
     }
 

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 #[derive(Debug, thiserror::Error)]
 pub enum ArrayError {
     /// The file could not be opened, read or written.
-    #[error("{path}: {source}")]
+    #[error("{path}: {}", crate::files::io_text(source))]
     Io {
         /// The file.
         path: PathBuf,
@@ -58,8 +58,8 @@ pub enum ArrayError {
 /// Loading or validating a dictionary ([`posestream_math::Dictionary`]) failed.
 #[derive(Debug, thiserror::Error)]
 pub enum DictionaryError {
-    /// The file could not be read.
-    #[error("cannot read dictionary {path}: {source}")]
+    /// The file could not be read (or written: [`crate::formats::dictionary_json::save`]).
+    #[error("dictionary {path}: {}", crate::files::io_text(source))]
     Io {
         /// The file.
         path: PathBuf,
@@ -126,7 +126,7 @@ pub enum DictionaryError {
 #[derive(Debug, thiserror::Error)]
 pub enum CameraError {
     /// The file could not be read.
-    #[error("cannot read intrinsics {path}: {source}")]
+    #[error("cannot read intrinsics {path}: {}", crate::files::io_text(source))]
     Io {
         /// The file.
         path: PathBuf,

@@ -9,6 +9,9 @@
 use std::os::unix::fs::MetadataExt;
 use std::path::{Path, PathBuf};
 
+/// The prefix of a path that names a file built into the binary (`crate::shipped`).
+pub const BUILTIN: &str = "builtin:";
+
 /// The output would replace one of the run's inputs.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[error("{}: the output is an input of this run ({}); choose another file", output.display(), input.display())]
@@ -19,12 +22,19 @@ pub struct OutputIsInput {
     pub input: PathBuf,
 }
 
-/// Checks that `output` is none of `inputs` (same device and inode, links followed). An
+/// Checks that `output` is none of `inputs`, nor any file this process has read
+/// ([`posestream_base::files::inputs`]): same device and inode, links followed. An
 /// output that does not exist yet is no input.
 pub fn check_output(output: &Path, inputs: &[&Path]) -> Result<(), OutputIsInput> {
     let Ok(out) = std::fs::metadata(output) else {
         return Ok(());
     };
+    if let Some(input) = posestream_base::files::inputs::read_as(&out) {
+        return Err(OutputIsInput {
+            output: output.to_path_buf(),
+            input,
+        });
+    }
     for input in inputs {
         if let Ok(i) = std::fs::metadata(input)
             && (i.dev(), i.ino()) == (out.dev(), out.ino())
@@ -42,7 +52,8 @@ pub fn check_output(output: &Path, inputs: &[&Path]) -> Result<(), OutputIsInput
 /// `NAME.PID.partial` (or `NAME.PID-N.partial` if that exists), created empty. A file
 /// left by an earlier run that was killed is never reused.
 pub fn create_partial(path: &Path) -> std::io::Result<(PathBuf, std::fs::File)> {
-    if crate::shipped::find(path).is_some() {
+    // `builtin:` names a file built into the binary (`crate::shipped`), never one to write.
+    if path.to_str().is_some_and(|p| p.starts_with(BUILTIN)) {
         return Err(std::io::Error::new(
             std::io::ErrorKind::InvalidInput,
             "a builtin: path names a file built into the binary, which is read-only: \
@@ -73,6 +84,115 @@ pub fn create_partial(path: &Path) -> std::io::Result<(PathBuf, std::fs::File)> 
     }
 }
 
+/// Why an output could not be written.
+#[derive(Debug, thiserror::Error)]
+pub enum OutputError {
+    /// The output is one of the run's inputs.
+    #[error(transparent)]
+    IsInput(#[from] OutputIsInput),
+    /// Writing it failed (the file it would replace is unchanged).
+    #[error("{}: {}", path.display(), io_text(source))]
+    Io {
+        /// The output asked for.
+        path: PathBuf,
+        /// What failed.
+        source: std::io::Error,
+    },
+}
+
+/// An I/O error in words, a full disk, quota or file-size limit named as such.
+pub fn io_text(e: &std::io::Error) -> String {
+    use std::io::ErrorKind;
+    match e.kind() {
+        ErrorKind::StorageFull => {
+            "no space left on the device (the disk or the file system is full)".into()
+        }
+        ErrorKind::QuotaExceeded => "the disk quota is exhausted".into(),
+        ErrorKind::FileTooLarge => "the file is larger than this process may write \
+                                    (`ulimit -f`) or the file system allows"
+            .into(),
+        _ => e.to_string(),
+    }
+}
+
+/// An output file written under a temporary name beside its path ([`create_partial`]) and
+/// renamed into place by [`OutputFile::commit`]: an output that is an input is refused
+/// before anything is written, and a run that fails (or a full disk) leaves the existing
+/// file as it was. Dropped without a commit, the temporary file is removed.
+pub struct OutputFile {
+    path: PathBuf,
+    partial: PathBuf,
+    file: Option<std::io::BufWriter<std::fs::File>>,
+}
+
+impl OutputFile {
+    /// Starts writing `path`, none of `inputs`.
+    pub fn create(path: &Path, inputs: &[&Path]) -> Result<Self, OutputError> {
+        check_output(path, inputs)?;
+        // The rename would put a file where a device or a FIFO was.
+        if std::fs::metadata(path).is_ok_and(|m| !m.is_file()) {
+            return Err(OutputError::Io {
+                path: path.to_path_buf(),
+                source: std::io::Error::new(
+                    std::io::ErrorKind::InvalidInput,
+                    "is not a regular file (a device, a FIFO or a directory): give a file's path",
+                ),
+            });
+        }
+        let (partial, file) = create_partial(path).map_err(|source| OutputError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        Ok(Self {
+            path: path.to_path_buf(),
+            partial,
+            file: Some(std::io::BufWriter::new(file)),
+        })
+    }
+
+    /// Where it is written until [`OutputFile::commit`].
+    pub fn writer(&mut self) -> &mut std::io::BufWriter<std::fs::File> {
+        self.file.as_mut().expect("present until committed")
+    }
+
+    /// Flushes, syncs and renames the file into place.
+    pub fn commit(mut self) -> Result<(), OutputError> {
+        let io = |source| OutputError::Io {
+            path: self.path.clone(),
+            source,
+        };
+        let file = self.file.take().expect("present until committed");
+        let file = file.into_inner().map_err(|e| io(e.into_error()))?;
+        file.sync_all().map_err(io)?;
+        drop(file);
+        std::fs::rename(&self.partial, &self.path).map_err(io)?;
+        if let Some(dir) = self.path.parent().filter(|d| !d.as_os_str().is_empty())
+            && let Ok(d) = std::fs::File::open(dir)
+        {
+            let _ = d.sync_all();
+        }
+        Ok(())
+    }
+}
+
+impl Drop for OutputFile {
+    fn drop(&mut self) {
+        if self.file.take().is_some() {
+            let _ = std::fs::remove_file(&self.partial);
+        }
+    }
+}
+
+/// Writes `bytes` to `path` through an [`OutputFile`].
+pub fn write_output(path: &Path, inputs: &[&Path], bytes: &[u8]) -> Result<(), OutputError> {
+    let mut out = OutputFile::create(path, inputs)?;
+    std::io::Write::write_all(out.writer(), bytes).map_err(|source| OutputError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    out.commit()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -94,6 +214,35 @@ mod tests {
         let e = create_partial(Path::new("builtin:recordings/byebye.mcap")).expect_err("refused");
         assert!(e.to_string().contains("built into the binary"), "{e}");
         assert!(create_partial(Path::new("builtin:out.mcap")).is_err());
+    }
+
+    #[test]
+    fn an_output_is_renamed_into_place_and_a_link_to_an_input_is_left_alone() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let input = dir.path().join("in");
+        std::fs::write(&input, b"input").expect("write");
+        let hard = dir.path().join("hard");
+        std::fs::hard_link(&input, &hard).expect("link");
+        assert!(matches!(
+            write_output(&hard, &[&input], b"out"),
+            Err(OutputError::IsInput(_))
+        ));
+        let out = dir.path().join("out");
+        write_output(&out, &[&input], b"out").expect("writes");
+        assert_eq!(std::fs::read(&out).expect("read"), b"out");
+        // Not committed: the old file stays, no temporary file is left.
+        let mut unfinished = OutputFile::create(&out, &[&input]).expect("starts");
+        std::io::Write::write_all(unfinished.writer(), b"half").expect("write");
+        drop(unfinished);
+        assert_eq!(std::fs::read(&out).expect("read"), b"out");
+        assert_eq!(std::fs::read_dir(dir.path()).expect("dir").count(), 3);
+        assert_eq!(std::fs::read(&input).expect("read"), b"input");
+        let full = std::io::Error::from_raw_os_error(28);
+        assert!(
+            io_text(&full).contains("no space left"),
+            "{}",
+            io_text(&full)
+        );
     }
 
     #[test]

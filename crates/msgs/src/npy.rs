@@ -1,7 +1,6 @@
 //! NPY arrays in and out (numpy's format, via `npyz`): f32 or f64, C or Fortran order.
 //! Every reader checks the shape and finiteness and names the file in its error.
 
-use std::io::BufWriter;
 use std::path::Path;
 
 use npyz::WriterBuilder;
@@ -87,11 +86,18 @@ fn check_header(bytes: &[u8]) -> Result<(), String> {
     Ok(())
 }
 
-/// Reads an f32/f64 array, rejecting empty arrays and non-finite values.
+/// The largest NPY file read: 256 MiB (32 M f64 values, e.g. 100,000 frames of 17
+/// joints' 2-D positions about 27 MB).
+pub const MAX_NPY_BYTES: u64 = 256 << 20;
+
+/// Reads an f32/f64 array (a regular file of at most [`MAX_NPY_BYTES`]), rejecting empty
+/// arrays and non-finite values.
 pub fn read<T: Element>(path: &Path) -> Result<Array<T>, ArrayError> {
-    let bytes = std::fs::read(path).map_err(|source| ArrayError::Io {
-        path: path.to_path_buf(),
-        source,
+    let bytes = posestream_base::files::read_capped(path, MAX_NPY_BYTES).map_err(|source| {
+        ArrayError::Io {
+            path: path.to_path_buf(),
+            source,
+        }
     })?;
     from_bytes(&bytes, path)
 }
@@ -206,8 +212,8 @@ pub fn expect_shape<T>(
     }
 }
 
-/// Writes an array of `shape` (C order; f64 or f32). Writes a sibling temporary file and
-/// renames it, so an existing file is never left half-written.
+/// Writes an array of `shape` (C order; f64 or f32), through a
+/// [`crate::files::OutputFile`]: an existing file is never left half-written.
 pub fn write<T: npyz::Serialize + npyz::AutoSerialize + Copy>(
     path: &Path,
     shape: &[usize],
@@ -217,12 +223,12 @@ pub fn write<T: npyz::Serialize + npyz::AutoSerialize + Copy>(
         path: path.to_path_buf(),
         source,
     };
-    let mut tmp_name = path.as_os_str().to_owned();
-    tmp_name.push(".partial");
-    let tmp = std::path::PathBuf::from(tmp_name);
+    let mut output = crate::files::OutputFile::create(path, &[]).map_err(|e| match e {
+        crate::files::OutputError::Io { source, .. } => io(source),
+        other => io(std::io::Error::other(other.to_string())),
+    })?;
     {
-        let file = std::fs::File::create(&tmp).map_err(io)?;
-        let mut w = BufWriter::new(file);
+        let mut w = output.writer();
         let shape64: Vec<u64> = shape.iter().map(|&s| s as u64).collect();
         let mut writer = npyz::WriteOptions::new()
             .default_dtype()
@@ -234,7 +240,10 @@ pub fn write<T: npyz::Serialize + npyz::AutoSerialize + Copy>(
         writer.finish().map_err(io)?;
         std::io::Write::flush(&mut w).map_err(io)?;
     }
-    std::fs::rename(&tmp, path).map_err(io)
+    output.commit().map_err(|e| match e {
+        crate::files::OutputError::Io { source, .. } => io(source),
+        other => io(std::io::Error::other(other.to_string())),
+    })
 }
 
 #[cfg(test)]

@@ -131,22 +131,27 @@ impl Skips {
             .iter()
             .map(|(k, n)| format!("{n} {}", k.name()))
             .collect();
-        let mut ranges: Vec<String> = self
-            .ranges
-            .iter()
-            .take(8)
-            .map(|r| format!("{}-{}", r.from, r.to))
-            .collect();
-        if self.total() > ranges.len() as u64 {
-            ranges.push("...".into());
+        let mut text = format!("{} skipped ({}", self.total(), kinds.join(", "));
+        // Messages on undeclared channels are counted without bytes of their own.
+        if self.bytes > 0 {
+            let unit = if self.bytes == 1 { "byte" } else { "bytes" };
+            text.push_str(&format!("; {} {unit}", self.bytes));
         }
-        format!(
-            "{} skipped ({}; {} bytes): bytes {}",
-            self.total(),
-            kinds.join(", "),
-            self.bytes,
-            ranges.join(", ")
-        )
+        text.push(')');
+        if !self.ranges.is_empty() {
+            let mut ranges: Vec<String> = self
+                .ranges
+                .iter()
+                .take(8)
+                .map(|r| format!("{}-{}", r.from, r.to))
+                .collect();
+            if self.ranges.len() > ranges.len() {
+                ranges.push("...".into());
+            }
+            text.push_str(": bytes ");
+            text.push_str(&ranges.join(", "));
+        }
+        text
     }
 }
 
@@ -172,6 +177,17 @@ pub struct ChannelInfo {
     pub message_encoding: String,
     /// Its metadata (rosbag2's QoS profiles).
     pub metadata: BTreeMap<String, String>,
+}
+
+impl From<mcap::records::Channel> for ChannelInfo {
+    fn from(c: mcap::records::Channel) -> Self {
+        Self {
+            topic: c.topic,
+            schema_id: c.schema_id,
+            message_encoding: c.message_encoding,
+            metadata: c.metadata,
+        }
+    }
 }
 
 /// A message read by a [`Salvager`].
@@ -210,7 +226,40 @@ pub struct Salvager {
     /// Payload buffers handed back ([`Salvager::recycle`]), written over by the next
     /// messages (at most [`SPARE_PAYLOADS`]).
     spare: Vec<Vec<u8>>,
+    /// The data section's CRC so far, over every record read whole
+    /// ([`Salvager::checking_data_crc`]), and the data-end record's, once read.
+    data_crc: Option<(crc32fast::Hasher, Option<u32>)>,
+    /// Where the summary's chunk indexes place chunks (sorted, at most
+    /// [`MAX_INDEXED_CHUNKS`]): a record there that is not a chunk took one's place.
+    indexed_chunks: Vec<u64>,
+    /// Declarations found anywhere in the file by [`Salvager::scan_declarations`], once a
+    /// message's channel was declared nowhere else.
+    scanned: Option<(BTreeMap<u16, SchemaInfo>, BTreeMap<u16, ChannelInfo>)>,
+    /// Bytes of chunk records decompressed so far from chunks of more than [`INFLATION`]
+    /// times their size (at most [`INFLATION_ALLOWANCE`]).
+    inflated: u64,
+    /// Reading ends at the first skip ([`Salvager::stopping_at_damage`]).
+    stop_at_damage: bool,
+    /// The file's length, where bytes follow its closing magic (they are skipped at the
+    /// end, the file read as if it ended at the magic: `len`).
+    trailing: Option<u64>,
 }
+
+/// Bytes of chunk records per byte of a chunk beyond which the chunk counts against
+/// [`INFLATION_ALLOWANCE`] (recordings compress 10 to 100 times; a compression bomb, a
+/// 2 kB chunk of 64 MiB of zeros, 32,000).
+const INFLATION: u64 = 1000;
+
+/// Bytes of chunk records decompressed from chunks of more than [`INFLATION`] times
+/// their size, in all, at most (1 GiB): beyond, such chunks are skipped as over the
+/// limit, and the chunks of real recordings around them still read.
+const INFLATION_ALLOWANCE: u64 = 1 << 30;
+
+/// The longest schema or channel record [`Salvager::scan_declarations`] takes.
+const MAX_SCANNED_DECLARATION: usize = 64 << 10;
+
+/// Chunk offsets taken from a summary's chunk indexes, at most (8 MiB of them).
+const MAX_INDEXED_CHUNKS: usize = 1 << 20;
 
 /// Payload buffers a [`Salvager`] keeps to write messages over, at most.
 const SPARE_PAYLOADS: usize = 64;
@@ -244,66 +293,16 @@ impl Salvager {
             summary: (BTreeMap::new(), BTreeMap::new()),
             declared: 0,
             spare: Vec::new(),
+            data_crc: None,
+            indexed_chunks: Vec::new(),
+            scanned: None,
+            inflated: 0,
+            stop_at_damage: false,
+            trailing: None,
         };
+        salvager.find_end(file);
         salvager.read_summary(file);
         Ok(salvager)
-    }
-
-    /// Reads the schemas and channels of the summary section, when the footer says where
-    /// it is and its records hold together; anything else leaves them empty.
-    fn read_summary<R: Read + Seek>(&mut self, file: &mut R) {
-        // The footer: opcode, length 20, summary start, summary offset start, CRC; magic.
-        let Some(footer) = self.len.checked_sub(9 + 20 + MAGIC.len() as u64) else {
-            return;
-        };
-        let Some((op::FOOTER, 20)) = Self::head(file, footer) else {
-            return;
-        };
-        let mut start = [0_u8; 8];
-        if file.read_exact(&mut start).is_err() {
-            return;
-        }
-        let mut at = u64::from_le_bytes(start);
-        if at == 0 || at >= footer {
-            return;
-        }
-        let (schemas, channels) = (
-            std::mem::take(&mut self.schemas),
-            std::mem::take(&mut self.channels),
-        );
-        while at < footer {
-            let Some(end) = self.plausible(file, at).filter(|&e| e <= footer) else {
-                break;
-            };
-            let Some((opcode, len)) = Self::head(file, at) else {
-                break;
-            };
-            if (opcode == op::SCHEMA || opcode == op::CHANNEL)
-                && self.read_record(file, at, len).is_some()
-            {
-                let body = std::mem::take(&mut self.body);
-                let _ = self.record(opcode, &body);
-                self.body = body;
-            }
-            at = end;
-        }
-        self.summary = (
-            std::mem::replace(&mut self.schemas, schemas),
-            std::mem::replace(&mut self.channels, channels),
-        );
-    }
-
-    /// Takes the summary's declaration of channel `id` (and its schema) where the data's
-    /// was lost; true if there was one.
-    fn declared_in_summary(&mut self, id: u16) -> bool {
-        let Some(channel) = self.summary.1.get(&id).cloned() else {
-            return false;
-        };
-        if let Some(schema) = self.summary.0.get(&channel.schema_id).cloned() {
-            self.schemas.entry(channel.schema_id).or_insert(schema);
-        }
-        self.channels.insert(id, channel);
-        true
     }
 
     /// Where reading is in the file (bytes), and the file's length.
@@ -335,6 +334,11 @@ impl Salvager {
     /// itself (a disk error) end it as a part cut short.
     pub fn next_message<R: Read + Seek>(&mut self, file: &mut R) -> Option<Salvaged> {
         loop {
+            if self.stop_at_damage && !self.skips.is_empty() {
+                // What a damaged record held is not given out.
+                self.pending.clear();
+                self.done = true;
+            }
             if let Some(m) = self.pending.pop_front() {
                 return Some(m);
             }
@@ -345,69 +349,24 @@ impl Salvager {
         }
     }
 
+    /// Ends reading at the first skip (a strict reader: nothing past damage is read).
+    pub fn stopping_at_damage(&mut self) {
+        self.stop_at_damage = true;
+    }
+
+    /// Reads on past damage after all (undoes [`Salvager::stopping_at_damage`] and
+    /// [`Salvager::checking_data_crc`]). Call before the first message.
+    pub fn reading_on(&mut self) {
+        self.stop_at_damage = false;
+        self.data_crc = None;
+    }
+
     /// Hands back a message's payload once used: the next messages are copied over it
     /// (kept up to a few; a warm reader allocates no payload).
     pub fn recycle(&mut self, payload: Vec<u8>) {
         if self.spare.len() < SPARE_PAYLOADS && payload.capacity() > 0 {
             self.spare.push(payload);
         }
-    }
-
-    /// The opcode and length of the record at `at`, if 9 bytes are there.
-    fn head<R: Read + Seek>(file: &mut R, at: u64) -> Option<(u8, u64)> {
-        let mut h = [0_u8; 9];
-        file.seek(SeekFrom::Start(at)).ok()?;
-        file.read_exact(&mut h).ok()?;
-        let len = u64::from_le_bytes(h[1..9].try_into().ok()?);
-        Some((h[0], len))
-    }
-
-    /// Where the record at `at` ends, if it is a known record that fits the file and
-    /// the limit.
-    fn plausible<R: Read + Seek>(&self, file: &mut R, at: u64) -> Option<u64> {
-        let (op, len) = Self::head(file, at)?;
-        let end = at.checked_add(9)?.checked_add(len)?;
-        // An application's private record counts as a record here (never as a place the
-        // scan resumes: that takes a known opcode).
-        ((known(op) || op >= PRIVATE) && len <= self.limit && end <= self.len).then_some(end)
-    }
-
-    /// A record starts at `at`, or the file (or its closing magic) ends there.
-    fn boundary<R: Read + Seek>(&self, file: &mut R, at: u64) -> bool {
-        let private = matches!(Self::head(file, at), Some((opcode, _)) if opcode >= PRIVATE);
-        let record = match self.plausible(file, at) {
-            // An application's record only when a known one (or the end) follows it: a
-            // byte inside a record is too often 0x80 or more to take it on its own.
-            Some(end) if private => {
-                self.ends(end)
-                    || matches!(Self::head(file, end), Some((opcode, _)) if known(opcode))
-                        && self.plausible(file, end).is_some()
-            }
-            Some(_) => true,
-            None => false,
-        };
-        self.ends(at) || record || self.cut_at(file, at) || {
-            // A chunk whose own length field lies is still a record there when its own
-            // sizes lead to the next one.
-            matches!(Self::head(file, at), Some((op::CHUNK, _)))
-                && self.chunk_end(file, at).is_some_and(|own| {
-                    own - at - 9 <= self.limit
-                        && (self.ends(own) || self.plausible(file, own).is_some())
-                })
-        }
-    }
-
-    /// A record starts at `at` that the end of the file cuts short: a known opcode and a
-    /// length within the limit that runs past the end.
-    fn cut_at<R: Read + Seek>(&self, file: &mut R, at: u64) -> bool {
-        Self::head(file, at).is_some_and(|(opcode, len)| {
-            known(opcode) && len <= self.limit && at.saturating_add(9 + len) > self.len
-        })
-    }
-
-    /// The file ends at `at` (or its closing magic starts there).
-    fn ends(&self, at: u64) -> bool {
-        at == self.len || self.len.checked_sub(at) == Some(MAGIC.len() as u64)
     }
 
     /// Reads and handles the record at `self.at`, or skips.
@@ -424,6 +383,25 @@ impl Salvager {
             || (op == op::DATA_END && self.data_end_at(file, at))
         {
             // The data section is over: the summary is not read (see the module docs).
+            if let Some(real) = self.trailing {
+                self.skips.add(Damage::Unparsable, self.len, real);
+            }
+            if op == op::DATA_END
+                && let Some((_, recorded)) = self.data_crc.as_mut()
+            {
+                let mut crc = [0_u8; 4];
+                let read =
+                    file.seek(SeekFrom::Start(at + 9)).is_ok() && file.read_exact(&mut crc).is_ok();
+                *recorded = read.then(|| u32::from_le_bytes(crc));
+            }
+            self.done = true;
+            return;
+        }
+        if op == op::DATA_END
+            && let Some(cut) = self.summary_cut_short(file, at)
+        {
+            // The data section is over and the summary after it cut short.
+            self.skips.add(Damage::CutShort, cut, self.len);
             self.done = true;
             return;
         }
@@ -432,11 +410,38 @@ impl Salvager {
             self.resync(file, at, Damage::Unparsable);
             return;
         }
+        if op != op::CHUNK && self.indexed_chunks.binary_search(&at).is_ok() {
+            // The index has a chunk here: this record (a flipped opcode, or one written
+            // over it) took its place, and its messages are lost.
+            match at.checked_add(9).and_then(|a| a.checked_add(len)) {
+                Some(end) if end <= self.len && len <= self.limit && self.boundary(file, end) => {
+                    self.skips.add(Damage::Unparsable, at, end);
+                    self.at = end;
+                }
+                _ => self.resync(file, at, Damage::Unparsable),
+            }
+            return;
+        }
+        if self.not_data(file, at, op, len) {
+            // A record that has no place in the data section, or does not hold together
+            // as its kind: another one damaged into it (a flipped opcode).
+            match at.checked_add(9).and_then(|a| a.checked_add(len)) {
+                Some(end) if end <= self.len && self.boundary(file, end) => {
+                    self.skips.add(Damage::Unparsable, at, end);
+                    self.at = end;
+                }
+                _ => self.resync(file, at, Damage::Unparsable),
+            }
+            return;
+        }
         if op >= PRIVATE {
             // A record of an application's own (MCAP's private opcodes): passed over
             // where its length leads to a record, else as any opcode unknown.
             match at.checked_add(9).and_then(|a| a.checked_add(len)) {
-                Some(end) if end <= self.len && self.boundary(file, end) => self.at = end,
+                Some(end) if end <= self.len && self.boundary(file, end) => {
+                    self.hash_record(file, at, op, len, true);
+                    self.at = end;
+                }
                 _ => self.resync(file, at, Damage::Unparsable),
             }
             return;
@@ -479,8 +484,14 @@ impl Salvager {
             self.resync(file, at, Damage::LyingLength);
             return;
         }
-        match self.read_record(file, at, len).map(|()| self.handle(op)) {
-            Some(Ok(())) => self.at = end,
+        match self
+            .read_record(file, at, len)
+            .map(|()| self.handle(file, op))
+        {
+            Some(Ok(())) => {
+                self.hash_record(file, at, op, len, false);
+                self.at = end;
+            }
             Some(Err(kind)) if self.boundary(file, end) => {
                 self.skips.add(kind, at, end);
                 self.at = end;
@@ -492,50 +503,6 @@ impl Salvager {
                 self.done = true;
             }
         }
-    }
-
-    /// Where the chunk at `at` ends by its own sizes (its compression's name and its
-    /// compressed size), if those fit the file.
-    fn chunk_end<R: Read + Seek>(&self, file: &mut R, at: u64) -> Option<u64> {
-        // Opcode, length, start and end times, uncompressed size, CRC, compression's length.
-        let mut fixed = [0_u8; 9 + 8 + 8 + 8 + 4 + 4];
-        file.seek(SeekFrom::Start(at)).ok()?;
-        file.read_exact(&mut fixed).ok()?;
-        let name = u64::from(u32::from_le_bytes(fixed[37..41].try_into().ok()?));
-        let sizes = at.checked_add(fixed.len() as u64)?.checked_add(name)?;
-        let mut compressed = [0_u8; 8];
-        file.seek(SeekFrom::Start(sizes)).ok()?;
-        file.read_exact(&mut compressed).ok()?;
-        let end = sizes
-            .checked_add(8)?
-            .checked_add(u64::from_le_bytes(compressed))?;
-        (end <= self.len).then_some(end)
-    }
-
-    /// Whether a footer at `at` is the file's: just before the closing magic.
-    fn footer_at(&self, at: u64) -> bool {
-        self.len.checked_sub(FOOTER_BYTES + MAGIC.len() as u64) == Some(at)
-    }
-
-    /// Whether a data-end record at `at` ends the data section: the file's footer
-    /// follows it, or its summary, as the footer says.
-    fn data_end_at<R: Read + Seek>(&self, file: &mut R, at: u64) -> bool {
-        let Some(footer) = self.len.checked_sub(FOOTER_BYTES + MAGIC.len() as u64) else {
-            return false;
-        };
-        let Some((op::DATA_END, 4)) = Self::head(file, at) else {
-            return false;
-        };
-        let next = at + 9 + 4;
-        if !matches!(Self::head(file, footer), Some((op::FOOTER, 20))) {
-            return false;
-        }
-        let mut start = [0_u8; 8];
-        if file.read_exact(&mut start).is_err() {
-            return false;
-        }
-        let summary = u64::from_le_bytes(start);
-        next == footer || summary == next
     }
 
     /// Reads the body of the record at `at` into `self.body`.
@@ -551,11 +518,11 @@ impl Salvager {
     }
 
     /// Handles the record in `self.body`: declarations kept, messages queued.
-    fn handle(&mut self, opcode: u8) -> Result<(), Damage> {
+    fn handle<R: Read + Seek>(&mut self, file: &mut R, opcode: u8) -> Result<(), Damage> {
         let body = std::mem::take(&mut self.body);
         let result = match opcode {
-            op::CHUNK => self.chunk(&body),
-            _ => self.record(opcode, &body).map(|declared| {
+            op::CHUNK => self.chunk(file, &body),
+            _ => self.record(file, opcode, &body).map(|declared| {
                 if !declared {
                     self.skips.note(Damage::UnknownChannel);
                 }
@@ -567,7 +534,12 @@ impl Salvager {
 
     /// Handles one record outside a chunk or inside one; a message on an undeclared
     /// channel is counted (`Ok(false)`).
-    fn record(&mut self, opcode: u8, body: &[u8]) -> Result<bool, Damage> {
+    fn record<R: Read + Seek>(
+        &mut self,
+        file: &mut R,
+        opcode: u8,
+        body: &[u8],
+    ) -> Result<bool, Damage> {
         // Parsed where it lies (nothing copied but what is kept).
         let record = posestream_base::contain_panics(|| mcap::parse_record(opcode, body));
         let Ok(Ok(record)) = record else {
@@ -595,19 +567,12 @@ impl Salvager {
                 );
             }
             Record::Channel(c) => {
-                self.channels.insert(
-                    c.id,
-                    ChannelInfo {
-                        topic: c.topic,
-                        schema_id: c.schema_id,
-                        message_encoding: c.message_encoding,
-                        metadata: c.metadata,
-                    },
-                );
+                self.channels.insert(c.id, ChannelInfo::from(c));
             }
             Record::Message { header, data } => {
                 if !self.channels.contains_key(&header.channel_id)
                     && !self.declared_in_summary(header.channel_id)
+                    && !self.declared_elsewhere(file, header.channel_id)
                 {
                     return Ok(false);
                 }
@@ -630,7 +595,7 @@ impl Salvager {
 
     /// A chunk: decompressed within the limit, its CRC checked, then its records; the
     /// messages before a record that does not parse are kept.
-    fn chunk(&mut self, body: &[u8]) -> Result<(), Damage> {
+    fn chunk<R: Read + Seek>(&mut self, file: &mut R, body: &[u8]) -> Result<(), Damage> {
         // Parsed where it lies; an uncompressed chunk's records are read there too.
         let parsed = posestream_base::contain_panics(|| mcap::parse_record(op::CHUNK, body));
         let Ok(Ok(Record::Chunk { header, data })) = parsed else {
@@ -638,6 +603,16 @@ impl Salvager {
         };
         if header.uncompressed_size > self.limit {
             return Err(Damage::OverLimit);
+        }
+        // A chunk that decompresses to more than INFLATION times its size is decompressed
+        // only within the allowance (such chunks in all): a bomb's chunks beyond it are
+        // skipped, and reading costs at most the allowance and INFLATION times the file.
+        let extreme = header.uncompressed_size > (data.len() as u64).saturating_mul(INFLATION);
+        if !header.compression.is_empty() && extreme {
+            self.inflated = self.inflated.saturating_add(header.uncompressed_size);
+            if self.inflated > INFLATION_ALLOWANCE {
+                return Err(Damage::OverLimit);
+            }
         }
         let size = header.uncompressed_size as usize;
         let records: std::borrow::Cow<'_, [u8]> = match header.compression.as_str() {
@@ -669,7 +644,11 @@ impl Salvager {
                 .ok()
                 .and_then(|l| records.get(at + 9..(at + 9).checked_add(l)?))
                 .ok_or(Damage::Unparsable)?;
-            if opcode < PRIVATE && !self.record(opcode, body)? {
+            // A chunk holds schemas, channels and messages (and an application's records).
+            if !matches!(opcode, op::SCHEMA | op::CHANNEL | op::MESSAGE) && opcode < PRIVATE {
+                return Err(Damage::Unparsable);
+            }
+            if opcode < PRIVATE && !self.record(file, opcode, body)? {
                 // Each message on no declared channel counted; the chunk's others kept.
                 self.skips.note(Damage::UnknownChannel);
             }
@@ -677,86 +656,11 @@ impl Salvager {
         }
         Ok(())
     }
-
-    /// Scans from `from + 1` for the next record that holds together (see the module
-    /// docs), skipping what lies between as `kind`; to the end if none does.
-    fn resync<R: Read + Seek>(&mut self, file: &mut R, from: u64, kind: Damage) {
-        let mut block = vec![0_u8; SCAN_BLOCK];
-        let mut base = from + 1;
-        while base < self.len {
-            if file.seek(SeekFrom::Start(base)).is_err() {
-                break;
-            }
-            let n = match file.by_ref().take(SCAN_BLOCK as u64).read(&mut block) {
-                Ok(0) | Err(_) => break,
-                Ok(n) => n,
-            };
-            for i in 0..n {
-                // What the block already shows rules out most positions without a read.
-                let at = base + i as u64;
-                let fits = block.get(i + 1..i + 9).is_none_or(|len| {
-                    let len = u64::from_le_bytes(len.try_into().unwrap_or([0xff; 8]));
-                    len <= self.limit && at.saturating_add(9).saturating_add(len) <= self.len
-                });
-                if known(block[i]) && fits && self.holds_together(file, at) {
-                    self.skips.add(kind, from, at);
-                    self.at = at;
-                    return;
-                }
-            }
-            base += n as u64;
-        }
-        // Nothing after it: a record running past the end is a file cut short there.
-        let runs_past_end = Self::head(file, from).is_some_and(|(opcode, len)| {
-            known(opcode) && from.saturating_add(9).saturating_add(len) > self.len
-        });
-        let kind = if kind == Damage::LyingLength && runs_past_end {
-            Damage::CutShort
-        } else {
-            kind
-        };
-        self.skips.add(kind, from, self.len);
-        self.done = true;
-    }
-
-    /// Whether a record that holds together starts at `at`: a chunk whose own sizes
-    /// give its length, whose compression is one MCAP names and whose records fit the
-    /// limit, followed by a record or the end; or another record followed by a record
-    /// or the end. Only its head is read: a candidate that then fails is skipped whole,
-    /// so the scan stays linear in the file.
-    fn holds_together<R: Read + Seek>(&mut self, file: &mut R, at: u64) -> bool {
-        let Some(end) = self.plausible(file, at) else {
-            return false;
-        };
-        let Some((opcode, _)) = Self::head(file, at) else {
-            return false;
-        };
-        if opcode == op::CHUNK {
-            if self.chunk_end(file, at) != Some(end) {
-                return false;
-            }
-            // Start and end times, uncompressed size, CRC, the compression's name.
-            let mut fields = [0_u8; 8 + 8 + 8 + 4 + 4 + 4];
-            if file.seek(SeekFrom::Start(at + 9)).is_err() || file.read_exact(&mut fields).is_err()
-            {
-                return false;
-            }
-            let uncompressed = u64::from_le_bytes(fields[16..24].try_into().unwrap_or([0xff; 8]));
-            let name_len = u32::from_le_bytes(fields[28..32].try_into().unwrap_or([0xff; 4]));
-            let name = &fields[32..32 + (name_len as usize).min(4)];
-            let compression = match name_len {
-                0 => true,
-                3 => name[..3] == *b"lz4",
-                4 => name == b"zstd",
-                _ => false,
-            };
-            if !compression || uncompressed > self.limit {
-                return false;
-            }
-        }
-        self.boundary(file, end)
-    }
 }
+
+mod checks;
+mod declarations;
+mod shape;
 
 #[cfg(test)]
 mod tests;

@@ -14,7 +14,7 @@ use crate::formats::LoadDictionary;
 use std::path::Path;
 
 /// The prefix of a shipped file's path.
-pub const PREFIX: &str = "builtin:";
+pub const PREFIX: &str = crate::files::BUILTIN;
 
 /// One shipped file.
 #[derive(Debug)]
@@ -99,11 +99,17 @@ pub fn find(path: &Path) -> Option<Result<&'static Shipped, UnknownShipped>> {
     }))
 }
 
-/// Reads `path`: a shipped file's bytes for `builtin:NAME`, else the file's.
+/// The largest file [`read`] reads from the file system.
+const MAX_FILE_BYTES: u64 = 64 << 20;
+
+/// Reads `path`: a shipped file's bytes for `builtin:NAME`, else the file's (a regular
+/// file of at most 64 MiB, [`posestream_base::files::read_capped`]).
 pub fn read(path: &Path) -> std::io::Result<std::borrow::Cow<'static, [u8]>> {
     match find(path) {
         Some(found) => Ok(std::borrow::Cow::Borrowed(found?.bytes)),
-        None => std::fs::read(path).map(std::borrow::Cow::Owned),
+        None => {
+            posestream_base::files::read_capped(path, MAX_FILE_BYTES).map(std::borrow::Cow::Owned)
+        }
     }
 }
 

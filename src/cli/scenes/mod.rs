@@ -390,10 +390,7 @@ pub fn run(args: &ScenesArgs) -> Result<(), CliError> {
     };
     print!("{text}");
     if let Some(out) = &args.out {
-        std::fs::write(out, &text).map_err(|source| CliError::File {
-            path: out.clone(),
-            source,
-        })?;
+        posestream::files::write_output(out, &[], text.as_bytes())?;
     }
     Ok(())
 }

@@ -482,10 +482,7 @@ pub fn record(args: &ScenesArgs, index: usize, path: &std::path::Path) -> Result
         intrinsics
     );
     let config_path = std::path::PathBuf::from(format!("{}.toml", path.display()));
-    std::fs::write(&config_path, toml).map_err(|source| CliError::File {
-        path: config_path.clone(),
-        source,
-    })?;
+    posestream::files::write_output(&config_path, &[], toml.as_bytes())?;
     Ok(format!(
         "room {index} ({}): {} cameras, {} people, {} frames -> {}\nthe fusion's configuration -> {}\n",
         spec.name,

@@ -61,6 +61,19 @@ impl FusionNode {
                 return Err(refuse(format!("camera {name}: no frame id")));
             }
             None => {
+                // Two cameras in one frame: a mix-up of topics or of a camera's
+                // configuration; the second is refused until its frame is its own.
+                if let Some(other) = self
+                    .cameras
+                    .iter()
+                    .find(|c| c.frame_id.as_deref() == Some(frame))
+                {
+                    return Err(refuse(format!(
+                        "camera {name}: frame id {frame:?} is camera {}'s: each camera \
+                         needs a frame of its own",
+                        other.name
+                    )));
+                }
                 self.cameras[camera].frame_id = Some(frame.to_string());
                 self.update_rig();
             }

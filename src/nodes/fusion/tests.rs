@@ -168,6 +168,13 @@ fn hostile_frames_are_refused_by_kind_and_change_nothing() {
         assert!(node.heat_maps(0, msg, 1, &mut out).is_err(), "{kind}");
         assert_eq!(node.refused().of(kind), before + 1, "{kind}");
     }
+    // Camera b sending in camera a's frame (a mix-up of topics): refused, and b keeps
+    // no frame of its own yet.
+    let mixed = frame(&node, "a", 1_000_000_000);
+    let before = node.refused().of("camera");
+    assert!(node.heat_maps(1, &mixed, 1, &mut out).is_err());
+    assert_eq!(node.refused().of("camera"), before + 1);
+    assert_eq!(node.cameras()[1].frame_id, "");
     // Only the good frame was taken; the camera's frame id is still its own.
     assert_eq!(node.counters().frames, 1);
     assert_eq!(node.cameras()[0].frame_id, "a");

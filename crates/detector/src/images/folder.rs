@@ -3,7 +3,6 @@
 //! skipped; the frame numbers of the others stay those of their place in the folder, so
 //! the estimator sees the gap.
 
-use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
@@ -95,15 +94,13 @@ impl Source<ImageFrame> for FolderSource {
         };
         // Read through a bound: the file may grow while it is read.
         let limit = self.limits.max_record_bytes as u64;
-        let mut bytes = Vec::new();
-        std::fs::File::open(path)
-            .and_then(|f| f.take(limit + 1).read_to_end(&mut bytes))
-            .map_err(|e| malformed(e.to_string()))?;
-        if bytes.len() as u64 > limit {
-            return Err(malformed(format!(
-                "more than limits.max_record_bytes = {limit} bytes"
-            )));
-        }
+        let bytes = posestream_base::files::read_capped(path, limit).map_err(|e| {
+            if e.kind() == std::io::ErrorKind::InvalidData {
+                malformed(format!("more than limits.max_record_bytes = {limit} bytes"))
+            } else {
+                malformed(e.to_string())
+            }
+        })?;
         let rgb = super::decode_bytes(&bytes, &self.limits).map_err(malformed)?;
         Ok(ImageFrame::from_file(
             index,

@@ -41,8 +41,13 @@ fn program_error(program: &str, e: std::io::Error) -> String {
 
 /// Width, height and frames per second of the first video stream of `path`.
 pub fn probe(path: &Path) -> Result<(u32, u32, f64), TransportError> {
-    if !path.is_file() {
-        return Err(setup(path, "no such file"));
+    // A regular file only: a device or a FIFO would keep ffprobe waiting.
+    if let Err(e) = posestream_base::files::open_regular(path) {
+        let why = match e.kind() {
+            std::io::ErrorKind::NotFound => "no such file".to_string(),
+            _ => e.to_string(),
+        };
+        return Err(setup(path, why));
     }
     let out = Command::new("ffprobe")
         .args(["-v", "error", "-select_streams", "v:0"])
@@ -211,5 +216,23 @@ impl Drop for VideoSource {
             let _ = self.child.kill();
             let _ = self.child.wait();
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_device_or_a_link_to_one_is_named_for_what_it_is() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let link = dir.path().join("zero.mp4");
+        std::os::unix::fs::symlink("/dev/zero", &link).expect("link");
+        let e = probe(&link).expect_err("a device").to_string();
+        assert!(e.contains("character device"), "{e}");
+        let e = probe(&dir.path().join("none.mp4"))
+            .expect_err("missing")
+            .to_string();
+        assert!(e.contains("no such file"), "{e}");
     }
 }

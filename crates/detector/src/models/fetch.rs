@@ -109,7 +109,8 @@ impl ModelFile {
     /// a model without verifying it, and a damaged one can crash it. `Err`: why not.
     pub fn checked_original(self, dir: &Path) -> Result<PathBuf, String> {
         let path = self.original(dir);
-        let bytes = std::fs::read(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+        let bytes = posestream_base::files::read_capped(&path, DOWNLOAD_LIMIT)
+            .map_err(|e| format!("{}: {e}", path.display()))?;
         let found = sha256_hex(&bytes);
         if found == self.original_sha256() {
             Ok(path)
@@ -236,18 +237,7 @@ const DOWNLOAD_LIMIT: u64 = 128 << 20;
 
 /// `path`'s bytes if it holds at most `limit` (a file given for a download).
 fn read_at_most(path: &Path, limit: u64) -> Result<Vec<u8>, FetchError> {
-    let file = std::fs::File::open(path).map_err(io(path))?;
-    let mut bytes = Vec::new();
-    file.take(limit + 1)
-        .read_to_end(&mut bytes)
-        .map_err(io(path))?;
-    if bytes.len() as u64 > limit {
-        return Err(FetchError::Io {
-            path: path.to_path_buf(),
-            source: std::io::Error::other(format!("over {limit} bytes: not the file")),
-        });
-    }
-    Ok(bytes)
+    posestream_base::files::read_capped(path, limit).map_err(io(path))
 }
 
 /// `url`'s bytes, at most [`DOWNLOAD_LIMIT`].
@@ -645,7 +635,8 @@ pub fn fetch(
                 report
             }
             None if !todo.contains(&m) => {
-                let data = std::fs::read(&for_tract).map_err(io(&for_tract))?;
+                let data = posestream_base::files::read_capped(&for_tract, DOWNLOAD_LIMIT)
+                    .map_err(io(&for_tract))?;
                 let root = tract_tflite::tflite::root_as_model(&data).map_err(|e| {
                     FetchError::Rewrite {
                         file: for_tract.display().to_string(),
@@ -727,7 +718,7 @@ loadPackage({"files": [{"filename": "/third_party/mediapipe/modules/pose_detecti
         let big = dir.path().join("big.whl");
         std::fs::write(&big, vec![0u8; 4097]).expect("write");
         let err = read_at_most(&big, 4096).expect_err("refused");
-        assert!(err.to_string().contains("over 4096 bytes"), "{err}");
+        assert!(err.to_string().contains("longer than 4096 bytes"), "{err}");
         assert_eq!(read_at_most(&big, 4097).expect("read").len(), 4097);
         let empty = dir.path().join("empty.whl");
         std::fs::write(&empty, b"").expect("write");

@@ -158,8 +158,11 @@ pub fn save(
         path: path.to_path_buf(),
         source,
     })?;
-    std::fs::write(path, text).map_err(|source| DictionaryError::Io {
+    crate::files::write_output(path, &[], &text).map_err(|e| DictionaryError::Io {
         path: path.to_path_buf(),
-        source,
+        source: match e {
+            crate::files::OutputError::Io { source, .. } => source,
+            other => std::io::Error::other(other.to_string()),
+        },
     })
 }

@@ -18,9 +18,14 @@ use crate::error::DictionaryError;
 
 pub use intrinsics::LoadIntrinsics;
 
-/// Reads a user's file whole: the one place the formats here read from the file system.
+/// The largest dictionary or intrinsics file read (a dictionary of 1,024 bases of 100
+/// joints in JSON is about 10 MB).
+pub const MAX_FILE_BYTES: u64 = 64 << 20;
+
+/// Reads a user's file whole: the one place the formats here read from the file system
+/// (a regular file only, at most [`MAX_FILE_BYTES`]: [`posestream_base::files`]).
 pub(crate) fn read_file(path: &Path) -> std::io::Result<Vec<u8>> {
-    std::fs::read(path)
+    posestream_base::files::read_capped(path, MAX_FILE_BYTES)
 }
 
 /// A [`Dictionary`] loaded from a file.

@@ -34,9 +34,12 @@ pub fn write_rosbag2_metadata(summary: &RecordingSummary) -> Result<PathBuf, Rec
         summary.start_ns
     ));
     let path = dir.join("metadata.yaml");
-    std::fs::write(&path, yaml).map_err(|source| RecordingError::Io {
+    crate::files::write_output(&path, &[], yaml.as_bytes()).map_err(|e| RecordingError::Io {
         path: path.clone(),
-        source,
+        source: match e {
+            crate::files::OutputError::Io { source, .. } => source,
+            other => std::io::Error::other(other.to_string()),
+        },
     })?;
     Ok(path)
 }

@@ -22,8 +22,8 @@ pub use writer::Recorder;
 /// Errors of reading or writing a recording.
 #[derive(Debug, thiserror::Error)]
 pub enum RecordingError {
-    /// The file could not be opened, created or written.
-    #[error("{path}: {source}")]
+    /// The file could not be opened, created or written (a full disk named as such).
+    #[error("{path}: {}", crate::files::io_text(source))]
     Io {
         /// The file.
         path: PathBuf,
@@ -72,9 +72,11 @@ pub enum RecordingError {
     #[error(transparent)]
     OutputIsInput(#[from] crate::files::OutputIsInput),
     /// The recording could not be finished (a write failed, e.g. the disk is full): the
-    /// messages written before are in `partial`, readable up to its last complete chunk.
+    /// messages written before are in `partial`, up to its last complete chunk (counted
+    /// by reading it back: `readable`).
     #[error(
-        "{path}: the recording could not be finished ({reason}); what was written is in {partial} (readable up to its last complete chunk)"
+        "{path}: the recording could not be finished ({reason}); {}",
+        kept(partial, *readable)
     )]
     Unfinished {
         /// The output asked for (left as it was).
@@ -83,6 +85,8 @@ pub enum RecordingError {
         partial: PathBuf,
         /// The first failure.
         reason: String,
+        /// Messages `partial` holds that can be read (in its complete chunks).
+        readable: u64,
     },
     /// A message could not be encoded.
     #[error(transparent)]
@@ -100,4 +104,20 @@ pub struct RecordingSummary {
     pub start_ns: u64,
     /// Latest log time, nanoseconds.
     pub end_ns: u64,
+}
+
+/// What a recording that could not be finished left, as read back.
+fn kept(partial: &std::path::Path, readable: u64) -> String {
+    if readable == 0 {
+        format!(
+            "{} holds no readable message (no chunk was complete)",
+            partial.display()
+        )
+    } else {
+        format!(
+            "what was written is in {}: {readable} messages, readable by `posestream replay` \
+             or `recover`",
+            partial.display()
+        )
+    }
 }

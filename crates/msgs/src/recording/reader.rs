@@ -7,10 +7,6 @@ use std::fs::File;
 use std::io::{Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 
-use mcap::McapError;
-use mcap::records::Record;
-use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
-
 use super::RecordingError;
 use crate::RosMessage;
 
@@ -27,28 +23,31 @@ pub struct RecordedMessage {
     pub data: Vec<u8>,
 }
 
-/// Reads a recording front to back, one message at a time.
+/// Reads a recording front to back, one message at a time, through the salvage reader
+/// ([`crate::salvage::Salvager`]): strict (the default) or reading on past damage
+/// ([`RecordingReader::salvaging`]).
 ///
-/// Every record length and every chunk's compressed and decompressed size is checked
-/// against a limit before anything of that size is allocated
-/// ([`crate::limits::Limits::max_record_bytes`]), and every chunk's CRC is checked before
-/// any message of it is yielded: a corrupt chunk ends reading with
-/// [`RecordingError::Corrupt`], never yields its messages.
+/// Both read the same way and under the same limits: every record length and every
+/// chunk's compressed and decompressed size is checked against
+/// [`crate::limits::Limits::max_record_bytes`] before anything of that size is allocated,
+/// and every chunk's CRC before any message of it is yielded. Where reading on past damage
+/// would skip something (and say so), a strict reader ends with one error instead:
+/// [`RecordingError::Truncated`] for a file cut short (every message before the cut was
+/// read), [`RecordingError::Corrupt`] for anything else, naming the damage and its bytes;
+/// it never yields a message of a damaged chunk. A strict reader also checks that the
+/// first record is an MCAP header, the data section's CRC and the summary's.
 pub struct RecordingReader<R = RecordingInput> {
     path: PathBuf,
     file: R,
-    reader: LinearReader,
+    salvage: crate::salvage::Salvager,
+    strict: bool,
+    /// The first record is not an MCAP header (a strict reader's first error).
+    no_header: bool,
     channels: BTreeMap<u16, (String, u16)>,
     schemas: BTreeMap<u16, String>,
     messages: u64,
-    /// Whether the first record (an MCAP header) has been read.
-    seen_header: bool,
-    /// Bytes handed to the MCAP reader so far (it asks for what it needs, no more).
-    fed: u64,
     max_record_bytes: usize,
     done: bool,
-    /// Reading on past damage ([`RecordingReader::salvaging`]).
-    salvage: Option<crate::salvage::Salvager>,
 }
 
 /// The MCAP magic every recording starts with.
@@ -65,11 +64,12 @@ pub enum RecordingInput {
 }
 
 impl RecordingInput {
-    /// Opens `path`: a file, or a shipped recording (`builtin:recordings/NAME.mcap`).
+    /// Opens `path`: a regular file ([`posestream_base::files::open_regular`]: not a
+    /// device or a FIFO), or a shipped recording (`builtin:recordings/NAME.mcap`).
     pub fn open(path: &Path) -> std::io::Result<Self> {
         Ok(match crate::shipped::find(path) {
             Some(shipped) => RecordingInput::Shipped(std::io::Cursor::new(shipped?.bytes)),
-            None => RecordingInput::File(File::open(path)?),
+            None => RecordingInput::File(posestream_base::files::open_regular(path)?),
         })
     }
 }
@@ -154,25 +154,26 @@ impl<R: Read + Seek> RecordingReader<R> {
                 reason: "the file ends inside the MCAP magic".into(),
             });
         }
-        // The reader checks the magic again and counts it into the data section's CRC.
-        file.seek(SeekFrom::Start(0)).map_err(io)?;
-        let options = LinearReaderOptions::default()
-            .with_prevalidate_chunk_crcs(true)
-            .with_validate_data_section_crc(true)
-            .with_validate_summary_section_crc(true)
-            .with_record_length_limit(max_record_bytes);
+        // An MCAP file's first record is its header.
+        let mut first = [0_u8; 1];
+        let first = match file.read(&mut first).map_err(io)? {
+            0 => None,
+            _ => Some(first[0]),
+        };
+        let mut salvage = crate::salvage::Salvager::new(&mut file, max_record_bytes).map_err(io)?;
+        salvage.checking_data_crc();
+        salvage.stopping_at_damage();
         Ok(Self {
             path,
             file,
-            reader: LinearReader::new_with_options(options),
+            salvage,
+            strict: true,
+            no_header: first.is_some_and(|op| op != mcap::records::op::HEADER),
             channels: BTreeMap::new(),
             schemas: BTreeMap::new(),
             messages: 0,
-            seen_header: false,
-            fed: 0,
             max_record_bytes,
             done: false,
-            salvage: None,
         })
     }
 
@@ -180,20 +181,17 @@ impl<R: Read + Seek> RecordingReader<R> {
     /// ([`crate::salvage`]): a damaged chunk, a record over the limit, a lying length, an
     /// end cut short are skipped and counted ([`RecordingReader::skips`]), and
     /// [`RecordingReader::next_message`] never fails. Without it (strict), reading ends
-    /// at the first damage with its error.
+    /// at the first damage with its error. (It does not fail: a `Result` for the callers
+    /// that once opened the file here.)
     pub fn salvaging(mut self) -> Result<Self, RecordingError> {
-        let salvager = crate::salvage::Salvager::new(&mut self.file, self.max_record_bytes)
-            .map_err(|source| RecordingError::Io {
-                path: self.path.clone(),
-                source,
-            })?;
-        self.salvage = Some(salvager);
+        self.strict = false;
+        self.salvage.reading_on();
         Ok(self)
     }
 
     /// What reading on past damage skipped so far (`None`: a strict reader).
     pub fn skips(&self) -> Option<&crate::salvage::Skips> {
-        self.salvage.as_ref().map(crate::salvage::Salvager::skips)
+        (!self.strict).then(|| self.salvage.skips())
     }
 
     /// Messages read so far.
@@ -236,9 +234,9 @@ impl<R: Read + Seek> RecordingReader<R> {
     }
 
     /// [`RecordingReader::next_message`] written over `out` (its topic, schema and data
-    /// buffers reused): reading a recording strictly allocates nothing per message once
-    /// warm; reading on past damage, one buffer (the message's bytes as the salvage reader
-    /// copied them out of their chunk).
+    /// buffers reused; the payload buffer handed back to the salvage reader, which copies
+    /// the next message's bytes over it): once warm, reading allocates a chunk's
+    /// decompressed records at most.
     pub fn next_message_into(
         &mut self,
         out: &mut RecordedMessage,
@@ -246,168 +244,109 @@ impl<R: Read + Seek> RecordingReader<R> {
         if self.done {
             return None;
         }
-        if let Some(salvage) = &mut self.salvage {
-            let Some(m) = salvage.next_message(&mut self.file) else {
-                self.done = true;
-                return None;
-            };
-            let channel = salvage.channel(m.channel);
-            let schema_id = channel.map_or(0, |c| c.schema_id);
-            let schema = salvage.schema(schema_id).map_or("", |s| s.name.as_str());
-            if let std::collections::btree_map::Entry::Vacant(e) = self.channels.entry(m.channel) {
-                e.insert((
-                    channel.map_or_else(String::new, |c| c.topic.clone()),
-                    schema_id,
-                ));
-                self.schemas.insert(schema_id, schema.to_owned());
-            }
-            self.messages += 1;
-            out.topic.clear();
-            out.topic.push_str(channel.map_or("", |c| c.topic.as_str()));
-            out.schema.clear();
-            out.schema.push_str(schema);
-            out.log_time_ns = m.log_time;
-            // The payload read before goes back to be written over.
-            let before = std::mem::replace(&mut out.data, m.data);
-            salvage.recycle(before);
-            return Some(Ok(()));
-        }
-        // The mcap crate's calls are contained (`reader_failed`): a panic there is a
-        // corrupt file, not the end of the process.
-        let result = self.advance(out);
-        if !matches!(result, Some(Ok(()))) {
+        if self.strict && self.no_header {
             self.done = true;
+            return Some(Err(RecordingError::NotMcap {
+                path: self.path.clone(),
+                reason: "its first record is not an MCAP header".into(),
+            }));
         }
-        result
+        let skipped = self.salvage.skips().total();
+        let next = self.salvage.next_message(&mut self.file);
+        if self.strict && self.salvage.skips().total() > skipped {
+            // What reading on past damage would skip ends a strict read (nothing of the
+            // damaged record is yielded: its messages came in this call).
+            self.done = true;
+            return Some(Err(self.damaged()));
+        }
+        let Some(m) = next else {
+            self.done = true;
+            return self.strict.then(|| self.end_checks()).flatten().map(Err);
+        };
+        let salvage = &mut self.salvage;
+        let channel = salvage.channel(m.channel);
+        let schema_id = channel.map_or(0, |c| c.schema_id);
+        let schema = salvage.schema(schema_id).map_or("", |s| s.name.as_str());
+        if let std::collections::btree_map::Entry::Vacant(e) = self.channels.entry(m.channel) {
+            e.insert((
+                channel.map_or_else(String::new, |c| c.topic.clone()),
+                schema_id,
+            ));
+            self.schemas.insert(schema_id, schema.to_owned());
+        }
+        self.messages += 1;
+        out.topic.clear();
+        out.topic.push_str(channel.map_or("", |c| c.topic.as_str()));
+        out.schema.clear();
+        out.schema.push_str(schema);
+        out.log_time_ns = m.log_time;
+        // The payload read before goes back to be written over.
+        let before = std::mem::replace(&mut out.data, m.data);
+        salvage.recycle(before);
+        Some(Ok(()))
     }
 
-    fn advance(&mut self, out: &mut RecordedMessage) -> Option<Result<(), RecordingError>> {
-        loop {
-            let reader = &mut self.reader;
-            let event = match posestream_base::contain_panics(move || reader.next_event()) {
-                Ok(next) => match next? {
-                    Ok(e) => e,
-                    Err(e) => return Some(Err(self.classify(e))),
-                },
-                Err(panic) => return Some(Err(self.reader_failed(panic))),
-            };
-            match event {
-                LinearReadEvent::ReadRequest(need) => {
-                    let buf = self.reader.insert(need);
-                    match self.file.read(buf) {
-                        Ok(n) => {
-                            self.reader.notify_read(n);
-                            self.fed += n as u64;
+    /// The error a strict reader ends with where reading on past damage skipped.
+    fn damaged(&self) -> RecordingError {
+        use crate::salvage::Damage;
+        let skips = self.salvage.skips();
+        // The first skip: its range, or (a skip without bytes of its own) its kind.
+        let range = skips.ranges.first();
+        let kind = range
+            .map(|r| r.kind)
+            .or_else(|| skips.counts.keys().next().copied());
+        let kind = kind.unwrap_or(Damage::Unparsable);
+        let place = range.map_or_else(String::new, |r| format!(" at bytes {}-{}", r.from, r.to));
+        let what = match kind {
+            Damage::CutShort => {
+                let reason = match range {
+                    Some(r) if r.from < r.to && r.to - r.from < 9 => format!(
+                        "the file ends in {} after its last record, too few for one",
+                        match r.to - r.from {
+                            1 => "1 byte".to_string(),
+                            n => format!("{n} bytes"),
                         }
-                        Err(source) => {
-                            return Some(Err(RecordingError::Io {
-                                path: self.path.clone(),
-                                source,
-                            }));
-                        }
+                    ),
+                    Some(r) if r.from < r.to => {
+                        format!(
+                            "the file ends inside the record at bytes {}-{}",
+                            r.from, r.to
+                        )
                     }
-                }
-                LinearReadEvent::Record { opcode, data } => {
-                    let record = match posestream_base::contain_panics(|| {
-                        mcap::parse_record(opcode, data)
-                    }) {
-                        Ok(Ok(r)) => r,
-                        Ok(Err(e)) => return Some(Err(self.corrupt(e.to_string()))),
-                        Err(panic) => return Some(Err(self.reader_failed(panic))),
-                    };
-                    if !self.seen_header {
-                        if !matches!(record, Record::Header(_)) {
-                            return Some(Err(RecordingError::NotMcap {
-                                path: self.path.clone(),
-                                reason: "its first record is not an MCAP header".into(),
-                            }));
-                        }
-                        self.seen_header = true;
-                    }
-                    match record {
-                        Record::Schema { header, .. } => {
-                            self.schemas.insert(header.id, header.name);
-                        }
-                        Record::Channel(c) => {
-                            self.channels.insert(c.id, (c.topic, c.schema_id));
-                        }
-                        Record::Message { header, data } => {
-                            let Some((topic, schema)) = self.channels.get(&header.channel_id)
-                            else {
-                                return Some(Err(self.corrupt(format!(
-                                    "message on unknown channel {}",
-                                    header.channel_id
-                                ))));
-                            };
-                            out.topic.clear();
-                            out.topic.push_str(topic);
-                            out.schema.clear();
-                            out.schema
-                                .push_str(self.schemas.get(schema).map_or("", String::as_str));
-                            out.log_time_ns = header.log_time;
-                            out.data.clear();
-                            out.data.extend_from_slice(&data);
-                            self.messages += 1;
-                            return Some(Ok(()));
-                        }
-                        _ => {}
-                    }
-                }
+                    _ => "the file ends after its last record, without a footer".into(),
+                };
+                return self.truncated(reason);
             }
-        }
+            Damage::OverLimit => format!(
+                "a record beyond limits.max_record_bytes = {}",
+                self.max_record_bytes
+            ),
+            Damage::BadCrc => "a chunk whose CRC does not match its records".into(),
+            Damage::NotDecompressed => {
+                "a chunk that does not decompress to the size it says".into()
+            }
+            Damage::Unparsable => "a record that does not parse, an opcode MCAP does not \
+                                   have, or another record where the index has a chunk"
+                .into(),
+            Damage::LyingLength => "a length that does not lead to the next record".into(),
+            Damage::UnknownChannel => "a message on a channel never declared".into(),
+        };
+        self.corrupt(format!(
+            "{what}{place} (read past it without strict, or copy the rest with `posestream recover`)"
+        ))
     }
 
-    /// The `mcap` crate panicked on this record (its arithmetic overflows on some
-    /// malformed chunks: found by fuzzing, `linear_reader.rs:745`; release builds wrap and
-    /// then fail further on): a corrupt file.
-    fn reader_failed(&self, panic: String) -> RecordingError {
-        self.corrupt(format!("the MCAP reader failed on this record ({panic})"))
-    }
-
-    /// What a failure of the MCAP reader means: the file cut short, or corrupt.
-    fn classify(&mut self, e: McapError) -> RecordingError {
-        match e {
-            McapError::UnexpectedEof => self.truncated("the file ends inside a record".into()),
-            _ if self.ends_in_unfinished_chunk() => {
-                self.truncated("the file ends in a chunk its recorder never finished".into())
-            }
-            McapError::RecordTooLarge { .. } | McapError::ChunkTooLarge(_) => {
-                self.corrupt(format!(
-                    "{e}: beyond limits.max_record_bytes = {}",
-                    self.max_record_bytes
-                ))
-            }
-            e => self.corrupt(e.to_string()),
+    /// What a strict reader checks once every message was read: the data section's CRC,
+    /// the summary's and the closing magic.
+    fn end_checks(&mut self) -> Option<RecordingError> {
+        if let Some((recorded, computed)) = self.salvage.data_crc_mismatch() {
+            return Some(self.corrupt(format!(
+                "the data section's CRC does not match (recorded {recorded:#010x}, computed \
+                 {computed:#010x})"
+            )));
         }
-    }
-
-    /// True if the file's last top-level record is a chunk still holding the
-    /// placeholder header the MCAP writer puts down when it starts one (length, sizes and
-    /// CRC all ones), and the reader failed inside it: a recorder killed mid-chunk left
-    /// it, which is a file cut short, not a corrupt one. Reads only record headers.
-    fn ends_in_unfinished_chunk(&mut self) -> bool {
-        const CHUNK: u8 = 0x06;
-        const FOOTER: u8 = 0x02;
-        let mut at = MAGIC.len() as u64;
-        loop {
-            let mut head = [0_u8; 9 + 24];
-            if self.file.seek(SeekFrom::Start(at)).is_err()
-                || self.file.read_exact(&mut head[..9]).is_err()
-            {
-                return false;
-            }
-            let len = u64::from_le_bytes(head[1..9].try_into().unwrap_or_default());
-            if head[0] == CHUNK && len == u64::MAX {
-                // start time, end time, uncompressed size: the last one is all ones.
-                let placeholder =
-                    self.file.read_exact(&mut head[9..]).is_ok() && head[25..33] == [0xff; 8];
-                return placeholder && self.fed > at;
-            }
-            match at.checked_add(9).and_then(|a| a.checked_add(len)) {
-                Some(next) if head[0] != FOOTER => at = next,
-                _ => return false,
-            }
-        }
+        let reason = self.salvage.end_mismatch(&mut self.file)?;
+        Some(self.corrupt(reason))
     }
 
     fn truncated(&self, reason: String) -> RecordingError {

@@ -12,6 +12,19 @@ use mcap::{Compression, WriteOptions, Writer};
 use super::{RecordingError, RecordingSummary};
 use crate::RosMessage;
 
+/// Messages of the complete chunks of a file being written, read back (a recording that
+/// could not be finished says what of it can be used, not what should).
+fn readable(partial: &Path) -> u64 {
+    let Ok(mut file) = File::open(partial) else {
+        return 0;
+    };
+    let limit = crate::limits::Limits::default().max_record_bytes;
+    let Ok(mut salvager) = crate::salvage::Salvager::new(&mut file, limit) else {
+        return 0;
+    };
+    std::iter::from_fn(|| salvager.next_message(&mut file)).count() as u64
+}
+
 /// Writes messages of any [`RosMessage`] type to an MCAP file.
 ///
 /// The file is written under a temporary name beside the output
@@ -61,6 +74,8 @@ impl Recorder {
                 "is not a regular file (a device or a pipe): give a file's path",
             )));
         }
+        // Never onto a file this process read (a configuration, a take, a mapping).
+        crate::files::check_output(&path, &[])?;
         let (partial, file) = crate::files::create_partial(&path).map_err(io)?;
         let writer = WriteOptions::new()
             .profile("ros2")
@@ -282,6 +297,7 @@ impl Recorder {
             path: path.clone(),
             partial: partial.clone(),
             reason,
+            readable: readable(&partial),
         };
         std::fs::rename(&partial, &path).map_err(|e| unfinished(e.to_string()))?;
         // The rename itself is durable once the folder is.
@@ -308,19 +324,22 @@ impl Recorder {
             return Err(self.failure(reason));
         }
         if let Err(e) = self.writer.finish() {
-            return Err(self.failure(e.to_string()));
+            let reason = self.mcap_error(e).to_string();
+            return Err(self.failure(reason));
         }
-        let failure = |reason: String| RecordingError::Unfinished {
-            path: self.path.clone(),
-            partial: self.partial.clone(),
-            reason,
+        let (path, partial) = (self.path.clone(), self.partial.clone());
+        let failure = |e: &std::io::Error| RecordingError::Unfinished {
+            path: path.clone(),
+            partial: partial.clone(),
+            reason: crate::files::io_text(e),
+            readable: readable(&partial),
         };
         let file = self
             .writer
             .into_inner()
             .into_inner()
-            .map_err(|e| failure(e.error().to_string()))?;
-        file.sync_all().map_err(|e| failure(e.to_string()))
+            .map_err(|e| failure(e.error()))?;
+        file.sync_all().map_err(|e| failure(&e))
     }
 
     /// Drops the recording: nothing of value was written; the temporary file is removed
@@ -336,13 +355,22 @@ impl Recorder {
             path: self.path.clone(),
             partial: self.partial.clone(),
             reason,
+            readable: readable(&self.partial),
         }
     }
 
     fn mcap_error(&self, source: mcap::McapError) -> RecordingError {
-        RecordingError::Mcap {
-            path: self.partial.clone(),
-            source,
+        match source {
+            // A write that failed: said as what it is (a full disk, a quota), not as the
+            // library's "I/O error from writing, or reading a compression stream".
+            mcap::McapError::Io(source) => RecordingError::Io {
+                path: self.partial.clone(),
+                source,
+            },
+            source => RecordingError::Mcap {
+                path: self.partial.clone(),
+                source,
+            },
         }
     }
 }

@@ -357,3 +357,17 @@ fn a_summary_names_kinds_counts_and_ranges() {
     assert_eq!(s.ranges.len(), MAX_RANGES);
     assert_eq!(s.total(), 103);
 }
+
+#[test]
+fn the_summary_says_bytes_only_where_bytes_were_skipped() {
+    let mut skips = Skips::default();
+    for _ in 0..121 {
+        skips.note(Damage::UnknownChannel);
+    }
+    assert_eq!(skips.summary(), "121 skipped (121 unknown channel)");
+    skips.add(Damage::BadCrc, 100, 300);
+    assert_eq!(
+        skips.summary(),
+        "122 skipped (1 CRC mismatch, 121 unknown channel; 200 bytes): bytes 100-300"
+    );
+}

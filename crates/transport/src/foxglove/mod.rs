@@ -14,12 +14,17 @@
 //! to its channel, and none over [`LiveView::MAX_MESSAGE_BYTES`] is shown (counted);
 //! each viewer has a queue of [`LiveView::BACKLOG`] messages, and when a viewer falls
 //! behind the server drops its oldest ones (the viewer stays connected and is not told).
-//! The crate's server takes any number of clients, so the address a user names is ours
-//! ([`pass_viewers`]): a connection is passed on to the server (listening on the loopback
-//! interface) once it has sent its whole WebSocket upgrade request within
-//! [`LiveView::HANDSHAKE`], while fewer than [`LiveView::MAX_VIEWERS`] viewers are
-//! connected; the others are closed and counted ([`LiveView::refused`]). So at most
-//! `MAX_VIEWERS x BACKLOG x MAX_MESSAGE_BYTES` are queued for viewers, whatever they do.
+//! The crate's server takes any number of clients, with no bound on what a client sends
+//! it, so the address a user names is a door of ours in front of it (`door.rs`): a
+//! connection becomes a viewer only by a WebSocket upgrade to the protocol within
+//! [`LiveView::HANDSHAKE`], while fewer than [`LiveView::MAX_VIEWERS`] are connected
+//! (anything else gets its HTTP status and is closed, [`LiveView::refused`]); a viewer's
+//! messages are at most [`wire::MAX_VIEWER_MESSAGE`], its unanswered pings at most
+//! [`LiveView::MAX_UNANSWERED`], a viewer that stops reading is ended after
+//! [`LiveView::STALLED`], and one that answers none of the door's pings (one every
+//! [`LiveView::KEEPALIVE`]) before the next is due ([`LiveView::dropped`]). So at most `MAX_VIEWERS x BACKLOG x
+//! MAX_MESSAGE_BYTES` are queued for viewers and `MAX_VIEWERS x MAX_VIEWER_MESSAGE` come
+//! from them, whatever they do (docs/limits.md, "Live view").
 
 use std::collections::BTreeMap;
 use std::marker::PhantomData;
@@ -30,6 +35,9 @@ use std::sync::{Arc, Mutex};
 use foxglove::{ChannelBuilder, Context, PartialMetadata, RawChannel, Schema, WebSocketServer};
 
 use super::{EncodedSink, Message, Sink, TransportError};
+
+mod door;
+pub mod wire;
 
 const TRANSPORT: &str = "foxglove";
 
@@ -46,7 +54,7 @@ struct Inner {
     context: Arc<Context>,
     channels: Mutex<BTreeMap<String, Arc<RawChannel>>>,
     address: SocketAddr,
-    refused: Arc<AtomicU64>,
+    door: Arc<door::Counts>,
     /// Messages not shown for their size.
     oversized: Arc<AtomicU64>,
     server: Mutex<Option<foxglove::WebSocketServerHandle>>,
@@ -56,16 +64,29 @@ struct Inner {
 
 impl LiveView {
     /// Messages queued for one viewer at most (the oldest are dropped beyond).
-    pub const BACKLOG: usize = 32;
+    pub const BACKLOG: usize = 16;
 
     /// The largest message shown (encoded); larger ones are counted and not shown.
-    pub const MAX_MESSAGE_BYTES: usize = 2 << 20;
+    pub const MAX_MESSAGE_BYTES: usize = 1 << 20;
 
     /// How long a new connection may take to send its WebSocket upgrade request.
     pub const HANDSHAKE: std::time::Duration = std::time::Duration::from_secs(5);
 
-    /// Connections waiting for their upgrade request at once, at most (more are closed).
+    /// Connections waiting for their upgrade request at once, at most (a new one
+    /// displaces the one waiting longest).
     pub const MAX_PENDING: usize = 64;
+
+    /// Pings a viewer may have sent that the server has not answered yet (beyond, the
+    /// viewer is ended: it does not read its pongs).
+    pub const MAX_UNANSWERED: i64 = 16;
+
+    /// How often the door pings each viewer; a viewer that has not answered the last ping
+    /// when the next is due is ended (it does not read, or is gone), so an idle
+    /// connection holds a viewer's place no longer than twice this.
+    pub const KEEPALIVE: std::time::Duration = std::time::Duration::from_secs(5);
+
+    /// How long a viewer may take nothing that is sent to it before it is ended.
+    pub const STALLED: std::time::Duration = std::time::Duration::from_secs(10);
 
     /// Viewers connected at once at most; more are closed at once and counted.
     pub const MAX_VIEWERS: usize = 8;
@@ -96,15 +117,15 @@ impl LiveView {
             .start_blocking()
             .map_err(|e| setup(address, e.to_string()))?;
         let inner = SocketAddr::from(([127, 0, 0, 1], handle.port()));
-        let refused = Arc::new(AtomicU64::new(0));
-        runtime.spawn(pass_viewers(front, inner, refused.clone()));
+        let door = Arc::new(door::Counts::default());
+        runtime.spawn(door::pass_viewers(front, inner, door.clone()));
         let oversized = Arc::new(AtomicU64::new(0));
         Ok(Self {
             inner: Arc::new(Inner {
                 context,
                 channels: Mutex::new(BTreeMap::new()),
                 address: bound,
-                refused,
+                door,
                 oversized,
                 server: Mutex::new(Some(handle)),
                 runtime: Mutex::new(Some(runtime)),
@@ -112,10 +133,19 @@ impl LiveView {
         })
     }
 
-    /// Connections closed because [`LiveView::MAX_VIEWERS`] were open, or that sent no
-    /// upgrade request in time.
+    /// Connections closed before they became viewers: [`LiveView::MAX_VIEWERS`] were
+    /// open, they sent no upgrade request in time (or were displaced by newer ones while
+    /// [`LiveView::MAX_PENDING`] waited), or what they sent was not an upgrade to the
+    /// protocol.
     pub fn refused(&self) -> u64 {
-        self.inner.refused.load(Ordering::Relaxed)
+        self.inner.door.refused.load(Ordering::Relaxed)
+    }
+
+    /// Viewers ended by the door: a message over [`wire::MAX_VIEWER_MESSAGE`] or a frame
+    /// that breaks the protocol, more than [`LiveView::MAX_UNANSWERED`] pings unanswered,
+    /// or nothing read for [`LiveView::STALLED`].
+    pub fn dropped(&self) -> u64 {
+        self.inner.door.dropped.load(Ordering::Relaxed)
     }
 
     /// Messages not shown because they were over [`LiveView::MAX_MESSAGE_BYTES`].
@@ -270,86 +300,6 @@ fn bind_error(address: SocketAddr, e: &std::io::Error) -> String {
     }
 }
 
-/// Accepts viewers on `front` and passes each to the server on `server` once it has sent
-/// its whole upgrade request within [`LiveView::HANDSHAKE`], while fewer than
-/// [`LiveView::MAX_VIEWERS`] are connected; closes (and counts) the others. Connections
-/// still sending their request are [`LiveView::MAX_PENDING`] at most.
-async fn pass_viewers(front: tokio::net::TcpListener, server: SocketAddr, refused: Arc<AtomicU64>) {
-    let viewers = Arc::new(tokio::sync::Semaphore::new(LiveView::MAX_VIEWERS));
-    let pending = Arc::new(tokio::sync::Semaphore::new(LiveView::MAX_PENDING));
-    loop {
-        let (mut viewer, from) = match front.accept().await {
-            Ok(v) => v,
-            Err(e) => {
-                // Out of file descriptors and the like: wait, then go on.
-                tracing::debug!("live view: accepting a viewer: {e}");
-                tokio::time::sleep(std::time::Duration::from_millis(100)).await;
-                continue;
-            }
-        };
-        let Ok(waiting) = pending.clone().try_acquire_owned() else {
-            refuse(
-                &refused,
-                from,
-                "too many connections are still to say what they are",
-            );
-            continue;
-        };
-        let (viewers, refused) = (viewers.clone(), refused.clone());
-        tokio::spawn(async move {
-            let asked = tokio::time::timeout(LiveView::HANDSHAKE, upgrade_request(&mut viewer));
-            let complete = matches!(asked.await, Ok(Ok(true)));
-            drop(waiting);
-            if !complete {
-                refuse(
-                    &refused,
-                    from,
-                    "it sent no WebSocket upgrade request in time",
-                );
-                return;
-            }
-            let Ok(_slot) = viewers.try_acquire_owned() else {
-                let why = format!("{} viewers are connected", LiveView::MAX_VIEWERS);
-                refuse(&refused, from, &why);
-                return;
-            };
-            if let Ok(mut upstream) = tokio::net::TcpStream::connect(server).await {
-                let _ = tokio::io::copy_bidirectional(&mut viewer, &mut upstream).await;
-            }
-        });
-    }
-}
-
-/// Waits until `viewer` has sent a whole HTTP request head (up to a blank line), at most
-/// 16 kB, without taking it off the socket (the server reads it). True when it came.
-async fn upgrade_request(viewer: &mut tokio::net::TcpStream) -> std::io::Result<bool> {
-    let mut head = vec![0_u8; 16 << 10];
-    loop {
-        let n = viewer.peek(&mut head).await?;
-        if n == 0 {
-            return Ok(false);
-        }
-        if head[..n].windows(4).any(|w| w == b"\r\n\r\n") {
-            return Ok(true);
-        }
-        if n == head.len() {
-            return Ok(false);
-        }
-        // More is on its way: wait a little instead of peeking at the same bytes again.
-        tokio::time::sleep(std::time::Duration::from_millis(10)).await;
-    }
-}
-
-/// Counts a refused connection; says so (with why) the first time.
-fn refuse(refused: &AtomicU64, from: SocketAddr, why: &str) {
-    if refused.fetch_add(1, Ordering::Relaxed) == 0 {
-        tracing::warn!(
-            "live view: closed the connection of {from}: {why} (further ones are counted, \
-             not logged)"
-        );
-    }
-}
-
 fn setup(address: SocketAddr, reason: String) -> TransportError {
     TransportError::Setup {
         transport: TRANSPORT,
@@ -484,6 +434,99 @@ mod tests {
         assert!(eventually(|| live.clients() == 1));
         assert_eq!(live.refused(), all);
         drop(silent);
+        live.stop();
+    }
+
+    /// Reads what the door sends a viewer for `for_` and answers each of its pings with
+    /// its payload (a masked pong), as a browser does; false if the door closed the
+    /// connection.
+    fn answer_pings(s: &mut std::net::TcpStream, for_: std::time::Duration) -> bool {
+        use std::io::Read;
+        let end = std::time::Instant::now() + for_;
+        s.set_read_timeout(Some(std::time::Duration::from_millis(100)))
+            .expect("timeout");
+        let (mut stream, mut head_done) = (Vec::new(), false);
+        let mut buf = [0_u8; 64 << 10];
+        while std::time::Instant::now() < end {
+            match s.read(&mut buf) {
+                Ok(0) => return false,
+                Ok(n) => stream.extend_from_slice(&buf[..n]),
+                Err(_) => continue,
+            }
+            // The upgrade's response head comes first, then the server's frames.
+            if !head_done {
+                match wire::head_end(&stream) {
+                    Ok(Some(at)) => {
+                        stream.drain(..at);
+                        head_done = true;
+                    }
+                    _ => continue,
+                }
+            }
+            while let Some(&[b0, b1]) = stream.get(..2) {
+                let (len, at) = match b1 & 0x7f {
+                    126 => match stream.get(2..4) {
+                        Some(l) => (u16::from_be_bytes([l[0], l[1]]) as usize, 4),
+                        None => break,
+                    },
+                    127 => match stream.get(2..10) {
+                        Some(l) => (u64::from_be_bytes(l.try_into().expect("8")) as usize, 10),
+                        None => break,
+                    },
+                    short => (short as usize, 2),
+                };
+                let Some(payload) = stream.get(at..at + len) else {
+                    break;
+                };
+                if b0 & 0x0f == 0x9 {
+                    let mask = [1_u8, 2, 3, 4];
+                    let mut pong = vec![0x8a, 0x80 | len as u8];
+                    pong.extend_from_slice(&mask);
+                    pong.extend(payload.iter().enumerate().map(|(i, b)| b ^ mask[i % 4]));
+                    s.write_all(&pong).expect("pong");
+                }
+                stream.drain(..at + len);
+            }
+        }
+        true
+    }
+
+    /// A viewer's empty pong (masked), answering nothing.
+    const EMPTY_PONG: [u8; 6] = [0x8a, 0x80, 1, 2, 3, 4];
+
+    #[test]
+    fn idle_viewers_that_answer_no_ping_give_their_places_back() {
+        let live = LiveView::serve("127.0.0.1:0".parse().expect("address")).expect("serves");
+        let address = live.address();
+        // Seven upgrade and then neither read nor answer (three of them after sending
+        // pongs ahead, to no ping); one answers the door's pings.
+        let idle: Vec<std::net::TcpStream> = (0..LiveView::MAX_VIEWERS - 1)
+            .map(|i| {
+                let mut s = upgrade(address);
+                if i < 3 {
+                    std::thread::sleep(std::time::Duration::from_millis(200));
+                    for _ in 0..100 {
+                        s.write_all(&EMPTY_PONG).expect("pong");
+                    }
+                }
+                s
+            })
+            .collect();
+        let mut alive = upgrade(address);
+        assert!(eventually(|| live.clients() == LiveView::MAX_VIEWERS));
+        let _ninth = upgrade(address);
+        assert!(eventually(|| live.refused() == 1), "{}", live.refused());
+        // Within two pings' time the silent ones are ended; the one answering stays.
+        assert!(answer_pings(
+            &mut alive,
+            2 * LiveView::KEEPALIVE + std::time::Duration::from_secs(1)
+        ));
+        assert!(eventually(|| live.clients() == 1), "{}", live.clients());
+        assert_eq!(live.dropped(), LiveView::MAX_VIEWERS as u64 - 1);
+        let _tenth = upgrade(address);
+        assert!(eventually(|| live.clients() == 2));
+        assert!(answer_pings(&mut alive, std::time::Duration::from_secs(1)));
+        drop(idle);
         live.stop();
     }
 
