@@ -1825,3 +1825,111 @@ fn a_short_recording_played_again_is_a_new_track_each_pass() {
     assert_eq!(e["counters"]["late"], 0, "{report}");
     assert_eq!(e["skeletons"], 30, "{report}");
 }
+
+#[test]
+fn a_summary_or_a_copy_cannot_make_reading_lose_or_repeat_frames() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (_, bytes) = chunked(dir.path());
+    let (all, _) = read_on(&dir.path().join("chunked.mcap"));
+    let recs = records(&bytes);
+    let footer = bytes.len() - 37;
+    let data_end = recs.iter().find(|(_, op)| *op == 0x0f).expect("data end").0;
+    // A footer that misplaces the summary (one byte on, at the data-end record, at the
+    // header): every message read, nothing said to be cut short; strictly, all of them
+    // and then one error naming the footer.
+    for (name, start) in [
+        ("summary-one-on", data_end as u64 + 14),
+        ("summary-at-data-end", data_end as u64),
+        ("summary-at-header", 8),
+    ] {
+        let path = patched(dir.path(), name, &bytes, footer + 9, &start.to_le_bytes());
+        let (read, skips) = read_on(&path);
+        assert_eq!(read, all, "{name}");
+        assert!(skips.is_empty(), "{name}: {skips:?}");
+        let (strict, ended) = read_strictly(&path);
+        assert_eq!(strict, all, "{name}");
+        let Some(RecordingError::Corrupt { reason, .. }) = ended else {
+            panic!("{name}: {ended:?}");
+        };
+        assert!(
+            reason.contains("footer places the summary"),
+            "{name}: {reason}"
+        );
+    }
+    // A chunk written twice (a copy's blocks repeated): its frames given out once, the
+    // repeat skipped and said; strictly, an error at the repeat.
+    let chunks: Vec<usize> = recs
+        .iter()
+        .filter(|(_, op)| *op == CHUNK)
+        .map(|(at, _)| *at)
+        .collect();
+    let (c, next) = (
+        chunks[3],
+        recs.iter().find(|(at, _)| *at > chunks[3]).expect("next").0,
+    );
+    let twice = [&bytes[..next], &bytes[c..next], &bytes[next..]].concat();
+    let path = dir.path().join("chunk-twice.mcap");
+    std::fs::write(&path, &twice).expect("write");
+    let (read, skips) = read_on(&path);
+    assert_eq!(read, all);
+    assert_eq!(
+        skips.counts.get(&msgs::salvage::Damage::Duplicate),
+        Some(&1),
+        "{skips:?}"
+    );
+    assert_eq!(skips.ranges[0].from, next as u64, "{skips:?}");
+    let (strict, ended) = read_strictly(&path);
+    assert!(strict < all, "{strict}");
+    assert!(
+        matches!(&ended, Some(RecordingError::Corrupt { reason, .. }) if reason.contains("repeats")),
+        "{ended:?}"
+    );
+    let r = run(&["replay", "--json", s(&path)]);
+    assert_eq!(r.code, Some(0), "{}", r.stderr);
+    assert!(r.stderr.contains("1 duplicate chunk"), "{}", r.stderr);
+    // A summary whose chunk index places a chunk on a good message of an unchunked
+    // recording (its CRC left out): the message is read as what it is.
+    let heat = frames("byebye.mcap");
+    let mut raw = [&b"\x89MCAP0\r\n"[..], &heat_map_declarations().concat()].concat();
+    let mut target = 0;
+    for (i, (t, m)) in heat.iter().enumerate() {
+        if i == 50 {
+            target = raw.len() as u64;
+        }
+        raw.extend(raw_message(i, *t, m));
+    }
+    raw.extend(raw_record(0x0f, &0_u32.to_le_bytes()));
+    let summary = raw.len() as u64;
+    let index = raw_record(
+        0x08,
+        &[
+            &0_u64.to_le_bytes()[..],
+            &u64::MAX.to_le_bytes(),
+            &target.to_le_bytes(),
+            &100_u64.to_le_bytes(),
+            &0_u32.to_le_bytes(),
+            &0_u64.to_le_bytes(),
+            &raw_bytes(b""),
+            &100_u64.to_le_bytes(),
+            &100_u64.to_le_bytes(),
+        ]
+        .concat(),
+    );
+    raw.extend(index);
+    let footer = raw_record(
+        0x02,
+        &[
+            &summary.to_le_bytes()[..],
+            &0_u64.to_le_bytes(),
+            &0_u32.to_le_bytes(),
+        ]
+        .concat(),
+    );
+    raw.extend(footer);
+    raw.extend(b"\x89MCAP0\r\n");
+    let path = dir.path().join("index-on-a-message.mcap");
+    std::fs::write(&path, &raw).expect("write");
+    let (read, skips) = read_on(&path);
+    assert_eq!(read, heat.len() as u64, "{skips:?}");
+    assert!(skips.is_empty(), "{skips:?}");
+}

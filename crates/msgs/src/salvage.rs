@@ -16,7 +16,9 @@
 //!   record that holds together (a known opcode, a length within the limit and the file,
 //!   and a chunk that decompresses and passes its CRC, or a record followed by another);
 //! - the end of a file cut short (a recorder killed mid-chunk);
-//! - a message on a channel never declared.
+//! - a message on a channel never declared;
+//! - a chunk that repeats, byte for byte, one read before (the first
+//!   [`MAX_SEEN_CHUNKS`] chunks are remembered).
 //!
 //! The summary section and the index are not read: everything comes from the data, which
 //! is what holds the messages (a summary that disagrees with it cannot mislead). Memory
@@ -60,6 +62,9 @@ pub enum Damage {
     CutShort,
     /// A message on a channel never declared.
     UnknownChannel,
+    /// A chunk that repeats one read before, byte for byte (a copy's blocks written
+    /// twice): its messages were already given out once.
+    Duplicate,
 }
 
 impl Damage {
@@ -73,6 +78,7 @@ impl Damage {
             Damage::LyingLength => "lying length",
             Damage::CutShort => "cut short",
             Damage::UnknownChannel => "unknown channel",
+            Damage::Duplicate => "duplicate chunk",
         }
     }
 }
@@ -243,7 +249,16 @@ pub struct Salvager {
     /// The file's length, where bytes follow its closing magic (they are skipped at the
     /// end, the file read as if it ended at the magic: `len`).
     trailing: Option<u64>,
+    /// Where the data section's end record is, once read.
+    data_end: Option<u64>,
+    /// A hash of each chunk read that held messages (its times, sizes, compression and
+    /// both CRCs), for [`Damage::Duplicate`]: at most [`MAX_SEEN_CHUNKS`].
+    seen_chunks: std::collections::HashSet<u64>,
 }
+
+/// Chunks remembered to find repeats, at most (about 16 MiB of hashes; a recording of
+/// 1 MiB chunks has that many in a terabyte).
+pub const MAX_SEEN_CHUNKS: usize = 1 << 20;
 
 /// Bytes of chunk records per byte of a chunk beyond which the chunk counts against
 /// [`INFLATION_ALLOWANCE`] (recordings compress 10 to 100 times; a compression bomb, a
@@ -299,6 +314,8 @@ impl Salvager {
             inflated: 0,
             stop_at_damage: false,
             trailing: None,
+            data_end: None,
+            seen_chunks: std::collections::HashSet::new(),
         };
         salvager.find_end(file);
         salvager.read_summary(file);
@@ -383,6 +400,9 @@ impl Salvager {
             || (op == op::DATA_END && self.data_end_at(file, at))
         {
             // The data section is over: the summary is not read (see the module docs).
+            if op == op::DATA_END {
+                self.data_end = Some(at);
+            }
             if let Some(real) = self.trailing {
                 self.skips.add(Damage::Unparsable, self.len, real);
             }
@@ -411,16 +431,22 @@ impl Salvager {
             return;
         }
         if op != op::CHUNK && self.indexed_chunks.binary_search(&at).is_ok() {
-            // The index has a chunk here: this record (a flipped opcode, or one written
-            // over it) took its place, and its messages are lost.
+            // The index has a chunk here and this record reads whole as one: a chunk whose
+            // opcode was damaged, and its messages are lost. (A record that does not read
+            // as a chunk is read as what it is: a summary cannot make the data lie.)
             match at.checked_add(9).and_then(|a| a.checked_add(len)) {
-                Some(end) if end <= self.len && len <= self.limit && self.boundary(file, end) => {
+                Some(end)
+                    if end <= self.len
+                        && len <= self.limit
+                        && self.chunk_shaped(file, at, end)
+                        && self.boundary(file, end) =>
+                {
                     self.skips.add(Damage::Unparsable, at, end);
                     self.at = end;
+                    return;
                 }
-                _ => self.resync(file, at, Damage::Unparsable),
+                _ => {}
             }
-            return;
         }
         if self.not_data(file, at, op, len) {
             // A record that has no place in the data section, or does not hold together
@@ -615,6 +641,26 @@ impl Salvager {
             }
         }
         let size = header.uncompressed_size as usize;
+        let key = {
+            use std::hash::{Hash, Hasher};
+            // One key for every chunk of this reading (DefaultHasher::new's are alike).
+            let mut h = std::hash::DefaultHasher::new();
+            (
+                header.message_start_time,
+                header.message_end_time,
+                header.uncompressed_size,
+                header.uncompressed_crc,
+                header.compression.as_str(),
+                crc32fast::hash(&data),
+                data.len(),
+            )
+                .hash(&mut h);
+            h.finish()
+        };
+        if self.seen_chunks.contains(&key) {
+            // A chunk whose messages were given out before, byte for byte.
+            return Err(Damage::Duplicate);
+        }
         let records: std::borrow::Cow<'_, [u8]> = match header.compression.as_str() {
             "" => data,
             "zstd" => zstd::bulk::decompress(&data, size)
@@ -635,6 +681,7 @@ impl Salvager {
         if header.uncompressed_crc != 0 && crc32fast::hash(&records) != header.uncompressed_crc {
             return Err(Damage::BadCrc);
         }
+        let queued = self.pending.len();
         let mut at = 0_usize;
         while at < records.len() {
             let head = records.get(at..at + 9).ok_or(Damage::Unparsable)?;
@@ -653,6 +700,10 @@ impl Salvager {
                 self.skips.note(Damage::UnknownChannel);
             }
             at += 9 + body.len();
+        }
+        // Remembered where it gave messages (a chunk of declarations only may repeat).
+        if self.pending.len() > queued && self.seen_chunks.len() < MAX_SEEN_CHUNKS {
+            self.seen_chunks.insert(key);
         }
         Ok(())
     }

@@ -326,10 +326,11 @@ impl<R: Read + Seek> RecordingReader<R> {
                 "a chunk that does not decompress to the size it says".into()
             }
             Damage::Unparsable => "a record that does not parse, an opcode MCAP does not \
-                                   have, or another record where the index has a chunk"
+                                   have, or a chunk with another opcode"
                 .into(),
             Damage::LyingLength => "a length that does not lead to the next record".into(),
             Damage::UnknownChannel => "a message on a channel never declared".into(),
+            Damage::Duplicate => "a chunk that repeats one before it, byte for byte".into(),
         };
         self.corrupt(format!(
             "{what}{place} (read past it without strict, or copy the rest with `posestream recover`)"

@@ -45,6 +45,21 @@ impl Salvager {
         }
         let start = u64::from_le_bytes(body[..8].try_into().unwrap_or_default());
         let recorded = u32::from_le_bytes(body[16..20].try_into().unwrap_or_default());
+        // The summary starts right after the data section's end record (0: none).
+        if let Some(data_end) = self.data_end {
+            let after = data_end + 9 + 4;
+            let expected = if after == footer { 0 } else { after };
+            if start != expected {
+                return Some(if expected == 0 {
+                    format!("the footer places a summary at byte {start}, and there is none")
+                } else {
+                    format!(
+                        "the footer places the summary at byte {start}, where it starts at \
+                         byte {expected}"
+                    )
+                });
+            }
+        }
         if start == 0 || recorded == 0 {
             return None;
         }

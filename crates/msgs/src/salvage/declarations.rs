@@ -113,6 +113,9 @@ impl Salvager {
     ) -> (BTreeMap<u16, SchemaInfo>, BTreeMap<u16, ChannelInfo>) {
         let (mut schemas, mut channels) = (BTreeMap::new(), BTreeMap::new());
         let mut kept = 0_u64;
+        // Bytes handed to the parser, at most: a file of candidates that each parse far
+        // before failing (a crafted one) costs a bounded multiple of one pass.
+        let mut budget = self.len.saturating_mul(16).saturating_add(64 << 20);
         let mut window = vec![0_u8; SCAN_BLOCK + 9 + MAX_SCANNED_DECLARATION];
         let mut base = MAGIC.len() as u64;
         while base < self.len {
@@ -151,6 +154,10 @@ impl Salvager {
                 if known || kept.saturating_add(len) > self.limit {
                     continue;
                 }
+                let Some(left) = budget.checked_sub(len) else {
+                    return (schemas, channels);
+                };
+                budget = left;
                 let parsed = posestream_base::contain_panics(|| mcap::parse_record(opcode, body));
                 match parsed {
                     Ok(Ok(Record::Schema { header, data })) => {

@@ -221,17 +221,7 @@ impl Salvager {
                 return Some(next);
             }
             let (opcode, _) = Self::head(file, next)?;
-            let summary = matches!(
-                opcode,
-                op::SCHEMA
-                    | op::CHANNEL
-                    | op::CHUNK_INDEX
-                    | op::ATTACHMENT_INDEX
-                    | op::STATISTICS
-                    | op::METADATA_INDEX
-                    | op::SUMMARY_OFFSET
-                    | op::FOOTER
-            );
+            let summary = summary_record(opcode) || opcode == op::FOOTER;
             next = self.plausible(file, next).filter(|_| summary)?;
         }
     }
@@ -242,7 +232,9 @@ impl Salvager {
     }
 
     /// Whether a data-end record at `at` ends the data section: the file's footer
-    /// follows it, or its summary, as the footer says.
+    /// follows it, or its summary, as the footer says, or records only a summary holds
+    /// that lead to the footer (a footer that misplaces the summary: said by
+    /// [`Salvager::end_mismatch`], the data is whole).
     pub(super) fn data_end_at<R: Read + Seek>(&self, file: &mut R, at: u64) -> bool {
         let Some(footer) = self.len.checked_sub(FOOTER_BYTES + MAGIC.len() as u64) else {
             return false;
@@ -259,7 +251,20 @@ impl Salvager {
             return false;
         }
         let summary = u64::from_le_bytes(start);
-        next == footer || summary == next
+        if next == footer || summary == next {
+            return true;
+        }
+        let mut record = next;
+        while record < footer {
+            let Some((opcode, _)) = Self::head(file, record) else {
+                return false;
+            };
+            match self.plausible(file, record) {
+                Some(end) if summary_record(opcode) && end <= footer => record = end,
+                _ => return false,
+            }
+        }
+        record == footer
     }
 
     /// Scans from `from + 1` for the next record that holds together (see the module
@@ -320,4 +325,18 @@ impl Salvager {
         }
         self.boundary(file, end)
     }
+}
+
+/// A record a summary section holds (declarations, indexes, statistics, offsets).
+fn summary_record(opcode: u8) -> bool {
+    matches!(
+        opcode,
+        op::SCHEMA
+            | op::CHANNEL
+            | op::CHUNK_INDEX
+            | op::ATTACHMENT_INDEX
+            | op::STATISTICS
+            | op::METADATA_INDEX
+            | op::SUMMARY_OFFSET
+    )
 }
