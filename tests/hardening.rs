@@ -1674,6 +1674,51 @@ fn sigterm_finalises_the_recording_as_sigint_does() {
 }
 
 #[test]
+fn a_signal_ends_the_scan_past_damage_too() {
+    // byebye.mcap with 64 GiB of zeros (a sparse hole: no disk) after its magic: reading
+    // on scans them for the next record, minutes of reading; SIGTERM ends it at the next
+    // block, and the recording made so far is complete.
+    use std::io::{Seek, Write};
+    let dir = tempfile::tempdir().expect("tempdir");
+    let bytes = std::fs::read(common::root().join("recordings/byebye.mcap")).expect("read");
+    let path = dir.path().join("holed.mcap");
+    let mut file = std::fs::File::create(&path).expect("create");
+    file.write_all(&bytes[..8]).expect("write");
+    file.set_len(8 + (64 << 30)).expect("a sparse hole");
+    file.seek(std::io::SeekFrom::End(0)).expect("seek");
+    file.write_all(&bytes[8..]).expect("write");
+    drop(file);
+    let out = dir.path().join("out.mcap");
+    let mut child = posestream()
+        .args(["replay", s(&path), "--record", s(&out)])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .expect("starts");
+    std::thread::sleep(std::time::Duration::from_millis(1500));
+    assert!(child.try_wait().expect("waits").is_none(), "still scanning");
+    let sent = std::time::Instant::now();
+    let status = Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .expect("kill");
+    assert!(status.success());
+    // Ended within a few blocks' reading (the scan alone would take minutes).
+    let ended = (0..300).any(|_| {
+        std::thread::sleep(std::time::Duration::from_millis(100));
+        child.try_wait().expect("waits").is_some()
+    });
+    if !ended {
+        let _ = child.kill();
+    }
+    assert!(ended, "still running {:?} after SIGTERM", sent.elapsed());
+    RecordingReader::open(&out)
+        .expect("open")
+        .collect::<Result<Vec<_>, _>>()
+        .expect("a complete recording, footer included");
+}
+
+#[test]
 fn lift_errors_name_the_file_at_fault() {
     use posestream::npy;
     let dir = tempfile::tempdir().expect("tempdir");
@@ -1932,4 +1977,84 @@ fn a_summary_or_a_copy_cannot_make_reading_lose_or_repeat_frames() {
     let (read, skips) = read_on(&path);
     assert_eq!(read, heat.len() as u64, "{skips:?}");
     assert!(skips.is_empty(), "{skips:?}");
+}
+
+/// Messages of `path` on the heat-map topic, read on past damage, and what was skipped.
+fn heat_maps_read_on(path: &Path) -> (usize, msgs::salvage::Skips) {
+    let mut reader = RecordingReader::open(path)
+        .and_then(RecordingReader::salvaging)
+        .expect("opens");
+    let n = reader
+        .by_ref()
+        .filter(|m| m.as_ref().is_ok_and(|m| m.topic == HEATMAPS))
+        .count();
+    (n, reader.skips().cloned().expect("salvaging"))
+}
+
+#[test]
+fn data_after_a_summary_or_a_second_copy_is_read_and_a_redeclared_channel_is_refused() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (a_path, a) = chunked(dir.path());
+    let (all_a, _) = heat_maps_read_on(&a_path);
+    let b_path = dir.path().join("kick.mcap");
+    write_raw(&b_path, &encoded(&frames("kick.mcap")), PER_CHUNK);
+    let b = std::fs::read(&b_path).expect("read");
+    let (all_b, _) = heat_maps_read_on(&b_path);
+    let b_recs = records(&b);
+    let b_data_end = b_recs.iter().find(|(_, op)| *op == 0x0f).expect("data end").0;
+    // Another recording's data between a summary and its footer (the footer's summary
+    // start still right): read, and the summary's records among them said.
+    let footer = a.len() - 37;
+    let hidden = [&a[..footer], &b[b_recs[1].0..b_data_end], &a[footer..]].concat();
+    // A file written twice, one copy after the other: the second's frames are the
+    // first's, given once; its header and closing magic said.
+    let twice = [&a[..], &a[..]].concat();
+    for (name, bytes, frames) in [("hidden", hidden, all_a + all_b), ("twice", twice, all_a)] {
+        let path = dir.path().join(format!("{name}.mcap"));
+        std::fs::write(&path, &bytes).expect("write");
+        let (read, skips) = heat_maps_read_on(&path);
+        assert_eq!(read, frames, "{name}: {skips:?}");
+        assert!(!skips.is_empty(), "{name}: the damage is said");
+        let (_, ended) = read_strictly(&path);
+        assert!(
+            matches!(ended, Some(RecordingError::Corrupt { .. })),
+            "{name}: {ended:?}"
+        );
+    }
+    // The heat-map channel declared again under another topic half-way: the first
+    // declaration stands, every frame stays on its topic, the conflict is said.
+    let heat = frames("byebye.mcap");
+    let [header, schema, channel] = heat_map_declarations();
+    let mut raw = [&b"\x89MCAP0\r\n"[..], &header, &schema, &channel].concat();
+    for (i, (t, m)) in heat.iter().enumerate() {
+        if i == 50 {
+            raw.extend(raw_record(
+                0x04,
+                &[
+                    &1_u16.to_le_bytes()[..],
+                    &1_u16.to_le_bytes(),
+                    &raw_bytes(b"/elsewhere"),
+                    &raw_bytes(b"cdr"),
+                    &0_u32.to_le_bytes(),
+                ]
+                .concat(),
+            ));
+        }
+        raw.extend(raw_message(i, *t, m));
+    }
+    let path = dir.path().join("redeclared.mcap");
+    std::fs::write(&path, &raw).expect("write");
+    let (read, skips) = heat_maps_read_on(&path);
+    assert_eq!(read, heat.len(), "{skips:?}");
+    assert_eq!(
+        skips.counts.get(&msgs::salvage::Damage::Conflict),
+        Some(&1),
+        "{skips:?}"
+    );
+    let (strict, ended) = read_strictly(&path);
+    assert_eq!(strict, 50);
+    assert!(
+        matches!(&ended, Some(RecordingError::Corrupt { reason, .. }) if reason.contains("declared again")),
+        "{ended:?}"
+    );
 }

@@ -338,3 +338,90 @@ fn no_command_writes_onto_a_file_it_read_or_onto_a_device_or_fifo() {
             .is_fifo()
     );
 }
+
+#[test]
+fn every_output_of_a_run_is_checked_before_the_work_and_each_is_its_own() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let d = dir.path();
+    // Two of lift's outputs on one file: refused before the solve, nothing written.
+    let k128 = common::k128();
+    let kp = common::fixture("synthetic-s0").join("keypoints.npy");
+    let same = d.join("same.npy");
+    one_error(
+        &[
+            "lift",
+            "--dict",
+            s(&k128),
+            "--keypoints",
+            s(&kp),
+            "--out",
+            s(&same),
+            "--out-proj",
+            s(&same),
+        ],
+        "another output of this run",
+    );
+    assert!(!same.exists());
+    // A bag's metadata.yaml that cannot be written (a directory there): refused before
+    // the copy, so the old copy stays as it was.
+    let bag = d.join("bag");
+    std::fs::create_dir_all(bag.join("metadata.yaml")).expect("mkdir");
+    let copy = bag.join("copy.mcap");
+    std::fs::write(&copy, b"an older copy").expect("write");
+    let stderr = one_error(
+        &[
+            "recover",
+            "recordings/kick.mcap",
+            s(&copy),
+            "--rosbag2",
+        ],
+        "metadata.yaml",
+    );
+    assert!(stderr.contains("not a regular file"), "{stderr}");
+    assert_eq!(stderr.matches("metadata.yaml").count(), 1, "{stderr}");
+    assert_eq!(std::fs::read(&copy).expect("read"), b"an older copy");
+    let out = bag.join("out.mcap");
+    one_error(
+        &[
+            "replay",
+            "recordings/kick.mcap",
+            "--record",
+            s(&out),
+            "--rosbag2",
+        ],
+        "not a regular file",
+    );
+    assert!(!out.exists());
+}
+
+#[test]
+fn a_model_that_is_not_a_file_is_named_for_what_it_is() {
+    // The models' paths directories: said as such, not "not found".
+    let dir = tempfile::tempdir().expect("tempdir");
+    let models = dir.path().join("models");
+    for name in [
+        "pose_detection",
+        "pedestrian_detection",
+        "pose_landmark_full",
+        "pose_landmark_lite",
+        "pose_landmark_heavy",
+    ] {
+        for ext in ["tflite", "tract.tflite"] {
+            std::fs::create_dir_all(models.join(format!("{name}.{ext}"))).expect("mkdir");
+        }
+    }
+    let images = dir.path().join("images");
+    std::fs::create_dir_all(&images).expect("mkdir");
+    let out = Command::new(binary())
+        .current_dir(common::root())
+        .env("POSESTREAM_MODELS", &models)
+        .args(["run", "--images", s(&images), "--ros2", "false"])
+        .output()
+        .expect("runs");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("a directory, not a regular file") && !stderr.contains("not found"),
+        "{stderr}"
+    );
+}

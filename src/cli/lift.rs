@@ -147,7 +147,7 @@ pub fn run(args: &LiftArgs) -> Result<(), CliError> {
     .flatten()
     .map(PathBuf::as_path)
     .collect();
-    for out in [
+    let outputs: Vec<&Path> = [
         Some(&args.out),
         args.out_2d.as_ref(),
         args.out_proj.as_ref(),
@@ -155,9 +155,11 @@ pub fn run(args: &LiftArgs) -> Result<(), CliError> {
     ]
     .into_iter()
     .flatten()
-    {
-        posestream::files::check_output(out, &inputs)
-            .map_err(posestream::files::OutputError::from)?;
+    .map(PathBuf::as_path)
+    .collect();
+    for (i, out) in outputs.iter().enumerate() {
+        posestream::files::check_target(out, &inputs)?;
+        posestream::files::check_distinct(out, &outputs[..i])?;
     }
     let dict = posestream::msgs::shipped::load_dictionary(&args.dict)?;
     let p = dict.num_joints();

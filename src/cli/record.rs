@@ -60,6 +60,9 @@ struct RecordReport {
 pub fn run(args: &RecordArgs) -> Result<(), CliError> {
     let mut config = args.config.load()?;
     config.ros.or_named("posestream_recorder");
+    if args.rosbag2 {
+        posestream::recording::check_rosbag2_metadata(&args.out, &[])?;
+    }
     let stop = stop_flag();
     let ros = Ros2::new(&config.ros)?;
     let recorder = SharedRecorder::create(&args.out)?;

@@ -50,6 +50,9 @@ pub struct RecoverReport {
 pub fn run(args: &RecoverArgs) -> Result<(), CliError> {
     let config = args.config.load()?;
     check_output(&args.output, &[&args.input]).map_err(RecordingError::from)?;
+    if args.rosbag2 {
+        posestream::recording::check_rosbag2_metadata(&args.output, &[&args.input])?;
+    }
     let limit = config.limits.max_record_bytes;
     // Opened as a recording first: a file that is no MCAP at all is one error.
     drop(RecordingReader::open_with_limit(&args.input, limit)?);

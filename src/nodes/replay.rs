@@ -144,6 +144,9 @@ pub fn replay(
 ) -> Result<ReplayReport, ReplayError> {
     if let Some(out) = &options.record {
         check_output(out, &[input])?;
+        if options.rosbag2 {
+            crate::recording::check_rosbag2_metadata(out, &[input])?;
+        }
     }
     let mut node = EstimatorNode::from_service_config(config)?;
     let reader = RecordingReader::open_with_limit(input, config.limits.max_record_bytes)?;

@@ -31,6 +31,14 @@ fn not_regular(kind: std::fs::FileType) -> Option<&'static str> {
     }
 }
 
+/// What `path` names (links followed) when it exists and is not a regular file, in
+/// words: "a directory", "a FIFO (named pipe)", ...; `None` for a regular file or nothing.
+pub fn what_is(path: &Path) -> Option<&'static str> {
+    std::fs::metadata(path)
+        .ok()
+        .and_then(|m| not_regular(m.file_type()))
+}
+
 /// Opens `path` for reading if it is a regular file (links followed); anything else is
 /// an [`io::ErrorKind::InvalidInput`] error that says what it is. Never blocks on a FIFO.
 pub fn open_regular(path: &Path) -> io::Result<File> {

@@ -115,6 +115,49 @@ pub fn io_text(e: &std::io::Error) -> String {
     }
 }
 
+/// Checks, before any work, that `path` can be an output: none of `inputs` nor of the
+/// files read ([`check_output`]), and not a device, a FIFO or a directory (the rename
+/// would put a file where one was).
+pub fn check_target(path: &Path, inputs: &[&Path]) -> Result<(), OutputError> {
+    check_output(path, inputs)?;
+    if std::fs::metadata(path).is_ok_and(|m| !m.is_file()) {
+        return Err(OutputError::Io {
+            path: path.to_path_buf(),
+            source: std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                "is not a regular file (a device, a FIFO or a directory): give a file's path",
+            ),
+        });
+    }
+    Ok(())
+}
+
+/// Checks that `output` is none of `others`, the run's other outputs (the same path, or
+/// the same file through a link): one would be written over the other.
+pub fn check_distinct(output: &Path, others: &[&Path]) -> Result<(), OutputError> {
+    let same_path = |other: &Path| match (std::path::absolute(output), std::path::absolute(other)) {
+        (Ok(a), Ok(b)) => a == b,
+        _ => output == other,
+    };
+    let same_file = |other: &Path| match (std::fs::metadata(output), std::fs::metadata(other)) {
+        (Ok(a), Ok(b)) => (a.dev(), a.ino()) == (b.dev(), b.ino()),
+        _ => false,
+    };
+    match others.iter().find(|o| same_path(o) || same_file(o)) {
+        Some(other) => Err(OutputError::Io {
+            path: output.to_path_buf(),
+            source: std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                format!(
+                    "is also another output of this run ({}): give each output a file of its own",
+                    other.display()
+                ),
+            ),
+        }),
+        None => Ok(()),
+    }
+}
+
 /// An output file written under a temporary name beside its path ([`create_partial`]) and
 /// renamed into place by [`OutputFile::commit`]: an output that is an input is refused
 /// before anything is written, and a run that fails (or a full disk) leaves the existing
@@ -128,17 +171,7 @@ pub struct OutputFile {
 impl OutputFile {
     /// Starts writing `path`, none of `inputs`.
     pub fn create(path: &Path, inputs: &[&Path]) -> Result<Self, OutputError> {
-        check_output(path, inputs)?;
-        // The rename would put a file where a device or a FIFO was.
-        if std::fs::metadata(path).is_ok_and(|m| !m.is_file()) {
-            return Err(OutputError::Io {
-                path: path.to_path_buf(),
-                source: std::io::Error::new(
-                    std::io::ErrorKind::InvalidInput,
-                    "is not a regular file (a device, a FIFO or a directory): give a file's path",
-                ),
-            });
-        }
+        check_target(path, inputs)?;
         let (partial, file) = create_partial(path).map_err(|source| OutputError::Io {
             path: path.to_path_buf(),
             source,

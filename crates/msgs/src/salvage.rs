@@ -18,7 +18,8 @@
 //! - the end of a file cut short (a recorder killed mid-chunk);
 //! - a message on a channel never declared;
 //! - a chunk that repeats, byte for byte, one read before (the first
-//!   [`MAX_SEEN_CHUNKS`] chunks are remembered).
+//!   [`MAX_SEEN_CHUNKS`] chunks are remembered);
+//! - a schema or channel declared again as another (the first declaration stands).
 //!
 //! The summary section and the index are not read: everything comes from the data, which
 //! is what holds the messages (a summary that disagrees with it cannot mislead). Memory
@@ -65,6 +66,9 @@ pub enum Damage {
     /// A chunk that repeats one read before, byte for byte (a copy's blocks written
     /// twice): its messages were already given out once.
     Duplicate,
+    /// A schema or channel declared again as another (its id is the first's: the first
+    /// declaration stands).
+    Conflict,
 }
 
 impl Damage {
@@ -79,6 +83,7 @@ impl Damage {
             Damage::CutShort => "cut short",
             Damage::UnknownChannel => "unknown channel",
             Damage::Duplicate => "duplicate chunk",
+            Damage::Conflict => "conflicting declaration",
         }
     }
 }
@@ -573,6 +578,15 @@ impl Salvager {
         };
         match record {
             Record::Schema { header, data } => {
+                if let Some(first) = self.schemas.get(&header.id) {
+                    let same = first.name == header.name
+                        && first.encoding == header.encoding
+                        && (first.data.is_empty() || *first.data == *data);
+                    if !same {
+                        self.skips.note(Damage::Conflict);
+                    }
+                    return Ok(true);
+                }
                 // Schema texts kept at most the limit's worth in all: a file of huge
                 // schemas keeps their names only (a copy of it has them empty).
                 let fits = self.declared.saturating_add(data.len() as u64) <= self.limit;
@@ -593,7 +607,15 @@ impl Salvager {
                 );
             }
             Record::Channel(c) => {
-                self.channels.insert(c.id, ChannelInfo::from(c));
+                let id = c.id;
+                let channel = ChannelInfo::from(c);
+                match self.channels.get(&id) {
+                    Some(first) if *first != channel => self.skips.note(Damage::Conflict),
+                    Some(_) => {}
+                    None => {
+                        self.channels.insert(id, channel);
+                    }
+                }
             }
             Record::Message { header, data } => {
                 if !self.channels.contains_key(&header.channel_id)

@@ -41,16 +41,29 @@ impl FusionNode {
     pub fn camera_info(&mut self, camera: usize, info: &CameraInfo) {
         let result = crate::nodes::estimator::metres::calibration(info, &self.limits)
             .map(|(intrinsics, _)| intrinsics);
-        let Some(c) = self.cameras.get_mut(camera) else {
+        let Some(name) = self.cameras.get(camera).map(|c| c.name.clone()) else {
             return;
         };
         match result {
             Ok(intrinsics) => {
+                let frame = info.header.frame_id.trim_start_matches('/');
                 let mut changed = false;
-                if c.frame_id.is_none() && !info.header.frame_id.is_empty() {
-                    c.frame_id = Some(info.header.frame_id.trim_start_matches('/').to_string());
+                if self.cameras[camera].frame_id.is_none() && !frame.is_empty() {
+                    if let Some(other) = self.frame_owner(frame) {
+                        let e = NodeError::CameraInfo {
+                            reason: format!(
+                                "camera {name}: frame id {frame:?} is camera {other}'s: each \
+                                 camera needs a frame of its own"
+                            ),
+                        };
+                        self.refused.note(e.kind(), &e);
+                        return;
+                    }
+                    let c = &mut self.cameras[camera];
+                    c.frame_id = Some(frame.to_string());
                     changed = true;
                 }
+                let c = &mut self.cameras[camera];
                 if c.configured_intrinsics.is_none() && c.intrinsics != Some(intrinsics) {
                     c.intrinsics = Some(intrinsics);
                     changed = true;
@@ -61,11 +74,20 @@ impl FusionNode {
             }
             Err(reason) => {
                 let e = NodeError::CameraInfo {
-                    reason: format!("camera {}: {reason}", c.name),
+                    reason: format!("camera {name}: {reason}"),
                 };
                 self.refused.note(e.kind(), &e);
             }
         }
+    }
+
+    /// The camera whose frame `frame` is, if one's is (two cameras in one frame are a
+    /// mix-up of topics or of a camera's configuration: the second is refused).
+    pub(super) fn frame_owner(&self, frame: &str) -> Option<String> {
+        self.cameras
+            .iter()
+            .find(|c| c.frame_id.as_deref() == Some(frame))
+            .map(|c| c.name.clone())
     }
 
     /// Takes transforms (`/tf_static`, `/tf`): with extrinsics from TF, each camera's

@@ -63,15 +63,10 @@ impl FusionNode {
             None => {
                 // Two cameras in one frame: a mix-up of topics or of a camera's
                 // configuration; the second is refused until its frame is its own.
-                if let Some(other) = self
-                    .cameras
-                    .iter()
-                    .find(|c| c.frame_id.as_deref() == Some(frame))
-                {
+                if let Some(other) = self.frame_owner(frame) {
                     return Err(refuse(format!(
-                        "camera {name}: frame id {frame:?} is camera {}'s: each camera \
-                         needs a frame of its own",
-                        other.name
+                        "camera {name}: frame id {frame:?} is camera {other}'s: each camera \
+                         needs a frame of its own"
                     )));
                 }
                 self.cameras[camera].frame_id = Some(frame.to_string());

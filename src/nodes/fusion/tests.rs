@@ -175,6 +175,23 @@ fn hostile_frames_are_refused_by_kind_and_change_nothing() {
     assert!(node.heat_maps(1, &mixed, 1, &mut out).is_err());
     assert_eq!(node.refused().of("camera"), before + 1);
     assert_eq!(node.cameras()[1].frame_id, "");
+    // Its calibration in camera a's frame too: refused as well, so neither its heat maps
+    // nor its calibration make it camera a's twin.
+    let info = crate::msgs::sensor::CameraInfo {
+        header: Header {
+            stamp: Time::from_nanos(1_000_000_000),
+            frame_id: "a".into(),
+        },
+        width: 640,
+        height: 480,
+        k: [600.0, 0.0, 320.0, 0.0, 600.0, 240.0, 0.0, 0.0, 1.0],
+        ..Default::default()
+    };
+    let before = node.refused().of("camera-info");
+    node.camera_info(1, &info);
+    assert_eq!(node.refused().of("camera-info"), before + 1);
+    assert_eq!(node.cameras()[1].frame_id, "");
+    assert!(node.heat_maps(1, &mixed, 1, &mut out).is_err());
     // Only the good frame was taken; the camera's frame id is still its own.
     assert_eq!(node.counters().frames, 1);
     assert_eq!(node.cameras()[0].frame_id, "a");

@@ -118,6 +118,8 @@ impl ImageDetector {
         let existing = |path: std::path::PathBuf| {
             if path.is_file() {
                 Ok(path)
+            } else if let Some(what) = posestream_base::files::what_is(&path) {
+                Err(DetectorError::NotAModel { path, what })
             } else {
                 Err(DetectorError::MissingModel(path))
             }

@@ -240,6 +240,15 @@ pub enum DetectorError {
     /// The model file is absent.
     #[error("{0} not found: run `posestream models fetch` first")]
     MissingModel(PathBuf),
+    /// The model's path names something other than a file (a directory, a FIFO, a
+    /// device).
+    #[error("{}: {what}, not a regular file: a model is a file (`posestream models fetch` writes them)", path.display())]
+    NotAModel {
+        /// The model's path.
+        path: PathBuf,
+        /// What it names, in words.
+        what: &'static str,
+    },
     /// The network failed.
     #[error(transparent)]
     Network(#[from] NetworkError),

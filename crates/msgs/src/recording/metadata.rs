@@ -7,7 +7,6 @@ use super::{RecordingError, RecordingSummary};
 /// Writes `metadata.yaml` next to the recording, making its folder a rosbag2 bag
 /// (storage `mcap`, format version 5).
 pub fn write_rosbag2_metadata(summary: &RecordingSummary) -> Result<PathBuf, RecordingError> {
-    let dir = summary.path.parent().unwrap_or(Path::new("."));
     let file = summary
         .path
         .file_name()
@@ -33,13 +32,29 @@ pub fn write_rosbag2_metadata(summary: &RecordingSummary) -> Result<PathBuf, Rec
         "  compression_format: \"\"\n  compression_mode: \"\"\n  relative_file_paths:\n    - {file}\n  files:\n    - path: {file}\n      starting_time:\n        nanoseconds_since_epoch: {}\n      duration:\n        nanoseconds: {duration}\n      message_count: {total}\n",
         summary.start_ns
     ));
-    let path = dir.join("metadata.yaml");
-    crate::files::write_output(&path, &[], yaml.as_bytes()).map_err(|e| RecordingError::Io {
-        path: path.clone(),
-        source: match e {
-            crate::files::OutputError::Io { source, .. } => source,
-            other => std::io::Error::other(other.to_string()),
-        },
-    })?;
+    let path = rosbag2_metadata_path(&summary.path);
+    crate::files::write_output(&path, &[], yaml.as_bytes()).map_err(metadata_error)?;
     Ok(path)
+}
+
+/// Where [`write_rosbag2_metadata`] writes the `metadata.yaml` of `recording`: beside it.
+pub fn rosbag2_metadata_path(recording: &Path) -> PathBuf {
+    recording
+        .parent()
+        .unwrap_or(Path::new("."))
+        .join("metadata.yaml")
+}
+
+/// Checks, before any work, that the `metadata.yaml` of `recording` can be written
+/// ([`crate::files::check_target`]: not an input, not a directory or a device), none of
+/// `inputs`.
+pub fn check_rosbag2_metadata(recording: &Path, inputs: &[&Path]) -> Result<(), RecordingError> {
+    crate::files::check_target(&rosbag2_metadata_path(recording), inputs).map_err(metadata_error)
+}
+
+fn metadata_error(e: crate::files::OutputError) -> RecordingError {
+    match e {
+        crate::files::OutputError::Io { path, source } => RecordingError::Io { path, source },
+        crate::files::OutputError::IsInput(e) => RecordingError::from(e),
+    }
 }

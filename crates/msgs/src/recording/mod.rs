@@ -15,7 +15,7 @@ mod metadata;
 mod reader;
 mod writer;
 
-pub use metadata::write_rosbag2_metadata;
+pub use metadata::{check_rosbag2_metadata, rosbag2_metadata_path, write_rosbag2_metadata};
 pub use reader::{RecordedMessage, RecordingInput, RecordingReader, read_topic, salvage_topic};
 pub use writer::Recorder;
 

@@ -119,6 +119,9 @@ impl Salvager {
         let mut window = vec![0_u8; SCAN_BLOCK + 9 + MAX_SCANNED_DECLARATION];
         let mut base = MAGIC.len() as u64;
         while base < self.len {
+            if posestream_base::files::stop::requested() {
+                break;
+            }
             if file.seek(SeekFrom::Start(base)).is_err() {
                 break;
             }

@@ -127,8 +127,8 @@ impl Salvager {
     }
 
     /// Whether the record at `at` (opcode `opcode`, length `len`) cannot be what the data
-    /// section holds there: a record only a summary has (chunk, attachment and metadata
-    /// indexes, statistics, summary offsets), a message index whose entries do not fill
+    /// section holds there: a header anywhere but at the start, a record only a summary
+    /// has (chunk, attachment and metadata indexes, statistics, summary offsets), a message index whose entries do not fill
     /// it exactly, or an application's record that reads whole as a chunk (a chunk's
     /// opcode damaged).
     pub(super) fn not_data<R: Read + Seek>(
@@ -139,6 +139,8 @@ impl Salvager {
         len: u64,
     ) -> bool {
         match opcode {
+            // A header only at the start (a second one: a file's copy after the first).
+            op::HEADER => at != MAGIC.len() as u64,
             op::CHUNK_INDEX
             | op::ATTACHMENT_INDEX
             | op::STATISTICS
@@ -232,9 +234,10 @@ impl Salvager {
     }
 
     /// Whether a data-end record at `at` ends the data section: the file's footer
-    /// follows it, or its summary, as the footer says, or records only a summary holds
-    /// that lead to the footer (a footer that misplaces the summary: said by
-    /// [`Salvager::end_mismatch`], the data is whole).
+    /// follows it, or records only a summary holds that lead to the footer. The footer's
+    /// word on where the summary starts is not taken (data hidden between a summary and
+    /// the footer, or a second copy of a file after the first, is read; a footer that
+    /// misplaces the summary is said by [`Salvager::end_mismatch`]).
     pub(super) fn data_end_at<R: Read + Seek>(&self, file: &mut R, at: u64) -> bool {
         let Some(footer) = self.len.checked_sub(FOOTER_BYTES + MAGIC.len() as u64) else {
             return false;
@@ -242,19 +245,10 @@ impl Salvager {
         let Some((op::DATA_END, 4)) = Self::head(file, at) else {
             return false;
         };
-        let next = at + 9 + 4;
         if !matches!(Self::head(file, footer), Some((op::FOOTER, 20))) {
             return false;
         }
-        let mut start = [0_u8; 8];
-        if file.read_exact(&mut start).is_err() {
-            return false;
-        }
-        let summary = u64::from_le_bytes(start);
-        if next == footer || summary == next {
-            return true;
-        }
-        let mut record = next;
+        let mut record = at + 9 + 4;
         while record < footer {
             let Some((opcode, _)) = Self::head(file, record) else {
                 return false;
@@ -268,11 +262,17 @@ impl Salvager {
     }
 
     /// Scans from `from + 1` for the next record that holds together (see the module
-    /// docs), skipping what lies between as `kind`; to the end if none does.
+    /// docs), skipping what lies between as `kind`; to the end if none does. A stop
+    /// ([`posestream_base::files::stop`]) ends the scan and the reading.
     pub(super) fn resync<R: Read + Seek>(&mut self, file: &mut R, from: u64, kind: Damage) {
         let mut block = vec![0_u8; SCAN_BLOCK];
         let mut base = from + 1;
         while base < self.len {
+            if posestream_base::files::stop::requested() {
+                // A signal: reading ends here, nothing more is claimed of the file.
+                self.done = true;
+                return;
+            }
             if file.seek(SeekFrom::Start(base)).is_err() {
                 break;
             }
