@@ -149,6 +149,14 @@ impl ImageDetector {
         // The pedestrian detector: one converted file for both runtimes, checked as
         // fetched before LiteRT parses it.
         let pedestrians_path = crate::models::fetch::cached_pedestrians(&dir);
+        if settings.pedestrians
+            && let Some(what) = posestream_base::files::what_is(&pedestrians_path)
+        {
+            return Err(DetectorError::NotAModel {
+                path: pedestrians_path,
+                what,
+            });
+        }
         let pedestrians = settings.pedestrians
             && {
                 let present = pedestrians_path.is_file();
