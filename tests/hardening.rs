@@ -2001,7 +2001,11 @@ fn data_after_a_summary_or_a_second_copy_is_read_and_a_redeclared_channel_is_ref
     let b = std::fs::read(&b_path).expect("read");
     let (all_b, _) = heat_maps_read_on(&b_path);
     let b_recs = records(&b);
-    let b_data_end = b_recs.iter().find(|(_, op)| *op == 0x0f).expect("data end").0;
+    let b_data_end = b_recs
+        .iter()
+        .find(|(_, op)| *op == 0x0f)
+        .expect("data end")
+        .0;
     // Another recording's data between a summary and its footer (the footer's summary
     // start still right): read, and the summary's records among them said.
     let footer = a.len() - 37;

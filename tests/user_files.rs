@@ -369,12 +369,7 @@ fn every_output_of_a_run_is_checked_before_the_work_and_each_is_its_own() {
     let copy = bag.join("copy.mcap");
     std::fs::write(&copy, b"an older copy").expect("write");
     let stderr = one_error(
-        &[
-            "recover",
-            "recordings/kick.mcap",
-            s(&copy),
-            "--rosbag2",
-        ],
+        &["recover", "recordings/kick.mcap", s(&copy), "--rosbag2"],
         "metadata.yaml",
     );
     assert!(stderr.contains("not a regular file"), "{stderr}");
