@@ -1688,34 +1688,54 @@ fn a_signal_ends_the_scan_past_damage_too() {
     file.seek(std::io::SeekFrom::End(0)).expect("seek");
     file.write_all(&bytes[8..]).expect("write");
     drop(file);
-    let out = dir.path().join("out.mcap");
-    let mut child = posestream()
-        .args(["replay", s(&path), "--record", s(&out)])
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .expect("starts");
-    std::thread::sleep(std::time::Duration::from_millis(1500));
-    assert!(child.try_wait().expect("waits").is_none(), "still scanning");
-    let sent = std::time::Instant::now();
-    let status = Command::new("kill")
-        .args(["-TERM", &child.id().to_string()])
-        .status()
-        .expect("kill");
-    assert!(status.success());
-    // Ended within a few blocks' reading (the scan alone would take minutes).
-    let ended = (0..300).any(|_| {
-        std::thread::sleep(std::time::Duration::from_millis(100));
-        child.try_wait().expect("waits").is_some()
-    });
-    if !ended {
-        let _ = child.kill();
+    for command in ["replay", "run"] {
+        let out = dir.path().join(format!("{command}.mcap"));
+        let mut child = posestream();
+        match command {
+            "replay" => child.args(["replay", s(&path)]),
+            _ => child.args(["run", "--recording", s(&path), "--ros2", "false"]),
+        };
+        let mut child = child
+            .args(["--record", s(&out)])
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .expect("starts");
+        std::thread::sleep(std::time::Duration::from_millis(1500));
+        assert!(
+            child.try_wait().expect("waits").is_none(),
+            "{command}: still scanning"
+        );
+        let sent = std::time::Instant::now();
+        let status = Command::new("kill")
+            .args(["-TERM", &child.id().to_string()])
+            .status()
+            .expect("kill");
+        assert!(status.success());
+        // Ended within a few blocks' reading (the scan alone would take minutes).
+        let ended = (0..300).any(|_| {
+            std::thread::sleep(std::time::Duration::from_millis(100));
+            child.try_wait().expect("waits").is_some()
+        });
+        if !ended {
+            let _ = child.kill();
+        }
+        assert!(
+            ended,
+            "{command}: running {:?} after SIGTERM",
+            sent.elapsed()
+        );
+        let done = child.wait_with_output().expect("waits");
+        assert!(
+            done.status.success(),
+            "{command}: {}",
+            String::from_utf8_lossy(&done.stderr)
+        );
+        RecordingReader::open(&out)
+            .expect("open")
+            .collect::<Result<Vec<_>, _>>()
+            .expect("a complete recording, footer included");
     }
-    assert!(ended, "still running {:?} after SIGTERM", sent.elapsed());
-    RecordingReader::open(&out)
-        .expect("open")
-        .collect::<Result<Vec<_>, _>>()
-        .expect("a complete recording, footer included");
 }
 
 #[test]
@@ -1932,6 +1952,24 @@ fn a_summary_or_a_copy_cannot_make_reading_lose_or_repeat_frames() {
     let r = run(&["replay", "--json", s(&path)]);
     assert_eq!(r.code, Some(0), "{}", r.stderr);
     assert!(r.stderr.contains("1 duplicate chunk"), "{}", r.stderr);
+    // The copy in other bytes (its CRC field zeroed): its messages are the first copy's,
+    // each given once and the repeats said; strictly, an error.
+    let mut copy = bytes[c..next].to_vec();
+    copy[9 + 8 + 8 + 8..9 + 8 + 8 + 8 + 4].copy_from_slice(&[0; 4]);
+    let again = [&bytes[..next], &copy, &bytes[next..]].concat();
+    let path = dir.path().join("chunk-copied.mcap");
+    std::fs::write(&path, &again).expect("write");
+    let (read, skips) = read_on(&path);
+    assert_eq!(read, all);
+    assert_eq!(
+        skips.counts.get(&msgs::salvage::Damage::Repeated),
+        Some(&(PER_CHUNK as u64)),
+        "{skips:?}"
+    );
+    assert!(matches!(
+        read_strictly(&path).1,
+        Some(RecordingError::Corrupt { .. })
+    ));
     // A summary whose chunk index places a chunk on a good message of an unchunked
     // recording (its CRC left out): the message is read as what it is.
     let heat = frames("byebye.mcap");

@@ -19,7 +19,9 @@
 //! - a message on a channel never declared;
 //! - a chunk that repeats, byte for byte, one read before (the first
 //!   [`MAX_SEEN_CHUNKS`] chunks are remembered);
-//! - a schema or channel declared again as another (the first declaration stands).
+//! - a schema or channel declared again as another (the first declaration stands);
+//! - a message that repeats one read before: channel, sequence number, times and payload
+//!   (the first [`MAX_SEEN_MESSAGES`] messages are remembered).
 //!
 //! The summary section and the index are not read: everything comes from the data, which
 //! is what holds the messages (a summary that disagrees with it cannot mislead). Memory
@@ -69,6 +71,9 @@ pub enum Damage {
     /// A schema or channel declared again as another (its id is the first's: the first
     /// declaration stands).
     Conflict,
+    /// A message that repeats one read before: its channel, sequence number, times and
+    /// payload (a chunk copied with other bytes around the same messages).
+    Repeated,
 }
 
 impl Damage {
@@ -84,6 +89,7 @@ impl Damage {
             Damage::UnknownChannel => "unknown channel",
             Damage::Duplicate => "duplicate chunk",
             Damage::Conflict => "conflicting declaration",
+            Damage::Repeated => "repeated message",
         }
     }
 }
@@ -259,7 +265,13 @@ pub struct Salvager {
     /// A hash of each chunk read that held messages (its times, sizes, compression and
     /// both CRCs), for [`Damage::Duplicate`]: at most [`MAX_SEEN_CHUNKS`].
     seen_chunks: std::collections::HashSet<u64>,
+    /// A hash of each message given out (channel, sequence, times, payload's CRC), for
+    /// [`Damage::Repeated`]: at most [`MAX_SEEN_MESSAGES`].
+    seen_messages: std::collections::HashSet<u64>,
 }
+
+/// Messages remembered to find repeats, at most (about 16 MiB of hashes).
+pub const MAX_SEEN_MESSAGES: usize = 1 << 20;
 
 /// Chunks remembered to find repeats, at most (about 16 MiB of hashes; a recording of
 /// 1 MiB chunks has that many in a terabyte).
@@ -321,6 +333,7 @@ impl Salvager {
             trailing: None,
             data_end: None,
             seen_chunks: std::collections::HashSet::new(),
+            seen_messages: std::collections::HashSet::new(),
         };
         salvager.find_end(file);
         salvager.read_summary(file);
@@ -624,6 +637,11 @@ impl Salvager {
                 {
                     return Ok(false);
                 }
+                if self.repeated(&header, &data) {
+                    // Given out once already (a copy of its chunk in other bytes).
+                    self.skips.note(Damage::Repeated);
+                    return Ok(true);
+                }
                 // Copied over a payload handed back, if there is one.
                 let mut payload = self.spare.pop().unwrap_or_default();
                 payload.clear();
@@ -639,6 +657,30 @@ impl Salvager {
             _ => {}
         }
         Ok(true)
+    }
+
+    /// Whether the message of `header` with payload `data` was given out before (the
+    /// first [`MAX_SEEN_MESSAGES`] are remembered).
+    fn repeated(&mut self, header: &mcap::records::MessageHeader, data: &[u8]) -> bool {
+        use std::hash::{Hash, Hasher};
+        let mut h = std::hash::DefaultHasher::new();
+        (
+            header.channel_id,
+            header.sequence,
+            header.log_time,
+            header.publish_time,
+            data.len(),
+            crc32fast::hash(data),
+        )
+            .hash(&mut h);
+        let key = h.finish();
+        if self.seen_messages.contains(&key) {
+            return true;
+        }
+        if self.seen_messages.len() < MAX_SEEN_MESSAGES {
+            self.seen_messages.insert(key);
+        }
+        false
     }
 
     /// A chunk: decompressed within the limit, its CRC checked, then its records; the

@@ -318,6 +318,11 @@ impl<M: Message> Source<M> for McapSource<M> {
             if let Some(got) = self.next_of_pass()? {
                 return Ok(got);
             }
+            if posestream_base::files::stop::requested() {
+                // A signal ended the reading (`posestream_base::files::stop`): the stream
+                // ends here, and nothing is said of the file.
+                return Ok(Received::Closed);
+            }
             if self.pass == 0 && !self.yielded {
                 // Nothing of the topic in the whole file: a wrong topic or file, not an
                 // empty stream.

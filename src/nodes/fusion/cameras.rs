@@ -47,6 +47,17 @@ impl FusionNode {
         match result {
             Ok(intrinsics) => {
                 let frame = info.header.frame_id.trim_start_matches('/');
+                if let Some(own) = &self.cameras[camera].frame_id
+                    && !frame.is_empty()
+                    && frame != own
+                {
+                    // Another frame's calibration (a mix-up of topics): refused each time.
+                    let e = NodeError::CameraInfo {
+                        reason: format!("camera {name}: frame id {frame:?}, not its {own:?}"),
+                    };
+                    self.refused.note(e.kind(), &e);
+                    return;
+                }
                 let mut changed = false;
                 if self.cameras[camera].frame_id.is_none() && !frame.is_empty() {
                     if let Some(other) = self.frame_owner(frame) {

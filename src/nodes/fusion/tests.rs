@@ -192,6 +192,15 @@ fn hostile_frames_are_refused_by_kind_and_change_nothing() {
     assert_eq!(node.refused().of("camera-info"), before + 1);
     assert_eq!(node.cameras()[1].frame_id, "");
     assert!(node.heat_maps(1, &mixed, 1, &mut out).is_err());
+    // Camera a's calibration in camera b's frame, after a's frame is known: refused each
+    // time, a's intrinsics (configured here) and frame untouched.
+    let mut other = info.clone();
+    other.header.frame_id = "b".into();
+    for _ in 0..2 {
+        let before = node.refused().of("camera-info");
+        node.camera_info(0, &other);
+        assert_eq!(node.refused().of("camera-info"), before + 1);
+    }
     // Only the good frame was taken; the camera's frame id is still its own.
     assert_eq!(node.counters().frames, 1);
     assert_eq!(node.cameras()[0].frame_id, "a");

@@ -331,6 +331,9 @@ impl<R: Read + Seek> RecordingReader<R> {
             Damage::LyingLength => "a length that does not lead to the next record".into(),
             Damage::UnknownChannel => "a message on a channel never declared".into(),
             Damage::Duplicate => "a chunk that repeats one before it, byte for byte".into(),
+            Damage::Repeated => {
+                "a message that repeats one before it (channel, sequence, times and payload)".into()
+            }
             Damage::Conflict => {
                 "a schema or channel declared again as another under the same id".into()
             }
