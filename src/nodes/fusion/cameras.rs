@@ -46,33 +46,18 @@ impl FusionNode {
         };
         match result {
             Ok(intrinsics) => {
+                // An empty frame id names no frame: the calibration is still its camera's.
                 let frame = info.header.frame_id.trim_start_matches('/');
-                if let Some(own) = &self.cameras[camera].frame_id
-                    && !frame.is_empty()
-                    && frame != own
-                {
-                    // Another frame's calibration (a mix-up of topics): refused each time.
-                    let e = NodeError::CameraInfo {
-                        reason: format!("camera {name}: frame id {frame:?}, not its {own:?}"),
-                    };
-                    self.refused.note(e.kind(), &e);
-                    return;
-                }
                 let mut changed = false;
-                if self.cameras[camera].frame_id.is_none() && !frame.is_empty() {
-                    if let Some(other) = self.frame_owner(frame) {
-                        let e = NodeError::CameraInfo {
-                            reason: format!(
-                                "camera {name}: frame id {frame:?} is camera {other}'s: each \
-                                 camera needs a frame of its own"
-                            ),
-                        };
-                        self.refused.note(e.kind(), &e);
-                        return;
+                if !frame.is_empty() {
+                    match self.claim_frame(camera, frame) {
+                        Ok(claimed) => changed = claimed,
+                        Err(reason) => {
+                            let e = NodeError::CameraInfo { reason };
+                            self.refused.note(e.kind(), &e);
+                            return;
+                        }
                     }
-                    let c = &mut self.cameras[camera];
-                    c.frame_id = Some(frame.to_string());
-                    changed = true;
                 }
                 let c = &mut self.cameras[camera];
                 if c.configured_intrinsics.is_none() && c.intrinsics != Some(intrinsics) {
@@ -92,13 +77,34 @@ impl FusionNode {
         }
     }
 
-    /// The camera whose frame `frame` is, if one's is (two cameras in one frame are a
-    /// mix-up of topics or of a camera's configuration: the second is refused).
-    pub(super) fn frame_owner(&self, frame: &str) -> Option<String> {
-        self.cameras
+    /// Camera `camera`'s message is in `frame`: its own frame already (`Ok(false)`), or
+    /// taken as its own now (`Ok(true)`); refused (the reason) when the camera has
+    /// another, or when `frame` is another camera's (a mix-up of topics or of a camera's
+    /// configuration), so that no camera becomes another's twin.
+    pub(super) fn claim_frame(&mut self, camera: usize, frame: &str) -> Result<bool, String> {
+        let name = &self.cameras[camera].name;
+        if let Some(own) = &self.cameras[camera].frame_id {
+            return if own == frame {
+                Ok(false)
+            } else {
+                Err(format!(
+                    "camera {name}: frame id {frame:?}, not its {own:?}"
+                ))
+            };
+        }
+        if let Some(other) = self
+            .cameras
             .iter()
             .find(|c| c.frame_id.as_deref() == Some(frame))
-            .map(|c| c.name.clone())
+        {
+            return Err(format!(
+                "camera {name}: frame id {frame:?} is camera {}'s: each camera needs a frame \
+                 of its own",
+                other.name
+            ));
+        }
+        self.cameras[camera].frame_id = Some(frame.to_string());
+        Ok(true)
     }
 
     /// Takes transforms (`/tf_static`, `/tf`): with extrinsics from TF, each camera's

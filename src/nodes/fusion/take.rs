@@ -50,28 +50,11 @@ impl FusionNode {
         }
         // A well-formed frame: its frame id is its camera's from now on.
         let frame = msg.header.frame_id.trim_start_matches('/');
-        match &self.cameras[camera].frame_id {
-            Some(known) if known != frame => {
-                return Err(refuse(format!(
-                    "camera {name}: frame id {frame:?}, not its {known:?}"
-                )));
-            }
-            Some(_) => {}
-            None if frame.is_empty() => {
-                return Err(refuse(format!("camera {name}: no frame id")));
-            }
-            None => {
-                // Two cameras in one frame: a mix-up of topics or of a camera's
-                // configuration; the second is refused until its frame is its own.
-                if let Some(other) = self.frame_owner(frame) {
-                    return Err(refuse(format!(
-                        "camera {name}: frame id {frame:?} is camera {other}'s: each camera \
-                         needs a frame of its own"
-                    )));
-                }
-                self.cameras[camera].frame_id = Some(frame.to_string());
-                self.update_rig();
-            }
+        if frame.is_empty() && self.cameras[camera].frame_id.is_none() {
+            return Err(refuse(format!("camera {name}: no frame id")));
+        }
+        if self.claim_frame(camera, frame).map_err(refuse)? {
+            self.update_rig();
         }
         let c = &self.cameras[camera];
         if c.calibrated().is_none() {
