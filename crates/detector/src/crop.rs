@@ -90,14 +90,29 @@ pub fn crop_input_signed(rgb: &image::RgbImage, b: &CropBox, size: usize, out: &
 /// in [0, 1]; outside the image is black (0), as MediaPipe's letterboxing. Input pixel
 /// `(u, v)` is the image point `b.x0 + (u + 0.5) * b.width / size - 0.5` (pixel centres).
 pub fn crop_input(rgb: &image::RgbImage, b: &CropBox, size: usize, out: &mut Vec<f32>) {
+    crop_input_sized(rgb, b, [size, size], out);
+}
+
+/// [`crop_input`] into `columns x rows x 3` (`[columns, rows]`): box `b` stretched to
+/// that size (give it the same aspect to keep people's).
+pub fn crop_input_sized(
+    rgb: &image::RgbImage,
+    b: &CropBox,
+    [columns, rows_out]: [usize; 2],
+    out: &mut Vec<f32>,
+) {
     out.clear();
-    out.resize(size * size * 3, 0.0);
+    out.resize(columns * rows_out * 3, 0.0);
     let (w, h) = (rgb.width() as i64, rgb.height() as i64);
     let raw = rgb.as_raw();
-    let (sx, sy) = (b.width / size as f64, b.height / size as f64);
+    let (sx, sy) = (b.width / columns as f64, b.height / rows_out as f64);
     // Per output column: the two source columns (None outside the image) and the
     // weight of the second; the same for rows.
-    let taps = |origin: f64, step: f64, limit: i64| -> Vec<(Option<usize>, Option<usize>, f32)> {
+    let taps = |origin: f64,
+                step: f64,
+                limit: i64,
+                size: usize|
+     -> Vec<(Option<usize>, Option<usize>, f32)> {
         (0..size)
             .map(|u| {
                 let x = origin + (u as f64 + 0.5) * step - 0.5;
@@ -107,8 +122,9 @@ pub fn crop_input(rgb: &image::RgbImage, b: &CropBox, size: usize, out: &mut Vec
             })
             .collect()
     };
-    let columns = taps(b.x0, sx, w);
-    let rows = taps(b.y0, sy, h);
+    let size = columns;
+    let columns = taps(b.x0, sx, w, columns);
+    let rows = taps(b.y0, sy, h, rows_out);
     let row_len = w as usize * 3;
     let sample = |row: Option<usize>, col: Option<usize>, c: usize| -> f32 {
         match (row, col) {

@@ -38,6 +38,7 @@
 //!   boxes found and the people admitted;
 //! - `decode`: step 3, the heads kept and the heat maps of the people reported.
 
+mod bodies;
 mod decode;
 mod landmarks;
 mod looks;
@@ -49,7 +50,9 @@ mod track;
 
 use std::path::Path;
 
-pub use settings::{DetectorError, DetectorStats, ImageSettings, MapEncoding, Runtime};
+pub use settings::{
+    BodyDetector, DetectorError, DetectorStats, ImageSettings, MapEncoding, Runtime,
+};
 
 use self::looks::{Found, Head};
 use crate::images::ImageFrame;
@@ -67,8 +70,11 @@ use posestream_base::CropBox;
 pub struct ImageDetector {
     network: Landmarks,
     person: Option<PersonNetwork>,
-    /// The pedestrian detector (`None`: off, or not fetched).
+    /// The pedestrian detector (`None`: off, not fetched, or NanoDet instead).
     pedestrians: Option<PedestrianNetwork>,
+    /// NanoDet, the whole-body detector (`None`: off, not fetched, or SSDLite instead).
+    bodies: Option<bodies::Bodies>,
+    nanodet_threshold: f32,
     pedestrian_threshold: f32,
     pedestrian_tiles: u32,
     /// The frame the pedestrian detector last ran (see `EMPTY_SCENE_SEARCHES`).
@@ -157,7 +163,9 @@ impl ImageDetector {
                 what,
             });
         }
+        let nanodet = settings.pedestrians && settings.body_detector == BodyDetector::Nanodet;
         let pedestrians = settings.pedestrians
+            && !nanodet
             && {
                 let present = pedestrians_path.is_file();
                 if !present {
@@ -176,6 +184,13 @@ impl ImageDetector {
                     reason,
                 })
             })
+        };
+        let workers = rayon::current_num_threads().clamp(1, 8);
+        let bodies = if nanodet {
+            let fixed = settings.nanodet_input().map_err(DetectorError::Settings)?;
+            bodies::Bodies::new(dir.clone(), litert.clone(), workers, fixed)?
+        } else {
+            None
         };
         let (network, person, pedestrians) = match litert {
             None => {
@@ -197,7 +212,6 @@ impl ImageDetector {
             }
             Some(runtime) => {
                 // One compiled model per worker of the parallel runs.
-                let workers = rayon::current_num_threads().clamp(1, 8);
                 let path = checked(ModelFile::Landmark(settings.model))?;
                 let landmarks = Landmarks::litert(&runtime, &path, workers)?;
                 let person = if settings.person_detector {
@@ -227,6 +241,7 @@ impl ImageDetector {
         let mut detector = Self::new(network, mapping, joint_names, settings)?;
         detector.person = person;
         detector.pedestrians = pedestrians;
+        detector.bodies = bodies;
         Ok(detector)
     }
 
@@ -281,6 +296,8 @@ impl ImageDetector {
             network,
             person: None,
             pedestrians: None,
+            bodies: None,
+            nanodet_threshold: settings.nanodet_threshold,
             pedestrian_threshold: settings.pedestrian_threshold,
             pedestrian_tiles: settings.pedestrian_tiles,
             last_pedestrians: None,

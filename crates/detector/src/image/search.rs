@@ -6,10 +6,14 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
+use super::bodies::{self, letterboxed};
 use super::looks::{HEAD_PER_HEIGHT, Sighting, box_iou, same_sighting};
 use super::{DetectorError, ImageDetector};
-use crate::crop::{box_from_alignment, crop_input_signed, squared, tiles, whole_image_box};
+use crate::crop::{
+    box_from_alignment, crop_input_signed, crop_input_sized, squared, tiles, whole_image_box,
+};
 use crate::images::ImageFrame;
+use crate::models::nanodet::{NanoDetNetwork, normalise};
 use crate::models::pedestrians::{INPUT_SIZE as PEDESTRIAN_INPUT, Pedestrian, PedestrianNetwork};
 use crate::models::person::{INPUT_SIZE as PERSON_INPUT, PersonDetection, PersonNetwork};
 use crate::tracker::Observation;
@@ -41,6 +45,7 @@ type ScoredBox = (f32, [f64; 4]);
 enum Run<'a> {
     Faces(&'a PersonNetwork, CropBox),
     Bodies(&'a PedestrianNetwork, CropBox),
+    People(&'a NanoDetNetwork, CropBox),
 }
 
 /// What one run of a search found.
@@ -130,7 +135,14 @@ impl ImageDetector {
         };
         let face_regions = self.face_regions(region, &area, followed);
         let body_regions = self.body_regions(&area, followed);
+        if let Some(bodies) = &mut self.bodies {
+            bodies.prepare(width, height)?;
+        }
+        let people = self.bodies.as_ref().and_then(bodies::Bodies::loaded);
         let mut runs: Vec<Run<'_>> = Vec::new();
+        if let Some(network) = people {
+            runs.push(Run::People(network, letterboxed(&area, network.size())));
+        }
         if let Some(person) = &self.person {
             runs.extend(face_regions.iter().map(|r| Run::Faces(person, *r)));
         }
@@ -141,6 +153,7 @@ impl ImageDetector {
         // pedestrian detector is 2 + 3 runs, not one detector's runs after the other's.
         let low = self.tracker_low_threshold();
         let pedestrian_threshold = self.pedestrian_threshold;
+        let nanodet_threshold = self.nanodet_threshold;
         let rgb = &frame.rgb;
         // The model inputs: the landmark looks' buffers (not in use during a search).
         if self.inputs.len() < runs.len() {
@@ -157,6 +170,21 @@ impl ImageDetector {
                 Run::Bodies(network, region) => {
                     crop_input_signed(rgb, &region, PEDESTRIAN_INPUT, input);
                     let people = network.detect(worker, input, pedestrian_threshold)?;
+                    Seen::Bodies(bodies_in(&region, &people))
+                }
+                Run::People(network, region) => {
+                    let size = network.size();
+                    crop_input_sized(rgb, &region, [size.width, size.height], input);
+                    normalise(input);
+                    let people = network.detect(input, nanodet_threshold)?;
+                    let people: Vec<Pedestrian> = people
+                        .iter()
+                        .map(|b| Pedestrian {
+                            score: b.score,
+                            min: b.min,
+                            max: b.max,
+                        })
+                        .collect();
                     Seen::Bodies(bodies_in(&region, &people))
                 }
             };
@@ -314,7 +342,11 @@ impl ImageDetector {
                 kept.push(b);
             }
         }
-        let threshold = self.pedestrian_threshold;
+        let threshold = if self.bodies.is_some() {
+            self.nanodet_threshold
+        } else {
+            self.pedestrian_threshold
+        };
         let span = (1.0 - threshold).max(f32::EPSILON);
         kept.into_iter()
             .filter_map(|(score, [x0, y0, x1, y1])| {

@@ -70,10 +70,10 @@ pub struct ImageSettings {
     pub motion: bool,
     /// Moving blobs shorter than this (image pixels) are not proposed.
     pub motion_min_height: f64,
-    /// Search for people with the pedestrian detector too (`crate::models::pedestrians`,
-    /// fetched by `posestream models fetch`): whole bodies at any distance, seen from
-    /// any side, where BlazePose's face-anchored detector finds people near the camera.
-    /// Skipped, with a warning, when it is not fetched.
+    /// Search for people with a whole-body detector too (`body_detector`, fetched by
+    /// `posestream models fetch`): whole bodies at any distance, seen from any side,
+    /// where BlazePose's face-anchored detector finds people near the camera. Skipped,
+    /// with a warning, when it is not fetched.
     pub pedestrians: bool,
     /// The pedestrian detector's score below this: not a person.
     pub pedestrian_threshold: f32,
@@ -81,8 +81,30 @@ pub struct ImageSettings {
     /// side (each its full other side, overlapping), where people far away look
     /// bigger, beside the whole image; 1: the whole image only.
     pub pedestrian_tiles: u32,
+    /// Which whole-body detector `pedestrians` searches with: `nanodet` (NanoDet-g, a
+    /// COCO detector, `crate::models::nanodet`: one run on the whole image) or
+    /// `ssdlite` (the SSDLite pedestrian detector, on the image and
+    /// `pedestrian_tiles` tiles).
+    pub body_detector: BodyDetector,
+    /// NanoDet's person score below this: not a person.
+    pub nanodet_threshold: f32,
+    /// NanoDet's input size, `WIDTHxHEIGHT` (one of those `models fetch` converts:
+    /// 416x416, 416x320, 320x416, 416x256, 256x416), or `auto`: the one nearest the
+    /// images' aspect.
+    pub nanodet_input: String,
     /// How people are followed from frame to frame (`[detector.images.tracking]`).
     pub tracking: TrackingSettings,
+}
+
+/// The whole-body person detector ([`ImageSettings::body_detector`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum BodyDetector {
+    /// NanoDet-g (COCO), `crate::models::nanodet`.
+    #[default]
+    Nanodet,
+    /// The SSDLite pedestrian detector, `crate::models::pedestrians`.
+    Ssdlite,
 }
 
 /// The landmark model's runtime.
@@ -133,12 +155,23 @@ impl Default for ImageSettings {
             pedestrians: true,
             pedestrian_threshold: 0.3,
             pedestrian_tiles: 2,
+            body_detector: BodyDetector::Nanodet,
+            nanodet_threshold: 0.45,
+            nanodet_input: "auto".into(),
             tracking: TrackingSettings::default(),
         }
     }
 }
 
 impl ImageSettings {
+    /// NanoDet's input size as configured; `None`: `auto`. `Err`: why it is none.
+    pub fn nanodet_input(&self) -> Result<Option<crate::models::nanodet::InputSize>, String> {
+        match self.nanodet_input.as_str() {
+            "auto" => Ok(None),
+            s => s.parse().map(Some),
+        }
+    }
+
     /// The folder holding the models.
     pub fn models_dir(&self) -> PathBuf {
         if self.models_dir.as_os_str().is_empty() {
@@ -184,6 +217,16 @@ impl ImageSettings {
             1.0,
             true,
         )?;
+        check_real(
+            "nanodet_threshold",
+            f64::from(self.nanodet_threshold),
+            0.0,
+            1.0,
+            true,
+        )?;
+        self.nanodet_input().map_err(|why| {
+            OutOfDomain::new("nanodet_input", "auto or one of the converted sizes", why)
+        })?;
         if !(1..=4).contains(&self.pedestrian_tiles) {
             return Err(OutOfDomain::new(
                 "pedestrian_tiles",

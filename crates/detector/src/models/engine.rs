@@ -56,19 +56,35 @@ impl Engine {
         )?))
     }
 
-    /// Runs on `input` (`side x side x 3`, row-major); `worker` picks LiteRT's compiled
-    /// model (`None`: the lone run's). The values of each of `outputs`, in their order.
+    /// The model at `path` compiled by LiteRT once, to run on `threads` threads, for an
+    /// input of `[rows, columns]` x 3 and `outputs`.
+    pub fn litert_threads(
+        runtime: &LiteRt,
+        path: &Path,
+        threads: usize,
+        [rows, columns]: [usize; 2],
+        outputs: &[Output<'_>],
+    ) -> Result<Self, NetworkError> {
+        let floats: Vec<usize> = outputs.iter().map(|o| o.floats).collect();
+        let model =
+            LiteRtNetwork::load_model(runtime, path, rows * columns * 3, &floats, threads.max(1))?;
+        Ok(Self::LiteRt(CompiledModels::one(model)))
+    }
+
+    /// Runs on `input` (`rows x columns x 3`, row-major); `worker` picks LiteRT's
+    /// compiled model (`None`: the lone run's). The values of each of `outputs`, in
+    /// their order.
     pub fn run<const N: usize>(
         &self,
         worker: Option<usize>,
-        side: usize,
+        [rows, columns]: [usize; 2],
         input: &[f32],
         outputs: [Output<'_>; N],
     ) -> Result<[Vec<f32>; N], NetworkError> {
         let mut values: [Vec<f32>; N] = std::array::from_fn(|_| Vec::new());
         match self {
             Self::Tract(model) => {
-                let out = run_model(model, &[1, side, side, 3], input)?;
+                let out = run_model(model, &[1, rows, columns, 3], input)?;
                 for (v, o) in values.iter_mut().zip(&outputs) {
                     *v = output_of_shape(&out, o.shape)?;
                 }
@@ -146,7 +162,9 @@ impl<D: Detector> Network<D> {
     /// Raw outputs for `input`: `INPUT_SIZE x INPUT_SIZE x 3`, row-major, values in
     /// [-1, 1]; `worker` picks LiteRT's compiled model (`None`: the lone run's).
     pub fn run_raw(&self, worker: Option<usize>, input: &[f32]) -> Result<D::Raw, NetworkError> {
-        let outputs = self.engine.run(worker, D::INPUT_SIZE, input, D::OUTPUTS)?;
+        let outputs = self
+            .engine
+            .run(worker, [D::INPUT_SIZE; 2], input, D::OUTPUTS)?;
         Ok(D::raw(outputs))
     }
 

@@ -124,7 +124,7 @@ impl ModelFile {
 }
 
 /// SHA-256 of `bytes`, lower-case hex.
-fn sha256_hex(bytes: &[u8]) -> String {
+pub(super) fn sha256_hex(bytes: &[u8]) -> String {
     Sha256::digest(bytes)
         .iter()
         .map(|b| format!("{b:02x}"))
@@ -188,6 +188,14 @@ pub enum FetchError {
         /// The cause.
         reason: String,
     },
+    /// The person detector could not be converted.
+    #[error("{file}: {source}")]
+    ConvertGraph {
+        /// The graph.
+        file: String,
+        /// The cause.
+        source: super::tfjs::TfjsError,
+    },
     /// The pedestrian detector could not be converted.
     #[error("{file}: {source}")]
     Convert {
@@ -225,7 +233,7 @@ pub struct FetchedModel {
     pub operators: usize,
 }
 
-fn io(path: &Path) -> impl FnOnce(std::io::Error) -> FetchError + '_ {
+pub(super) fn io(path: &Path) -> impl FnOnce(std::io::Error) -> FetchError + '_ {
     move |source| FetchError::Io {
         path: path.to_path_buf(),
         source,
@@ -240,25 +248,33 @@ fn read_at_most(path: &Path, limit: u64) -> Result<Vec<u8>, FetchError> {
     posestream_base::files::read_capped(path, limit).map_err(io(path))
 }
 
-/// `url`'s bytes, at most [`DOWNLOAD_LIMIT`].
-fn download(url: &str) -> Result<Vec<u8>, FetchError> {
-    let failed = |reason: String| FetchError::Download {
-        url: url.into(),
-        reason,
-    };
+/// A reader of `url`'s body (no limit: the caller's).
+pub(super) fn download_reader(url: &str) -> Result<impl Read + use<>, FetchError> {
     // The platform's trust store (as curl uses it), not only Mozilla's roots:
     // networks that inspect TLS install their own root there.
     let tls = ureq::tls::TlsConfig::builder()
         .root_certs(ureq::tls::RootCerts::PlatformVerifier)
         .build();
     let agent: ureq::Agent = ureq::Agent::config_builder().tls_config(tls).build().into();
-    let mut body = agent
+    Ok(agent
         .get(url)
         .call()
-        .map_err(|e| failed(e.to_string()))?
-        .into_body();
+        .map_err(|e| FetchError::Download {
+            url: url.into(),
+            reason: e.to_string(),
+        })?
+        .into_body()
+        .into_reader())
+}
+
+/// `url`'s bytes, at most [`DOWNLOAD_LIMIT`].
+fn download(url: &str) -> Result<Vec<u8>, FetchError> {
+    let failed = |reason: String| FetchError::Download {
+        url: url.into(),
+        reason,
+    };
     let mut bytes = Vec::new();
-    body.as_reader()
+    download_reader(url)?
         .take(DOWNLOAD_LIMIT + 1)
         .read_to_end(&mut bytes)
         .map_err(|e| failed(e.to_string()))?;
@@ -667,7 +683,7 @@ pub fn fetch(
 }
 
 /// Writes through a temporary file and a rename: a model file is whole or absent.
-fn write_atomically(path: &Path, data: &[u8]) -> Result<(), FetchError> {
+pub(super) fn write_atomically(path: &Path, data: &[u8]) -> Result<(), FetchError> {
     let tmp = path.with_extension("partial");
     std::fs::write(&tmp, data).map_err(io(&tmp))?;
     std::fs::rename(&tmp, path).map_err(io(path))

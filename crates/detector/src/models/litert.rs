@@ -546,6 +546,14 @@ impl<N> CompiledModels<N> {
         })
     }
 
+    /// One compiled model, for every run.
+    pub fn one(model: N) -> Self {
+        Self {
+            workers: vec![std::sync::Mutex::new(model)],
+            lone: None,
+        }
+    }
+
     /// Locks the compiled model of `worker` (any number: taken modulo their count);
     /// `None`: the lone run's (the first worker's without one).
     pub fn lock(

@@ -11,9 +11,12 @@ pub mod fetch;
 pub mod landmarks;
 pub mod litert;
 pub mod litert_log;
+pub mod nanodet;
+pub mod nanodet_fetch;
 pub mod pedestrians;
 pub mod person;
 pub mod rewrite;
+pub mod tfjs;
 
 use std::path::PathBuf;
 
