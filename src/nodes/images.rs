@@ -201,6 +201,8 @@ impl Source<HeatMaps> for ImageHeatMaps {
             stamp: Time::from_nanos(i64::try_from(frame.stamp_ns).unwrap_or(i64::MAX)),
             frame_id: frame.frame_id.clone(),
         };
+        // Shared with the search stage, not copied.
+        let frame = std::sync::Arc::new(frame);
         let result = self.detector.detect(&frame).map(|found| {
             for d in found {
                 let size = d.size as u32;
@@ -224,7 +226,7 @@ impl Source<HeatMaps> for ImageHeatMaps {
         if let Err(e) = result {
             return Err(TransportError::Broken {
                 transport: "image detector",
-                topic: frame.name,
+                topic: frame.name.clone(),
                 reason: e.to_string(),
             });
         }

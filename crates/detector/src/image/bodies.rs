@@ -72,10 +72,15 @@ impl Bodies {
                     reason,
                 })
             })?;
+            let began = std::time::Instant::now();
             self.loaded = Some(match &self.runtime {
                 Some(runtime) => NanoDetNetwork::load_litert(runtime, &path, size, self.threads)?,
                 None => NanoDetNetwork::load(&path, size)?,
             });
+            tracing::info!(
+                "person detector for {size} loaded in {:.0} ms",
+                began.elapsed().as_secs_f64() * 1e3
+            );
         }
         Ok(())
     }

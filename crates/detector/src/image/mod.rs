@@ -44,11 +44,13 @@ mod landmarks;
 mod looks;
 mod search;
 mod settings;
+mod stage;
 #[cfg(test)]
 mod tests;
 mod track;
 
 use std::path::Path;
+use std::sync::Arc;
 
 pub use settings::{
     BodyDetector, DetectorError, DetectorStats, ImageSettings, MapEncoding, Runtime,
@@ -69,30 +71,16 @@ use posestream_base::CropBox;
 /// The detector: the landmark model, the mapping, and the people tracked.
 pub struct ImageDetector {
     network: Landmarks,
-    person: Option<PersonNetwork>,
-    /// The pedestrian detector (`None`: off, not fetched, or NanoDet instead).
-    pedestrians: Option<PedestrianNetwork>,
-    /// NanoDet, the whole-body detector (`None`: off, not fetched, or SSDLite instead).
-    bodies: Option<bodies::Bodies>,
-    nanodet_threshold: f32,
-    pedestrian_threshold: f32,
-    pedestrian_tiles: u32,
-    /// The frame the pedestrian detector last ran (see `EMPTY_SCENE_SEARCHES`).
-    last_pedestrians: Option<u64>,
+    /// The person detectors, where they run.
+    searches: stage::Searches,
     detection_threshold: f32,
     mapping: ChannelMapping,
     joint_names: Vec<String>,
-    person_box: Option<CropBox>,
     threshold: f32,
-    search_tiles: u32,
     tracker: Tracker,
     /// The image size of the scene, and the frame it began.
     scene: Option<(u32, u32)>,
     scene_start: u64,
-    /// The tile the next search looks at besides the whole image.
-    next_tile: usize,
-    /// Searches in a row while nobody is followed (0 while someone is).
-    empty_searches: u64,
     /// Each person's head where it was last seen: blacked out in the other people's
     /// looks (a box that holds two people is looked at for the one it was given).
     heads: Vec<Head>,
@@ -188,7 +176,9 @@ impl ImageDetector {
         let workers = rayon::current_num_threads().clamp(1, 8);
         let bodies = if nanodet {
             let fixed = settings.nanodet_input().map_err(DetectorError::Settings)?;
-            bodies::Bodies::new(dir.clone(), litert.clone(), workers, fixed)?
+            // On the search stage's one thread, one thread of LiteRT's too.
+            let threads = if settings.search_thread { 1 } else { workers };
+            bodies::Bodies::new(dir.clone(), litert.clone(), threads, fixed)?
         } else {
             None
         };
@@ -239,9 +229,20 @@ impl ImageDetector {
             }
         })?;
         let mut detector = Self::new(network, mapping, joint_names, settings)?;
-        detector.person = person;
-        detector.pedestrians = pedestrians;
-        detector.bodies = bodies;
+        let stage::Searches::Inline(mut searcher) = std::mem::replace(
+            &mut detector.searches,
+            stage::Searches::Inline(Box::default()),
+        ) else {
+            unreachable!("a new detector searches inline")
+        };
+        searcher.person = person;
+        searcher.pedestrians = pedestrians;
+        searcher.bodies = bodies;
+        detector.searches = if settings.search_thread {
+            stage::Searches::Stage(stage::Stage::start(*searcher)?)
+        } else {
+            stage::Searches::Inline(searcher)
+        };
         Ok(detector)
     }
 
@@ -292,26 +293,27 @@ impl ImageDetector {
             Landmarks::Tract(_) => Runtime::Tract,
             Landmarks::LiteRt { .. } => Runtime::Litert,
         };
+        let tracker = Tracker::new(settings.tracking.clone(), settings.detection_threshold);
         Ok(Self {
             network,
-            person: None,
-            pedestrians: None,
-            bodies: None,
-            nanodet_threshold: settings.nanodet_threshold,
-            pedestrian_threshold: settings.pedestrian_threshold,
-            pedestrian_tiles: settings.pedestrian_tiles,
-            last_pedestrians: None,
+            searches: stage::Searches::Inline(Box::new(search::Searcher {
+                nanodet_threshold: settings.nanodet_threshold,
+                pedestrian_threshold: settings.pedestrian_threshold,
+                pedestrian_tiles: settings.pedestrian_tiles,
+                detection_threshold: settings.detection_threshold,
+                low_threshold: tracker.low_threshold(),
+                person_box: settings.person_box()?,
+                search_tiles: settings.search_tiles,
+                candidate_every: u64::from(settings.tracking.detect_every),
+                ..search::Searcher::default()
+            })),
             detection_threshold: settings.detection_threshold,
             mapping,
             joint_names: joint_names.to_vec(),
-            person_box: settings.person_box()?,
             threshold: settings.presence_threshold,
-            search_tiles: settings.search_tiles,
-            tracker: Tracker::new(settings.tracking.clone(), settings.detection_threshold),
+            tracker,
             scene: None,
             scene_start: 0,
-            next_tile: 0,
-            empty_searches: 0,
             heads: Vec::new(),
             last_candidate: None,
             candidate_every: u64::from(settings.tracking.detect_every),
@@ -353,35 +355,38 @@ impl ImageDetector {
                 self.refused.clear();
                 self.motion_looks.clear();
                 self.last_candidate = None;
-                self.last_pedestrians = None;
             }
             self.scene = Some(size);
             self.scene_start = self.stats.frames;
-            self.next_tile = 0;
-            self.empty_searches = 0;
         }
     }
 
     /// The people the detector found in `frame`, one [`Detection`] each (the heat maps
     /// lent until the next frame); empty when it finds nobody. The node makes the
     /// messages.
-    pub fn detect(&mut self, frame: &ImageFrame) -> Result<Vec<Detection<'_>>, DetectorError> {
+    pub fn detect(&mut self, frame: &Arc<ImageFrame>) -> Result<Vec<Detection<'_>>, DetectorError> {
         self.stats.frames += 1;
         self.begin_scene(frame.rgb.dimensions());
         self.tracker.begin();
         let now = self.stats.frames;
         // 1. Follow.
         let mut kept = self.follow(frame, now)?;
-        // 2. Search, when wanted; and look where something moves that nobody followed
-        // is (at most MOTION_LOOKS a frame, the tallest first).
+        // 2. The search's sightings (inline: when the tracker wants them; a stage: the
+        // newest ready); and look where something moves that nobody followed is (at
+        // most MOTION_LOOKS a frame, the tallest first).
         let unexplained = self.unexplained_motion(frame, now, &kept);
-        let searching = self.tracker.wants_detections();
+        let request = search::SearchRequest {
+            frame: now,
+            scene_first: now == self.scene_start,
+            followed: !kept.is_empty(),
+        };
+        let wanted = self.tracker.wants_detections();
+        let sightings = self
+            .searches
+            .sightings(frame, request, wanted, &mut self.stats)?;
+        let searching = sightings.is_some();
         if searching || !unexplained.is_empty() {
-            let sightings = if searching {
-                self.search(frame, !kept.is_empty())?
-            } else {
-                Vec::new()
-            };
+            let sightings = sightings.unwrap_or_default();
             self.acquire(frame, now, searching, &sightings, unexplained, &mut kept)?;
         }
         let reported = self.tracker.end();

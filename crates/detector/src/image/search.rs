@@ -1,6 +1,9 @@
-//! The searches for people ([`ImageDetector::search`]): BlazePose's person detector
-//! (faces) and the pedestrian detector (bodies) on the search region and its tiles,
-//! their runs spread over the cores, their sightings merged into one per person.
+//! The searches for people ([`Searcher::search`]): BlazePose's person detector (faces)
+//! and a whole-body detector (NanoDet on the search region, or the SSDLite pedestrian
+//! detector on it and its tiles), their sightings merged into one per person. A
+//! [`Searcher`] holds the detectors and what the searches remember; it runs on the
+//! frame's thread (its runs spread over the cores) or on a stage of its own
+//! (`super::stage`, its runs one after another).
 
 use std::time::Instant;
 
@@ -8,7 +11,7 @@ use rayon::prelude::*;
 
 use super::bodies::{self, letterboxed};
 use super::looks::{HEAD_PER_HEIGHT, Sighting, box_iou, same_sighting};
-use super::{DetectorError, ImageDetector};
+use super::{DetectorError, DetectorStats};
 use crate::crop::{
     box_from_alignment, crop_input_signed, crop_input_sized, squared, tiles, whole_image_box,
 };
@@ -52,6 +55,90 @@ enum Run<'a> {
 enum Seen {
     Faces(Vec<Sighting>),
     Bodies(Vec<ScoredBox>),
+}
+
+/// What a search is for: the frame's number (from 1), whether it is a scene's first,
+/// whether someone is followed in it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) struct SearchRequest {
+    /// The frame's number in the run, from 1.
+    pub frame: u64,
+    /// The first frame of a scene (an image size): every tile is searched.
+    pub scene_first: bool,
+    /// Someone is followed in the frame.
+    pub followed: bool,
+}
+
+/// What searches cost and found, added to [`DetectorStats`] when their sightings are
+/// taken.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub(super) struct SearchStats {
+    detector_runs: u64,
+    detector_seconds: f64,
+    pedestrian_runs: u64,
+    pedestrian_seconds: f64,
+    searches: u64,
+    detector_hits: u64,
+}
+
+impl SearchStats {
+    /// Adds these to `stats`.
+    pub(super) fn add_to(&self, stats: &mut DetectorStats) {
+        stats.detector_runs += self.detector_runs;
+        stats.detector_seconds += self.detector_seconds;
+        stats.pedestrian_runs += self.pedestrian_runs;
+        stats.pedestrian_seconds += self.pedestrian_seconds;
+        stats.searches += self.searches;
+        stats.detector_hits += self.detector_hits;
+    }
+
+    /// These and `other`'s.
+    pub(super) fn merged(mut self, other: &Self) -> Self {
+        self.detector_runs += other.detector_runs;
+        self.detector_seconds += other.detector_seconds;
+        self.pedestrian_runs += other.pedestrian_runs;
+        self.pedestrian_seconds += other.pedestrian_seconds;
+        self.searches += other.searches;
+        self.detector_hits += other.detector_hits;
+        self
+    }
+}
+
+/// The person detectors and what the searches remember.
+#[derive(Default)]
+pub(super) struct Searcher {
+    /// BlazePose's person detector (`None`: the search region as a whole is the box).
+    pub person: Option<PersonNetwork>,
+    /// The pedestrian detector (`None`: off, not fetched, or NanoDet instead).
+    pub pedestrians: Option<PedestrianNetwork>,
+    /// NanoDet, the whole-body detector (`None`: off, not fetched, or SSDLite instead).
+    pub bodies: Option<bodies::Bodies>,
+    /// The pedestrian detector's score below this: not a person.
+    pub pedestrian_threshold: f32,
+    /// NanoDet's score below this: not a person.
+    pub nanodet_threshold: f32,
+    /// The person detector's score below this: not a person.
+    pub detection_threshold: f32,
+    /// The tracker's low-score pass's threshold.
+    pub low_threshold: f32,
+    /// Tiles of the pedestrian detector.
+    pub pedestrian_tiles: u32,
+    /// Tiles of the person detector.
+    pub search_tiles: u32,
+    /// Where to search (`None`: the whole image).
+    pub person_box: Option<CropBox>,
+    /// `detect_every`, frames.
+    pub candidate_every: u64,
+    /// Runs spread over the cores (else one after another, on the caller's thread).
+    pub parallel: bool,
+    /// The frame the whole-body detector last ran (see `EMPTY_SCENE_SEARCHES`).
+    pub last_pedestrians: Option<u64>,
+    /// The tile the next search looks at besides the whole image.
+    pub next_tile: usize,
+    /// Searches in a row while nobody is followed (0 while someone is).
+    pub empty_searches: u64,
+    /// One model input per run.
+    pub inputs: Vec<Vec<f32>>,
 }
 
 /// Whether a search (not a scene's first) looks at a tile beside the whole image: every
@@ -111,15 +198,26 @@ fn bodies_in(region: &CropBox, people: &[Pedestrian]) -> Vec<ScoredBox> {
         .collect()
 }
 
-impl ImageDetector {
+impl Searcher {
+    /// A new scene: the searches start over.
+    fn begin_scene(&mut self) {
+        self.last_pedestrians = None;
+        self.next_tile = 0;
+        self.empty_searches = 0;
+    }
+
     /// Where the people are, as the person detectors see the search region (the
     /// person box, else the whole image), each with their head's box; without a
-    /// detector, the region. `followed`: someone is followed this frame.
+    /// detector, the region. With what the search cost.
     pub(super) fn search(
         &mut self,
         frame: &ImageFrame,
-        followed: bool,
-    ) -> Result<Vec<Sighting>, DetectorError> {
+        request: SearchRequest,
+    ) -> Result<(Vec<Sighting>, SearchStats), DetectorError> {
+        if request.scene_first {
+            self.begin_scene();
+        }
+        let mut stats = SearchStats::default();
         let (width, height) = frame.rgb.dimensions();
         let (region, area) = match &self.person_box {
             Some(b) => (squared(b), *b),
@@ -133,12 +231,16 @@ impl ImageDetector {
                 },
             ),
         };
-        let face_regions = self.face_regions(region, &area, followed);
-        let body_regions = self.body_regions(&area, followed);
+        let face_regions = self.face_regions(region, &area, request);
+        let body_regions = self.body_regions(&area, request);
         if let Some(bodies) = &mut self.bodies {
             bodies.prepare(width, height)?;
         }
-        let people = self.bodies.as_ref().and_then(bodies::Bodies::loaded);
+        let people = if self.bodies.is_some() && self.bodies_now(request) {
+            self.bodies.as_ref().and_then(bodies::Bodies::loaded)
+        } else {
+            None
+        };
         let mut runs: Vec<Run<'_>> = Vec::new();
         if let Some(network) = people {
             runs.push(Run::People(network, letterboxed(&area, network.size())));
@@ -151,11 +253,10 @@ impl ImageDetector {
         }
         // Both detectors' runs at once, spread over the cores: a search with the
         // pedestrian detector is 2 + 3 runs, not one detector's runs after the other's.
-        let low = self.tracker_low_threshold();
+        let low = self.low_threshold;
         let pedestrian_threshold = self.pedestrian_threshold;
         let nanodet_threshold = self.nanodet_threshold;
         let rgb = &frame.rgb;
-        // The model inputs: the landmark looks' buffers (not in use during a search).
         if self.inputs.len() < runs.len() {
             self.inputs.resize_with(runs.len(), Vec::new);
         }
@@ -191,6 +292,12 @@ impl ImageDetector {
             Ok::<_, DetectorError>((found, began.elapsed().as_secs_f64()))
         };
         let done: Vec<Result<(Seen, f64), DetectorError>> = match runs.as_slice() {
+            // On a stage of its own: one run after another.
+            _ if !self.parallel => runs
+                .iter()
+                .zip(inputs.iter_mut())
+                .map(|(run, input)| one(run, Some(0), input))
+                .collect(),
             // A lone run (the whole image while nobody is followed, in two searches of
             // three) here, on every core with LiteRT (XNNPACK's threads; the person
             // detector's lone model: the pedestrian detector, never alone beside it,
@@ -219,13 +326,13 @@ impl ImageDetector {
             match d? {
                 (Seen::Faces(f), seconds) => {
                     all.extend(f);
-                    self.stats.detector_runs += 1;
-                    self.stats.detector_seconds += seconds;
+                    stats.detector_runs += 1;
+                    stats.detector_seconds += seconds;
                 }
                 (Seen::Bodies(b), seconds) => {
                     bodies.extend(b);
-                    self.stats.pedestrian_runs += 1;
-                    self.stats.pedestrian_seconds += seconds;
+                    stats.pedestrian_runs += 1;
+                    stats.pedestrian_seconds += seconds;
                 }
             }
         }
@@ -239,7 +346,7 @@ impl ImageDetector {
                 placed.push(s);
             }
         }
-        self.stats.searches += 1;
+        stats.searches += 1;
         tracing::debug!(
             "person detectors: {} boxes {:?}",
             placed.len(),
@@ -255,15 +362,21 @@ impl ImageDetector {
             .iter()
             .any(|s| s.observation.score >= self.detection_threshold)
         {
-            self.stats.detector_hits += 1;
+            stats.detector_hits += 1;
         }
-        Ok(placed)
+        Ok((placed, stats))
     }
 
     /// Where BlazePose's person detector looks: `region`, and one tile of `area` in
     /// turn (all of them on a scene's first frame), where people far away look bigger;
     /// none without the detector.
-    fn face_regions(&mut self, region: CropBox, area: &CropBox, followed: bool) -> Vec<CropBox> {
+    fn face_regions(
+        &mut self,
+        region: CropBox,
+        area: &CropBox,
+        request: SearchRequest,
+    ) -> Vec<CropBox> {
+        let followed = request.followed;
         if self.person.is_none() {
             return Vec::new();
         }
@@ -274,7 +387,7 @@ impl ImageDetector {
         } else {
             self.empty_searches.wrapping_add(1)
         };
-        if self.stats.frames == self.scene_start || all.is_empty() {
+        if request.scene_first || all.is_empty() {
             regions.extend(all);
         } else if a_tile_too(followed, self.empty_searches) {
             regions.push(all[self.next_tile % all.len()]);
@@ -283,25 +396,33 @@ impl ImageDetector {
         regions
     }
 
+    /// Whether the whole-body detector runs in this search: always while someone is
+    /// followed, else every `EMPTY_SCENE_SEARCHES x detect_every` frames (and on a
+    /// scene's first).
+    fn bodies_now(&mut self, request: SearchRequest) -> bool {
+        let now = request.frame;
+        if !request.followed
+            && !request.scene_first
+            && self.last_pedestrians.is_some_and(|at| {
+                now.saturating_sub(at) < EMPTY_SCENE_SEARCHES * self.candidate_every
+            })
+        {
+            return false;
+        }
+        self.last_pedestrians = Some(now);
+        true
+    }
+
     /// Where the pedestrian detector looks: `area` and `pedestrian_tiles` tiles across
     /// it (each its full height, overlapping by a fifth of a tile), where people far
     /// away look bigger; all of them each time: one in turn (a third of the cost)
     /// found 0.34 of sample.mp4's people against 0.55 (README). While nobody is
     /// `followed` (a search every frame), every `EMPTY_SCENE_SEARCHES x detect_every`
     /// frames; none without the detector.
-    fn body_regions(&mut self, area: &CropBox, followed: bool) -> Vec<CropBox> {
-        if self.pedestrians.is_none() {
+    fn body_regions(&mut self, area: &CropBox, request: SearchRequest) -> Vec<CropBox> {
+        if self.pedestrians.is_none() || !self.bodies_now(request) {
             return Vec::new();
         }
-        let now = self.stats.frames;
-        if !followed
-            && self.last_pedestrians.is_some_and(|at| {
-                now.saturating_sub(at) < EMPTY_SCENE_SEARCHES * self.candidate_every
-            })
-        {
-            return Vec::new();
-        }
-        self.last_pedestrians = Some(now);
         let mut regions = vec![*area];
         if self.pedestrian_tiles > 1 {
             // Along the longer side (a portrait image: down it).
@@ -368,10 +489,5 @@ impl ImageDetector {
                 })
             })
             .collect()
-    }
-
-    /// The low-score pass's threshold (the tracker keeps it under the confident one).
-    fn tracker_low_threshold(&self) -> f32 {
-        self.tracker.low_threshold()
     }
 }

@@ -92,6 +92,11 @@ pub struct ImageSettings {
     /// 416x416, 416x320, 320x416, 416x256, 256x416), or `auto`: the one nearest the
     /// images' aspect.
     pub nanodet_input: String,
+    /// Run the searches on a thread of their own, all the time, each frame taking the
+    /// newest sightings ready (a frame never waits for a search; a scene's first, once);
+    /// false: on the frame's thread, when the tracker wants boxes (every `detect_every`
+    /// frames while people are followed), the frame waiting for them.
+    pub search_thread: bool,
     /// How people are followed from frame to frame (`[detector.images.tracking]`).
     pub tracking: TrackingSettings,
 }
@@ -158,6 +163,7 @@ impl Default for ImageSettings {
             body_detector: BodyDetector::Nanodet,
             nanodet_threshold: 0.45,
             nanodet_input: "auto".into(),
+            search_thread: true,
             tracking: TrackingSettings::default(),
         }
     }
@@ -306,6 +312,10 @@ pub enum DetectorError {
         /// The cause.
         source: Box<ChannelMappingError>,
     },
+    /// The search stage stopped (a detector failed, or its thread panicked): the run
+    /// ends, never silently without searches.
+    #[error("the search stage failed: {0}")]
+    SearchStage(String),
 }
 
 /// What the detector did so far.
@@ -354,6 +364,12 @@ pub struct DetectorStats {
     /// Of the detectors' boxes looked at, where the landmark model found nobody (not
     /// looked at again for a while).
     pub refused_sightings: u64,
+    /// Frames the search stage dropped unsearched (a newer frame came before it was
+    /// free).
+    pub searches_dropped: u64,
+    /// Frames between a search's frame and the frame that took its sightings, summed
+    /// (0 for searches on the frame's thread).
+    pub search_lag_frames: u64,
     /// Seconds spent getting the images from their source, counted by the node: the
     /// wait for the next image (files are decoded ahead on another thread; a topic's
     /// images are decoded here).
