@@ -77,7 +77,10 @@ impl Bodies {
                 Some(runtime) => NanoDetNetwork::load_litert(runtime, &path, size, self.threads)?,
                 None => NanoDetNetwork::load(&path, size)?,
             });
-            tracing::info!(
+            if let Some(network) = &self.loaded {
+                network.warm_up()?;
+            }
+            tracing::debug!(
                 "person detector for {size} loaded in {:.0} ms",
                 began.elapsed().as_secs_f64() * 1e3
             );

@@ -228,6 +228,15 @@ impl ImageDetector {
                 source: Box::new(source),
             }
         })?;
+        // Every model run once now: their first runs are slow (weights packed), and
+        // would otherwise fall on the first frames.
+        network.warm_up()?;
+        if let Some(person) = &person {
+            person.warm_up()?;
+        }
+        if let Some(pedestrians) = &pedestrians {
+            pedestrians.warm_up()?;
+        }
         let mut detector = Self::new(network, mapping, joint_names, settings)?;
         let stage::Searches::Inline(mut searcher) = std::mem::replace(
             &mut detector.searches,

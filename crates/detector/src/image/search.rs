@@ -139,6 +139,9 @@ pub(super) struct Searcher {
     pub empty_searches: u64,
     /// One model input per run.
     pub inputs: Vec<Vec<f32>>,
+    /// Tests: a search of a frame this wide panics (a stage's thread dying).
+    #[cfg(test)]
+    pub panic_at_width: Option<u32>,
 }
 
 /// Whether a search (not a scene's first) looks at a tile beside the whole image: every
@@ -217,6 +220,10 @@ impl Searcher {
         if request.scene_first {
             self.begin_scene();
         }
+        #[cfg(test)]
+        if self.panic_at_width == Some(frame.rgb.width()) {
+            panic!("a search that dies");
+        }
         let mut stats = SearchStats::default();
         let (width, height) = frame.rgb.dimensions();
         let (region, area) = match &self.person_box {
@@ -292,8 +299,9 @@ impl Searcher {
             Ok::<_, DetectorError>((found, began.elapsed().as_secs_f64()))
         };
         let done: Vec<Result<(Seen, f64), DetectorError>> = match runs.as_slice() {
-            // On a stage of its own: one run after another.
-            _ if !self.parallel => runs
+            // On a stage of its own, one run after another (beside the frames' looks),
+            // but while nobody is followed: the frame waits for this search.
+            _ if !self.parallel && request.followed => runs
                 .iter()
                 .zip(inputs.iter_mut())
                 .map(|(run, input)| one(run, Some(0), input))

@@ -240,3 +240,66 @@ impl Searches {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame(width: u32, sequence: u64) -> Arc<ImageFrame> {
+        Arc::new(ImageFrame {
+            sequence,
+            stamp_ns: 0,
+            frame_id: "camera".into(),
+            name: format!("frame {sequence}"),
+            rgb: image::RgbImage::new(width, 8),
+        })
+    }
+
+    fn request(frame: u64, followed: bool) -> SearchRequest {
+        SearchRequest {
+            frame,
+            scene_first: frame == 1,
+            followed,
+        }
+    }
+
+    #[test]
+    fn frames_take_the_newest_search_and_a_dead_stage_ends_the_run() {
+        // Without detectors a search finds the whole region: one sighting a frame.
+        let searcher = Searcher {
+            panic_at_width: Some(13),
+            ..Searcher::default()
+        };
+        let mut searches = Searches::Stage(Stage::start(searcher).expect("starts"));
+        let mut stats = DetectorStats::default();
+        // A scene's first frame waits for its own search.
+        let first = searches
+            .sightings(&frame(16, 0), request(1, false), true, &mut stats)
+            .expect("searched");
+        assert_eq!(first.map(|s| s.len()), Some(1));
+        assert_eq!(stats.searches, 1);
+        // Frames where someone is followed never wait: what is ready, or nothing.
+        for n in 2..50 {
+            searches
+                .sightings(&frame(16, n), request(n, true), false, &mut stats)
+                .expect("no error");
+        }
+        let Searches::Stage(stage) = &searches else {
+            unreachable!()
+        };
+        let last = stage.wait_for(49).expect("the newest frame is searched");
+        assert_eq!(last.frame, 49);
+        // Every frame was searched or dropped for a newer one, never queued.
+        assert!(stats.searches + stage.dropped() + 1 >= 49, "{stats:?}");
+        // A search that panics: the frame waiting for it gets the error, and every one
+        // after.
+        let e = searches
+            .sightings(&frame(13, 50), request(50, false), true, &mut stats)
+            .expect_err("the stage died");
+        assert!(e.to_string().contains("a search that dies"), "{e}");
+        assert!(matches!(
+            searches.sightings(&frame(16, 52), request(52, true), false, &mut stats),
+            Err(DetectorError::SearchStage(_))
+        ));
+    }
+}

@@ -71,6 +71,18 @@ impl Engine {
         Ok(Self::LiteRt(CompiledModels::one(model)))
     }
 
+    /// Runs every compiled model (tract: the plan) once on zeros of `[rows, columns]`
+    /// x 3, before the first frame.
+    pub fn warm_up(&self, [rows, columns]: [usize; 2]) -> Result<(), NetworkError> {
+        let floats = rows * columns * 3;
+        match self {
+            Self::Tract(model) => {
+                run_model(model, &[1, rows, columns, 3], &vec![0.0; floats]).map(drop)
+            }
+            Self::LiteRt(models) => models.warm_up(floats),
+        }
+    }
+
     /// Runs on `input` (`rows x columns x 3`, row-major); `worker` picks LiteRT's
     /// compiled model (`None`: the lone run's). The values of each of `outputs`, in
     /// their order.
@@ -157,6 +169,11 @@ impl<D: Detector> Network<D> {
             )?,
             anchors: D::anchors(),
         })
+    }
+
+    /// Runs every compiled model once, before the first frame ([`Engine::warm_up`]).
+    pub fn warm_up(&self) -> Result<(), NetworkError> {
+        self.engine.warm_up([D::INPUT_SIZE; 2])
     }
 
     /// Raw outputs for `input`: `INPUT_SIZE x INPUT_SIZE x 3`, row-major, values in

@@ -572,6 +572,21 @@ impl<N> CompiledModels<N> {
     }
 }
 
+impl CompiledModels<LiteRtNetwork> {
+    /// Runs every compiled model once on zeros (`input_floats` of them): XNNPACK packs
+    /// its weights at a model's first run, which would otherwise fall on a frame.
+    pub fn warm_up(&self, input_floats: usize) -> Result<(), NetworkError> {
+        let zeros = vec![0.0; input_floats];
+        for model in self.workers.iter().chain(&self.lone) {
+            model
+                .lock()
+                .map_err(|_| error("warming up", "a previous run panicked"))?
+                .run_raw(&zeros)?;
+        }
+        Ok(())
+    }
+}
+
 /// The landmark model on its runtime.
 pub enum Landmarks {
     /// tract: one optimised plan, run by any number of threads at once.
@@ -589,6 +604,16 @@ impl Landmarks {
             true,
             |threads| LiteRtNetwork::load(runtime, path, threads),
         )?))
+    }
+
+    /// Runs every compiled model (tract: the plan) once on zeros, before the first
+    /// frame.
+    pub fn warm_up(&self) -> Result<(), NetworkError> {
+        let floats = super::landmarks::INPUT_SIZE * super::landmarks::INPUT_SIZE * 3;
+        match self {
+            Self::Tract(network) => network.run(&vec![0.0; floats]).map(drop),
+            Self::LiteRt(models) => models.warm_up(floats),
+        }
     }
 
     /// Runs on one crop (`256 x 256 x 3`, values in [0, 1]); `worker` picks LiteRT's

@@ -343,6 +343,11 @@ impl NanoDetNetwork {
         Ok(Self::new(engine, size))
     }
 
+    /// Runs every compiled model once, before the first frame.
+    pub fn warm_up(&self) -> Result<(), NetworkError> {
+        self.engine.warm_up([self.size.height, self.size.width])
+    }
+
     /// The input size it was converted for.
     pub fn size(&self) -> InputSize {
         self.size
