@@ -67,9 +67,10 @@ impl Bodies {
             self.loaded = None;
             // One file for both runtimes, checked as fetched before either parses it.
             let path = checked_nanodet(&self.dir, size).map_err(|reason| {
-                DetectorError::Network(NetworkError::LiteRt {
-                    context: format!("loading {}", cached_nanodet(&self.dir, size).display()),
-                    reason,
+                let context = format!("loading {}", cached_nanodet(&self.dir, size).display());
+                DetectorError::Network(match self.runtime {
+                    Some(_) => NetworkError::LiteRt { context, reason },
+                    None => NetworkError::Tract { context, reason },
                 })
             })?;
             let began = std::time::Instant::now();

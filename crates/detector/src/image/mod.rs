@@ -314,6 +314,8 @@ impl ImageDetector {
                 person_box: settings.person_box()?,
                 search_tiles: settings.search_tiles,
                 candidate_every: u64::from(settings.tracking.detect_every),
+                // Inline: a search's runs spread over the cores (a stage sets false).
+                parallel: true,
                 ..search::Searcher::default()
             })),
             detection_threshold: settings.detection_threshold,

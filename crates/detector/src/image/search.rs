@@ -239,11 +239,20 @@ impl Searcher {
             ),
         };
         let face_regions = self.face_regions(region, &area, request);
-        let body_regions = self.body_regions(&area, request);
+        // The whole-body detector's turn is decided once a search.
+        let bodies_now =
+            (self.pedestrians.is_some() || self.bodies.is_some()) && self.bodies_now(request);
+        let body_regions = if bodies_now && self.pedestrians.is_some() {
+            self.body_regions(&area)
+        } else {
+            Vec::new()
+        };
         if let Some(bodies) = &mut self.bodies {
-            bodies.prepare(width, height)?;
+            // The input size nearest the search region's aspect.
+            let side = |v: f64| v.round().clamp(1.0, f64::from(u32::MAX)) as u32;
+            bodies.prepare(side(area.width), side(area.height))?;
         }
-        let people = if self.bodies.is_some() && self.bodies_now(request) {
+        let people = if bodies_now {
             self.bodies.as_ref().and_then(bodies::Bodies::loaded)
         } else {
             None
@@ -427,10 +436,7 @@ impl Searcher {
     /// found 0.34 of sample.mp4's people against 0.55 (README). While nobody is
     /// `followed` (a search every frame), every `EMPTY_SCENE_SEARCHES x detect_every`
     /// frames; none without the detector.
-    fn body_regions(&mut self, area: &CropBox, request: SearchRequest) -> Vec<CropBox> {
-        if self.pedestrians.is_none() || !self.bodies_now(request) {
-            return Vec::new();
-        }
+    fn body_regions(&self, area: &CropBox) -> Vec<CropBox> {
         let mut regions = vec![*area];
         if self.pedestrian_tiles > 1 {
             // Along the longer side (a portrait image: down it).

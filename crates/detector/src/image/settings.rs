@@ -90,12 +90,13 @@ pub struct ImageSettings {
     pub nanodet_threshold: f32,
     /// NanoDet's input size, `WIDTHxHEIGHT` (one of those `models fetch` converts:
     /// 416x416, 416x320, 320x416, 416x256, 256x416), or `auto`: the one nearest the
-    /// images' aspect.
+    /// search region's aspect (the image's, or `person_box`'s).
     pub nanodet_input: String,
-    /// Run the searches on a thread of their own, all the time, each frame taking the
-    /// newest sightings ready (a frame never waits for a search; a scene's first, once);
-    /// false: on the frame's thread, when the tracker wants boxes (every `detect_every`
-    /// frames while people are followed), the frame waiting for them.
+    /// Run the searches on a thread of their own, all the time: a frame where someone is
+    /// followed takes the newest sightings ready and never waits; one where nobody is
+    /// (and a scene's first) waits for its own search. False: on the frame's thread,
+    /// when the tracker wants boxes (every `detect_every` frames while people are
+    /// followed), the frame waiting for them.
     pub search_thread: bool,
     /// How people are followed from frame to frame (`[detector.images.tracking]`).
     pub tracking: TrackingSettings,

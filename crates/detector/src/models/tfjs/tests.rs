@@ -135,6 +135,10 @@ fn reshapes_and_sparse_constants_follow_tensorflow() {
     );
     assert!(reshaped("r", &[1, 80, 13, 13], &[1, 81, -1]).is_err());
     assert!(reshaped("r", &[1, 80], &[-1, -1]).is_err());
+    // Nothing to reshape into a free dimension beside a 0; products that overflow.
+    assert!(reshaped("r", &[0, 3], &[-1, 0]).is_err());
+    assert!(reshaped("r", &[1], &[1 << 32, 1 << 32, -1]).is_err());
+    assert!(reshaped("r", &[usize::MAX, 2], &[-1]).is_err());
     let d = sparse_to_dense(
         "s",
         &Tensor::from_shape::<i32>(&[0, 1], &[]).expect("t"),

@@ -84,7 +84,12 @@ fn ints(t: &Tensor) -> Result<Vec<i64>, TfjsError> {
 fn spatial(node: &Node, key: &str) -> Result<Option<TVec<usize>>, TfjsError> {
     match int_list(node, key) {
         None => Ok(None),
-        Some(v) if v.len() == 4 && v[0] == 1 && v[3] == 1 => Ok(Some(tvec![v[1], v[2]])),
+        // Strides and dilations of 1 to 64 (0 would divide by zero).
+        Some(v)
+            if v.len() == 4 && v[0] == 1 && v[3] == 1 && v.iter().all(|s| (1..=64).contains(s)) =>
+        {
+            Ok(Some(tvec![v[1], v[2]]))
+        }
         Some(v) => Err(unsupported(format!("{}: {key} {v:?}", node.name))),
     }
 }
@@ -265,7 +270,8 @@ impl Translation<'_> {
                 };
                 let x = self.wire(name, &inputs[0])?;
                 let rank = self.shape(x)?.len();
-                if pads.len() != 2 * rank || pads.iter().any(|&p| !(0..=1 << 16).contains(&p)) {
+                // A network's padding: a few cells a side.
+                if pads.len() != 2 * rank || pads.iter().any(|&p| !(0..=64).contains(&p)) {
                     return Err(invalid(format!("{name}: paddings {pads:?}")));
                 }
                 let pads = pads
@@ -387,11 +393,10 @@ impl Translation<'_> {
                 let shape = self.shape(x)?;
                 let rank = shape.len() as i64;
                 let axis = if axis < 0 { axis + rank } else { axis };
-                let total: i64 = sizes.iter().sum();
-                if !(0..rank).contains(&axis)
-                    || sizes.iter().any(|&s| s < 0)
-                    || total != shape[axis as usize] as i64
-                {
+                let total = sizes
+                    .iter()
+                    .try_fold(0i64, |n, &s| if s < 0 { None } else { n.checked_add(s) });
+                if !(0..rank).contains(&axis) || total != Some(shape[axis as usize] as i64) {
                     return Err(unsupported(format!("{name}: split {sizes:?} of {shape:?}")));
                 }
                 let mut start = 0usize;
@@ -415,7 +420,11 @@ impl Translation<'_> {
                 let (&[h, w], &[n, _, _, c]) = (&size[..], &shape[..]) else {
                     return Err(invalid(format!("{name}: size {size:?} of {shape:?}")));
                 };
-                let (h, w) = (h.max(0) as usize, w.max(0) as usize);
+                // An upsampling's output, not an image's: at most 1 << 14 a side.
+                if !(1..=1 << 14).contains(&h) || !(1..=1 << 14).contains(&w) {
+                    return Err(unsupported(format!("{name}: resize to {h} x {w}")));
+                }
+                let (h, w) = (h as usize, w as usize);
                 let [out_h, out_w] = if self.record {
                     self.resizes
                         .insert(name.to_string(), [(shape[1], h), (shape[2], w)]);
@@ -426,7 +435,8 @@ impl Translation<'_> {
                         .get(name)
                         .ok_or_else(|| invalid(format!("{name}: not at the graph's own size")))?;
                     let scale = |(from, to): (usize, usize), now: usize| {
-                        (from > 0 && (now * to).is_multiple_of(from)).then(|| now * to / from)
+                        let scaled = now.checked_mul(to)?;
+                        (from > 0 && scaled.is_multiple_of(from)).then(|| scaled / from)
                     };
                     match (scale(*rh, shape[1]), scale(*rw, shape[2])) {
                         (Some(a), Some(b)) => [a, b],
@@ -520,24 +530,28 @@ pub(super) fn reshaped(
     from: &[usize],
     wanted: &[i64],
 ) -> Result<Vec<usize>, TfjsError> {
-    let total: usize = from.iter().product();
-    let known: i64 = wanted.iter().filter(|&&d| d != -1).product();
-    let free = wanted.iter().filter(|&&d| d == -1).count();
     let bad = || invalid(format!("{name}: reshape {from:?} to {wanted:?}"));
-    if wanted.iter().any(|&d| d < -1) || free > 1 || known <= 0 && total > 0 {
+    let total = from
+        .iter()
+        .try_fold(1usize, |n, &d| n.checked_mul(d))
+        .ok_or_else(bad)?;
+    let known = wanted
+        .iter()
+        .filter(|&&d| d != -1)
+        .try_fold(1i64, |n, &d| n.checked_mul(d))
+        .ok_or_else(bad)?;
+    let free = wanted.iter().filter(|&&d| d == -1).count();
+    // A free dimension needs the others' product (0 would leave it undetermined).
+    if wanted.iter().any(|&d| d < -1) || free > 1 || (free == 1 && known == 0) {
         return Err(bad());
     }
+    let known = usize::try_from(known).map_err(|_| bad())?;
     let out: Vec<usize> = wanted
         .iter()
-        .map(|&d| {
-            if d == -1 {
-                total / known as usize
-            } else {
-                d as usize
-            }
-        })
+        .map(|&d| if d == -1 { total / known } else { d as usize })
         .collect();
-    if out.iter().product::<usize>() != total {
+    let product = out.iter().try_fold(1usize, |n, &d| n.checked_mul(d));
+    if product != Some(total) {
         return Err(bad());
     }
     Ok(out)
