@@ -188,6 +188,14 @@ pub enum FetchError {
         /// The cause.
         reason: String,
     },
+    /// A package given as a file is damaged or not the package.
+    #[error("{file}: damaged or not the package ({reason})")]
+    Package {
+        /// The file.
+        file: String,
+        /// What is wrong.
+        reason: String,
+    },
     /// The person detector could not be converted.
     #[error("{file}: {source}")]
     ConvertGraph {
@@ -683,10 +691,24 @@ pub fn fetch(
 }
 
 /// Writes through a temporary file and a rename: a model file is whole or absent.
+/// Something other than a file where one is written (a directory, a FIFO) is an error
+/// naming it, before anything is written; a rename that fails leaves no `.partial`.
 pub(super) fn write_atomically(path: &Path, data: &[u8]) -> Result<(), FetchError> {
+    if let Some(what) = posestream_base::files::what_is(path) {
+        return Err(FetchError::Io {
+            path: path.to_path_buf(),
+            source: std::io::Error::other(format!(
+                "{what}, not a regular file, where the model goes: remove it and fetch again"
+            )),
+        });
+    }
     let tmp = path.with_extension("partial");
     std::fs::write(&tmp, data).map_err(io(&tmp))?;
-    std::fs::rename(&tmp, path).map_err(io(path))
+    std::fs::rename(&tmp, path).map_err(|e| {
+        // The rename failed: the copy is of no use to anyone.
+        let _ = std::fs::remove_file(&tmp);
+        io(path)(e)
+    })
 }
 
 #[cfg(test)]
@@ -742,6 +764,22 @@ loadPackage({"files": [{"filename": "/third_party/mediapipe/modules/pose_detecti
         if LiteRtWheel::for_this_machine().is_some() {
             assert!(matches!(err, Err(FetchError::Checksum { .. })));
         }
+    }
+
+    #[test]
+    fn a_directory_where_a_model_goes_is_named_and_nothing_is_left_behind() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let model = dir.path().join("model.tflite");
+        std::fs::create_dir(&model).expect("mkdir");
+        let e = write_atomically(&model, b"model").expect_err("refused");
+        assert!(e.to_string().contains("a directory"), "{e}");
+        assert!(e.to_string().contains("remove it"), "{e}");
+        assert!(!dir.path().join("model.partial").exists());
+        // A plain file is written whole.
+        let other = dir.path().join("other.tflite");
+        write_atomically(&other, b"model").expect("written");
+        assert_eq!(std::fs::read(&other).expect("read"), b"model");
+        assert!(!dir.path().join("other.partial").exists());
     }
 
     #[test]

