@@ -302,14 +302,6 @@ impl Searcher {
                     crop_input_sized(rgb, &region, [size.width, size.height], input);
                     normalise(input);
                     let people = network.detect(input, nanodet_threshold)?;
-                    let people: Vec<Pedestrian> = people
-                        .iter()
-                        .map(|b| Pedestrian {
-                            score: b.score,
-                            min: b.min,
-                            max: b.max,
-                        })
-                        .collect();
                     Seen::Bodies(bodies_in(&region, &people))
                 }
             };

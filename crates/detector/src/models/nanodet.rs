@@ -21,6 +21,7 @@ use tract_tflite::prelude::*;
 use super::engine::{Engine, Output};
 use super::landmarks::NetworkError;
 use super::litert::LiteRt;
+use super::pedestrians::best_apart;
 use super::tfjs::{GraphModel, TfjsError};
 
 /// One input size of the converted network, pixels.
@@ -151,28 +152,8 @@ const GRAPH_SCORES: [&str; 3] = ["Identity", "Identity_1", "Identity_2"];
 const GRAPH_BOXES: [&str; 3] = ["Identity_3", "Identity_4", "Identity_5"];
 
 /// One person found: score and box, in input coordinates normalised to [0, 1]
-/// (clipped to the input).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct BodyBox {
-    /// Probability.
-    pub score: f32,
-    /// Left, top.
-    pub min: [f32; 2],
-    /// Right, bottom.
-    pub max: [f32; 2],
-}
-
-impl BodyBox {
-    /// Intersection over union.
-    pub fn iou(&self, other: &Self) -> f32 {
-        let overlap =
-            |k: usize| (self.max[k].min(other.max[k]) - self.min[k].max(other.min[k])).max(0.0);
-        let area = |p: &Self| (p.max[0] - p.min[0]) * (p.max[1] - p.min[1]);
-        let inter = overlap(0) * overlap(1);
-        let union = area(self) + area(other) - inter;
-        if union > 0.0 { inter / union } else { 0.0 }
-    }
-}
+/// (clipped to the input): the pedestrian detector's box type, shared.
+pub use super::pedestrians::Pedestrian as BodyBox;
 
 /// Turns an RGB input with values in [0, 1] ([`crate::crop::crop_input_sized`]) into the
 /// network's: BGR, `(pixel - mean) / std`.
@@ -209,7 +190,7 @@ pub fn decode(
     threshold: f32,
 ) -> Vec<BodyBox> {
     let (w, h) = (size.width as f32, size.height as f32);
-    let mut candidates: Vec<BodyBox> = anchors
+    let candidates: Vec<BodyBox> = anchors
         .iter()
         .enumerate()
         .filter_map(|(i, &[cx, cy, stride])| {
@@ -237,17 +218,7 @@ pub fn decode(
             (b.max[0] > b.min[0] && b.max[1] > b.min[1]).then_some(b)
         })
         .collect();
-    candidates.sort_by(|a, b| b.score.total_cmp(&a.score));
-    let mut out: Vec<BodyBox> = Vec::new();
-    for c in candidates {
-        if out.len() == MAX_DETECTIONS {
-            break;
-        }
-        if out.iter().all(|k| k.iou(&c) <= NMS_IOU) {
-            out.push(c);
-        }
-    }
-    out
+    best_apart(candidates, NMS_IOU, MAX_DETECTIONS)
 }
 
 /// The TF.js graph model (`nanodet.json`, `nanodet.bin`) as a TFLite file for an input

@@ -98,7 +98,7 @@ pub fn decode(
     anchors: &[[f32; 4]],
     threshold: f32,
 ) -> Vec<Pedestrian> {
-    let mut candidates: Vec<Pedestrian> = anchors
+    let candidates: Vec<Pedestrian> = anchors
         .iter()
         .enumerate()
         .filter_map(|(i, a)| {
@@ -125,13 +125,19 @@ pub fn decode(
             (finite && p.max[0] > p.min[0] && p.max[1] > p.min[1]).then_some(p)
         })
         .collect();
+    best_apart(candidates, NMS_IOU, MAX_DETECTIONS)
+}
+
+/// Hard non-maximum suppression: `candidates` best first, each dropped if it overlaps
+/// one kept by IoU over `iou`; at most `max` (both whole-body detectors' last step).
+pub(super) fn best_apart(mut candidates: Vec<Pedestrian>, iou: f32, max: usize) -> Vec<Pedestrian> {
     candidates.sort_by(|a, b| b.score.total_cmp(&a.score));
     let mut out: Vec<Pedestrian> = Vec::new();
     for c in candidates {
-        if out.len() == MAX_DETECTIONS {
+        if out.len() == max {
             break;
         }
-        if out.iter().all(|k| k.iou(&c) <= NMS_IOU) {
+        if out.iter().all(|k| k.iou(&c) <= iou) {
             out.push(c);
         }
     }
