@@ -124,6 +124,7 @@ impl ImageDetector {
             .collect();
         let masks = acquisition_masks(&proposed, &verdicts, &looked, kept);
         let current = self.look_until_settled(frame, &proposed, &verdicts, &looked, &masks)?;
+        self.trace_boxes(now, &proposed, &verdicts, &looked, &current);
         self.refuse_nobody(&current, &looked, &proposed, now);
         let proposals: Vec<usize> = looked
             .iter()
@@ -258,8 +259,17 @@ impl ImageDetector {
         // Look at each box; while the landmarks found give a box unlike the one
         // looked at (a detector box is a rough guess), look again there (a
         // candidate is looked at once).
-        let mut current: Vec<Option<Look>> = self
-            .look_all(frame, &boxes, &first_masks)?
+        let first = self.look_all(frame, &boxes, &first_masks)?;
+        for (n, l) in first.iter().enumerate() {
+            tracing::trace!(
+                "look at box {}: pose flag {:.2}, spread {:.2}, {} masks",
+                looked[n],
+                l.pose_flag,
+                l.spread,
+                first_masks[n].len()
+            );
+        }
+        let mut current: Vec<Option<Look>> = first
             .into_iter()
             .map(|l| l.person(self.threshold).is_some().then_some(l))
             .collect();
@@ -293,6 +303,49 @@ impl ImageDetector {
             }
         }
         Ok(current)
+    }
+
+    /// Each box `proposed` in the `now`th image at debug level: its body (the
+    /// detector's box, else the crop), score, whether at a refused place, the tracker's
+    /// verdict and the look's pose flag (`None`: not looked at; `Some(None)`: nobody).
+    /// `benches/footage/missed.py` reads these lines to say where each missed person
+    /// was lost.
+    fn trace_boxes(
+        &self,
+        now: u64,
+        proposed: &Proposed,
+        verdicts: &[Assignment],
+        looked: &[usize],
+        current: &[Option<Look>],
+    ) {
+        if !tracing::enabled!(tracing::Level::DEBUG) {
+            return;
+        }
+        for (i, o) in proposed.observations.iter().enumerate() {
+            let look = looked
+                .iter()
+                .position(|&k| k == i)
+                .map(|n| current[n].as_ref().map(|l| l.pose_flag));
+            let body = proposed.bodies.get(i).copied().flatten();
+            let b = body.unwrap_or(o.region);
+            let refused = self
+                .refused
+                .iter()
+                .any(|(r, _)| iou(r, &o.region) > REFUSED_IOU);
+            tracing::debug!(
+                "image {}: box {i} body {:.0},{:.0},{:.0},{:.0} score {:.2} detector box {} \
+                 refused {refused} verdict {:?} look {:?}",
+                now.saturating_sub(1),
+                b.x0,
+                b.y0,
+                b.x0 + b.width,
+                b.y0 + b.height,
+                o.score,
+                body.is_some(),
+                verdicts[i],
+                look
+            );
+        }
     }
 
     /// A detector's box where the landmark model found nobody (`current`, of the boxes

@@ -56,7 +56,7 @@ pub use settings::{
     BodyDetector, DetectorError, DetectorStats, ImageSettings, MapEncoding, Runtime,
 };
 
-use self::looks::{Found, Head};
+use self::looks::{BODY_LANDMARKS, Found, Head};
 use crate::images::ImageFrame;
 use crate::mapping::ChannelMapping;
 use crate::models::ModelFile;
@@ -401,6 +401,21 @@ impl ImageDetector {
             self.acquire(frame, now, searching, &sightings, unexplained, &mut kept)?;
         }
         let reported = self.tracker.end();
+        // Who was kept and reported (`benches/footage/missed.py` reads these lines).
+        if tracing::enabled!(tracing::Level::DEBUG) {
+            for (id, l) in &kept {
+                let (lo, hi) = looks::extent(&l.points[..BODY_LANDMARKS.min(l.points.len())]);
+                tracing::debug!(
+                    "image {}: kept {id} body {:.0},{:.0},{:.0},{:.0} reported {}",
+                    now.saturating_sub(1),
+                    lo[0],
+                    lo[1],
+                    hi[0],
+                    hi[1],
+                    reported.iter().any(|r| r.0 == *id)
+                );
+            }
+        }
         self.update_heads(&kept, now);
         // 3. The heat maps of the people reported.
         self.decode(&reported, &kept)?;
