@@ -3,11 +3,16 @@
 //! error model) through the multi-view window (`config/default.toml`'s
 //! `[estimator.fusion]`, the shipped dictionary). Criterion reports the mean over
 //! frames, so the whole window's EM every `window_every` frames is in it. The same with
-//! two cameras for comparison.
+//! two cameras for comparison, the same without the deviations from the dictionary's
+//! shape (`[estimator.fusion.deviation] joint_std = 0`), and the triangulation baseline
+//! (`fusion::Triangulator`) on the same frames.
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use posestream::Estimator;
-use posestream::fusion::{FusedEstimate, FusedWindow, ViewMaps};
+use posestream::fusion::matching::peaks_into;
+use posestream::fusion::{
+    FusedEstimate, FusedWindow, TriangulationSettings, Triangulator, ViewMaps,
+};
 use posestream::mocap::{Bvh, SkeletonMapping};
 use posestream::nodes::ServiceConfig;
 use posestream::streaming::Scores;
@@ -41,32 +46,73 @@ fn bench(c: &mut Criterion) {
             0.2,
         )
         .expect("room");
-        let mut window = FusedWindow::new(
-            &estimator,
-            room.view_cameras(),
-            config.estimator.fusion.clone(),
-        )
-        .expect("window");
-        let mut out: Vec<FusedEstimate> = Vec::new();
-        let mut t = 0usize;
-        let mut push = |window: &mut FusedWindow, out: &mut Vec<FusedEstimate>| {
-            let frame = t % room.frames();
-            // Wrap-around jumps the pose: a new track there, as a real stream would.
-            if frame == 0 {
-                window.reset();
+        for deviation in [true, false] {
+            let mut fusion = config.estimator.fusion.clone();
+            if !deviation {
+                fusion.deviation.joint_std = 0.0;
             }
-            out.clear();
-            window
-                .push(room.frame_ns(t), &views(&room, frame), out)
-                .expect("frame");
-            t += 1;
-        };
-        for _ in 0..40 {
-            push(&mut window, &mut out);
+            let mut window =
+                FusedWindow::new(&estimator, room.view_cameras(), fusion).expect("window");
+            let mut out: Vec<FusedEstimate> = Vec::new();
+            let mut t = 0usize;
+            let mut push = |window: &mut FusedWindow, out: &mut Vec<FusedEstimate>| {
+                let frame = t % room.frames();
+                // Wrap-around jumps the pose: a new track there, as a real stream would.
+                if frame == 0 {
+                    window.reset();
+                }
+                out.clear();
+                window
+                    .push(room.frame_ns(t), &views(&room, frame), out)
+                    .expect("frame");
+                t += 1;
+            };
+            for _ in 0..40 {
+                push(&mut window, &mut out);
+            }
+            let name = if deviation { "" } else { ", no deviations" };
+            c.bench_function(
+                &format!("fused update, {cameras} cameras (one person-frame){name}"),
+                |b| b.iter(|| push(&mut window, &mut out)),
+            );
         }
+        // The baseline: each view's peaks, then the triangulation and its median.
+        let cams = room.view_cameras();
+        let mut baseline =
+            Triangulator::new(mapping.layout.len(), TriangulationSettings::default());
+        let mut peaks: Vec<Vec<[f64; 3]>> = vec![Vec::new(); cams.len()];
+        let mut joints = Vec::new();
+        let mut t = 0usize;
         c.bench_function(
-            &format!("fused update, {cameras} cameras (one person-frame)"),
-            |b| b.iter(|| push(&mut window, &mut out)),
+            &format!("triangulation baseline, {cameras} cameras (one person-frame)"),
+            |b| {
+                b.iter(|| {
+                    let frame = t % room.frames();
+                    t += 1;
+                    for p in &mut peaks {
+                        p.clear();
+                    }
+                    for view in views(&room, frame) {
+                        let Scores::F32(values) = view.values else {
+                            continue;
+                        };
+                        let to_image = &view.to_image;
+                        peaks_into(
+                            values,
+                            view.height,
+                            view.width,
+                            to_image,
+                            &mut peaks[view.view],
+                        );
+                    }
+                    let seen: Vec<_> = cams
+                        .iter()
+                        .zip(&peaks)
+                        .map(|(c, p)| (c, p.as_slice()))
+                        .collect();
+                    baseline.push(&seen, &mut joints)
+                })
+            },
         );
     }
 }

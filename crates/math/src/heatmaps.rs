@@ -78,6 +78,34 @@ impl HeatMapSequence {
     }
 }
 
+/// [`argmax`] refined to a fraction of a cell: the centroid of the positive values of
+/// its 3 x 3 neighbourhood (the arg-max itself where they sum to nothing). The value is
+/// the arg-max's.
+pub fn refined_argmax(map: &[f32], width: usize) -> (f64, f64, f32) {
+    let (x, y, best) = argmax(map, width);
+    if width == 0 || map.is_empty() {
+        return (x, y, best);
+    }
+    let height = map.len() / width;
+    let (cx, cy) = (x as usize, y as usize);
+    let (mut sum, mut sx, mut sy) = (0.0f64, 0.0f64, 0.0f64);
+    for row in cy.saturating_sub(1)..(cy + 2).min(height) {
+        for col in cx.saturating_sub(1)..(cx + 2).min(width) {
+            let v = f64::from(map[row * width + col]);
+            if v > 0.0 && v.is_finite() {
+                sum += v;
+                sx += v * col as f64;
+                sy += v * row as f64;
+            }
+        }
+    }
+    if sum > 0.0 && sum.is_finite() {
+        (sx / sum, sy / sum, best)
+    } else {
+        (x, y, best)
+    }
+}
+
 /// The arg-max pixel `(x, y)` of one row-major map of `width` columns and its value
 /// (first maximum in row-major order).
 pub fn argmax(map: &[f32], width: usize) -> (f64, f64, f32) {

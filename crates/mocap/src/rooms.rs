@@ -15,7 +15,7 @@ use posestream_math::error::EstimateError;
 use posestream_math::fusion::matching::peaks_into;
 use posestream_math::fusion::{
     FusedEstimate, FusedWindow, FusionSettings, MatchSettings, Matcher, TrackObservation,
-    ViewCamera, ViewMaps, ViewResidual,
+    TriangulationSettings, Triangulator, ViewCamera, ViewMaps, ViewResidual,
 };
 use posestream_math::metres::{MetricPose, MetricSettings, MetricStep};
 use posestream_math::skeleton::Skeleton;
@@ -157,6 +157,52 @@ pub fn fuse_with(
     out.mean_limb_length = window.mean_limb_length();
     out.residuals = window.residuals().to_vec();
     Ok(out)
+}
+
+/// Every person of `room` through the triangulation baseline ([`Triangulator`]: each
+/// joint's peaks triangulated, a centred temporal median), the cameras' views taken as
+/// if at the frame's time: its errors, a frame counted once every joint has a value
+/// (none with one camera).
+pub fn triangulated(room: &Room, skel: &Skeleton, settings: &TriangulationSettings) -> Errors {
+    let p = skel.len();
+    let root = skel.root();
+    let cameras = room.view_cameras();
+    let mut errors = Errors::default();
+    let mut peaks: Vec<Vec<[f64; 3]>> = vec![Vec::new(); cameras.len()];
+    let mut out = Vec::new();
+    for (i, person) in room.people.iter().enumerate() {
+        let mut baseline = Triangulator::new(p, *settings);
+        let lag = baseline.lag();
+        for t in 0..room.frames() {
+            let mut seen = Vec::with_capacity(cameras.len());
+            for (c, s) in room.seen.iter().map(|seen| &seen[i]).enumerate() {
+                peaks[c].clear();
+                if s.dt[t].is_none() {
+                    continue;
+                }
+                let maps = &s.maps.maps;
+                let n = maps.joints * maps.height * maps.width;
+                let to_image = s.boxes[t].pixel_map(maps.width, maps.height);
+                peaks_into(
+                    &maps.values[t * n..(t + 1) * n],
+                    maps.height,
+                    maps.width,
+                    &to_image,
+                    &mut peaks[c],
+                );
+            }
+            for (c, camera) in cameras.iter().enumerate() {
+                if !peaks[c].is_empty() {
+                    seen.push((camera, peaks[c].as_slice()));
+                }
+            }
+            if baseline.push(&seen, &mut out) {
+                let t = t - lag;
+                errors.add(&person.positions[3 * p * t..3 * p * (t + 1)], &out, root);
+            }
+        }
+    }
+    errors
 }
 
 /// Scores `room`: its people fused with `fusion`, and seen by each camera alone through

@@ -7,9 +7,11 @@
 //! extrinsics. Errors are in the world frame with no alignment, at the refined lag
 //! (10 frames) for both, each person's views given; then again with each camera's
 //! track ids scrambled and the tracks matched into people by geometry (IDF1, people
-//! found, their MPJPE).
+//! found, their MPJPE). Beside them the triangulation baseline
+//! ([`posestream::fusion::Triangulator`]: no model, each joint's peaks triangulated and a
+//! 5-frame median), which the fusion has to beat.
 
-use posestream::fusion::{FusionSettings, ViewResidual, suspects};
+use posestream::fusion::{FusionSettings, TriangulationSettings, ViewResidual, suspects};
 use posestream::metres::MetricSettings;
 use posestream::mocap::{Bvh, MappedSequence, SkeletonMapping, rooms};
 use posestream::streaming::WindowEstimator;
@@ -162,8 +164,8 @@ pub fn markdown(args: &ScenesArgs) -> Result<String, CliError> {
          Assumed size: fused {} m (the configuration's: two cameras see the size), each camera alone {} m (the subjects', its best case).\n\n",
         fusion.lag, config.estimator.window.lag, fusion.mean_limb_length, args.mean_limb_length
     ));
-    out.push_str("| room | fused MPJPE mm | root mm | at once (lag 0) mm | best single-view mm | ratio | each camera alone mm | one view only | fitted bone length m | fused ms per person-frame | matched by geometry: IDF1, people found, MPJPE mm |\n");
-    out.push_str("|---|---|---|---|---|---|---|---|---|---|---|\n");
+    out.push_str("| room | fused MPJPE mm | root mm | at once (lag 0) mm | best single-view mm | ratio | triangulated mm | fused / triangulated | each camera alone mm | one view only | fitted bone length m | fused ms per person-frame | matched by geometry: IDF1, people found, MPJPE mm |\n");
+    out.push_str("|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
     for spec in &ROOMS {
         let people = load_people(args, &mapping, &skel, spec)?;
         let cameras = (spec.cameras)();
@@ -177,16 +179,25 @@ pub fn markdown(args: &ScenesArgs) -> Result<String, CliError> {
         let singles: Vec<f64> = r.single.iter().map(|e| e.mpjpe_mm()).collect();
         let best = singles.iter().cloned().fold(f64::INFINITY, f64::min);
         let fused = r.fused.mpjpe_mm();
+        let baseline = rooms::triangulated(&room, &skel, &TriangulationSettings::default());
+        let (baseline_mm, baseline_ratio) = if baseline.frames == 0 {
+            ("-".to_string(), "-".to_string())
+        } else {
+            let mm = baseline.mpjpe_mm();
+            (format!("{mm:.0}"), format!("{:.2}", fused / mm))
+        };
         let matched = rooms::fuse_matched(&room, &estimator, &fusion, &fusion.matching)?;
         let matched_errors = rooms::score_matched(&room, &skel, &matched, fusion.lag);
         out.push_str(&format!(
-            "| {} | {:.0} | {:.0} | {:.0} | {:.0} | {:.2} | {} | {:.0} % | {} | {:.2} | {:.3}, {} of {}, {:.0} |\n",
+            "| {} | {:.0} | {:.0} | {:.0} | {:.0} | {:.2} | {} | {} | {} | {:.0} % | {} | {:.2} | {:.3}, {} of {}, {:.0} |\n",
             spec.name,
             fused,
             r.fused.root_mm(),
             r.fused_newest.mpjpe_mm(),
             best,
             fused / best,
+            baseline_mm,
+            baseline_ratio,
             singles
                 .iter()
                 .map(|v| format!("{v:.0}"))

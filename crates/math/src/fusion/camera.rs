@@ -55,6 +55,33 @@ impl ViewCamera {
     }
 }
 
+/// Cameras for tests.
+#[cfg(test)]
+pub(super) mod test_rigs {
+    use super::*;
+    use nalgebra::Isometry3;
+
+    /// Cameras on a ring of radius `r` around the origin at 1.5 m, looking at it.
+    pub(in crate::fusion) fn ring(n: usize, r: f64) -> Vec<ViewCamera> {
+        (0..n)
+            .map(|i| {
+                let a = std::f64::consts::TAU * i as f64 / n as f64;
+                let eye = Point3::new(r * a.cos(), r * a.sin(), 1.5);
+                // Camera frame: z forward, y down (world z up).
+                let view = Isometry3::look_at_rh(&eye, &Point3::new(0.0, 0.0, 1.0), &-Vector3::z());
+                ViewCamera {
+                    intrinsics: Intrinsics::new(800.0, 800.0, 640.0, 360.0).expect("valid"),
+                    world_from_camera: view.inverse()
+                        * Isometry3::rotation(Vector3::new(0.0, std::f64::consts::PI, 0.0)),
+                }
+            })
+            .collect()
+    }
+}
+
+#[cfg(test)]
+pub(super) use test_rigs::ring;
+
 #[cfg(test)]
 mod tests {
     use super::*;

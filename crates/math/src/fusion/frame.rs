@@ -63,6 +63,8 @@ pub(super) struct ViewData {
     /// p maps, `height x width` each.
     pub maps: Vec<f32>,
     pub moments: Vec<MapMoments>,
+    /// Each map's peak, image pixels, and its score: `[u, v, score]`.
+    pub peaks: Vec<[f64; 3]>,
     /// Whether any map has a positive score.
     pub evidence: bool,
     /// A copy of the frame before's view of this camera, standing in for the one it did
@@ -92,6 +94,7 @@ impl ViewData {
             width: 0,
             maps: Vec::new(),
             moments: Vec::new(),
+            peaks: Vec::new(),
             evidence: false,
             bridged: false,
             origin: Vector3::zeros(),

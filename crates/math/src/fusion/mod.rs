@@ -26,26 +26,36 @@
 //!   (their pose's reprojection, their rays' distances), without ids agreeing between
 //!   cameras.
 //!
+//! - **The baseline** ([`triangulation`]): no model, each joint's peaks triangulated
+//!   and a temporal median: what the fusion is measured against.
+//!
+//! - **Where the views agree** ([`deviation`]): each joint put out moved off the
+//!   dictionary's shape towards its views' peaks, as far as they agree.
+//!
 //! - **Wrong extrinsics** ([`extrinsics`]): each camera's residuals against the fused
 //!   poses; a camera far off while the others fit is named.
 //!
 //! Nothing here knows about transports.
 
 pub mod camera;
+pub mod deviation;
 mod estep;
 pub mod extrinsics;
 mod frame;
 pub mod matching;
 mod mstep;
 mod start;
+pub mod triangulation;
 mod window;
 
 use serde::{Deserialize, Serialize};
 
 pub use camera::ViewCamera;
+pub use deviation::DeviationSettings;
 pub use extrinsics::{ExtrinsicsCheck, ViewResidual, suspects};
 pub use frame::FusedPose;
 pub use matching::{MatchSettings, Matcher, TrackObservation};
+pub use triangulation::{TriangulationSettings, Triangulator};
 pub use window::FusedWindow;
 
 use posestream_base::PixelMap;
@@ -140,6 +150,9 @@ pub struct FusionSettings {
     pub matching: MatchSettings,
     /// The check of the cameras' extrinsics (`[estimator.fusion.extrinsics]`).
     pub extrinsics: ExtrinsicsCheck,
+    /// How far the views move the joints off the dictionary's shape
+    /// (`[estimator.fusion.deviation]`).
+    pub deviation: DeviationSettings,
 }
 
 impl Default for FusionSettings {
@@ -165,6 +178,7 @@ impl Default for FusionSettings {
             bridge_seconds: 0.1,
             matching: MatchSettings::default(),
             extrinsics: ExtrinsicsCheck::default(),
+            deviation: DeviationSettings::default(),
         }
     }
 }
@@ -197,6 +211,7 @@ impl FusionSettings {
         check_real("max_gap_seconds", self.max_gap_seconds, 0.0, 3600.0, true)?;
         check_real("bridge_seconds", self.bridge_seconds, 0.0, 0.5, false)?;
         self.matching.check().map_err(|e| e.within("matching"))?;
+        self.deviation.check().map_err(|e| e.within("deviation"))?;
         self.extrinsics.check().map_err(|e| e.within("extrinsics"))
     }
 }

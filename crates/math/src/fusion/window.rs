@@ -4,6 +4,7 @@ use std::collections::VecDeque;
 
 use nalgebra::Vector3;
 
+use super::deviation::{DeviationBuffers, deviate};
 use super::estep::{EStepBuffers, e_step};
 use super::extrinsics::ViewResidual;
 use super::frame::{Frame, ViewData};
@@ -13,7 +14,7 @@ use super::{FusedEstimate, FusionSettings, ViewCamera, ViewMaps};
 use crate::dictionary::Dictionary;
 use crate::error::EstimateError;
 use crate::estimator::Estimator;
-use crate::heatmaps::argmax;
+use crate::heatmaps::{argmax, refined_argmax};
 use crate::solver::Params;
 use crate::solver::estep::MapMoments;
 use crate::solver::init::InitCache;
@@ -46,6 +47,9 @@ pub struct FusedWindow {
     scratch: Vec<f64>,
     start: StartBuffers,
     shape: Vec<f64>,
+    deviation: DeviationBuffers,
+    /// The model's joints of the frames around one put out (the deviations' median).
+    around: Vec<Vec<f64>>,
 }
 
 impl FusedWindow {
@@ -90,6 +94,8 @@ impl FusedWindow {
             scratch: Vec::new(),
             start: StartBuffers::default(),
             shape: Vec::new(),
+            deviation: DeviationBuffers::default(),
+            around: Vec::new(),
         })
     }
 
@@ -483,6 +489,29 @@ impl FusedWindow {
         }
         e.views
             .extend(f.views().iter().filter(|v| v.usable()).map(|v| v.view));
+        // Where the views agree, they win over the dictionary's shape.
+        let half = self.settings.deviation.frames / 2;
+        let first = t.saturating_sub(half);
+        let last = (t + half).min(self.frames.len() - 1);
+        if self.around.len() < last + 1 - first {
+            self.around.resize_with(last + 1 - first, Vec::new);
+        }
+        for (k, frame) in (first..=last).zip(self.around.iter_mut()) {
+            self.frames[k]
+                .pose
+                .joints_into(&self.dict, m, &mut self.shape, frame);
+        }
+        let frames = &self.frames;
+        let around = &self.around;
+        deviate(
+            &self.settings.deviation,
+            &self.cameras,
+            last + 1 - first,
+            |k| (&around[k][..], frames[first + k].views()),
+            t - first,
+            &mut e.joints,
+            &mut self.deviation,
+        );
         let scale_std = self.settings.scale_std;
         for j in 0..self.dict.num_joints() {
             // Each view's 2D spread at the joint's depth (metres per axis), combined;
@@ -549,6 +578,15 @@ fn fill(vd: &mut ViewData, v: &ViewMaps<'_>, p: usize) -> Result<(), EstimateErr
     vd.moments
         .extend((0..p).map(|j| MapMoments::new(&vd.maps[j * n..(j + 1) * n], v.width)));
     vd.evidence = vd.moments.iter().any(|m| m.h > 0.0);
+    // Each map's peak, to a fraction of a cell (the deviations' evidence).
+    vd.peaks.clear();
+    if n > 0 {
+        vd.peaks.extend(vd.maps.chunks_exact(n).map(|map| {
+            let (x, y, score) = refined_argmax(map, v.width);
+            let [u, w] = v.to_image.apply(x, y);
+            [u, w, f64::from(score)]
+        }));
+    }
     Ok(())
 }
 
