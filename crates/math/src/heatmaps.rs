@@ -82,10 +82,10 @@ impl HeatMapSequence {
 /// its 3 x 3 neighbourhood (the arg-max itself where they sum to nothing). The value is
 /// the arg-max's.
 pub fn refined_argmax(map: &[f32], width: usize) -> (f64, f64, f32) {
-    let (x, y, best) = argmax(map, width);
     if width == 0 || map.is_empty() {
-        return (x, y, best);
+        return (0.0, 0.0, f32::NEG_INFINITY);
     }
+    let (x, y, best) = argmax(map, width);
     let height = map.len() / width;
     let (cx, cy) = (x as usize, y as usize);
     let (mut sum, mut sx, mut sy) = (0.0f64, 0.0f64, 0.0f64);
@@ -117,4 +117,26 @@ pub fn argmax(map: &[f32], width: usize) -> (f64, f64, f32) {
         }
     }
     ((at % width) as f64, (at / width) as f64, best)
+}
+
+#[cfg(test)]
+mod refined_tests {
+    use super::*;
+
+    #[test]
+    fn the_refined_peak_lies_between_the_cells_by_their_weights_and_nothing_panics() {
+        // 3 x 3 map, peak at (1, 1), its right neighbour half as high.
+        let map = [0.0, 0.0, 0.0, 0.0, 1.0, 0.5, 0.0, 0.0, 0.0];
+        let (x, y, v) = refined_argmax(&map, 3);
+        assert!(
+            (x - 4.0 / 3.0).abs() < 1e-12 && (y - 1.0).abs() < 1e-12,
+            "{x} {y}"
+        );
+        assert_eq!(v, 1.0);
+        // At an edge, NaN or negative neighbours are left out.
+        let edge = [1.0, f32::NAN, -3.0, 0.0];
+        assert_eq!(refined_argmax(&edge, 2), (0.0, 0.0, 1.0));
+        assert_eq!(refined_argmax(&[], 3).2, f32::NEG_INFINITY);
+        assert_eq!(refined_argmax(&map, 0).2, f32::NEG_INFINITY);
+    }
 }

@@ -28,7 +28,7 @@ use serde::{Deserialize, Serialize};
 
 use super::camera::ViewCamera;
 use super::frame::ViewData;
-use super::triangulation::{PeakView, robust_point};
+use super::triangulation::{PeakView, median, robust_point};
 use posestream_base::{OutOfDomain, check_range, check_real};
 
 /// How far the views may move the fused joints off the dictionary's shape
@@ -68,10 +68,24 @@ impl DeviationSettings {
     /// Checks every value is in its domain.
     pub fn check(&self) -> Result<(), OutOfDomain> {
         check_real("joint_std", self.joint_std, 0.0, 10.0, false)?;
-        check_real("peak_std", self.peak_std, 0.0, 1e3, true)?;
+        if self.joint_std > 0.0 && self.joint_std < 1e-4 {
+            return Err(OutOfDomain::new(
+                "joint_std",
+                "0, or in [1e-4, 10] metres",
+                self.joint_std,
+            ));
+        }
+        check_real("peak_std", self.peak_std, 1e-3, 1e3, false)?;
         check_real("outlier_cells", self.outlier_cells, 0.0, 1e6, true)?;
         check_real("min_peak", self.min_peak, 0.0, 1e30, false)?;
         check_range("frames", self.frames, 1, 99)?;
+        if self.frames.is_multiple_of(2) {
+            return Err(OutOfDomain::new(
+                "frames",
+                "odd (the median is centred on the frame put out)",
+                self.frames,
+            ));
+        }
         check_range("rounds", self.rounds, 1, 100)
     }
 }
@@ -122,17 +136,22 @@ fn joint_point(
         return model;
     }
     let prior = 1.0 / (settings.joint_std * settings.joint_std);
+    // From the views' robust triangulation (all views where they agree within twice the
+    // outlier distance of the largest cell, else the pair that agrees best).
+    let gate = 2.0 * settings.outlier_cells * b.cells.iter().copied().fold(0.0, f64::max);
     let mut x = if b.peaks.len() >= 2 {
-        robust_point(&b.peaks, f64::INFINITY).unwrap_or(model)
+        robust_point(&b.peaks, gate).unwrap_or(model)
     } else {
         model
     };
-    for _ in 0..settings.rounds {
+    for round in 0..settings.rounds {
         let mut a = Matrix3::identity() * prior;
         let mut rhs = model * prior;
         for ((pv, &cell), origin) in b.peaks.iter().zip(&b.cells).zip(&b.origins) {
             let cam = &pv.camera;
-            let Some(([u, v], z)) = cam.project(&x) else {
+            // The joint as the camera saw it at its time offset: the ray's origin is
+            // the camera centre moved back by the body's motion over it.
+            let Some(([u, v], z)) = cam.project(&(x + (cam.centre() - origin))) else {
                 continue;
             };
             let off = (u - pv.pixel[0]).hypot(v - pv.pixel[1]) / cell;
@@ -144,15 +163,11 @@ fn joint_point(
             a += proj * w;
             rhs += proj * origin * w;
         }
-        match a.try_inverse() {
-            Some(inv) => {
-                let next = inv * rhs;
-                if !next.iter().all(|v| v.is_finite()) {
-                    break;
-                }
-                x = next;
-            }
-            None => break,
+        match a.try_inverse().map(|inv| inv * rhs) {
+            Some(next) if next.iter().all(|v| v.is_finite()) => x = next,
+            // Nothing solved: the model's joint, not an unweighted start.
+            _ if round == 0 => return model,
+            _ => break,
         }
     }
     x
@@ -200,8 +215,7 @@ pub(super) fn deviate<'a>(
                     .iter()
                     .filter_map(|d| d.get(j).map(|v| v[axis])),
             );
-            b.values.sort_by(f64::total_cmp);
-            let Some(&median) = b.values.get(b.values.len() / 2) else {
+            let Some(median) = median(&mut b.values) else {
                 continue;
             };
             if median.is_finite() {
@@ -293,6 +307,72 @@ mod tests {
             (all - truth).norm()
         );
         assert!((x - truth).norm() < 0.04, "{} m off", (x - truth).norm());
+    }
+
+    #[test]
+    fn a_swapped_view_cannot_drag_a_joint_the_model_has_far_off() {
+        let cams = ring(4, 5.0);
+        let truth = Vector3::new(-0.1, 0.2, 0.9);
+        // The model 0.3 m off (a crouch the dictionary cannot make); the fourth view's
+        // peak is another joint's, 20 cells away.
+        let views = seen(
+            &cams,
+            &truth,
+            &[[0.5, 0.0], [0.0, -0.5], [-0.5, 0.5], [0.0, 80.0]],
+        );
+        let x = moved(&cams, truth + Vector3::new(0.0, 0.0, 0.3), &views);
+        assert!((x - truth).norm() < 0.04, "{} m off", (x - truth).norm());
+    }
+
+    #[test]
+    fn a_camera_that_took_its_image_later_sees_the_joint_where_it_had_moved() {
+        let cams = ring(3, 5.0);
+        let truth = Vector3::new(0.0, 0.0, 1.0);
+        // Camera 2 took its image 20 ms late of a body moving 1.5 m/s along x: its
+        // peak is where the joint was then, its ray's origin moved back by as much.
+        let motion = Vector3::new(0.03, 0.0, 0.0);
+        let mut views = seen(&cams, &truth, &[[0.0; 2]; 3]);
+        let late = seen(&cams[2..], &(truth + motion), &[[0.0; 2]]).remove(0);
+        views[2].peaks = late.peaks;
+        views[2].origin = cams[2].centre() - motion;
+        let x = moved(&cams, truth + Vector3::new(0.1, 0.0, 0.0), &views);
+        assert!((x - truth).norm() < 0.02, "{} m off", (x - truth).norm());
+    }
+
+    #[test]
+    fn medians_of_even_counts_take_the_middle_two() {
+        assert_eq!(median(&mut []), None);
+        assert_eq!(median(&mut [3.0, 1.0, 2.0]), Some(2.0));
+        assert_eq!(median(&mut [4.0, 1.0, 3.0, 2.0]), Some(2.5));
+    }
+
+    #[test]
+    fn even_frames_and_a_vanishing_prior_are_refused() {
+        let ok = DeviationSettings::default();
+        assert!(ok.check().is_ok());
+        for bad in [
+            DeviationSettings { frames: 4, ..ok },
+            DeviationSettings {
+                joint_std: 1e-160,
+                ..ok
+            },
+            DeviationSettings {
+                peak_std: 0.0,
+                ..ok
+            },
+            DeviationSettings { rounds: 0, ..ok },
+        ] {
+            assert!(bad.check().is_err(), "{bad:?}");
+        }
+        assert!(
+            DeviationSettings {
+                joint_std: 0.0,
+                ..ok
+            }
+            .check()
+            .is_ok(),
+            "0: off"
+        );
     }
 
     #[test]

@@ -3,7 +3,8 @@
 //!
 //! For each refined frame three cameras or more saw, [`super::FusedWindow`] notes each
 //! camera's residual: the median distance between its heat maps' peaks and the fused
-//! pose projected into it, as a fraction of the person's box in that image (so near and
+//! pose projected into it (the model's, before [`super::deviation`] moves its joints
+//! towards the views: a wrong camera would pull them), as a fraction of the person's box in that image (so near and
 //! far cameras compare). Noise keeps every camera's small and
 //! alike; a camera turned or moved from where its extrinsics say is far off in every
 //! frame, while the others fit. [`suspects`] names the cameras whose mean residual is

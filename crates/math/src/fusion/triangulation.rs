@@ -57,8 +57,8 @@ pub fn dlt(views: &[PeakView]) -> Option<Vector3<f64>> {
     let mut normal = Matrix4::<f64>::zeros();
     for v in views {
         let k = &v.camera.intrinsics;
-        // Normalised image coordinates: the rows are on the scale of the rays, not of
-        // the pixels (Hartley's normalisation).
+        // Normalised image coordinates (K^-1 applied): the rows are on the scale of the
+        // rays, not of the pixels.
         let x = (v.pixel[0] - k.cx) / k.fx;
         let y = (v.pixel[1] - k.cy) / k.fy;
         let pose = v.camera.world_from_camera.inverse();
@@ -73,7 +73,8 @@ pub fn dlt(views: &[PeakView]) -> Option<Vector3<f64>> {
     if !normal.iter().all(|v| v.is_finite()) {
         return None;
     }
-    let eig = SymmetricEigen::new(normal);
+    // Bounded iterations: a decomposition that does not converge is no point.
+    let eig = SymmetricEigen::try_new(normal, f64::EPSILON, 200)?;
     let (mut smallest, mut second) = (0, 1);
     for i in 0..4 {
         if eig.eigenvalues[i] < eig.eigenvalues[smallest] {
@@ -221,11 +222,10 @@ impl Triangulator {
                 self.values.clear();
                 self.values
                     .extend(self.frames.iter().filter_map(|f| f[j].map(|p| p[k])));
-                if self.values.is_empty() {
+                let Some(m) = median(&mut self.values) else {
                     break;
-                }
-                self.values.sort_by(f64::total_cmp);
-                value[k] = self.values[self.values.len() / 2];
+                };
+                value[k] = m;
                 any = true;
             }
             let value = if any { Some(value) } else { self.last[j] };
@@ -239,6 +239,18 @@ impl Triangulator {
             }
         }
         whole
+    }
+}
+
+/// The median of `values` (the two middle ones' mean for an even count; sorted in
+/// place), `None` when empty.
+pub(super) fn median(values: &mut [f64]) -> Option<f64> {
+    values.sort_by(f64::total_cmp);
+    let n = values.len();
+    match n {
+        0 => None,
+        _ if !n.is_multiple_of(2) => Some(values[n / 2]),
+        _ => Some(0.5 * (values[n / 2 - 1] + values[n / 2])),
     }
 }
 

@@ -120,8 +120,8 @@ impl FusedWindow {
         Ok(())
     }
 
-    /// Each camera's residuals against this person's refined fused poses, for the check
-    /// of their extrinsics ([`super::extrinsics::suspects`]; merge several people's).
+    /// Each camera's residuals against this person's refined fused poses (the model's
+    /// joints, before the views' deviations move them), for the check of their extrinsics ([`super::extrinsics::suspects`]; merge several people's).
     pub fn residuals(&self) -> &[ViewResidual] {
         &self.residuals
     }
@@ -334,6 +334,7 @@ impl FusedWindow {
             vd.width = old.width;
             vd.maps.clone_from(&old.maps);
             vd.moments.clone_from(&old.moments);
+            vd.peaks.clone_from(&old.peaks);
             vd.evidence = old.evidence;
             vd.bridged = true;
             frame.n_views += 1;
@@ -463,6 +464,38 @@ impl FusedWindow {
         self.frames[t].pose.translation = here + u * towards;
     }
 
+    /// Moves the joints put out for frame `t` (its model's, `joints`) off the
+    /// dictionary's shape where its views agree ([`super::deviation`]), the median over
+    /// the frames within `deviation.frames / 2` of it that the window holds.
+    fn deviate(&mut self, t: usize, joints: &mut [f64]) {
+        if self.settings.deviation.joint_std <= 0.0 {
+            return;
+        }
+        let m = self.metres_per_unit;
+        let half = self.settings.deviation.frames / 2;
+        let first = t.saturating_sub(half);
+        let last = (t + half).min(self.frames.len() - 1);
+        if self.around.len() < last + 1 - first {
+            self.around.resize_with(last + 1 - first, Vec::new);
+        }
+        for (k, frame) in (first..=last).zip(self.around.iter_mut()) {
+            self.frames[k]
+                .pose
+                .joints_into(&self.dict, m, &mut self.shape, frame);
+        }
+        let frames = &self.frames;
+        let around = &self.around;
+        deviate(
+            &self.settings.deviation,
+            &self.cameras,
+            last + 1 - first,
+            |k| (&around[k][..], frames[first + k].views()),
+            t - first,
+            joints,
+            &mut self.deviation,
+        );
+    }
+
     /// The estimate of frame `t`.
     fn emit(&mut self, t: usize, out: &mut Vec<FusedEstimate>) {
         let m = self.metres_per_unit;
@@ -490,28 +523,8 @@ impl FusedWindow {
         e.views
             .extend(f.views().iter().filter(|v| v.usable()).map(|v| v.view));
         // Where the views agree, they win over the dictionary's shape.
-        let half = self.settings.deviation.frames / 2;
-        let first = t.saturating_sub(half);
-        let last = (t + half).min(self.frames.len() - 1);
-        if self.around.len() < last + 1 - first {
-            self.around.resize_with(last + 1 - first, Vec::new);
-        }
-        for (k, frame) in (first..=last).zip(self.around.iter_mut()) {
-            self.frames[k]
-                .pose
-                .joints_into(&self.dict, m, &mut self.shape, frame);
-        }
-        let frames = &self.frames;
-        let around = &self.around;
-        deviate(
-            &self.settings.deviation,
-            &self.cameras,
-            last + 1 - first,
-            |k| (&around[k][..], frames[first + k].views()),
-            t - first,
-            &mut e.joints,
-            &mut self.deviation,
-        );
+        self.deviate(t, &mut e.joints);
+        let f = &self.frames[t];
         let scale_std = self.settings.scale_std;
         for j in 0..self.dict.num_joints() {
             // Each view's 2D spread at the joint's depth (metres per axis), combined;
