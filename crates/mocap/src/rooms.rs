@@ -34,6 +34,11 @@ pub struct Errors {
     pub root: f64,
     /// Frames estimated from one view.
     pub monocular: usize,
+    /// Per-axis errors within 1 and 2 of the estimate's standard deviations, of `axes`
+    /// (frames added with [`Errors::add_with_std`]).
+    pub within: [usize; 2],
+    /// Per-axis errors counted in `within`.
+    pub axes: usize,
 }
 
 impl Errors {
@@ -43,6 +48,37 @@ impl Errors {
         self.frames += 1;
         self.mpjpe += mpjpe(joints, truth);
         self.root += mpjpe(&joints[at.clone()], &truth[at]);
+    }
+
+    /// [`Errors::add`], and each joint's per-axis errors against `std` (metres, one per
+    /// joint, per axis) for [`Errors::within_share`].
+    pub fn add_with_std(&mut self, truth: &[f64], joints: &[f64], std: &[f64], root: usize) {
+        self.add(truth, joints, root);
+        for (j, (t, e)) in truth
+            .chunks_exact(3)
+            .zip(joints.chunks_exact(3))
+            .enumerate()
+        {
+            let s = std.get(j).copied().unwrap_or(f64::NAN);
+            for axis in 0..3 {
+                let z = (t[axis] - e[axis]).abs() / s;
+                self.within[0] += usize::from(z <= 1.0);
+                self.within[1] += usize::from(z <= 2.0);
+                self.axes += 1;
+            }
+        }
+    }
+
+    /// The shares of per-axis errors within 1 and 2 standard deviations (NaN without
+    /// any: a calibrated estimate has 0.68 and 0.95).
+    pub fn within_share(&self) -> [f64; 2] {
+        self.within.map(|w| {
+            if self.axes == 0 {
+                f64::NAN
+            } else {
+                w as f64 / self.axes as f64
+            }
+        })
     }
 
     fn mean(&self, v: f64) -> f64 {
@@ -236,7 +272,9 @@ pub fn score(
         for e in &estimates {
             let t = room.frame_at(e.stamp_ns);
             if e.lag == fusion.lag {
-                result.fused.add(truth(t), &e.joints, root);
+                result
+                    .fused
+                    .add_with_std(truth(t), &e.joints, &e.joint_std, root);
                 result.fused.monocular += usize::from(e.monocular);
             } else if e.lag == 0 {
                 result.fused_newest.add(truth(t), &e.joints, root);
@@ -532,5 +570,23 @@ pub fn score_skeletons(
         root_mm: errors.root_mm(),
         monocular: errors.monocular,
         unscored,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_share_within_one_and_two_std_counts_each_axis() {
+        let mut e = Errors::default();
+        assert!(e.within_share()[0].is_nan(), "nothing counted yet");
+        // Two joints of std 0.1 m: errors per axis 0.05 (within 1), 0.15 (within 2),
+        // 0.3 (neither); the second joint's std is NaN (never within).
+        let truth = [0.0; 6];
+        let joints = [0.05, 0.15, 0.3, 0.0, 0.0, 0.0];
+        e.add_with_std(&truth, &joints, &[0.1, f64::NAN], 0);
+        assert_eq!((e.within, e.axes), ([1, 2], 6));
+        assert_eq!(e.frames, 1);
     }
 }

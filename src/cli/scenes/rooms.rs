@@ -188,8 +188,8 @@ pub fn markdown(args: &ScenesArgs) -> Result<String, CliError> {
          Assumed size: fused {} m (the configuration's: two cameras see the size), each camera alone {} m (the subjects', its best case).\n\n",
         fusion.lag, config.estimator.window.lag, fusion.mean_limb_length, args.mean_limb_length
     ));
-    out.push_str("| room | fused MPJPE mm | root mm | at once (lag 0) mm | best single-view mm | ratio | triangulated mm | fused / triangulated | each camera alone mm | one view only | fitted bone length m | fused ms per person-frame | matched by geometry: IDF1, people found, MPJPE mm |\n");
-    out.push_str("|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+    out.push_str("| room | fused MPJPE mm | root mm | at once (lag 0) mm | best single-view mm | ratio | triangulated mm | fused / triangulated | fused within 1 / 2 std | each camera alone mm | one view only | fitted bone length m | fused ms per person-frame | matched by geometry: IDF1, people found, MPJPE mm |\n");
+    out.push_str("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
     for spec in &ROOMS {
         let people = load_people(args, &mapping, &skel, spec)?;
         let cameras = (spec.cameras)();
@@ -213,7 +213,7 @@ pub fn markdown(args: &ScenesArgs) -> Result<String, CliError> {
         let matched = rooms::fuse_matched(&room, &estimator, &fusion, &fusion.matching)?;
         let matched_errors = rooms::score_matched(&room, &skel, &matched, fusion.lag);
         out.push_str(&format!(
-            "| {} | {:.0} | {:.0} | {:.0} | {:.0} | {:.2} | {} | {} | {} | {:.0} % | {} | {:.2} | {:.3}, {} of {}, {:.0} |\n",
+            "| {} | {:.0} | {:.0} | {:.0} | {:.0} | {:.2} | {} | {} | {:.0} / {:.0} % | {} | {:.0} % | {} | {:.2} | {:.3}, {} of {}, {:.0} |\n",
             spec.name,
             fused,
             r.fused.root_mm(),
@@ -222,6 +222,8 @@ pub fn markdown(args: &ScenesArgs) -> Result<String, CliError> {
             fused / best,
             baseline_mm,
             baseline_ratio,
+            100.0 * r.fused.within_share()[0],
+            100.0 * r.fused.within_share()[1],
             singles
                 .iter()
                 .map(|v| format!("{v:.0}"))
