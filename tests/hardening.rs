@@ -1282,6 +1282,26 @@ fn configuration_values_outside_their_domain_are_one_error_naming_the_key() {
             "detector.images.pedestrian_threshold",
         ),
         (
+            "[detector.images]\nnanodet_threshold = nan\n",
+            "detector.images.nanodet_threshold",
+        ),
+        (
+            "[detector.images]\nnanodet_threshold = 1.5\n",
+            "detector.images.nanodet_threshold",
+        ),
+        (
+            "[detector.images]\nnanodet_input = \"400x300\"\n",
+            "detector.images.nanodet_input",
+        ),
+        (
+            "[detector.images]\nnanodet_input = \"\"\n",
+            "detector.images.nanodet_input",
+        ),
+        (
+            "[detector.images]\nnanodet_input = \"4294967296x4294967296\"\n",
+            "detector.images.nanodet_input",
+        ),
+        (
             "[ros]\nwait_for_subscribers = -1.0\n",
             "ros.wait_for_subscribers",
         ),
@@ -1316,6 +1336,38 @@ fn configuration_values_outside_their_domain_are_one_error_naming_the_key() {
     }
     // The shipped configuration is inside every domain.
     config().validate().expect("valid");
+}
+
+/// The search's detector and thread switches: a value of the wrong kind is one error
+/// (TOML's, with the line it is on) naming the key and what it takes, nothing run.
+#[test]
+fn a_detector_choice_or_switch_of_the_wrong_kind_is_refused_with_what_it_takes() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    for (i, (text, key, takes)) in [
+        (
+            "body_detector = \"yolo\"",
+            "body_detector",
+            "`nanodet` or `ssdlite`",
+        ),
+        ("body_detector = 1e308", "body_detector", "string"),
+        ("search_thread = \"yes\"", "search_thread", "bool"),
+        ("search_thread = nan", "search_thread", "bool"),
+    ]
+    .iter()
+    .enumerate()
+    {
+        let path = dir.path().join(format!("kind-{i}.toml"));
+        std::fs::write(&path, format!("[detector.images]\n{text}\n")).expect("write");
+        let r = run(&["replay", "recordings/byebye.mcap", "--config", s(&path)]);
+        assert_eq!(r.code, Some(1), "{}", r.stderr);
+        assert!(r.stderr.starts_with("posestream: error: "), "{}", r.stderr);
+        assert!(
+            r.stderr.contains(key) && r.stderr.contains(takes),
+            "names {key} and {takes}: {}",
+            r.stderr
+        );
+        r.assert_bounded();
+    }
 }
 
 // Found while giving each enum one parser: `config/default.toml` documents

@@ -12,7 +12,6 @@ use posestream_base::Scores;
 use posestream_math::Estimator;
 use posestream_math::accuracy::mpjpe;
 use posestream_math::error::EstimateError;
-use posestream_math::fusion::matching::peaks_into;
 use posestream_math::fusion::{
     FusedEstimate, FusedWindow, FusionSettings, MatchSettings, Matcher, TrackObservation,
     TriangulationSettings, Triangulator, ViewCamera, ViewMaps, ViewResidual,
@@ -213,19 +212,9 @@ pub fn triangulated(room: &Room, skel: &Skeleton, settings: &TriangulationSettin
             let mut seen = Vec::with_capacity(cameras.len());
             for (c, s) in room.seen.iter().map(|seen| &seen[i]).enumerate() {
                 peaks[c].clear();
-                if s.dt[t].is_none() {
-                    continue;
+                if s.dt[t].is_some() {
+                    s.peaks_into(t, &mut peaks[c]);
                 }
-                let maps = &s.maps.maps;
-                let n = maps.joints * maps.height * maps.width;
-                let to_image = s.boxes[t].pixel_map(maps.width, maps.height);
-                peaks_into(
-                    &maps.values[t * n..(t + 1) * n],
-                    maps.height,
-                    maps.width,
-                    &to_image,
-                    &mut peaks[c],
-                );
             }
             for (c, camera) in cameras.iter().enumerate() {
                 if !peaks[c].is_empty() {
@@ -386,17 +375,7 @@ pub fn fuse_matched(
         }
         peaks.resize(who.len(), Vec::new());
         for (k, &(c, i)) in who.iter().enumerate() {
-            let s = &room.seen[c][i];
-            let maps = &s.maps.maps;
-            let n = maps.joints * maps.height * maps.width;
-            let to_image = s.boxes[t].pixel_map(maps.width, maps.height);
-            peaks_into(
-                &maps.values[t * n..(t + 1) * n],
-                maps.height,
-                maps.width,
-                &to_image,
-                &mut peaks[k],
-            );
+            room.seen[c][i].peaks_into(t, &mut peaks[k]);
         }
         let observations: Vec<TrackObservation<'_>> = who
             .iter()

@@ -216,12 +216,14 @@ impl FusedWindow {
             .unwrap_or_else(|| Frame::new(self.dict.num_bases()));
         frame.stamp_ns = stamp_ns;
         frame.n_views = 0;
+        // The peaks are the deviations' evidence: none needed while they are off.
+        let peaks = self.settings.deviation.joint_std > 0.0;
         for v in views {
             if frame.views.len() <= frame.n_views {
                 frame.views.push(ViewData::new());
             }
             let vd = &mut frame.views[frame.n_views];
-            let filled = fill(vd, v, p);
+            let filled = fill(vd, v, p, peaks);
             frame.n_views += 1;
             if let Err(e) = filled {
                 self.spare.push(frame);
@@ -557,8 +559,9 @@ impl FusedWindow {
     }
 }
 
-/// Copies one view's maps into `vd` (clipped at 0) with their moments.
-fn fill(vd: &mut ViewData, v: &ViewMaps<'_>, p: usize) -> Result<(), EstimateError> {
+/// Copies one view's maps into `vd` (clipped at 0) with their moments, and with each
+/// map's refined peak when `peaks`.
+fn fill(vd: &mut ViewData, v: &ViewMaps<'_>, p: usize, peaks: bool) -> Result<(), EstimateError> {
     vd.view = v.view;
     vd.dt = v.dt;
     vd.bridged = false;
@@ -593,7 +596,7 @@ fn fill(vd: &mut ViewData, v: &ViewMaps<'_>, p: usize) -> Result<(), EstimateErr
     vd.evidence = vd.moments.iter().any(|m| m.h > 0.0);
     // Each map's peak, to a fraction of a cell (the deviations' evidence).
     vd.peaks.clear();
-    if n > 0 {
+    if peaks && n > 0 {
         vd.peaks.extend(vd.maps.chunks_exact(n).map(|map| {
             let (x, y, score) = refined_argmax(map, v.width);
             let [u, w] = v.to_image.apply(x, y);

@@ -15,6 +15,7 @@ use posestream_base::CropBox;
 use posestream_math::camera::Intrinsics;
 use posestream_math::error::EstimateError;
 use posestream_math::fusion::ViewCamera;
+use posestream_math::fusion::matching::peaks_into;
 use posestream_math::skeleton::Skeleton;
 
 /// One camera of a room.
@@ -111,6 +112,23 @@ pub struct Seen {
     /// `None` when the camera sent nothing then (its rate, a drop, or the person out of
     /// its image).
     pub dt: Vec<Option<f64>>,
+}
+
+impl Seen {
+    /// The peaks of room frame `t`'s heat maps, image pixels, with their scores
+    /// (`[u, v, score]` per joint, [`peaks_into`]), into `out`.
+    pub fn peaks_into(&self, t: usize, out: &mut Vec<[f64; 3]>) {
+        let maps = &self.maps.maps;
+        let n = maps.joints * maps.height * maps.width;
+        let to_image = self.boxes[t].pixel_map(maps.width, maps.height);
+        peaks_into(
+            &maps.values[t * n..(t + 1) * n],
+            maps.height,
+            maps.width,
+            &to_image,
+            out,
+        );
+    }
 }
 
 /// A room, rendered.
