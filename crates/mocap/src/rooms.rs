@@ -195,13 +195,18 @@ pub fn fuse_with(
 }
 
 /// Every person of `room` through the triangulation baseline ([`Triangulator`]: each
-/// joint's peaks triangulated, a centred temporal median), the cameras' views taken as
-/// if at the frame's time: its errors, a frame counted once every joint has a value
-/// (none with one camera).
-pub fn triangulated(room: &Room, skel: &Skeleton, settings: &TriangulationSettings) -> Errors {
+/// joint's peaks triangulated, a centred temporal median) with the calibration
+/// `cameras` (the room's own: [`Room::view_cameras`]), the cameras' views taken as if at
+/// the frame's time: its errors, a frame counted once every joint has a value (none
+/// with one camera).
+pub fn triangulated(
+    room: &Room,
+    cameras: &[ViewCamera],
+    skel: &Skeleton,
+    settings: &TriangulationSettings,
+) -> Errors {
     let p = skel.len();
     let root = skel.root();
-    let cameras = room.view_cameras();
     let mut errors = Errors::default();
     let mut peaks: Vec<Vec<[f64; 3]>> = vec![Vec::new(); cameras.len()];
     let mut out = Vec::new();
@@ -232,9 +237,11 @@ pub fn triangulated(room: &Room, skel: &Skeleton, settings: &TriangulationSettin
 
 /// Scores `room`: its people fused with `fusion`, and seen by each camera alone through
 /// `window` (fresh per person and camera) and the metric step with `metric` (its camera
-/// set to each camera's).
+/// set to each camera's), both given the calibration `cameras` (the room's own:
+/// [`Room::view_cameras`]; a camera's pose gone wrong, say).
 pub fn score(
     room: &Room,
+    cameras: &[ViewCamera],
     skel: &Skeleton,
     estimator: &Estimator,
     window: &WindowEstimator,
@@ -243,7 +250,6 @@ pub fn score(
 ) -> Result<RoomScores, EstimateError> {
     let p = skel.len();
     let root = skel.root();
-    let cameras = room.view_cameras();
     let mut result = RoomScores {
         fused: Errors::default(),
         fused_newest: Errors::default(),
@@ -254,7 +260,7 @@ pub fn score(
     };
     for (i, person) in room.people.iter().enumerate() {
         let truth = |t: usize| &person.positions[3 * p * t..3 * p * (t + 1)];
-        let fused = fuse(room, i, estimator, fusion, true)?;
+        let fused = fuse_with(room, cameras, i, estimator, fusion, true)?;
         result.seconds += fused.seconds;
         result.person_frames += fused.frames;
         let estimates = fused.estimates;
@@ -308,7 +314,9 @@ pub fn score(
                         .positions
                         .chunks_exact(3)
                         .flat_map(|q| {
-                            let w = room.cameras[c].transform_point(&Point3::new(q[0], q[1], q[2]));
+                            let w = cameras[c]
+                                .world_from_camera
+                                .transform_point(&Point3::new(q[0], q[1], q[2]));
                             [w.x, w.y, w.z]
                         })
                         .collect();
@@ -344,14 +352,15 @@ fn track_id(view: usize, person: usize) -> u64 {
     (1000 * view + (7 * person + 3 * view) % 101) as u64
 }
 
-/// Matches and fuses every person of `room` (module docs of [`Matched`]).
+/// Matches and fuses every person of `room` (module docs of [`Matched`]) with the
+/// calibration `cameras`.
 pub fn fuse_matched(
     room: &Room,
+    cameras: &[ViewCamera],
     estimator: &Estimator,
     fusion: &FusionSettings,
     matching: &MatchSettings,
 ) -> Result<Matched, EstimateError> {
-    let cameras = room.view_cameras();
     let mut matcher =
         Matcher::new(matching.clone()).map_err(|e| EstimateError::Parameter(e.to_string()))?;
     let mut windows: BTreeMap<u64, FusedWindow> = BTreeMap::new();
@@ -389,7 +398,7 @@ pub fn fuse_matched(
                     .max(room.seen[c][i].boxes[t].height),
             })
             .collect();
-        matcher.assign(room.frame_ns(t), &cameras, &observations, &mut ids);
+        matcher.assign(room.frame_ns(t), cameras, &observations, &mut ids);
         for (k, id) in ids.iter().enumerate() {
             match id {
                 Some(id) => pairs.push((who[k].1, *id)),
@@ -422,7 +431,7 @@ pub fn fuse_matched(
                 std::collections::btree_map::Entry::Occupied(e) => e.into_mut(),
                 std::collections::btree_map::Entry::Vacant(e) => e.insert(FusedWindow::new(
                     estimator,
-                    cameras.clone(),
+                    cameras.to_vec(),
                     fusion.clone(),
                 )?),
             };

@@ -70,9 +70,10 @@ pub struct ScenesArgs {
     /// configuration `posestream fuse` reads it with.
     #[arg(long, value_name = "FILE", requires = "rooms")]
     pub record: Option<PathBuf>,
-    /// With `--record`: which room (1-based, as `--rooms` lists them).
-    #[arg(long, default_value_t = 3, requires = "record")]
-    pub room: usize,
+    /// With `--rooms`: only this room (1-based, as `--rooms` lists them); with
+    /// `--record`, the room written (default 3).
+    #[arg(long, requires = "rooms")]
+    pub room: Option<usize>,
 }
 
 /// A scene: its name and people, the first placed by the camera (5 m in front of it),
@@ -380,7 +381,7 @@ pub fn run(args: &ScenesArgs) -> Result<(), CliError> {
         "--data",
     )?;
     let text = if let Some(path) = &args.record {
-        rooms::record(args, args.room, path)?
+        rooms::record(args, args.room.unwrap_or(3), path)?
     } else if args.rooms {
         rooms::markdown(args)?
     } else if args.distances {

@@ -12,7 +12,9 @@
 //! ([`posestream::fusion::Triangulator`]: no model, each joint's peaks triangulated and a
 //! 5-frame median), which the fusion has to beat.
 
-use posestream::fusion::{FusionSettings, TriangulationSettings, ViewResidual, suspects};
+use posestream::fusion::{
+    FusionSettings, TriangulationSettings, ViewCamera, ViewResidual, suspects,
+};
 use posestream::metres::MetricSettings;
 use posestream::mocap::{Bvh, MappedSequence, SkeletonMapping, rooms};
 use posestream::streaming::WindowEstimator;
@@ -28,7 +30,26 @@ struct RoomSpec {
     name: &'static str,
     cameras: fn() -> Vec<RoomCamera>,
     people: &'static [(&'static str, Placement)],
+    /// The joints as the heat maps (and the truth) define them: moved off the
+    /// dictionary's by these body-frame offsets ([`synth::redefined`]; none: its own).
+    definition: &'static [(&'static str, [f64; 3])],
+    /// A camera whose pose the estimators are given turned about the vertical by so many
+    /// degrees (its calibration gone wrong), the rest as they are.
+    misplaced: Option<(usize, f64)>,
 }
+
+/// Another detector's joints: the hips and pelvis a few centimetres lower, wider and
+/// further forward than the motion capture's joint centres, the shoulders higher and
+/// wider, the neck forward, the head's top lower (`[left, up, forward]`, metres).
+const ANOTHER_DETECTORS: &[(&str, [f64; 3])] = &[
+    ("pelvis", [0.0, -0.04, 0.02]),
+    ("l-hip", [0.03, -0.03, 0.02]),
+    ("r-hip", [-0.03, -0.03, 0.02]),
+    ("l-shoulder", [0.02, 0.02, 0.0]),
+    ("r-shoulder", [-0.02, 0.02, 0.0]),
+    ("neck", [0.0, 0.0, 0.03]),
+    ("head-top", [0.0, -0.03, 0.02]),
+];
 
 const STILL: Placement = Placement {
     ahead: 0.0,
@@ -48,11 +69,13 @@ const fn at(ahead: f64, left: f64, turn_deg: f64) -> Placement {
 
 const FRAME: f64 = 1.0 / 30.0;
 
-const ROOMS: [RoomSpec; 13] = [
+const ROOMS: [RoomSpec; 17] = [
     RoomSpec {
         name: "2 cameras at 90 degrees, 5 m; one person",
         cameras: || vec![RoomCamera::at(30.0, 5.0), RoomCamera::at(120.0, 5.0)],
         people: &[("dataset-1_walk-left_proud_001.bvh", STILL)],
+        definition: &[],
+        misplaced: None,
     },
     RoomSpec {
         name: "2 cameras at 90 degrees, 9 m; two people",
@@ -61,6 +84,8 @@ const ROOMS: [RoomSpec; 13] = [
             ("dataset-1_walk_proud_002.bvh", STILL),
             ("dataset-1_walk-left_proud_001.bvh", at(2.0, 1.0, 180.0)),
         ],
+        definition: &[],
+        misplaced: None,
     },
     RoomSpec {
         name: "3 cameras, 5 m; two people",
@@ -69,6 +94,8 @@ const ROOMS: [RoomSpec; 13] = [
             ("dataset-1_walk-left_proud_001.bvh", STILL),
             ("dataset-1_walk-right_proud_001.bvh", at(1.5, 1.0, 0.0)),
         ],
+        definition: &[],
+        misplaced: None,
     },
     RoomSpec {
         name: "4 cameras, 6 m; four people",
@@ -79,6 +106,8 @@ const ROOMS: [RoomSpec; 13] = [
             ("dataset-1_walk_proud_001.bvh", at(-1.5, 0.5, 90.0)),
             ("dataset-1_walk-back_proud_001.bvh", at(0.5, -1.5, 0.0)),
         ],
+        definition: &[],
+        misplaced: None,
     },
     RoomSpec {
         name: "3 cameras, 6 m; two people crossing 0.6 m apart",
@@ -87,6 +116,8 @@ const ROOMS: [RoomSpec; 13] = [
             ("dataset-1_walk-left_proud_001.bvh", STILL),
             ("dataset-1_walk-right_proud_001.bvh", at(0.6, 3.0, 0.0)),
         ],
+        definition: &[],
+        misplaced: None,
     },
     RoomSpec {
         name: "3 cameras, 10 m; two people",
@@ -95,6 +126,8 @@ const ROOMS: [RoomSpec; 13] = [
             ("dataset-1_walk_proud_002.bvh", STILL),
             ("dataset-1_walk-left_proud_001.bvh", at(2.0, 1.0, 180.0)),
         ],
+        definition: &[],
+        misplaced: None,
     },
     RoomSpec {
         name: "4 cameras, 12 m; three people",
@@ -104,6 +137,8 @@ const ROOMS: [RoomSpec; 13] = [
             ("dataset-1_walk-left_proud_001.bvh", at(2.0, 1.0, 180.0)),
             ("dataset-1_walk-right_proud_001.bvh", at(-1.0, -2.0, 0.0)),
         ],
+        definition: &[],
+        misplaced: None,
     },
     RoomSpec {
         name: "3 cameras unsynchronised (+1/2, -1/3 frame, 3 ms jitter), one at 15 frames/s; two people",
@@ -120,6 +155,8 @@ const ROOMS: [RoomSpec; 13] = [
             ("dataset-1_walk-left_proud_001.bvh", STILL),
             ("dataset-1_walk-right_proud_001.bvh", at(1.5, 1.0, 0.0)),
         ],
+        definition: &[],
+        misplaced: None,
     },
     RoomSpec {
         name: "3 cameras, one silent from 3 to 6 s; two people",
@@ -132,11 +169,15 @@ const ROOMS: [RoomSpec; 13] = [
             ("dataset-1_walk-left_proud_001.bvh", STILL),
             ("dataset-1_walk-right_proud_001.bvh", at(1.5, 1.0, 0.0)),
         ],
+        definition: &[],
+        misplaced: None,
     },
     RoomSpec {
         name: "1 camera (fusion with one view), 5 m; one person",
         cameras: || vec![RoomCamera::at(30.0, 5.0)],
         people: &[("dataset-1_walk-left_proud_001.bvh", STILL)],
+        definition: &[],
+        misplaced: None,
     },
     // Not walking: held-out actions (config/splits/bandai-namco.toml: kick, punch,
     // byebye) and style (proud: a bow), the dictionary trained on none of them.
@@ -147,11 +188,15 @@ const ROOMS: [RoomSpec; 13] = [
             ("dataset-1_kick_normal_001.bvh", STILL),
             ("dataset-1_punch_normal_002.bvh", at(1.5, 1.0, 0.0)),
         ],
+        definition: &[],
+        misplaced: None,
     },
     RoomSpec {
         name: "2 cameras at 90 degrees, 5 m; one kicks",
         cameras: || vec![RoomCamera::at(30.0, 5.0), RoomCamera::at(120.0, 5.0)],
         people: &[("dataset-1_kick_normal_001.bvh", STILL)],
+        definition: &[],
+        misplaced: None,
     },
     RoomSpec {
         name: "4 cameras, 6 m; one bows, one waves goodbye",
@@ -160,8 +205,77 @@ const ROOMS: [RoomSpec; 13] = [
             ("dataset-1_bow_proud_001.bvh", STILL),
             ("dataset-1_byebye_proud_001.bvh", at(1.0, 1.0, 180.0)),
         ],
+        definition: &[],
+        misplaced: None,
+    },
+    RoomSpec {
+        name: "3 cameras, 5 m; one dashes, one punches",
+        cameras: || RoomCamera::ring(3, 20.0, 5.0),
+        people: &[
+            ("dataset-1_dash_proud_001.bvh", STILL),
+            ("dataset-1_punch_normal_001.bvh", at(1.5, 1.0, 0.0)),
+        ],
+        definition: &[],
+        misplaced: None,
+    },
+    RoomSpec {
+        name: "3 cameras, 5 m; joints defined off the dictionary's (another detector's hips, pelvis, shoulders, neck, head); one kicks, one punches",
+        cameras: || RoomCamera::ring(3, 20.0, 5.0),
+        people: &[
+            ("dataset-1_kick_normal_001.bvh", STILL),
+            ("dataset-1_punch_normal_002.bvh", at(1.5, 1.0, 0.0)),
+        ],
+        definition: ANOTHER_DETECTORS,
+        misplaced: None,
+    },
+    RoomSpec {
+        name: "3 cameras, 5 m, camera 1's given pose turned 2 degrees; one kicks, one punches",
+        cameras: || RoomCamera::ring(3, 20.0, 5.0),
+        people: &[
+            ("dataset-1_kick_normal_001.bvh", STILL),
+            ("dataset-1_punch_normal_002.bvh", at(1.5, 1.0, 0.0)),
+        ],
+        definition: &[],
+        misplaced: Some((1, 2.0)),
+    },
+    RoomSpec {
+        name: "4 cameras, 6 m; three people side by side 0.5 m apart: a bow, a wave, a guide",
+        cameras: || RoomCamera::ring(4, 45.0, 6.0),
+        people: &[
+            ("dataset-1_bow_proud_001.bvh", STILL),
+            ("dataset-1_byebye_proud_001.bvh", at(0.0, 0.5, 0.0)),
+            ("dataset-1_guide_proud_001.bvh", at(0.0, -0.5, 0.0)),
+        ],
+        definition: &[],
+        misplaced: None,
     },
 ];
+
+/// Room `index` (1-based), or a usage error naming the rooms there are.
+fn spec_of(index: usize) -> Result<&'static RoomSpec, CliError> {
+    ROOMS.get(index.wrapping_sub(1)).ok_or_else(|| {
+        CliError::Usage(format!(
+            "--room {index}: there are rooms 1 to {}",
+            ROOMS.len()
+        ))
+    })
+}
+
+/// The calibration the estimators of `spec` are given for `room`: its own, with the
+/// misplaced camera's pose turned.
+fn given_cameras(spec: &RoomSpec, room: &room::Room) -> Vec<ViewCamera> {
+    let mut cameras = room.view_cameras();
+    if let Some((c, degrees)) = spec.misplaced
+        && let Some(camera) = cameras.get_mut(c)
+    {
+        let turn = nalgebra::UnitQuaternion::from_axis_angle(
+            &nalgebra::Vector3::z_axis(),
+            degrees.to_radians(),
+        );
+        camera.world_from_camera.rotation = turn * camera.world_from_camera.rotation;
+    }
+    cameras
+}
 
 /// The takes the rooms are made of (checked before a long run needs them).
 pub fn takes() -> impl Iterator<Item = &'static str> {
@@ -190,7 +304,13 @@ pub fn markdown(args: &ScenesArgs) -> Result<String, CliError> {
     ));
     out.push_str("| room | fused MPJPE mm | root mm | at once (lag 0) mm | best single-view mm | ratio | triangulated mm | fused / triangulated | fused within 1 / 2 std | each camera alone mm | one view only | fitted bone length m | fused ms per person-frame | matched by geometry: IDF1, people found, MPJPE mm |\n");
     out.push_str("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
-    for spec in &ROOMS {
+    if let Some(index) = args.room {
+        spec_of(index)?;
+    }
+    for (index, spec) in (1..).zip(&ROOMS) {
+        if args.room.is_some_and(|only| only != index) {
+            continue;
+        }
         let people = load_people(args, &mapping, &skel, spec)?;
         let cameras = (spec.cameras)();
         let room = room::render(&people, &skel, &cameras, &ErrorModel::default(), 1.2, 0.2)
@@ -199,21 +319,22 @@ pub fn markdown(args: &ScenesArgs) -> Result<String, CliError> {
             mean_limb_length: args.mean_limb_length,
             ..MetricSettings::default()
         };
-        let r = rooms::score(&room, &skel, &estimator, &window, &metric, &fusion)?;
+        let given = given_cameras(spec, &room);
+        let r = rooms::score(&room, &given, &skel, &estimator, &window, &metric, &fusion)?;
         let singles: Vec<f64> = r.single.iter().map(|e| e.mpjpe_mm()).collect();
         let best = singles.iter().cloned().fold(f64::INFINITY, f64::min);
         let fused = r.fused.mpjpe_mm();
-        let baseline = rooms::triangulated(&room, &skel, &TriangulationSettings::default());
+        let baseline = rooms::triangulated(&room, &given, &skel, &TriangulationSettings::default());
         let (baseline_mm, baseline_ratio) = if baseline.frames == 0 {
             ("-".to_string(), "-".to_string())
         } else {
             let mm = baseline.mpjpe_mm();
-            (format!("{mm:.0}"), format!("{:.2}", fused / mm))
+            (format!("{mm:.0}"), format!("{:.3}", fused / mm))
         };
-        let matched = rooms::fuse_matched(&room, &estimator, &fusion, &fusion.matching)?;
+        let matched = rooms::fuse_matched(&room, &given, &estimator, &fusion, &fusion.matching)?;
         let matched_errors = rooms::score_matched(&room, &skel, &matched, fusion.lag);
         out.push_str(&format!(
-            "| {} | {:.0} | {:.0} | {:.0} | {:.0} | {:.2} | {} | {} | {:.0} / {:.0} % | {} | {:.0} % | {} | {:.2} | {:.3}, {} of {}, {:.0} |\n",
+            "| {} | {:.0} | {:.0} | {:.0} | {:.0} | {:.2} | {} | {} | {:.1} / {:.1} % | {} | {:.0} % | {} | {:.2} | {:.3}, {} of {}, {:.0} |\n",
             spec.name,
             fused,
             r.fused.root_mm(),
@@ -242,9 +363,11 @@ pub fn markdown(args: &ScenesArgs) -> Result<String, CliError> {
             matched_errors.mpjpe_mm(),
         ));
     }
-    out.push_str(&wrong_extrinsics(
-        args, &mapping, &skel, &estimator, &fusion,
-    )?);
+    if args.room.is_none() {
+        out.push_str(&wrong_extrinsics(
+            args, &mapping, &skel, &estimator, &fusion,
+        )?);
+    }
     Ok(out)
 }
 
@@ -347,9 +470,16 @@ fn load_people(
         .iter()
         .zip(spec.people)
         .enumerate()
-        .map(|(i, (take, (_, placement)))| match i {
-            0 => Ok(first.clone()),
-            _ => synth::place(&first, take, skel, placement).map_err(CliError::Failed),
+        .map(|(i, (take, (_, placement)))| {
+            let placed = match i {
+                0 => first.clone(),
+                _ => synth::place(&first, take, skel, placement).map_err(CliError::Failed)?,
+            };
+            if spec.definition.is_empty() {
+                Ok(placed)
+            } else {
+                synth::redefined(&placed, skel, spec.definition).map_err(CliError::Failed)
+            }
         })
         .collect()
 }
@@ -370,12 +500,7 @@ pub fn record(args: &ScenesArgs, index: usize, path: &std::path::Path) -> Result
     use posestream::nodes::config::FusionConfig;
     use posestream::recording::Recorder;
 
-    let spec = ROOMS.get(index.wrapping_sub(1)).ok_or_else(|| {
-        CliError::Usage(format!(
-            "--room {index}: there are rooms 1 to {}",
-            ROOMS.len()
-        ))
-    })?;
+    let spec = spec_of(index)?;
     let config = args.config.load()?;
     let topics = &config.topics;
     let mapping = SkeletonMapping::load(&args.mapping)?;
@@ -393,9 +518,14 @@ pub fn record(args: &ScenesArgs, index: usize, path: &std::path::Path) -> Result
         stamp: Time::from_nanos(0),
         frame_id: "world".into(),
     };
+    // The calibration a deployment is given (a misplaced camera's pose as it was
+    // measured, not as it is).
+    let given: Vec<_> = given_cameras(spec, &room)
+        .iter()
+        .map(|c| c.world_from_camera)
+        .collect();
     let poses = TFMessage {
-        transforms: room
-            .cameras
+        transforms: given
             .iter()
             .enumerate()
             .map(|(c, pose)| {
@@ -493,8 +623,7 @@ pub fn record(args: &ScenesArgs, index: usize, path: &std::path::Path) -> Result
             )
         })
         .collect();
-    let poses: String = room
-        .cameras
+    let poses: String = given
         .iter()
         .enumerate()
         .map(|(c, pose)| {

@@ -49,6 +49,21 @@ pub struct DeviationSettings {
     pub frames: usize,
     /// Reweighting rounds.
     pub rounds: usize,
+    /// Degrees of freedom of the Student-t prior used where enough views agree (0: the
+    /// Gaussian prior everywhere).
+    pub prior_dof: f64,
+    /// Views that must agree on a joint (each within `outlier_cells` of their robust
+    /// triangulation) before the prior's tail is heavy (at least 2; a rig of fewer
+    /// cameras needs all of them).
+    pub agreeing_views: usize,
+    /// The fused joints' standard deviation as a factor of the deviations' own (the
+    /// views' spreads and the prior, grown by the views' disagreement): the median over
+    /// `frames` narrows it, by less than independent frames would (calibrated on the
+    /// walking rooms of `posestream scenes --rooms`, docs/results.md).
+    pub std_scale: f64,
+    /// The share of a joint's squared move off the model added to its per-axis variance
+    /// (a joint moved far is less sure).
+    pub move_variance: f64,
 }
 
 impl Default for DeviationSettings {
@@ -60,6 +75,10 @@ impl Default for DeviationSettings {
             min_peak: 0.1,
             frames: 5,
             rounds: 3,
+            prior_dof: 1.0,
+            agreeing_views: 3,
+            std_scale: 0.49,
+            move_variance: 0.2,
         }
     }
 }
@@ -86,6 +105,10 @@ impl DeviationSettings {
                 self.frames,
             ));
         }
+        check_real("prior_dof", self.prior_dof, 0.0, 1e6, false)?;
+        check_range("agreeing_views", self.agreeing_views, 2, 64)?;
+        check_real("std_scale", self.std_scale, 0.0, 1e3, true)?;
+        check_real("move_variance", self.move_variance, 0.0, 1e3, false)?;
         check_range("rounds", self.rounds, 1, 100)
     }
 }
@@ -99,21 +122,22 @@ pub(super) struct DeviationBuffers {
     /// Each peak's ray origin (the camera centre moved back by the body's motion over
     /// the view's time offset, as the E-step's).
     origins: Vec<Vector3<f64>>,
+    /// Each peak's agreement factor (Cauchy, of its reprojection distance).
+    agree: Vec<f64>,
     /// Per frame of the median, per joint, the deviation.
     deviations: Vec<Vec<Vector3<f64>>>,
     values: Vec<f64>,
 }
 
-/// The point of joint `j` from the `views` (their peaks, `cameras` by their index)
-/// against the model's joint `model` (module docs).
-fn joint_point(
+/// The peaks of joint `j` in `views` (sent, with evidence, above
+/// [`DeviationSettings::min_peak`], finite) with their cells and ray origins, into `b`.
+fn collect(
     settings: &DeviationSettings,
     cameras: &[ViewCamera],
     views: &[ViewData],
     j: usize,
-    model: Vector3<f64>,
     b: &mut DeviationBuffers,
-) -> Vector3<f64> {
+) {
     b.peaks.clear();
     b.cells.clear();
     b.origins.clear();
@@ -132,8 +156,63 @@ fn joint_point(
             b.origins.push(vd.origin);
         }
     }
+}
+
+/// How far the views place the body from `model` (`[x, y, z]` per joint, world): the
+/// per-axis median, over the joints two or more views triangulate (robustly), of the
+/// point's offset from the model's joint; `None` when fewer than half the joints are
+/// triangulated. A new frame starts there: a body moving fast (a dash) is not found
+/// where it was a frame ago, and the E-step's pull towards the projection would keep it
+/// back.
+pub(super) fn views_offset(
+    settings: &DeviationSettings,
+    cameras: &[ViewCamera],
+    views: &[ViewData],
+    model: &[f64],
+    b: &mut DeviationBuffers,
+) -> Option<Vector3<f64>> {
+    let p = model.len() / 3;
+    let mut offsets = std::mem::take(&mut b.deviations);
+    if offsets.is_empty() {
+        offsets.push(Vec::new());
+    }
+    offsets[0].clear();
+    for j in 0..p {
+        collect(settings, cameras, views, j, b);
+        if b.peaks.len() < 2 {
+            continue;
+        }
+        let gate = 2.0 * settings.outlier_cells * b.cells.iter().copied().fold(0.0, f64::max);
+        if let Some(x) = robust_point(&b.peaks, gate) {
+            offsets[0].push(x - Vector3::new(model[3 * j], model[3 * j + 1], model[3 * j + 2]));
+        }
+    }
+    let found = offsets[0].len();
+    let mut shift = Vector3::zeros();
+    for axis in 0..3 {
+        b.values.clear();
+        b.values.extend(offsets[0].iter().map(|d| d[axis]));
+        shift[axis] = median(&mut b.values).unwrap_or(0.0);
+    }
+    b.deviations = offsets;
+    (found > 0 && 2 * found >= p && shift.iter().all(|v| v.is_finite())).then_some(shift)
+}
+
+/// The point of joint `j` from the `views` (their peaks, `cameras` by their index)
+/// against the model's joint `model` (module docs), and its per-axis variance: the last
+/// solve's, grown by the views' disagreement and by `move_variance` of the squared move
+/// off the model, times `std_scale` squared (NaN where no view saw the joint).
+fn joint_point(
+    settings: &DeviationSettings,
+    cameras: &[ViewCamera],
+    views: &[ViewData],
+    j: usize,
+    model: Vector3<f64>,
+    b: &mut DeviationBuffers,
+) -> (Vector3<f64>, f64) {
+    collect(settings, cameras, views, j, b);
     if b.peaks.is_empty() {
-        return model;
+        return (model, f64::NAN);
     }
     let prior = 1.0 / (settings.joint_std * settings.joint_std);
     // From the views' robust triangulation (all views where they agree within twice the
@@ -144,38 +223,162 @@ fn joint_point(
     } else {
         model
     };
+    let prior = prior * heavy_tail(settings, cameras.len(), &x, &model, b);
+    let mut variance = f64::NAN;
     for round in 0..settings.rounds {
-        let mut a = Matrix3::identity() * prior;
-        let mut rhs = model * prior;
-        for ((pv, &cell), origin) in b.peaks.iter().zip(&b.cells).zip(&b.origins) {
-            let cam = &pv.camera;
-            // The joint as the camera saw it at its time offset: the ray's origin is
-            // the camera centre moved back by the body's motion over it.
-            let Some(([u, v], z)) = cam.project(&(x + (cam.centre() - origin))) else {
-                continue;
-            };
-            let off = (u - pv.pixel[0]).hypot(v - pv.pixel[1]) / cell;
-            let robust = 1.0 / (1.0 + (off / settings.outlier_cells).powi(2));
-            let spread = settings.peak_std * cell * z / cam.intrinsics.focal();
-            let w = robust / (spread * spread);
-            let d = cam.ray(pv.pixel[0], pv.pixel[1]);
-            let proj = Matrix3::identity() - d * d.transpose();
-            a += proj * w;
-            rhs += proj * origin * w;
-        }
-        match a.try_inverse().map(|inv| inv * rhs) {
-            Some(next) if next.iter().all(|v| v.is_finite()) => x = next,
+        agreement(settings, &x, b);
+        match solve(settings, prior, &model, &x, b) {
+            Some((next, covariance)) => {
+                x = next;
+                variance = covariance.trace() / 3.0;
+            }
             // Nothing solved: the model's joint, not an unweighted start.
-            _ if round == 0 => return model,
-            _ => break,
+            None if round == 0 => return (model, f64::NAN),
+            None => break,
         }
     }
-    x
+    // Where the views disagree beyond their spreads (a swap, an occlusion, a camera
+    // off), the variance grows by their disagreement: squared ray distances from the
+    // point over the spreads, per degree of freedom, when above 1.
+    if variance.is_finite() {
+        let (mut chi2, mut n) = (0.0, 0.0);
+        for ((pv, &cell), origin) in b.peaks.iter().zip(&b.cells).zip(&b.origins) {
+            let cam = &pv.camera;
+            let Some((_, z)) = cam.project(&(x + (cam.centre() - origin))) else {
+                continue;
+            };
+            let spread = settings.peak_std * cell * z / cam.intrinsics.focal();
+            let d = cam.ray(pv.pixel[0], pv.pixel[1]);
+            let r = (x - origin) - d * d.dot(&(x - origin));
+            chi2 += r.norm_squared() / (spread * spread);
+            n += 2.0;
+        }
+        // The point takes 3 of the ray coordinates' degrees of freedom (fewer than 4
+        // coordinates: one view, the prior holds the rest).
+        let dof = if n > 3.0 { n - 3.0 } else { n };
+        if n > 0.0 && chi2.is_finite() {
+            variance *= (chi2 / dof).max(1.0);
+        }
+        // A joint moved far off the model is less sure of where it is.
+        variance += settings.move_variance * (x - model).norm_squared() / 3.0;
+        variance *= settings.std_scale * settings.std_scale;
+    }
+    (x, variance)
+}
+
+/// The prior's weight where [`DeviationSettings::agreeing_views`] or more views agree
+/// on the joint at `x` (their robust triangulation; in a rig of fewer cameras, all of
+/// them, at least 2): a Student-t prior of
+/// [`DeviationSettings::prior_dof`] degrees of freedom, its EM weight
+/// `(dof + 3) / (dof + m^2)` (at most 1), `m^2` the squared Mahalanobis distance of `x`
+/// from `model` under the views' covariance plus the prior's. Where views that agree
+/// place a joint far from the model (a kicking foot the dictionary cannot bend to), the
+/// model lets go; elsewhere (fewer views, or a disagreement) it is the Gaussian prior.
+/// Leaves `b.agree` the agreement at `x`.
+fn heavy_tail(
+    settings: &DeviationSettings,
+    rig: usize,
+    x: &Vector3<f64>,
+    model: &Vector3<f64>,
+    b: &mut DeviationBuffers,
+) -> f64 {
+    let dof = settings.prior_dof;
+    if dof <= 0.0 || b.peaks.len() < 2 {
+        return 1.0;
+    }
+    agreement(settings, x, b);
+    let agreeing = b.agree.iter().filter(|&&a| a >= 0.5).count();
+    // A rig of two cameras has no third to outvote a pair that agrees on a wrong point:
+    // both must agree there.
+    if agreeing < settings.agreeing_views.min(rig).max(2) {
+        return 1.0;
+    }
+    let mut information = Matrix3::zeros();
+    for (((pv, &cell), origin), &agree) in
+        b.peaks.iter().zip(&b.cells).zip(&b.origins).zip(&b.agree)
+    {
+        let cam = &pv.camera;
+        let Some((_, z)) = cam.project(&(x + (cam.centre() - origin))) else {
+            continue;
+        };
+        let spread = settings.peak_std * cell * z / cam.intrinsics.focal();
+        let d = cam.ray(pv.pixel[0], pv.pixel[1]);
+        information += (Matrix3::identity() - d * d.transpose()) * (agree / (spread * spread));
+    }
+    let prior_var = settings.joint_std * settings.joint_std;
+    let m2 = information
+        .try_inverse()
+        .and_then(|cov| (cov + Matrix3::identity() * prior_var).try_inverse())
+        .map(|inv| {
+            let diff = x - model;
+            diff.dot(&(inv * diff))
+        });
+    match m2 {
+        Some(m2) if m2.is_finite() => ((dof + 3.0) / (dof + m2)).min(1.0),
+        _ => 1.0,
+    }
+}
+
+/// Each view's Cauchy factor of its reprojection distance from `x`, in heat-map cells,
+/// into `b.agree` (0 for a view `x` is behind).
+fn agreement(settings: &DeviationSettings, x: &Vector3<f64>, b: &mut DeviationBuffers) {
+    b.agree.clear();
+    for ((pv, &cell), origin) in b.peaks.iter().zip(&b.cells).zip(&b.origins) {
+        let cam = &pv.camera;
+        // The joint as the camera saw it at its time offset: the ray's origin is the
+        // camera centre moved back by the body's motion over it.
+        let factor = match cam.project(&(x + (cam.centre() - origin))) {
+            Some(([u, v], _)) => {
+                let off = (u - pv.pixel[0]).hypot(v - pv.pixel[1]) / cell;
+                1.0 / (1.0 + (off / settings.outlier_cells).powi(2))
+            }
+            None => 0.0,
+        };
+        b.agree.push(factor);
+    }
+}
+
+/// The point minimising the prior of weight `prior` around `model` plus the views' ray
+/// distances, each weighted by its agreement factor over its peak's spread at the depth
+/// of `at`, squared, and its covariance (the inverse of the information); `None` when
+/// undetermined.
+fn solve(
+    settings: &DeviationSettings,
+    prior: f64,
+    model: &Vector3<f64>,
+    at: &Vector3<f64>,
+    b: &DeviationBuffers,
+) -> Option<(Vector3<f64>, Matrix3<f64>)> {
+    let mut a = Matrix3::identity() * prior;
+    let mut rhs = model * prior;
+    for (((pv, &cell), origin), &agree) in
+        b.peaks.iter().zip(&b.cells).zip(&b.origins).zip(&b.agree)
+    {
+        let cam = &pv.camera;
+        let Some((_, z)) = cam.project(&(at + (cam.centre() - origin))) else {
+            continue;
+        };
+        let spread = settings.peak_std * cell * z / cam.intrinsics.focal();
+        let w = agree / (spread * spread);
+        let d = cam.ray(pv.pixel[0], pv.pixel[1]);
+        let proj = Matrix3::identity() - d * d.transpose();
+        a += proj * w;
+        rhs += proj * origin * w;
+    }
+    a.try_inverse()
+        .map(|inv| (inv * rhs, inv))
+        .filter(|(x, _)| x.iter().all(|v| v.is_finite()))
 }
 
 /// Moves `joints` (frame `centre` of `n` frames, `[x, y, z]` per joint, world frame) by
 /// the median of the deviations of the frames within `settings.frames / 2` of it (of
-/// those there are). `frame(k)` gives frame `k`'s model joints and views.
+/// those there are). `frame(k)` gives frame `k`'s model joints and views. Writes to
+/// `variance` (one per joint) each joint's per-axis variance in frame `centre` as its
+/// views and the prior have it (NaN where no view saw it).
+#[allow(
+    clippy::too_many_arguments,
+    reason = "the frames, the one put out, and its outputs"
+)]
 pub(super) fn deviate<'a>(
     settings: &DeviationSettings,
     cameras: &[ViewCamera],
@@ -183,8 +386,10 @@ pub(super) fn deviate<'a>(
     frame: impl Fn(usize) -> (&'a [f64], &'a [ViewData]),
     centre: usize,
     joints: &mut [f64],
+    variance: &mut [f64],
     b: &mut DeviationBuffers,
 ) {
+    variance.fill(f64::NAN);
     if settings.joint_std <= 0.0 || centre >= n {
         return;
     }
@@ -202,7 +407,12 @@ pub(super) fn deviate<'a>(
         out.clear();
         for j in 0..p.min(model.len() / 3) {
             let m = Vector3::new(model[3 * j], model[3 * j + 1], model[3 * j + 2]);
-            let x = joint_point(settings, cameras, views, j, m, b);
+            let (x, var) = joint_point(settings, cameras, views, j, m, b);
+            if first + k == centre
+                && let Some(v) = variance.get_mut(j)
+            {
+                *v = var;
+            }
             out.push(x - m);
         }
         b.deviations[k] = out;
@@ -258,18 +468,143 @@ mod tests {
     }
 
     fn moved(cams: &[ViewCamera], model: Vector3<f64>, views: &[ViewData]) -> Vector3<f64> {
+        moved_with(&DeviationSettings::default(), cams, model, views).0
+    }
+
+    /// The joint moved, and its per-axis variance.
+    fn moved_with(
+        settings: &DeviationSettings,
+        cams: &[ViewCamera],
+        model: Vector3<f64>,
+        views: &[ViewData],
+    ) -> (Vector3<f64>, f64) {
         let mut joints = vec![model.x, model.y, model.z];
         let model = joints.clone();
+        let mut variance = [0.0];
         deviate(
-            &DeviationSettings::default(),
+            settings,
             cams,
             1,
             |_| (&model[..], views),
             0,
             &mut joints,
+            &mut variance,
             &mut DeviationBuffers::default(),
         );
-        Vector3::new(joints[0], joints[1], joints[2])
+        (Vector3::new(joints[0], joints[1], joints[2]), variance[0])
+    }
+
+    #[test]
+    fn where_three_views_agree_a_model_far_off_lets_go() {
+        let cams = ring(3, 5.0);
+        let truth = Vector3::new(0.1, 0.3, 0.5);
+        // A kicking foot 0.4 m from where the dictionary can put it.
+        let model = truth + Vector3::new(0.0, -0.3, 0.25);
+        let views = seen(&cams, &truth, &[[0.3, 0.0], [0.0, -0.3], [-0.3, 0.3]]);
+        let heavy = moved(&cams, model, &views);
+        let gaussian = moved_with(
+            &DeviationSettings {
+                prior_dof: 0.0,
+                ..DeviationSettings::default()
+            },
+            &cams,
+            model,
+            &views,
+        )
+        .0;
+        let (heavy, gaussian) = ((heavy - truth).norm(), (gaussian - truth).norm());
+        assert!(heavy < 0.01, "{heavy} m off");
+        assert!(
+            gaussian > 3.0 * heavy,
+            "the Gaussian prior {gaussian} m off"
+        );
+        // Two cameras of three agreeing are no licence: the third might be the one
+        // that is right, so the prior stays Gaussian.
+        let two = moved(&cams[..2], model, &views[..2]);
+        let gaussian_two = moved_with(
+            &DeviationSettings {
+                prior_dof: 0.0,
+                ..DeviationSettings::default()
+            },
+            &cams[..2],
+            model,
+            &views[..2],
+        )
+        .0;
+        // In a rig of two, both agreeing is all there can be: it lets go too.
+        assert!((two - truth).norm() < 0.5 * (gaussian_two - truth).norm());
+        let mut third_missing = views.clone();
+        third_missing[2].peaks[0][2] = 0.0;
+        let held = moved(&cams, model, &third_missing);
+        assert!(
+            (held - truth).norm() > 2.0 * (two - truth).norm(),
+            "two of three views: {} m off",
+            (held - truth).norm()
+        );
+    }
+
+    #[test]
+    fn the_variance_grows_where_views_disagree_and_is_nan_where_none_sees() {
+        let cams = ring(3, 5.0);
+        let truth = Vector3::new(0.0, 0.2, 1.0);
+        // The disagreement alone (not the move off the model).
+        let settings = DeviationSettings {
+            move_variance: 0.0,
+            ..DeviationSettings::default()
+        };
+        let agree = seen(&cams, &truth, &[[0.2, 0.0], [0.0, 0.2], [-0.2, 0.0]]);
+        let (_, calm) = moved_with(&settings, &cams, truth, &agree);
+        // Peaks 3 cells (12 px) apart: not outliers, not agreeing either.
+        let split = seen(&cams, &truth, &[[12.0, 0.0], [-12.0, 0.0], [0.0, 12.0]]);
+        let (_, restless) = moved_with(&settings, &cams, truth, &split);
+        assert!(calm > 0.0 && calm.sqrt() < 0.02, "{} m", calm.sqrt());
+        assert!(restless > 2.0 * calm, "{restless} against {calm}");
+        let (_, unseen) = moved_with(&settings, &cams, truth, &[]);
+        assert!(unseen.is_nan());
+    }
+
+    #[test]
+    fn the_views_place_a_body_that_moved_fast() {
+        let cams = ring(3, 5.0);
+        // Four joints seen by every camera, the model 0.25 m behind.
+        let truth = [
+            Vector3::new(0.0, 0.0, 1.0),
+            Vector3::new(0.2, 0.0, 0.9),
+            Vector3::new(-0.2, 0.1, 0.5),
+            Vector3::new(0.0, 0.1, 1.5),
+        ];
+        let behind = Vector3::new(-0.25, 0.05, 0.0);
+        let model: Vec<f64> = truth
+            .iter()
+            .flat_map(|t| (t + behind).iter().copied().collect::<Vec<_>>())
+            .collect();
+        let views: Vec<ViewData> = cams
+            .iter()
+            .enumerate()
+            .map(|(c, cam)| {
+                let mut vd = view(c, [0.0; 2]);
+                vd.peaks = truth
+                    .iter()
+                    .map(|t| {
+                        let ([u, v], _) = cam.project(t).expect("in front");
+                        [u, v, 1.0]
+                    })
+                    .collect();
+                vd
+            })
+            .collect();
+        let settings = DeviationSettings::default();
+        let mut b = DeviationBuffers::default();
+        let shift = views_offset(&settings, &cams, &views, &model, &mut b).expect("placed");
+        assert!((shift + behind).norm() < 1e-6, "{shift:?}");
+        // One joint of four triangulated is too little to move the body by.
+        let mut few = views.clone();
+        for vd in &mut few {
+            for peak in &mut vd.peaks[1..] {
+                peak[2] = 0.0;
+            }
+        }
+        assert!(views_offset(&settings, &cams, &few, &model, &mut b).is_none());
     }
 
     #[test]

@@ -4,7 +4,7 @@ use std::collections::VecDeque;
 
 use nalgebra::Vector3;
 
-use super::deviation::{DeviationBuffers, deviate};
+use super::deviation::{DeviationBuffers, deviate, views_offset};
 use super::estep::{EStepBuffers, e_step};
 use super::extrinsics::ViewResidual;
 use super::frame::{Frame, ViewData};
@@ -50,6 +50,8 @@ pub struct FusedWindow {
     deviation: DeviationBuffers,
     /// The model's joints of the frames around one put out (the deviations' median).
     around: Vec<Vec<f64>>,
+    /// Per joint, the per-axis variance the deviations gave the frame put out.
+    variance: Vec<f64>,
 }
 
 impl FusedWindow {
@@ -96,6 +98,7 @@ impl FusedWindow {
             shape: Vec::new(),
             deviation: DeviationBuffers::default(),
             around: Vec::new(),
+            variance: Vec::new(),
         })
     }
 
@@ -216,14 +219,12 @@ impl FusedWindow {
             .unwrap_or_else(|| Frame::new(self.dict.num_bases()));
         frame.stamp_ns = stamp_ns;
         frame.n_views = 0;
-        // The peaks are the deviations' evidence: none needed while they are off.
-        let peaks = self.settings.deviation.joint_std > 0.0;
         for v in views {
             if frame.views.len() <= frame.n_views {
                 frame.views.push(ViewData::new());
             }
             let vd = &mut frame.views[frame.n_views];
-            let filled = fill(vd, v, p, peaks);
+            let filled = fill(vd, v, p);
             frame.n_views += 1;
             if let Err(e) = filled {
                 self.spare.push(frame);
@@ -274,6 +275,25 @@ impl FusedWindow {
                 .copy_from_slice(&last.pose.coefficients);
             frame.pose.rotation = last.pose.rotation;
             frame.pose.translation = last.pose.translation;
+            // Where two or more views triangulate the body, from there (its shape and
+            // turn the frame before's): a body moving fast (a dash, 0.2 m a frame) is
+            // not where it was, and the E-step's pull towards the projection would keep
+            // it back (this is the views' evidence, not an extrapolation).
+            frame.pose.joints_into(
+                &self.dict,
+                self.metres_per_unit,
+                &mut self.shape,
+                &mut self.scratch,
+            );
+            if let Some(shift) = views_offset(
+                &self.settings.deviation,
+                &self.cameras,
+                frame.views(),
+                &self.scratch,
+                &mut self.deviation,
+            ) {
+                frame.pose.translation += shift;
+            }
             self.frames.push_back(frame);
         }
         while self.frames.len() > self.settings.size {
@@ -470,6 +490,8 @@ impl FusedWindow {
     /// dictionary's shape where its views agree ([`super::deviation`]), the median over
     /// the frames within `deviation.frames / 2` of it that the window holds.
     fn deviate(&mut self, t: usize, joints: &mut [f64]) {
+        self.variance.clear();
+        self.variance.resize(joints.len() / 3, f64::NAN);
         if self.settings.deviation.joint_std <= 0.0 {
             return;
         }
@@ -494,6 +516,7 @@ impl FusedWindow {
             |k| (&around[k][..], frames[first + k].views()),
             t - first,
             joints,
+            &mut self.variance,
             &mut self.deviation,
         );
     }
@@ -553,15 +576,21 @@ impl FusedWindow {
             if e.monocular {
                 var += (depth * scale_std).powi(2);
             }
+            // Seen by views and deviated: the deviations' variance (the views' spreads,
+            // their disagreement, the prior).
+            let deviated = self.variance.get(j).copied().unwrap_or(f64::NAN);
+            if deviated.is_finite() && !e.monocular {
+                var = deviated;
+            }
             e.joint_std.push(var.sqrt());
         }
         out.push(e);
     }
 }
 
-/// Copies one view's maps into `vd` (clipped at 0) with their moments, and with each
-/// map's refined peak when `peaks`.
-fn fill(vd: &mut ViewData, v: &ViewMaps<'_>, p: usize, peaks: bool) -> Result<(), EstimateError> {
+/// Copies one view's maps into `vd` (clipped at 0) with their moments and each map's
+/// refined peak (a new frame's start and the deviations' evidence).
+fn fill(vd: &mut ViewData, v: &ViewMaps<'_>, p: usize) -> Result<(), EstimateError> {
     vd.view = v.view;
     vd.dt = v.dt;
     vd.bridged = false;
@@ -596,7 +625,7 @@ fn fill(vd: &mut ViewData, v: &ViewMaps<'_>, p: usize, peaks: bool) -> Result<()
     vd.evidence = vd.moments.iter().any(|m| m.h > 0.0);
     // Each map's peak, to a fraction of a cell (the deviations' evidence).
     vd.peaks.clear();
-    if peaks && n > 0 {
+    if n > 0 {
         vd.peaks.extend(vd.maps.chunks_exact(n).map(|map| {
             let (x, y, score) = refined_argmax(map, v.width);
             let [u, w] = v.to_image.apply(x, y);

@@ -375,6 +375,56 @@ pub fn place(
     })
 }
 
+/// `seq` with its joints defined the way another detector's would be: each named joint
+/// moved by its offset (metres) in the body's frame of that frame — `[left, up,
+/// forward]`, left along the hips (right hip to left), up from the pelvis to the top of
+/// the torso (made square to left), forward their cross product. Heat maps rendered
+/// from it, and the truth scored against, place the joints a few centimetres off the
+/// dictionary's definition. Unknown joint names, or a layout without hips or torso
+/// top, are an error.
+pub fn redefined(
+    seq: &MappedSequence,
+    skeleton: &Skeleton,
+    offsets: &[(&str, [f64; 3])],
+) -> Result<MappedSequence, String> {
+    let p = skeleton.len();
+    if seq.joints != p {
+        return Err("the sequence does not match the layout".into());
+    }
+    let index = |name: &str| {
+        skeleton
+            .index_of(name)
+            .ok_or_else(|| format!("the layout has no joint {name:?}"))
+    };
+    let (l_hip, r_hip, root) = (index("l-hip")?, index("r-hip")?, skeleton.root());
+    let top = skeleton
+        .torso_top()
+        .ok_or("the layout has no torso top to tell up from")?;
+    let moves: Vec<(usize, Vector3<f64>)> = offsets
+        .iter()
+        .map(|(name, o)| Ok((index(name)?, Vector3::from(*o))))
+        .collect::<Result<_, String>>()?;
+    let mut out = seq.clone();
+    let mut moved = Vec::with_capacity(moves.len());
+    for frame in out.positions.chunks_exact_mut(3 * p) {
+        let at = |j: usize| Vector3::from_column_slice(&frame[3 * j..3 * j + 3]);
+        let Some(left) = (at(l_hip) - at(r_hip)).try_normalize(1e-9) else {
+            continue;
+        };
+        let up = at(top) - at(root);
+        let Some(up) = (up - left * left.dot(&up)).try_normalize(1e-9) else {
+            continue;
+        };
+        let basis = Matrix3::from_columns(&[left, up, left.cross(&up)]);
+        moved.clear();
+        moved.extend(moves.iter().map(|(j, o)| (*j, at(*j) + basis * o)));
+        for (j, q) in &moved {
+            frame[3 * j..3 * j + 3].copy_from_slice(q.as_slice());
+        }
+    }
+    Ok(out)
+}
+
 /// A square box per frame around the joints' images, `margin` times their larger extent.
 pub fn crop_boxes(image_2d: &[f64], joints: usize, margin: f64) -> Vec<CropBox> {
     image_2d
@@ -435,6 +485,46 @@ mod tests {
             frame_time: 0.1,
             positions: one.repeat(frames),
         }
+    }
+
+    #[test]
+    fn another_definition_moves_joints_in_the_bodys_own_frame() {
+        let skel = default_layout();
+        let seq = standing(2);
+        // Facing -y: left is +x, up +z, forward -y.
+        let moved = redefined(
+            &seq,
+            &skel,
+            &[
+                ("l-hip", [0.03, -0.04, 0.0]),
+                ("r-hip", [-0.03, -0.04, 0.0]),
+                ("pelvis", [0.0, 0.0, 0.02]),
+            ],
+        )
+        .expect("redefined");
+        let at = |s: &MappedSequence, t: usize, name: &str| {
+            let j = skel.index_of(name).expect("joint");
+            Vector3::from_column_slice(&s.positions[3 * (t * skel.len() + j)..][..3])
+        };
+        for t in 0..2 {
+            assert!(
+                (at(&moved, t, "l-hip") - at(&seq, t, "l-hip") - Vector3::new(0.03, 0.0, -0.04))
+                    .norm()
+                    < 1e-12
+            );
+            assert!(
+                (at(&moved, t, "r-hip") - at(&seq, t, "r-hip") - Vector3::new(-0.03, 0.0, -0.04))
+                    .norm()
+                    < 1e-12
+            );
+            assert!(
+                (at(&moved, t, "pelvis") - at(&seq, t, "pelvis") - Vector3::new(0.0, -0.02, 0.0))
+                    .norm()
+                    < 1e-12
+            );
+            assert_eq!(at(&moved, t, "l-knee"), at(&seq, t, "l-knee"));
+        }
+        assert!(redefined(&seq, &skel, &[("tail", [0.0; 3])]).is_err());
     }
 
     #[test]
