@@ -807,6 +807,42 @@ fn a_fusion_configuration_out_of_its_domain_is_one_error_naming_the_key() {
 }
 
 #[test]
+fn one_room_alone_is_scored_and_a_room_that_is_not_there_refused_before_any_work() {
+    for (room, rooms) in [
+        ("0", true),
+        ("18", true),
+        ("18446744073709551616", true),
+        ("3", false),
+    ] {
+        let mut args = vec!["scenes", "--room", room];
+        if rooms {
+            args.insert(1, "--rooms");
+        }
+        let out = posestream(&args);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{args:?} accepted");
+        assert!(out.stdout.is_empty(), "{args:?} ran");
+        assert!(stderr.contains("--room"), "{args:?}: {stderr}");
+        assert!(!stderr.contains("panicked"), "{stderr}");
+    }
+    // Room 12 (two cameras, one kick) alone: its row and nothing else.
+    let out = posestream(&["scenes", "--rooms", "--room", "12"]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let rows: Vec<&str> = stdout
+        .lines()
+        .filter(|l| l.starts_with("| 2 cameras"))
+        .collect();
+    assert_eq!(rows.len(), 1, "{stdout}");
+    assert!(rows[0].contains("one kicks"), "{stdout}");
+    assert!(!stdout.contains("Wrong extrinsics"), "{stdout}");
+}
+
+#[test]
 fn scenes_refuses_rooms_with_train_and_an_out_folder_that_is_not_there_before_any_work() {
     for args in [
         vec!["scenes", "--rooms", "--train"],

@@ -1,6 +1,7 @@
 //! `posestream scenes --rooms`: people in rooms seen by several cameras, fused against
 //! single-view. Each room is rendered by [`posestream::synth::room`] (held-out takes:
-//! walks, and in the last three rooms kicks, punches, a bow and a wave; static cameras
+//! walks, and from room 11 kicks, punches, a bow, a wave, a dash; one room's joints
+//! defined as another detector's, one camera's given pose 2 degrees off; static cameras
 //! around the room, each with its own clock, the heat maps' error model, people hiding
 //! each other); each person's views are fused by
 //! [`FusedWindow`] and, apart, estimated by each camera alone (the streaming window and
@@ -297,7 +298,7 @@ pub fn markdown(args: &ScenesArgs) -> Result<String, CliError> {
     let fusion = config.estimator.fusion.clone();
     let mut out = String::new();
     out.push_str(&format!(
-        "Rooms (`posestream scenes --rooms`): held-out takes (walks; kicks, punches, a bow and a wave in the last three rooms), heat maps with the error model, people hiding each other. \
+        "Rooms (`posestream scenes --rooms`): held-out takes (walks; from room 11 kicks, punches, a bow, a wave, a dash, a guide's gesture; room 15's joints defined as another detector's, room 16's camera 1 given 2 degrees off), heat maps with the error model, people hiding each other. \
          World frame, no alignment, refined estimates (lag {} fused, {} single-view); the people's views are given. \
          Assumed size: fused {} m (the configuration's: two cameras see the size), each camera alone {} m (the subjects', its best case).\n\n",
         fusion.lag, config.estimator.window.lag, fusion.mean_limb_length, args.mean_limb_length
