@@ -180,7 +180,7 @@ fn where_three_cameras_agree_the_views_beat_plain_triangulation_and_the_model_al
         baseline.mpjpe_mm(),
         baseline.frames
     );
-    // Measured when written: 30.7 mm, 61.0 mm and 41.0 mm.
+    // Measured when written: 29.6 mm, 59.8 mm and 41.0 mm.
     assert!(
         baseline.frames >= 2 * 130,
         "{} frames triangulated",
@@ -198,7 +198,7 @@ fn where_three_cameras_agree_the_views_beat_plain_triangulation_and_the_model_al
     // The extrinsics' residuals are the model's: the deviations leave them as they were.
     assert_eq!(residuals[0], residuals[1]);
     // The joints' standard deviations hold: about 68 % of the per-axis errors within
-    // one, 95 % within two (measured when written: 74.5 % and 93.9 %).
+    // one, 95 % within two (measured when written: 75.7 % and 93.4 %).
     let [one, two] = errors[0].within_share();
     println!(
         "within 1 std {:.1} %, within 2 std {:.1} %",
@@ -240,7 +240,7 @@ fn a_dash_is_followed_where_three_cameras_see_it() {
         errors.root_mm(),
         baseline.mpjpe_mm()
     );
-    // Measured when written: 52.3 mm (root 51.3 mm) against 163.8 mm over 95 frames;
+    // Measured when written: 52.3 mm (root 51.2 mm) against 163.8 mm over 95 frames;
     // each frame started where the one before was, the root trailed the dash by a
     // quarter of a metre.
     assert!(errors.frames >= 90, "{} frames", errors.frames);
@@ -835,10 +835,13 @@ fn one_room_alone_is_scored_and_a_room_that_is_not_there_refused_before_any_work
     );
     let rows: Vec<&str> = stdout
         .lines()
-        .filter(|l| l.starts_with("| 2 cameras"))
+        .filter(|l| l.starts_with("| ") && !l.starts_with("| room"))
         .collect();
     assert_eq!(rows.len(), 1, "{stdout}");
-    assert!(rows[0].contains("one kicks"), "{stdout}");
+    assert!(
+        rows[0].starts_with("| 2 cameras") && rows[0].contains("one kicks"),
+        "{stdout}"
+    );
     assert!(!stdout.contains("Wrong extrinsics"), "{stdout}");
 }
 

@@ -208,7 +208,8 @@ pub fn triangulated(
     let p = skel.len();
     let root = skel.root();
     let mut errors = Errors::default();
-    let mut peaks: Vec<Vec<[f64; 3]>> = vec![Vec::new(); cameras.len()];
+    // One per camera of the room (a calibration of another rig: its cameras in turn).
+    let mut peaks: Vec<Vec<[f64; 3]>> = vec![Vec::new(); room.seen.len().max(cameras.len())];
     let mut out = Vec::new();
     for (i, person) in room.people.iter().enumerate() {
         let mut baseline = Triangulator::new(p, *settings);
@@ -248,6 +249,7 @@ pub fn score(
     metric: &MetricSettings,
     fusion: &FusionSettings,
 ) -> Result<RoomScores, EstimateError> {
+    same_rig(room, cameras)?;
     let p = skel.len();
     let root = skel.root();
     let mut result = RoomScores {
@@ -328,6 +330,19 @@ pub fn score(
     Ok(result)
 }
 
+/// Refuses a calibration of another number of cameras than the room's.
+fn same_rig(room: &Room, cameras: &[ViewCamera]) -> Result<(), EstimateError> {
+    if cameras.len() == room.seen.len() {
+        Ok(())
+    } else {
+        Err(EstimateError::Parameter(format!(
+            "{} cameras calibrated for a room of {}",
+            cameras.len(),
+            room.seen.len()
+        )))
+    }
+}
+
 /// Every person of a room, the cameras' tracks matched into people by
 /// [`Matcher`] (each camera's track ids scrambled: they agree with no other camera's),
 /// each person fused by a window of their own.
@@ -361,6 +376,7 @@ pub fn fuse_matched(
     fusion: &FusionSettings,
     matching: &MatchSettings,
 ) -> Result<Matched, EstimateError> {
+    same_rig(room, cameras)?;
     let mut matcher =
         Matcher::new(matching.clone()).map_err(|e| EstimateError::Parameter(e.to_string()))?;
     let mut windows: BTreeMap<u64, FusedWindow> = BTreeMap::new();

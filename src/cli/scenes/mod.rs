@@ -375,6 +375,9 @@ pub fn run(args: &ScenesArgs) -> Result<(), CliError> {
             )));
         }
     }
+    if let Some(room) = args.room {
+        rooms::check_room(room)?;
+    }
     super::data_at(
         &args.data,
         "the held-out takes the scenes are made of",

@@ -252,6 +252,11 @@ const ROOMS: [RoomSpec; 17] = [
     },
 ];
 
+/// Checks room `index` (1-based) is one of the rooms (`--room`), before any work.
+pub fn check_room(index: usize) -> Result<(), CliError> {
+    spec_of(index).map(|_| ())
+}
+
 /// Room `index` (1-based), or a usage error naming the rooms there are.
 fn spec_of(index: usize) -> Result<&'static RoomSpec, CliError> {
     ROOMS.get(index.wrapping_sub(1)).ok_or_else(|| {
@@ -305,9 +310,6 @@ pub fn markdown(args: &ScenesArgs) -> Result<String, CliError> {
     ));
     out.push_str("| room | fused MPJPE mm | root mm | at once (lag 0) mm | best single-view mm | ratio | triangulated mm | fused / triangulated | fused within 1 / 2 std | each camera alone mm | one view only | fitted bone length m | fused ms per person-frame | matched by geometry: IDF1, people found, MPJPE mm |\n");
     out.push_str("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
-    if let Some(index) = args.room {
-        spec_of(index)?;
-    }
     for (index, spec) in (1..).zip(&ROOMS) {
         if args.room.is_some_and(|only| only != index) {
             continue;

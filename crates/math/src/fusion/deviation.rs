@@ -28,7 +28,7 @@ use serde::{Deserialize, Serialize};
 
 use super::camera::ViewCamera;
 use super::frame::ViewData;
-use super::triangulation::{PeakView, median, robust_point};
+use super::triangulation::{PeakView, median, robust_point, worst_reprojection};
 use posestream_base::{OutOfDomain, check_range, check_real};
 
 /// How far the views may move the fused joints off the dictionary's shape
@@ -61,8 +61,9 @@ pub struct DeviationSettings {
     /// `frames` narrows it, by less than independent frames would (calibrated on the
     /// walking rooms of `posestream scenes --rooms`, docs/results.md).
     pub std_scale: f64,
-    /// The share of a joint's squared move off the model added to its per-axis variance
-    /// (a joint moved far is less sure).
+    /// A joint moved far off the model is less sure: its variance grows by this times
+    /// the squared move per axis (`|x - m|^2 / 3`), before `std_scale` (0.2 adds, after
+    /// the scale, 0.016 of it).
     pub move_variance: f64,
 }
 
@@ -77,7 +78,7 @@ impl Default for DeviationSettings {
             rounds: 3,
             prior_dof: 1.0,
             agreeing_views: 3,
-            std_scale: 0.49,
+            std_scale: 0.53,
             move_variance: 0.2,
         }
     }
@@ -183,7 +184,11 @@ pub(super) fn views_offset(
             continue;
         }
         let gate = 2.0 * settings.outlier_cells * b.cells.iter().copied().fold(0.0, f64::max);
-        if let Some(x) = robust_point(&b.peaks, gate) {
+        // Only a point every view it came from agrees with (two views' point is not
+        // checked by the triangulation itself).
+        if let Some(x) = robust_point(&b.peaks, gate)
+            && (b.peaks.len() > 2 || worst_reprojection(&x, &b.peaks) <= gate)
+        {
             offsets[0].push(x - Vector3::new(model[3 * j], model[3 * j + 1], model[3 * j + 2]));
         }
     }
@@ -195,8 +200,14 @@ pub(super) fn views_offset(
         shift[axis] = median(&mut b.values).unwrap_or(0.0);
     }
     b.deviations = offsets;
-    (found > 0 && 2 * found >= p && shift.iter().all(|v| v.is_finite())).then_some(shift)
+    let plausible = shift.iter().all(|v| v.is_finite()) && shift.norm() <= MAX_START_SHIFT;
+    (found > 0 && 2 * found >= p && plausible).then_some(shift)
 }
+
+/// The farthest a new frame's start is moved from the frame before's, metres (a person
+/// at 10 m/s over a 0.1 s gap): beyond it, a camera's track is more likely on someone
+/// else than the person that far away.
+const MAX_START_SHIFT: f64 = 1.0;
 
 /// The point of joint `j` from the `views` (their peaks, `cameras` by their index)
 /// against the model's joint `model` (module docs), and its per-axis variance: the last
@@ -241,8 +252,11 @@ fn joint_point(
     // off), the variance grows by their disagreement: squared ray distances from the
     // point over the spreads, per degree of freedom, when above 1.
     if variance.is_finite() {
+        // Each view as the point weighed it (a swap it let go of counts for little).
         let (mut chi2, mut n) = (0.0, 0.0);
-        for ((pv, &cell), origin) in b.peaks.iter().zip(&b.cells).zip(&b.origins) {
+        for (((pv, &cell), origin), &agree) in
+            b.peaks.iter().zip(&b.cells).zip(&b.origins).zip(&b.agree)
+        {
             let cam = &pv.camera;
             let Some((_, z)) = cam.project(&(x + (cam.centre() - origin))) else {
                 continue;
@@ -250,8 +264,8 @@ fn joint_point(
             let spread = settings.peak_std * cell * z / cam.intrinsics.focal();
             let d = cam.ray(pv.pixel[0], pv.pixel[1]);
             let r = (x - origin) - d * d.dot(&(x - origin));
-            chi2 += r.norm_squared() / (spread * spread);
-            n += 2.0;
+            chi2 += agree * r.norm_squared() / (spread * spread);
+            n += 2.0 * agree;
         }
         // The point takes 3 of the ray coordinates' degrees of freedom (fewer than 4
         // coordinates: one view, the prior holds the rest).
@@ -540,6 +554,20 @@ mod tests {
             (held - truth).norm() > 2.0 * (two - truth).norm(),
             "two of three views: {} m off",
             (held - truth).norm()
+        );
+        let gaussian_held = moved_with(
+            &DeviationSettings {
+                prior_dof: 0.0,
+                ..DeviationSettings::default()
+            },
+            &cams,
+            model,
+            &third_missing,
+        )
+        .0;
+        assert!(
+            (held - gaussian_held).norm() < 1e-9,
+            "two of three: the Gaussian prior"
         );
     }
 

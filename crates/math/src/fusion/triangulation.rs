@@ -104,7 +104,7 @@ pub fn dlt(views: &[PeakView]) -> Option<Vector3<f64>> {
 
 /// The largest reprojection distance (pixels) of `point` over `views` (infinite when it
 /// is behind one of them).
-fn worst_reprojection(point: &Vector3<f64>, views: &[PeakView]) -> f64 {
+pub(super) fn worst_reprojection(point: &Vector3<f64>, views: &[PeakView]) -> f64 {
     views
         .iter()
         .map(|v| match v.camera.project(point) {
