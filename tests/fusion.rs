@@ -1083,6 +1083,45 @@ fn the_fusion_node_names_a_camera_whose_configured_pose_is_wrong() {
 }
 
 #[test]
+fn a_recording_with_no_readable_heat_maps_is_one_error_not_a_report_of_zeros() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (room, config) = recorded_room(dir.path(), 1, "");
+    let bytes = std::fs::read(&room).expect("room");
+    // Cut short after its header: every chunk damaged, nothing readable.
+    let cut = dir.path().join("cut.mcap");
+    std::fs::write(&cut, &bytes[..3000.min(bytes.len())]).expect("write");
+    // Whole, but the cameras named differently: no message on their topics.
+    let text = std::fs::read_to_string(&config).expect("config");
+    let renamed = dir.path().join("renamed.toml");
+    std::fs::write(
+        &renamed,
+        text.replace("\"cam0\"", "\"left\"")
+            .replace("cam0 =", "left =")
+            .replace("\"cam1\"", "\"right\"")
+            .replace("cam1 =", "right ="),
+    )
+    .expect("write");
+    for (config, recording) in [(&config, &cut), (&renamed, &room)] {
+        let out = posestream(&["fuse", "--config", s(config), "--recording", s(recording)]);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{}: exit 0", recording.display());
+        assert_eq!(stderr.matches("posestream: error").count(), 1, "{stderr}");
+        assert!(
+            stderr.contains("no heat maps could be read") && stderr.contains(s(recording)),
+            "{stderr}"
+        );
+        assert!(!stderr.contains("panicked"), "{stderr}");
+    }
+    // The whole recording is fused as before.
+    let out = posestream(&["fuse", "--config", s(&config), "--recording", s(&room)]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+#[test]
 fn the_fusion_node_refuses_what_it_cannot_use_and_says_why() {
     let dir = tempfile::tempdir().expect("tempdir");
     let (room, config) = recorded_room(dir.path(), 1, "");

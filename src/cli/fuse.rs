@@ -9,8 +9,8 @@ use clap::Args;
 use posestream::Estimator;
 use posestream::mocap::rooms;
 use posestream::msgs::Skeleton3D;
-use posestream::nodes::config::ServiceConfig;
 use posestream::nodes::config::Transport;
+use posestream::nodes::config::{FusionConfig, ServiceConfig};
 use posestream::nodes::fusion::FusionNode;
 use posestream::nodes::service::Wiring;
 use posestream::nodes::service::fusion::{FusionInput, FusionOutputs, FusionReport, run_fusion};
@@ -109,6 +109,28 @@ pub fn run(args: &FuseArgs) -> Result<(), CliError> {
     }
     drop(outputs);
     let concluded = wiring.conclude(report.input_error.as_deref());
+    // A recording none of whose cameras' heat maps could be read (damaged past reading,
+    // or of other topics) is an error, not a report of zeros.
+    if let Some(path) = &args.recording
+        && report.counters.frames == 0
+        && report.refused.total() == 0
+        && report.input_error.is_none()
+        && !stop.load(std::sync::atomic::Ordering::Relaxed)
+    {
+        concluded?;
+        let topics: Vec<String> = config
+            .fusion
+            .cameras
+            .iter()
+            .map(|name| FusionConfig::camera_topics(name, &config.topics).0)
+            .collect();
+        return Err(CliError::Failed(format!(
+            "{}: no heat maps could be read on the cameras' topics ({}): nothing to fuse \
+             (the warnings above say what the recording holds, and what was damaged)",
+            path.display(),
+            topics.join(", ")
+        )));
+    }
     print(args.json, &report)?;
     concluded.map(|_| ()).map_err(CliError::from)
 }
