@@ -274,13 +274,19 @@ fn given_cameras(spec: &RoomSpec, room: &room::Room) -> Vec<ViewCamera> {
     if let Some((c, degrees)) = spec.misplaced
         && let Some(camera) = cameras.get_mut(c)
     {
-        let turn = nalgebra::UnitQuaternion::from_axis_angle(
-            &nalgebra::Vector3::z_axis(),
-            degrees.to_radians(),
-        );
-        camera.world_from_camera.rotation = turn * camera.world_from_camera.rotation;
+        turn_about_vertical(camera, degrees);
     }
     cameras
+}
+
+/// Turns `camera` in place about the world's vertical by `degrees` (its calibration
+/// gone wrong).
+fn turn_about_vertical(camera: &mut ViewCamera, degrees: f64) {
+    let turn = nalgebra::UnitQuaternion::from_axis_angle(
+        &nalgebra::Vector3::z_axis(),
+        degrees.to_radians(),
+    );
+    camera.world_from_camera.rotation = turn * camera.world_from_camera.rotation;
 }
 
 /// The takes the rooms are made of (checked before a long run needs them).
@@ -408,13 +414,8 @@ fn wrong_extrinsics(
     ];
     for (name, degrees, metres) in cases {
         let mut cameras = truth.clone();
-        let turn = nalgebra::UnitQuaternion::from_axis_angle(
-            &nalgebra::Vector3::z_axis(),
-            degrees.to_radians(),
-        );
-        let pose = &mut cameras[1].world_from_camera;
-        pose.rotation = turn * pose.rotation;
-        pose.translation.vector += nalgebra::Vector3::new(metres, 0.0, 0.0);
+        turn_about_vertical(&mut cameras[1], degrees);
+        cameras[1].world_from_camera.translation.vector += nalgebra::Vector3::new(metres, 0.0, 0.0);
         let mut residuals = vec![ViewResidual::default(); cameras.len()];
         let mut errors = rooms::Errors::default();
         for person in 0..room.people.len() {

@@ -254,18 +254,10 @@ fn joint_point(
     if variance.is_finite() {
         // Each view as the point weighed it (a swap it let go of counts for little).
         let (mut chi2, mut n) = (0.0, 0.0);
-        for (((pv, &cell), origin), &agree) in
-            b.peaks.iter().zip(&b.cells).zip(&b.origins).zip(&b.agree)
-        {
-            let cam = &pv.camera;
-            let Some((_, z)) = cam.project(&(x + (cam.centre() - origin))) else {
-                continue;
-            };
-            let spread = settings.peak_std * cell * z / cam.intrinsics.focal();
-            let d = cam.ray(pv.pixel[0], pv.pixel[1]);
-            let r = (x - origin) - d * d.dot(&(x - origin));
-            chi2 += agree * r.norm_squared() / (spread * spread);
-            n += 2.0 * agree;
+        for ray in weighted_rays(settings, &x, b) {
+            let r = (x - ray.origin) - ray.direction * ray.direction.dot(&(x - ray.origin));
+            chi2 += ray.weight * r.norm_squared();
+            n += 2.0 * ray.agree;
         }
         // The point takes 3 of the ray coordinates' degrees of freedom (fewer than 4
         // coordinates: one view, the prior holds the rest).
@@ -307,18 +299,9 @@ fn heavy_tail(
     if agreeing < settings.agreeing_views.min(rig).max(2) {
         return 1.0;
     }
-    let mut information = Matrix3::zeros();
-    for (((pv, &cell), origin), &agree) in
-        b.peaks.iter().zip(&b.cells).zip(&b.origins).zip(&b.agree)
-    {
-        let cam = &pv.camera;
-        let Some((_, z)) = cam.project(&(x + (cam.centre() - origin))) else {
-            continue;
-        };
-        let spread = settings.peak_std * cell * z / cam.intrinsics.focal();
-        let d = cam.ray(pv.pixel[0], pv.pixel[1]);
-        information += (Matrix3::identity() - d * d.transpose()) * (agree / (spread * spread));
-    }
+    let information: Matrix3<f64> = weighted_rays(settings, x, b)
+        .map(|ray| ray.across() * ray.weight)
+        .sum();
     let prior_var = settings.joint_std * settings.joint_std;
     let m2 = information
         .try_inverse()
@@ -331,6 +314,51 @@ fn heavy_tail(
         Some(m2) if m2.is_finite() => ((dof + 3.0) / (dof + m2)).min(1.0),
         _ => 1.0,
     }
+}
+
+/// One view's ray through its peak, as the deviations weigh it.
+struct WeightedRay {
+    /// Unit direction, world frame.
+    direction: Vector3<f64>,
+    /// Where it starts (the camera centre moved back by the body's motion over the
+    /// view's time offset).
+    origin: Vector3<f64>,
+    /// Its agreement factor over its peak's spread at the joint's depth, squared.
+    weight: f64,
+    /// Its agreement factor ([`agreement`]).
+    agree: f64,
+}
+
+impl WeightedRay {
+    /// The projector onto the plane square to the ray (distances across it).
+    fn across(&self) -> Matrix3<f64> {
+        Matrix3::identity() - self.direction * self.direction.transpose()
+    }
+}
+
+/// The views' rays of `b` weighed at the joint's place `at` (a view `at` is behind is
+/// left out); `b.agree` as [`agreement`] left it.
+fn weighted_rays<'a>(
+    settings: &'a DeviationSettings,
+    at: &'a Vector3<f64>,
+    b: &'a DeviationBuffers,
+) -> impl Iterator<Item = WeightedRay> + 'a {
+    b.peaks
+        .iter()
+        .zip(&b.cells)
+        .zip(&b.origins)
+        .zip(&b.agree)
+        .filter_map(move |(((pv, &cell), origin), &agree)| {
+            let cam = &pv.camera;
+            let (_, z) = cam.project(&(at + (cam.centre() - origin)))?;
+            let spread = settings.peak_std * cell * z / cam.intrinsics.focal();
+            Some(WeightedRay {
+                direction: cam.ray(pv.pixel[0], pv.pixel[1]),
+                origin: *origin,
+                weight: agree / (spread * spread),
+                agree,
+            })
+        })
 }
 
 /// Each view's Cauchy factor of its reprojection distance from `x`, in heat-map cells,
@@ -365,19 +393,10 @@ fn solve(
 ) -> Option<(Vector3<f64>, Matrix3<f64>)> {
     let mut a = Matrix3::identity() * prior;
     let mut rhs = model * prior;
-    for (((pv, &cell), origin), &agree) in
-        b.peaks.iter().zip(&b.cells).zip(&b.origins).zip(&b.agree)
-    {
-        let cam = &pv.camera;
-        let Some((_, z)) = cam.project(&(at + (cam.centre() - origin))) else {
-            continue;
-        };
-        let spread = settings.peak_std * cell * z / cam.intrinsics.focal();
-        let w = agree / (spread * spread);
-        let d = cam.ray(pv.pixel[0], pv.pixel[1]);
-        let proj = Matrix3::identity() - d * d.transpose();
-        a += proj * w;
-        rhs += proj * origin * w;
+    for ray in weighted_rays(settings, at, b) {
+        let proj = ray.across() * ray.weight;
+        a += proj;
+        rhs += proj * ray.origin;
     }
     a.try_inverse()
         .map(|inv| (inv * rhs, inv))
