@@ -320,8 +320,7 @@ fn heavy_tail(
 struct WeightedRay {
     /// Unit direction, world frame.
     direction: Vector3<f64>,
-    /// Where it starts (the camera centre moved back by the body's motion over the
-    /// view's time offset).
+    /// Where it starts (the camera centre moved back over the view's time offset).
     origin: Vector3<f64>,
     /// Its agreement factor over its peak's spread at the joint's depth, squared.
     weight: f64,
