@@ -49,9 +49,9 @@ fn main() {
     let out = root.join("target/footage");
     std::fs::create_dir_all(&out).expect("target/footage");
     println!(
-        "| clip | runtime | annotated frames | people per frame | recall | precision | IDF1 | id switches (worst per person per 200 frames) | frames/s | latency p50 / p99 ms |"
+        "| clip | runtime | annotated frames | people per frame | recall | precision | IDF1 | id switches (worst per person per 200 frames) | motmetrics: IDF1, MOTA, switches, fragmentations | track ids | frames/s | latency p50 / p99 ms |"
     );
-    println!("|---|---|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
     for path in clips {
         let clip = score::Clip::load(&path).unwrap_or_else(|e| panic!("{e}"));
         let video = media.join(&clip.clip);
@@ -96,8 +96,33 @@ fn main() {
         let found =
             score::found_in_recording(&recording, clip.fps).unwrap_or_else(|e| panic!("{e}"));
         let s = score::score(&clip, &found);
+        // The same skeletons scored by motmetrics (benches/footage/mot.py).
+        let found_path = out.join(format!("{stem}-found.json"));
+        let rows: Vec<serde_json::Value> = found
+            .iter()
+            .map(|f| serde_json::json!({"frame": f.frame, "track": f.track, "x": f.at.0, "y": f.at.1}))
+            .collect();
+        std::fs::write(&found_path, serde_json::to_string(&rows).expect("json")).expect("write");
+        let mot = mot_metrics(&root.join("benches/footage/mot.py"), &path, &found_path);
+        let mot_cell = mot.as_ref().map_or_else(
+            || "(motmetrics not installed)".to_string(),
+            |m| {
+                format!(
+                    "{:.2}, {:.2}, {}, {}",
+                    m["idf1"].as_f64().unwrap_or(f64::NAN),
+                    m["mota"].as_f64().unwrap_or(f64::NAN),
+                    m["num_switches"],
+                    m["num_fragmentations"]
+                )
+            },
+        );
+        let track_ids = found
+            .iter()
+            .map(|f| f.track)
+            .collect::<std::collections::BTreeSet<_>>()
+            .len();
         println!(
-            "| {} | {} | {} | {:.1} | {:.2} ({}/{}) | {:.2} ({} false) | {:.2} | {} ({:.1}) | {:.1} | {:.0} / {:.0} |",
+            "| {} | {} | {} | {:.1} | {:.2} ({}/{}) | {:.2} ({} false) | {:.2} | {} ({:.1}) | {mot_cell} | {track_ids} | {:.1} | {:.0} / {:.0} |",
             clip.clip,
             report["detector"]["images"]["runtime"]
                 .as_str()
@@ -126,11 +151,35 @@ fn main() {
             s.by_height[2].0,
             s.by_height[2].1
         );
-        let detail = serde_json::json!({ "clip": clip.clip, "scores": s, "report": report });
+        let detail = serde_json::json!({ "clip": clip.clip, "scores": s, "motmetrics": mot, "report": report });
         std::fs::write(
             out.join(format!("{stem}.json")),
             serde_json::to_string_pretty(&detail).expect("json"),
         )
         .expect("write");
     }
+}
+
+/// `mot.py`'s figures for `clip` and `found` (JSON), by `$POSESTREAM_PYTHON` (else
+/// `python3`); `None`, said on stderr, where it cannot run (motmetrics not installed).
+fn mot_metrics(script: &Path, clip: &Path, found: &Path) -> Option<serde_json::Value> {
+    let python = std::env::var("POSESTREAM_PYTHON").unwrap_or_else(|_| "python3".into());
+    let out = Command::new(&python)
+        .arg(script)
+        .arg(clip)
+        .arg(found)
+        .output()
+        .map_err(|e| eprintln!("{python}: {e}"))
+        .ok()?;
+    if !out.status.success() {
+        eprintln!(
+            "motmetrics did not run (pip install motmetrics): {}",
+            String::from_utf8_lossy(&out.stderr)
+                .lines()
+                .last()
+                .unwrap_or("")
+        );
+        return None;
+    }
+    serde_json::from_slice(&out.stdout).ok()
 }

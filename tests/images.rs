@@ -195,6 +195,101 @@ fn people_seen_from_behind_at_a_distance_are_found_by_their_bodies_and_where_the
 }
 
 #[test]
+fn the_footage_scorer_agrees_with_motmetrics() {
+    // A made-up clip scored twice: by benches/footage/score.rs and by motmetrics (PyPI,
+    // benches/footage/mot.py). Six people walking across, two crossing; tracks that
+    // switch between them at the crossing, lose one for a while and give them a new id,
+    // skeletons on nobody, and one on a person too hidden to count.
+    let mut frames = Vec::new();
+    let mut found = Vec::new();
+    let mut next = 100u64;
+    let mut rand = || {
+        // A fixed sequence (xorshift): the same clip every run.
+        next ^= next << 13;
+        next ^= next >> 7;
+        next ^= next << 17;
+        next % 1000
+    };
+    for n in 0..40u64 {
+        let f = n * 10;
+        let mut people = Vec::new();
+        for id in 1..=6u32 {
+            let x = if id % 2 == 0 {
+                600.0 - 12.0 * n as f64 - 40.0 * f64::from(id)
+            } else {
+                12.0 * n as f64 + 60.0 * f64::from(id)
+            };
+            let y = 100.0 + 60.0 * f64::from(id % 3);
+            let hidden = id == 5 && (10..14).contains(&n);
+            people.push(serde_json::json!({"id": id, "box": [x, y, x + 30.0, y + 80.0], "uncertain": hidden}));
+            // Track ids: person 1 and 2 swap at their crossing; person 3 is missed at
+            // random and comes back with a new id after frame 200; person 4 is found
+            // throughout; 5 and 6 at random.
+            let track = match id {
+                1 | 2 if n >= 20 => 3 - id,
+                3 if f >= 200 => 13,
+                _ => id,
+            };
+            let seen = match id {
+                3 | 5 | 6 => rand() < 800,
+                _ => true,
+            };
+            if seen {
+                found.push(
+                    serde_json::json!({"frame": f, "track": track, "x": x + 15.0, "y": y + 40.0}),
+                );
+            }
+        }
+        if rand() < 200 {
+            found.push(serde_json::json!({"frame": f, "track": 50, "x": 900.0, "y": 50.0}));
+        }
+        frames.push(serde_json::json!({"frame": f, "people": people}));
+    }
+    let clip_json = serde_json::json!({"clip": "made-up", "width": 1000, "height": 400, "fps": 10.0, "frames": frames});
+    let dir = tempfile::tempdir().expect("dir");
+    let (clip_path, found_path) = (dir.path().join("clip.json"), dir.path().join("found.json"));
+    std::fs::write(&clip_path, clip_json.to_string()).expect("write");
+    std::fs::write(
+        &found_path,
+        serde_json::Value::from(found.clone()).to_string(),
+    )
+    .expect("write");
+    let clip: score::Clip = serde_json::from_value(clip_json).expect("a clip");
+    let ours = score::score(
+        &clip,
+        &found
+            .iter()
+            .map(|f| score::Found {
+                frame: f["frame"].as_u64().expect("frame"),
+                track: f["track"].as_u64().expect("track") as u32,
+                at: (f["x"].as_f64().expect("x"), f["y"].as_f64().expect("y")),
+            })
+            .collect::<Vec<_>>(),
+    );
+    let theirs = common::python_client(
+        "../../benches/footage/mot.py",
+        &[s(&clip_path), s(&found_path)],
+    );
+    eprintln!("score.rs: {ours:?}\nmotmetrics: {theirs}");
+    let close = |a: f64, key: &str, tolerance: f64| {
+        let b = theirs[key].as_f64().expect(key);
+        assert!(
+            (a - b).abs() <= tolerance,
+            "{key}: {a} here, {b} by motmetrics"
+        );
+    };
+    close(ours.idf1, "idf1", 0.01);
+    close(ours.recall, "recall", 1e-9);
+    close(ours.precision, "precision", 1e-9);
+    assert_eq!(
+        Some(ours.id_switches as u64),
+        theirs["num_switches"].as_u64()
+    );
+    // The clip holds what it says: switches, and people not all found.
+    assert!(ours.id_switches >= 3 && ours.recall < 0.95, "{ours:?}");
+}
+
+#[test]
 fn a_folder_of_real_photos_becomes_skeletons_in_mcap_and_a_picture() {
     let f = fixtures();
     let dir = tempfile::tempdir().expect("dir");

@@ -6,8 +6,10 @@
 //! - [`crop`]: person boxes and the crop resampled into the model's input;
 //! - [`image`]: the detector itself (landmark model, tracking, heat-map messages);
 //! - [`mapping`]: the network's channels to the dictionary's joints;
-//! - [`tracker`]: who is who from frame to frame (tracks of boxes).
+//! - [`tracker`]: who is who from frame to frame (tracks of boxes);
+//! - [`appearance`]: what a person looks like (colour histograms of torso and legs).
 
+pub mod appearance;
 pub mod crop;
 pub mod image;
 pub mod images;

@@ -22,105 +22,27 @@
 //!    `birth_frames` frames in a row (at once on a scene's first frame), and only
 //!    confirmed tracks are reported.
 //!
+//! A person who comes back ([`Tracker::born_like`]): a newcomer whose look (an
+//! [`Appearance`], given with [`Tracker::looked_like`] while each person is seen clear of
+//! the others, frozen while they are not) is near a lost track's, or an ended one's
+//! remembered for `reid_seconds`, and who is where that person could have gone, gets
+//! their id back ([`reid`]).
+//!
 //! Boxes are square crop boxes in image pixels ([`CropBox`]); ids are `u32`, counted up
-//! with wrap-around, never two live tracks with one id.
+//! (past `u32::MAX` they wrap around, skipping those live or remembered): no id is given
+//! to a second person while the first may still come back.
 
 use pathfinding::kuhn_munkres::kuhn_munkres_min;
 use pathfinding::matrix::Matrix;
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 
+use crate::appearance::Appearance;
 use posestream_base::CropBox;
-use posestream_base::{OutOfDomain, check_real};
 
-/// How people are tracked (`[detector.images.tracking]`).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct TrackingSettings {
-    /// People tracked at most at once; more are ignored (counted).
-    pub max_people: usize,
-    /// Frames in a row a new person must be seen before their track is reported (a
-    /// scene's first frame reports at once).
-    pub birth_frames: u32,
-    /// Frames in a row a track may be unseen and still be re-acquired with its id.
-    pub lost_frames: u32,
-    /// The person detector runs at least every this many frames while people are
-    /// followed (to find newcomers); always when nobody is, and after a loss.
-    pub detect_every: u32,
-    /// Person-detector scores from this up to `detection_threshold` are the second,
-    /// low-score pass: they may re-acquire a track, and start one only where a second
-    /// opinion finds a person ([`Assignment::Candidate`]).
-    pub low_threshold: f32,
-    /// A box overlapping a track's predicted box by less than this (IoU) is not that
-    /// track.
-    pub match_iou: f64,
-    /// A confident box overlapping a track seen this frame by more than this (IoU) is
-    /// that person, not a new one.
-    pub duplicate_iou: f64,
-}
+mod reid;
+mod settings;
 
-impl Default for TrackingSettings {
-    fn default() -> Self {
-        Self {
-            max_people: 12,
-            birth_frames: 2,
-            lost_frames: 30,
-            detect_every: 10,
-            low_threshold: 0.2,
-            match_iou: 0.2,
-            duplicate_iou: 0.5,
-        }
-    }
-}
-
-impl TrackingSettings {
-    /// People at most (the estimator's `max_tracks` is at most this many).
-    pub const MAX_PEOPLE: usize = 64;
-
-    /// Checks every value is in its domain; the error names the key.
-    pub fn check(&self) -> Result<(), OutOfDomain> {
-        let count = |key: &'static str, v: u64, lo: u64, hi: u64| {
-            if (lo..=hi).contains(&v) {
-                Ok(())
-            } else {
-                Err(OutOfDomain::new(
-                    key,
-                    format!("an integer in {lo}..={hi}"),
-                    v.to_string(),
-                ))
-            }
-        };
-        count(
-            "tracking.max_people",
-            self.max_people as u64,
-            1,
-            Self::MAX_PEOPLE as u64,
-        )?;
-        count("tracking.birth_frames", self.birth_frames.into(), 1, 1000)?;
-        count("tracking.lost_frames", self.lost_frames.into(), 0, 100_000)?;
-        count(
-            "tracking.detect_every",
-            self.detect_every.into(),
-            1,
-            100_000,
-        )?;
-        check_real(
-            "tracking.low_threshold",
-            f64::from(self.low_threshold),
-            0.0,
-            1.0,
-            false,
-        )?;
-        check_real("tracking.match_iou", self.match_iou, 0.0, 1.0, false)?;
-        check_real(
-            "tracking.duplicate_iou",
-            self.duplicate_iou,
-            0.0,
-            1.0,
-            false,
-        )?;
-        Ok(())
-    }
-}
+pub use settings::TrackingSettings;
 
 /// An unlabelled box: where a person detector saw someone, and how sure it is.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -165,6 +87,10 @@ pub struct TrackerStats {
     pub duplicates: u64,
     /// Confident boxes of new people ignored for want of room (`max_people`).
     pub no_room: u64,
+    /// Newcomers given a lost or remembered person's id by their look.
+    pub reidentified: u64,
+    /// Ended tracks forgotten for want of room (`reid_capacity`).
+    pub forgotten: u64,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -189,6 +115,10 @@ struct Track {
     born: u64,
     /// Seen this frame: where.
     seen: Option<CropBox>,
+    /// When it was last seen (the tracker's clock, ns).
+    seen_ns: u64,
+    /// How they look, from the looks clear of other people.
+    look: Option<Appearance>,
 }
 
 impl Track {
@@ -207,6 +137,29 @@ impl Track {
             width: grown,
             height: grown,
         }
+    }
+}
+
+/// The clock's step for a frame without a stamp ([`Tracker::begin`]).
+const FRAME_NS: u64 = 33_333_333;
+/// How far a track's look moves towards each clear look of it.
+const LOOK_RATE: f32 = 0.1;
+
+/// Remembers an ended track `t` in `memory` (a confirmed one with a look; at most
+/// `capacity`); returns how many were forgotten for want of room.
+fn remember(memory: &mut reid::Memory, t: &Track, capacity: usize) -> u64 {
+    match (&t.look, t.state) {
+        (Some(look), State::Confirmed) => memory.remember(
+            reid::Remembered {
+                id: t.id,
+                born: t.born,
+                region: t.region,
+                seen_ns: t.seen_ns,
+                look: *look,
+            },
+            capacity,
+        ),
+        _ => 0,
     }
 }
 
@@ -237,8 +190,12 @@ pub struct Tracker {
     /// The person detector's confident score.
     detection_threshold: f32,
     tracks: Vec<Track>,
+    /// Ended tracks that may come back.
+    memory: reid::Memory,
     next_id: u32,
     frame: u64,
+    /// The current frame's stamp (ns; never runs backwards).
+    now_ns: u64,
     /// The frame the scene began (its tracks are confirmed at once).
     scene_start: u64,
     frames_since_detection: u32,
@@ -258,8 +215,10 @@ impl Tracker {
             settings,
             detection_threshold,
             tracks: Vec::new(),
+            memory: reid::Memory::default(),
             next_id: 1,
             frame: 0,
+            now_ns: 0,
             scene_start: 1,
             frames_since_detection: u32::MAX,
             lost_this_frame: false,
@@ -278,16 +237,28 @@ impl Tracker {
         self.stats
     }
 
-    /// Ends every track (counted); the next frame is a new scene's first.
+    /// Ends every track (counted) and forgets them; the next frame is a new scene's
+    /// first.
     pub fn reset(&mut self) {
         self.stats.deaths += self.tracks.len() as u64;
         self.tracks.clear();
+        self.memory.clear();
         self.scene_start = self.frame + 1;
         self.frames_since_detection = u32::MAX;
     }
 
-    /// Starts a frame.
+    /// Starts a frame without a stamp: 1/30 s after the one before.
     pub fn begin(&mut self) {
+        self.begin_at(self.now_ns.saturating_add(FRAME_NS));
+    }
+
+    /// Starts a frame stamped `stamp_ns` (a stamp before the newest is taken as the
+    /// newest: the clock never runs backwards); ended tracks older than `reid_seconds`
+    /// are forgotten.
+    pub fn begin_at(&mut self, stamp_ns: u64) {
+        self.now_ns = self.now_ns.max(stamp_ns);
+        self.memory
+            .forget_before(self.now_ns, self.settings.reid_seconds);
         self.frame += 1;
         self.lost_this_frame = false;
         self.claimed.clear();
@@ -524,22 +495,25 @@ impl Tracker {
     /// previous one or were given a box by [`associate`](Self::associate). Room is made
     /// by ending the track lost longest.
     pub fn born(&mut self, region: CropBox) -> Option<u32> {
-        while self.tracks.len() >= self.settings.max_people {
-            let Some(k) = (0..self.tracks.len())
-                .filter(|&k| {
-                    let t = &self.tracks[k];
-                    t.seen.is_none() && t.misses > 0 && !self.claimed.contains(&t.id)
-                })
-                .max_by_key(|&k| self.tracks[k].misses)
-            else {
-                self.stats.no_room += 1;
-                return None;
-            };
-            self.tracks.swap_remove(k);
-            self.stats.deaths += 1;
+        self.born_like(region, None)
+    }
+
+    /// [`born`](Self::born) for a newcomer who looks like `look`: a confirmed track lost
+    /// (not given a box this frame) or an ended one remembered, whose look is within
+    /// `reid_distance` of it and who could have gone to `region` since last seen, is
+    /// found again with its id (the nearest look, then the nearest place), counted as
+    /// `reidentified`.
+    pub fn born_like(&mut self, region: CropBox, look: Option<&Appearance>) -> Option<u32> {
+        if let Some(look) = look
+            && let Some(id) = self.reidentify(region, look)
+        {
+            return Some(id);
+        }
+        if !self.make_room() {
+            return None;
         }
         let mut id = self.next_id;
-        while self.tracks.iter().any(|t| t.id == id) {
+        while self.tracks.iter().any(|t| t.id == id) || self.memory.holds(id) {
             id = id.wrapping_add(1);
         }
         self.next_id = id.wrapping_add(1);
@@ -553,8 +527,111 @@ impl Tracker {
             misses: 0,
             born: self.stats.births,
             seen: Some(region),
+            seen_ns: self.now_ns,
+            look: None,
         });
         Some(id)
+    }
+
+    /// Ends the track lost longest (remembered) while `max_people` tracks live; `false`
+    /// (counted as `no_room`) when none can end.
+    fn make_room(&mut self) -> bool {
+        while self.tracks.len() >= self.settings.max_people {
+            let Some(k) = (0..self.tracks.len())
+                .filter(|&k| {
+                    let t = &self.tracks[k];
+                    t.seen.is_none() && t.misses > 0 && !self.claimed.contains(&t.id)
+                })
+                .max_by_key(|&k| self.tracks[k].misses)
+            else {
+                self.stats.no_room += 1;
+                return false;
+            };
+            let t = self.tracks.swap_remove(k);
+            self.stats.deaths += 1;
+            self.stats.forgotten += remember(&mut self.memory, &t, self.settings.reid_capacity);
+        }
+        true
+    }
+
+    /// The lost or remembered person a newcomer at `region` looking like `look` is, if
+    /// anyone: their track seen there, its id.
+    fn reidentify(&mut self, region: CropBox, look: &Appearance) -> Option<u32> {
+        let (now, gate) = (self.now_ns, self.settings.reid_distance);
+        let lost = self
+            .tracks
+            .iter()
+            .enumerate()
+            .filter(|(_, t)| {
+                t.state == State::Confirmed
+                    && t.seen.is_none()
+                    && t.misses > 0
+                    && !self.claimed.contains(&t.id)
+            })
+            .filter_map(|(k, t)| {
+                let c = reid::cost(
+                    t.look.as_ref()?,
+                    &t.region,
+                    t.seen_ns,
+                    look,
+                    &region,
+                    now,
+                    gate,
+                )?;
+                Some((k, c))
+            })
+            .min_by(|a, b| a.1.total_cmp(&b.1));
+        let remembered = self.memory.best(look, &region, now, gate);
+        let id = match (lost, remembered) {
+            (Some((k, c)), r) if r.is_none_or(|(_, rc)| c <= rc) => {
+                let t = &mut self.tracks[k];
+                t.seen = Some(region);
+                t.id
+            }
+            (_, Some((i, _))) => {
+                let person = self.memory.take(i)?;
+                if !self.make_room() {
+                    self.memory.remember(person, self.settings.reid_capacity);
+                    return None;
+                }
+                self.tracks.push(Track {
+                    id: person.id,
+                    state: State::Confirmed,
+                    region,
+                    velocity: [0.0; 2],
+                    hits: 0,
+                    misses: 0,
+                    born: person.born,
+                    seen: Some(region),
+                    seen_ns: now,
+                    look: Some(person.look),
+                });
+                person.id
+            }
+            _ => return None,
+        };
+        self.claimed.push(id);
+        self.stats.reidentified += 1;
+        Some(id)
+    }
+
+    /// Track `id` looked like `look` this frame: while `clear` of other people, its look
+    /// moves towards this one (the first one taken whole); else it is kept as it was.
+    pub fn looked_like(&mut self, id: u32, look: &Appearance, clear: bool) {
+        if !clear {
+            return;
+        }
+        if let Some(t) = self.tracks.iter_mut().find(|t| t.id == id) {
+            match &mut t.look {
+                Some(mine) => mine.blend(look, LOOK_RATE),
+                None => t.look = Some(*look),
+            }
+        }
+    }
+
+    /// Ended tracks remembered now.
+    pub fn remembered(&self) -> usize {
+        self.memory.len()
     }
 
     /// A whole frame of unlabelled boxes, nothing followed (the boxes are all there
@@ -595,8 +672,11 @@ impl Tracker {
         let (birth, lost) = (self.settings.birth_frames, self.settings.lost_frames);
         let mut out = Vec::new();
         let stats = &mut self.stats;
+        let (memory, now_ns, capacity) =
+            (&mut self.memory, self.now_ns, self.settings.reid_capacity);
         self.tracks.retain_mut(|t| match t.seen {
             Some(now) => {
+                t.seen_ns = now_ns;
                 let gap = f64::from(t.misses + 1);
                 let (a, b) = (centre_side(&t.region), centre_side(&now));
                 let step = [(b.0 - a.0) / gap, (b.1 - a.1) / gap];
@@ -626,6 +706,7 @@ impl Tracker {
                 let keep = t.state == State::Confirmed && t.misses <= lost;
                 if !keep {
                     stats.deaths += 1;
+                    stats.forgotten += remember(memory, t, capacity);
                 }
                 keep
             }

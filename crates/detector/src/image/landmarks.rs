@@ -5,8 +5,8 @@
 //! refused for a while.
 
 use super::looks::{
-    BODY_LANDMARKS, HEAD_PER_HEIGHT, Look, SAME_PERSON_IOU, Sighting, around, centre, confirms,
-    extent, masks_for, part_of, same_person, within_body,
+    BODY_LANDMARKS, HEAD_PER_HEIGHT, Look, SAME_PERSON_IOU, Sighting, appearance, around, centre,
+    confirms, extent, masks_for, part_of, same_person, within_body,
 };
 use super::{DetectorError, ImageDetector};
 use crate::images::ImageFrame;
@@ -132,7 +132,7 @@ impl ImageDetector {
             .filter(|&i| i >= proposed.proposed_from)
             .collect();
         self.stats.motion_proposals += proposals.len() as u64;
-        let taken = self.admit(current, &looked, &verdicts, &proposed.heads, kept);
+        let taken = self.admit(frame, current, &looked, &verdicts, &proposed.heads, kept);
         self.judge_proposals(proposals, &taken, &proposed.observations, now);
         Ok(())
     }
@@ -373,6 +373,7 @@ impl ImageDetector {
     /// confirm. Returns the boxes whose person was taken (their places in `verdicts`).
     fn admit(
         &mut self,
+        frame: &ImageFrame,
         current: Vec<Option<Look>>,
         looked: &[usize],
         verdicts: &[Assignment],
@@ -426,7 +427,8 @@ impl ImageDetector {
                     self.tracker.seen(id, next);
                     id
                 }
-                _ => match self.tracker.born(next) {
+                // A newcomer who looks like someone lost may be them.
+                _ => match self.tracker.born_like(next, appearance(frame, &l).as_ref()) {
                     Some(id) => id,
                     None => continue,
                 },

@@ -8,6 +8,7 @@ use std::time::Instant;
 use rayon::prelude::*;
 
 use super::{DetectorError, ImageDetector};
+use crate::appearance::Appearance;
 use crate::crop::{box_from_alignment, crop_input, mask_input};
 use crate::images::ImageFrame;
 use crate::models::landmarks::INPUT_SIZE;
@@ -316,6 +317,66 @@ pub(super) fn confirms<'a>(
     contains(head, at)
         && (1.0 / HEAD_SIZE_RATIO..=HEAD_SIZE_RATIO).contains(&ratio)
         && !present.any(|p| within_body(p, at))
+}
+
+/// BlazePose's shoulders, hips, knees and ankles (left, right).
+const SHOULDERS: [usize; 2] = [11, 12];
+const HIPS: [usize; 2] = [23, 24];
+const KNEES: [usize; 2] = [25, 26];
+const ANKLES: [usize; 2] = [27, 28];
+/// A part's box is at least this share of its height wide (a body seen from the side).
+const PART_MIN_WIDTH: f64 = 0.4;
+/// The middle share of a part's width sampled (the rest may be background).
+const PART_MIDDLE: f64 = 0.6;
+
+/// What the person of `look` looks like in `frame` ([`Appearance`]): the torso from the
+/// shoulders to the hips, the legs from the hips to mid-shin, each the middle of its
+/// landmarks' width; `None` where neither part is in the image.
+pub(super) fn appearance(frame: &ImageFrame, look: &Look) -> Option<Appearance> {
+    let p = &look.points;
+    if p.len() < BODY_LANDMARKS {
+        return None;
+    }
+    let mean_y = |pair: [usize; 2]| 0.5 * (p[pair[0]][1] + p[pair[1]][1]);
+    let (top, hips) = (mean_y(SHOULDERS), mean_y(HIPS));
+    let shins = 0.5 * (mean_y(KNEES) + mean_y(ANKLES));
+    let part = |joints: &[usize], y0: f64, y1: f64| {
+        let (lo, hi) = joints
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &j| {
+                (lo.min(p[j][0]), hi.max(p[j][0]))
+            });
+        let height = y1 - y0;
+        let width = (hi - lo).max(PART_MIN_WIDTH * height) * PART_MIDDLE;
+        let middle = 0.5 * (lo + hi);
+        [middle - 0.5 * width, y0, middle + 0.5 * width, y1]
+    };
+    let torso_joints = [SHOULDERS[0], SHOULDERS[1], HIPS[0], HIPS[1]];
+    let legs_joints = [HIPS[0], HIPS[1], KNEES[0], KNEES[1]];
+    // The torso below the neck, the legs below the hips' line.
+    let neck = 0.1 * (hips - top);
+    Appearance::of(
+        &frame.rgb,
+        part(&torso_joints, top + neck, hips),
+        part(&legs_joints, hips + neck, shins),
+    )
+}
+
+/// Whether the body of `look` (its landmarks' extent, grown by `BODY_MARGIN`) is clear
+/// of every one of `others`' bodies.
+pub(super) fn clear_of<'a>(look: &Look, mut others: impl Iterator<Item = &'a Look>) -> bool {
+    let (lo, hi) = extent(&look.points);
+    let (w, h) = (hi[0] - lo[0], hi[1] - lo[1]);
+    let grown = [
+        lo[0] - BODY_MARGIN * w,
+        lo[1] - BODY_MARGIN * h,
+        hi[0] + BODY_MARGIN * w,
+        hi[1] + BODY_MARGIN * h,
+    ];
+    !others.any(|o| {
+        let (a, b) = extent(&o.points);
+        a[0] < grown[2] && b[0] > grown[0] && a[1] < grown[3] && b[1] > grown[1]
+    })
 }
 
 /// The corners of the box around `points`.

@@ -378,7 +378,7 @@ impl ImageDetector {
     pub fn detect(&mut self, frame: &Arc<ImageFrame>) -> Result<Vec<Detection<'_>>, DetectorError> {
         self.stats.frames += 1;
         self.begin_scene(frame.rgb.dimensions());
-        self.tracker.begin();
+        self.tracker.begin_at(frame.stamp_ns);
         let now = self.stats.frames;
         // 1. Follow.
         let mut kept = self.follow(frame, now)?;
@@ -399,6 +399,14 @@ impl ImageDetector {
         if searching || !unexplained.is_empty() {
             let sightings = sightings.unwrap_or_default();
             self.acquire(frame, now, searching, &sightings, unexplained, &mut kept)?;
+        }
+        // How each person looks, learnt while they are clear of the others.
+        for (k, (id, l)) in kept.iter().enumerate() {
+            if let Some(look) = looks::appearance(frame, l) {
+                let others = kept.iter().enumerate().filter(|(o, _)| *o != k);
+                let clear = looks::clear_of(l, others.map(|(_, (_, o))| o));
+                self.tracker.looked_like(*id, &look, clear);
+            }
         }
         let reported = self.tracker.end();
         // Who was kept and reported (`benches/footage/missed.py` reads these lines).

@@ -1,6 +1,7 @@
 //! Unit tests of `tracker`.
 
 use super::*;
+use crate::appearance::Appearance;
 
 fn square(cx: f64, cy: f64, side: f64) -> CropBox {
     CropBox {
@@ -304,5 +305,163 @@ fn out_of_domain_settings_name_their_key() {
         ..settings()
     };
     assert!(bad.check().unwrap_err().to_string().contains("match_iou"));
+    for (key, bad) in [
+        (
+            "reid_seconds",
+            TrackingSettings {
+                reid_seconds: f64::NAN,
+                ..settings()
+            },
+        ),
+        (
+            "reid_seconds",
+            TrackingSettings {
+                reid_seconds: -1.0,
+                ..settings()
+            },
+        ),
+        (
+            "reid_seconds",
+            TrackingSettings {
+                reid_seconds: f64::INFINITY,
+                ..settings()
+            },
+        ),
+        (
+            "reid_capacity",
+            TrackingSettings {
+                reid_capacity: usize::MAX,
+                ..settings()
+            },
+        ),
+        (
+            "reid_distance",
+            TrackingSettings {
+                reid_distance: 1.5,
+                ..settings()
+            },
+        ),
+        (
+            "reid_distance",
+            TrackingSettings {
+                reid_distance: -1e-300,
+                ..settings()
+            },
+        ),
+    ] {
+        let e = bad.check().expect_err(key).to_string();
+        assert!(e.contains(key), "{e}");
+    }
     assert!(settings().check().is_ok());
+}
+
+/// A look of one flat colour on torso and legs.
+fn look(rgb: [u8; 3]) -> Appearance {
+    let image = ::image::RgbImage::from_pixel(20, 20, ::image::Rgb(rgb));
+    let part = [0.0, 0.0, 20.0, 20.0];
+    Appearance::of(&image, part, part).expect("a look")
+}
+
+/// One frame at `stamp_ns`: each of `people` (box and look) followed if its track
+/// was seen in the frame before, else a newcomer by its look. Returns their ids.
+fn frame_of_looks(t: &mut Tracker, stamp_ns: u64, people: &[(CropBox, Appearance)]) -> Vec<u32> {
+    t.begin_at(stamp_ns);
+    let followed: Vec<(u32, CropBox)> = t.predictions().collect();
+    let mut ids = Vec::new();
+    for (region, l) in people {
+        let id = match followed.iter().find(|(_, p)| iou(p, region) > 0.3) {
+            Some(&(id, _)) => {
+                t.seen(id, *region);
+                Some(id)
+            }
+            None => t.born_like(*region, Some(l)),
+        };
+        if let Some(id) = id {
+            t.looked_like(id, l, true);
+            ids.push(id);
+        }
+    }
+    t.end();
+    ids
+}
+
+const SECOND: u64 = 1_000_000_000;
+
+#[test]
+fn a_person_gone_three_seconds_comes_back_with_their_id_and_a_stranger_does_not() {
+    // 30 frames/s; red walks right and leaves view for 3 s (lost after `lost_frames`,
+    // then remembered); blue stays. Red comes back near where they left; a green
+    // stranger comes in at the same place a moment later.
+    let mut t = Tracker::new(settings(), 0.5);
+    let (red, blue, green) = (
+        look([200, 30, 30]),
+        look([30, 30, 200]),
+        look([30, 200, 30]),
+    );
+    let frame = |n: u64| n * SECOND / 30;
+    let blue_at = square(100.0, 300.0, 100.0);
+    let mut first = None;
+    for n in 0..60 {
+        let red_at = square(300.0 + 2.0 * n as f64, 300.0, 100.0);
+        let ids = frame_of_looks(&mut t, frame(n), &[(red_at, red), (blue_at, blue)]);
+        assert_eq!(*first.get_or_insert(ids.clone()), ids, "frame {n}");
+    }
+    let [red_id, blue_id] = first.expect("seen")[..] else {
+        panic!("two people")
+    };
+    for n in 60..150 {
+        assert_eq!(
+            frame_of_looks(&mut t, frame(n), &[(blue_at, blue)]),
+            [blue_id]
+        );
+    }
+    assert!(!t.is_live(red_id), "ended after lost_frames");
+    assert_eq!(t.remembered(), 1);
+    let back = square(440.0, 305.0, 96.0);
+    let ids = frame_of_looks(&mut t, frame(150), &[(blue_at, blue), (back, red)]);
+    assert_eq!(ids, [blue_id, red_id], "red is back with their id");
+    assert_eq!(t.stats().reidentified, 1);
+    // Gone again, and a stranger where they were: a new id, never theirs.
+    for n in 151..200 {
+        frame_of_looks(&mut t, frame(n), &[(blue_at, blue)]);
+    }
+    let ids = frame_of_looks(&mut t, frame(200), &[(blue_at, blue), (back, green)]);
+    assert_eq!(ids.len(), 2);
+    assert!(ids[1] != red_id && ids[1] != blue_id, "{ids:?}");
+    // Too far from where they were for the time gone: not them.
+    let far = square(2000.0, 300.0, 100.0);
+    let ids = frame_of_looks(
+        &mut t,
+        frame(201),
+        &[(blue_at, blue), (back, green), (far, red)],
+    );
+    assert!(!ids.contains(&red_id), "{ids:?}");
+}
+
+#[test]
+fn a_forgotten_person_is_a_newcomer_and_the_memory_stays_bounded() {
+    let mut t = Tracker::new(
+        TrackingSettings {
+            reid_capacity: 8,
+            lost_frames: 0,
+            ..settings()
+        },
+        0.5,
+    );
+    let red = look([200, 30, 30]);
+    // Thousands of people each seen for two frames, then gone.
+    for n in 0..4000u64 {
+        let at = square(100.0 + (n % 50) as f64 * 200.0, 300.0, 100.0);
+        frame_of_looks(&mut t, 2 * n * SECOND / 30, &[(at, red)]);
+        frame_of_looks(&mut t, (2 * n + 1) * SECOND / 30, &[(at, red)]);
+        assert!(t.remembered() <= 8);
+    }
+    assert!(t.stats().forgotten > 0);
+    // After `reid_seconds`, nobody is remembered.
+    t.begin_at(10_000 * SECOND);
+    assert_eq!(t.remembered(), 0);
+    t.end();
+    // A clock that runs backwards is taken as standing still.
+    t.begin_at(0);
+    assert_eq!(t.now_ns, 10_000 * SECOND);
 }

@@ -1,0 +1,110 @@
+#!/usr/bin/env python3
+"""MOT metrics of a footage run, by an established library (`motmetrics`, PyPI, MIT):
+an independent check of `score.rs`'s IDF1 and id switches, plus MOTA, fragmentations
+and the people mostly tracked.
+
+    python3 benches/footage/mot.py ANNOTATIONS.json FOUND.json
+
+FOUND.json is what `cargo bench --bench footage` writes beside the recording
+(target/footage/CLIP-found.json): every skeleton's frame, track and the median of its 2D
+joints. Prints one JSON object.
+
+The same rules as score.rs where the library has no word for them: the objects are the
+counted people (at least 60 px tall, not uncertain); a skeleton may match a person whose
+box, grown by 15 % on each side, holds its median point (the distance is the point's
+distance from the box centre over the box height); a skeleton held only by people not
+counted is neither right nor wrong (left out). The matching itself (per frame, keeping
+last frame's pairs where they still hold, MOTChallenge's rule), IDF1 and the switches
+are motmetrics' own.
+"""
+
+import json
+import math
+import sys
+
+import motmetrics as mm
+
+MIN_HEIGHT = 60.0
+GROW = 0.15
+
+
+def holds(box, p):
+    w, h = box[2] - box[0], box[3] - box[1]
+    return (
+        box[0] - GROW * w <= p[0] <= box[2] + GROW * w
+        and box[1] - GROW * h <= p[1] <= box[3] + GROW * h
+    )
+
+
+def counted(person):
+    b = person["box"]
+    return not person.get("uncertain", False) and b[3] - b[1] >= MIN_HEIGHT
+
+
+def accumulate(clip, found):
+    by_frame = {}
+    for f in found:
+        by_frame.setdefault(f["frame"], []).append(f)
+    acc = mm.MOTAccumulator(auto_id=False)
+    for frame in clip["frames"]:
+        people = frame["people"]
+        objects = [p for p in people if counted(p)]
+        hyps = []
+        for f in by_frame.get(frame["frame"], []):
+            at = (f["x"], f["y"])
+            on_counted = any(holds(p["box"], at) for p in objects)
+            on_other = any(holds(p["box"], at) for p in people if not counted(p))
+            if on_counted or not on_other:
+                hyps.append((f["track"], at))
+        dists = []
+        for p in objects:
+            b = p["box"]
+            c = ((b[0] + b[2]) / 2, (b[1] + b[3]) / 2)
+            h = max(b[3] - b[1], 1.0)
+            dists.append(
+                [
+                    math.hypot(c[0] - at[0], c[1] - at[1]) / h if holds(b, at) else math.nan
+                    for _, at in hyps
+                ]
+            )
+        acc.update(
+            [p["id"] for p in objects],
+            [t for t, _ in hyps],
+            dists,
+            frameid=frame["frame"],
+        )
+    return acc
+
+
+def main():
+    if len(sys.argv) != 3:
+        sys.exit(__doc__)
+    with open(sys.argv[1]) as f:
+        clip = json.load(f)
+    with open(sys.argv[2]) as f:
+        found = json.load(f)
+    acc = accumulate(clip, found)
+    metrics = [
+        "idf1",
+        "idp",
+        "idr",
+        "mota",
+        "recall",
+        "precision",
+        "num_switches",
+        "num_fragmentations",
+        "num_unique_objects",
+        "mostly_tracked",
+        "num_objects",
+        "num_false_positives",
+    ]
+    summary = mm.metrics.create().compute(acc, metrics=metrics, name=clip["clip"])
+    row = summary.loc[clip["clip"]]
+    out = {m: (float(row[m]) if "num" not in m and m != "mostly_tracked" else int(row[m])) for m in metrics}
+    out["clip"] = clip["clip"]
+    out["tracks"] = len({f["track"] for f in found})
+    print(json.dumps(out))
+
+
+if __name__ == "__main__":
+    main()
