@@ -181,5 +181,7 @@ fn mot_metrics(script: &Path, clip: &Path, found: &Path) -> Option<serde_json::V
         );
         return None;
     }
-    serde_json::from_slice(&out.stdout).ok()
+    serde_json::from_slice(&out.stdout)
+        .map_err(|e| eprintln!("{}: not JSON: {e}", script.display()))
+        .ok()
 }

@@ -501,6 +501,83 @@ fn synth_refuses_a_camera_height_or_tilt_out_of_its_domain_in_one_error() {
     }
 }
 
+#[test]
+fn a_person_back_under_their_id_after_3_s_keeps_their_body_frame_and_their_rep155_id() {
+    // The image detector gives a person who comes back their old id (re-identified by
+    // their look). The walk with 3 s (90 images) of its heat maps left out, the person
+    // gone: downstream their body frame (REP-155's body_b<id>) and their entry in
+    // /humans/bodies/tracked go on under that id, though the estimator's window
+    // starts over.
+    use posestream::msgs::{HeatMaps, RosMessage};
+    use posestream::recording::{Recorder, RecordingReader};
+    let dir = tempfile::tempdir().expect("tempdir");
+    let rec = walk(dir.path());
+    let gap = dir.path().join("gap.mcap");
+    let mut out = Recorder::create(&gap).expect("create");
+    let (mut image, mut back_ns) = (0, None);
+    for m in RecordingReader::open(&rec).expect("opens") {
+        let m = m.expect("reads");
+        let (topic, t, data) = (m.topic.as_str(), m.log_time_ns, &m.data);
+        match m.schema.as_str() {
+            s if s == HeatMaps::NAME => {
+                image += 1;
+                if (31..=120).contains(&image) {
+                    continue;
+                }
+                if image == 121 {
+                    back_ns = Some(t);
+                }
+                out.write_encoded::<HeatMaps>(topic, t, data)
+            }
+            s if s == CameraInfo::NAME => out.write_encoded::<CameraInfo>(topic, t, data),
+            s if s == Skeleton3D::NAME => out.write_encoded::<Skeleton3D>(topic, t, data),
+            s if s == TFMessage::NAME => out.write_encoded::<TFMessage>(topic, t, data),
+            other => panic!("a topic of schema {other:?} in the walk"),
+        }
+        .expect("write");
+    }
+    out.finish().expect("finish");
+    let back_ns = back_ns.expect("150 images") as i64;
+    let output = dir.path().join("out.mcap");
+    let skeletons = replayed(&config(FloorSource::Tf), &gap, &output);
+    let ids: std::collections::BTreeSet<u32> = skeletons.iter().map(|s| s.track_id).collect();
+    assert_eq!(ids.len(), 1, "{ids:?}");
+    let id = *ids.first().expect("one");
+    // What the node publishes of each skeleton on /tf and /humans/bodies/tracked
+    // (replay records only the skeletons; the same functions make both).
+    let frames = posestream::nodes::frames::BodyFrames::new(&skeletons[0].joint_names);
+    let body = format!("body_b{id}");
+    let published = |before: bool| {
+        let (mut bodies, mut listed) = (0, 0);
+        for s in skeletons
+            .iter()
+            .filter(|s| (s.header.stamp.nanos() < back_ns) == before)
+        {
+            let mut tf = TFMessage {
+                transforms: Vec::new(),
+            };
+            frames.transforms(s, &mut tf);
+            bodies += tf
+                .transforms
+                .iter()
+                .filter(|t| t.child_frame_id == body)
+                .count();
+            let ids = posestream::nodes::hri::tracked(&s.header, std::slice::from_ref(s)).ids;
+            listed += usize::from(ids == [format!("b{id}")]);
+        }
+        (bodies, listed)
+    };
+    let (before, after) = (published(true), published(false));
+    assert!(
+        before.0 > 0 && after.0 > 0,
+        "{body}: {before:?} / {after:?}"
+    );
+    assert!(
+        before.1 > 0 && after.1 > 0,
+        "{body}: {before:?} / {after:?}"
+    );
+}
+
 /// The walk again, with transforms that do not decode (cut short, garbage) and one
 /// that decodes but cannot be a transform (NaN) after its `/tf_static`.
 #[test]

@@ -1252,6 +1252,22 @@ fn configuration_values_outside_their_domain_are_one_error_naming_the_key() {
             "[detector.images.tracking]\nduplicate_iou = -1.0\n",
             "detector.images.tracking.duplicate_iou",
         ),
+        (
+            "[detector.images.tracking]\nreid_seconds = nan\n",
+            "detector.images.tracking.reid_seconds",
+        ),
+        (
+            "[detector.images.tracking]\nreid_seconds = 1e308\n",
+            "detector.images.tracking.reid_seconds",
+        ),
+        (
+            "[detector.images.tracking]\nreid_capacity = 4097\n",
+            "detector.images.tracking.reid_capacity",
+        ),
+        (
+            "[detector.images.tracking]\nreid_distance = -inf\n",
+            "detector.images.tracking.reid_distance",
+        ),
         ("[detector]\nnice = 20\n", "detector.nice"),
         (
             "[detector.images]\nsearch_tiles = 0\n",

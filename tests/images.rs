@@ -199,7 +199,8 @@ fn the_footage_scorer_agrees_with_motmetrics() {
     // A made-up clip scored twice: by benches/footage/score.rs and by motmetrics (PyPI,
     // benches/footage/mot.py). Six people walking across, two crossing; tracks that
     // switch between them at the crossing, lose one for a while and give them a new id,
-    // skeletons on nobody, and one on a person too hidden to count.
+    // skeletons on nobody, one on a person too hidden to count, and a child too small to
+    // count in front of one of them, found too.
     let mut frames = Vec::new();
     let mut found = Vec::new();
     let mut next = 100u64;
@@ -237,6 +238,16 @@ fn the_footage_scorer_agrees_with_motmetrics() {
             if seen {
                 found.push(
                     serde_json::json!({"frame": f, "track": track, "x": x + 15.0, "y": y + 40.0}),
+                );
+            }
+            // A child (too small to count) in front of person 4 for a while, found too:
+            // their skeleton is nobody's to score, though person 4's box holds it.
+            if id == 4 && (5..9).contains(&n) {
+                people.push(
+                    serde_json::json!({"id": 20, "box": [x + 10.0, y + 10.0, x + 40.0, y + 60.0]}),
+                );
+                found.push(
+                    serde_json::json!({"frame": f, "track": 20, "x": x + 25.0, "y": y + 35.0}),
                 );
             }
         }

@@ -12,10 +12,11 @@ joints. Prints one JSON object.
 The same rules as score.rs where the library has no word for them: the objects are the
 counted people (at least 60 px tall, not uncertain); a skeleton may match a person whose
 box, grown by 15 % on each side, holds its median point (the distance is the point's
-distance from the box centre over the box height); a skeleton held only by people not
-counted is neither right nor wrong (left out). The matching itself (per frame, keeping
-last frame's pairs where they still hold, MOTChallenge's rule), IDF1 and the switches
-are motmetrics' own.
+distance from the box centre over the box height); a skeleton that score.rs's matching
+(each box one skeleton, the nearest box centre first, over every annotated person)
+gives to a person not counted is neither right nor wrong (left out). The matching of
+the rest to the counted people (per frame, keeping last frame's pairs where they still
+hold, MOTChallenge's rule), IDF1 and the switches are motmetrics' own.
 """
 
 import json
@@ -41,6 +42,29 @@ def counted(person):
     return not person.get("uncertain", False) and b[3] - b[1] >= MIN_HEIGHT
 
 
+def centre_distance(box, p):
+    c = ((box[0] + box[2]) / 2, (box[1] + box[3]) / 2)
+    return math.hypot(c[0] - p[0], c[1] - p[1]) / max(box[3] - box[1], 1.0)
+
+
+def on_uncounted(people, hyps):
+    """The hypotheses score.rs's greedy matching gives to a person not counted."""
+    pairs = sorted(
+        (centre_distance(p["box"], at), i, j)
+        for i, p in enumerate(people)
+        for j, (_, at) in enumerate(hyps)
+        if holds(p["box"], at)
+    )
+    used_p, used_h, out = set(), set(), set()
+    for _, i, j in pairs:
+        if i not in used_p and j not in used_h:
+            used_p.add(i)
+            used_h.add(j)
+            if not counted(people[i]):
+                out.add(j)
+    return out
+
+
 def accumulate(clip, found):
     by_frame = {}
     for f in found:
@@ -49,24 +73,13 @@ def accumulate(clip, found):
     for frame in clip["frames"]:
         people = frame["people"]
         objects = [p for p in people if counted(p)]
-        hyps = []
-        for f in by_frame.get(frame["frame"], []):
-            at = (f["x"], f["y"])
-            on_counted = any(holds(p["box"], at) for p in objects)
-            on_other = any(holds(p["box"], at) for p in people if not counted(p))
-            if on_counted or not on_other:
-                hyps.append((f["track"], at))
-        dists = []
-        for p in objects:
-            b = p["box"]
-            c = ((b[0] + b[2]) / 2, (b[1] + b[3]) / 2)
-            h = max(b[3] - b[1], 1.0)
-            dists.append(
-                [
-                    math.hypot(c[0] - at[0], c[1] - at[1]) / h if holds(b, at) else math.nan
-                    for _, at in hyps
-                ]
-            )
+        hyps = [(f["track"], (f["x"], f["y"])) for f in by_frame.get(frame["frame"], [])]
+        ignored = on_uncounted(people, hyps)
+        hyps = [h for j, h in enumerate(hyps) if j not in ignored]
+        dists = [
+            [centre_distance(p["box"], at) if holds(p["box"], at) else math.nan for _, at in hyps]
+            for p in objects
+        ]
         acc.update(
             [p["id"] for p in objects],
             [t for t, _ in hyps],
@@ -100,7 +113,11 @@ def main():
     ]
     summary = mm.metrics.create().compute(acc, metrics=metrics, name=clip["clip"])
     row = summary.loc[clip["clip"]]
-    out = {m: (float(row[m]) if "num" not in m and m != "mostly_tracked" else int(row[m])) for m in metrics}
+    out = {}
+    for m in metrics:
+        v = float(row[m])
+        # NaN (nobody counted) is JSON's null.
+        out[m] = None if math.isnan(v) else (v if "num" not in m and m != "mostly_tracked" else int(v))
     out["clip"] = clip["clip"]
     out["tracks"] = len({f["track"] for f in found})
     print(json.dumps(out))

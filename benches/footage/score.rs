@@ -12,8 +12,9 @@
 //! - **IDF1** (Ristani et al. 2016) over the counted people and those skeletons: the
 //!   one-to-one map from annotated ids to track ids that maximises the frames where a
 //!   track's skeleton is on its person (IDTP); IDF1 = 2 IDTP / (annotated + skeletons).
-//! - **Id switches**: per person, the times the track on them (frame by frame) changes to
-//!   another track; reported per person per 200 frames of the clip they span.
+//! - **Id switches**: per person, the times the track on them (frame by frame, the frames
+//!   they are counted) changes to another track; reported per person per 200 frames of
+//!   the clip they span.
 //!
 //! Shared by `benches/footage.rs` (the README's table) and `tests/images.rs` (CI).
 
@@ -218,11 +219,11 @@ pub fn score(clip: &Clip, found: &[Found]) -> Scores {
         }
         for &(i, j) in &pairs {
             let p = &frame.people[i];
-            tracks_on
-                .entry(p.id)
-                .or_default()
-                .push((frame.frame, here[j].track));
             if p.counted() {
+                tracks_on
+                    .entry(p.id)
+                    .or_default()
+                    .push((frame.frame, here[j].track));
                 *together.entry((p.id, here[j].track)).or_default() += 1;
             }
         }

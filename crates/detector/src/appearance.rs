@@ -6,7 +6,7 @@
 //!
 //! Written here rather than taken from a re-identification network: none ships in a
 //! registry package under a permissive licence in a form the project's runtimes load
-//! (docs/image-detector.md, "Who stays who"), and a histogram costs microseconds where a
+//! (docs/image-detector.md, "Who comes back"), and a histogram costs microseconds where a
 //! network would cost a landmark run per person.
 //!
 //! Independent of any model: a part is a box in image pixels (the image detector places
@@ -224,17 +224,21 @@ mod tests {
         let one = filled(1, 1, |_, _| [0, 0, 0]);
         let part = [0.0, 0.0, 1.0, 1.0];
         assert_eq!(Appearance::of(&one, part, part), None);
-        for bad in [
-            [f64::NAN, 0.0, 10.0, 10.0],
-            [0.0, 0.0, f64::INFINITY, 10.0],
-            [50.0, 50.0, 60.0, 60.0],
-            [10.0, 10.0, 0.0, 0.0],
-            [-1e300, -1e300, 1e300, 1e300],
+        let image = filled(200, 200, |x, y| [(x % 256) as u8, (y % 256) as u8, 0]);
+        for (bad, some) in [
+            ([f64::NAN, 0.0, 10.0, 10.0], false),
+            ([0.0, 0.0, f64::INFINITY, 10.0], false),
+            ([250.0, 250.0, 260.0, 260.0], false),
+            ([10.0, 10.0, 0.0, 0.0], false),
+            ([0.0, 0.0, 2.0, 2.0], false),
+            ([-1e300, -1e300, 1e300, 1e300], true),
+            ([199.0, 0.0, 200.0, 200.0], true),
         ] {
-            let image = filled(20, 20, |_, _| [0, 0, 0]);
             let h = Histogram::of(&image, bad);
+            assert_eq!(h.is_some(), some, "{bad:?}");
             if let Some(h) = h {
-                // The whole image, sampled on at most SAMPLES_PER_SIDE² pixels.
+                // The part within the image, sampled on at most SAMPLES_PER_SIDE² pixels
+                // (the sums of 1/n each).
                 assert!((h.0.iter().sum::<f32>() - 1.0).abs() < 1e-5);
             }
         }

@@ -25,12 +25,12 @@
 //! A person who comes back ([`Tracker::born_like`]): a newcomer whose look (an
 //! [`Appearance`], given with [`Tracker::looked_like`] while each person is seen clear of
 //! the others, frozen while they are not) is near a lost track's, or an ended one's
-//! remembered for `reid_seconds`, and who is where that person could have gone, gets
-//! their id back ([`reid`]).
+//! remembered up to `reid_seconds` after they were last seen, and who is where that
+//! person could have gone, gets their id back (`tracker/reid.rs`).
 //!
-//! Boxes are square crop boxes in image pixels ([`CropBox`]); ids are `u32`, counted up
-//! (past `u32::MAX` they wrap around, skipping those live or remembered): no id is given
-//! to a second person while the first may still come back.
+//! Boxes are square crop boxes in image pixels ([`CropBox`]); ids are `u32` from 1,
+//! counted up (past `u32::MAX` they wrap around, skipping 0 and those live or
+//! remembered): no id is given to a second person while the first may still come back.
 
 use pathfinding::kuhn_munkres::kuhn_munkres_min;
 use pathfinding::matrix::Matrix;
@@ -252,11 +252,15 @@ impl Tracker {
         self.begin_at(self.now_ns.saturating_add(FRAME_NS));
     }
 
-    /// Starts a frame stamped `stamp_ns` (a stamp before the newest is taken as the
-    /// newest: the clock never runs backwards); ended tracks older than `reid_seconds`
-    /// are forgotten.
+    /// Starts a frame stamped `stamp_ns`; a stamp not after the newest (unset, or a
+    /// replay starting over) is taken as 1/30 s after it: the clock never stops or runs
+    /// backwards. Ended tracks last seen more than `reid_seconds` ago are forgotten.
     pub fn begin_at(&mut self, stamp_ns: u64) {
-        self.now_ns = self.now_ns.max(stamp_ns);
+        self.now_ns = if stamp_ns > self.now_ns {
+            stamp_ns
+        } else {
+            self.now_ns.saturating_add(FRAME_NS)
+        };
         self.memory
             .forget_before(self.now_ns, self.settings.reid_seconds);
         self.frame += 1;
@@ -501,19 +505,23 @@ impl Tracker {
     /// [`born`](Self::born) for a newcomer who looks like `look`: a confirmed track lost
     /// (not given a box this frame) or an ended one remembered, whose look is within
     /// `reid_distance` of it and who could have gone to `region` since last seen, is
-    /// found again with its id (the nearest look, then the nearest place), counted as
-    /// `reidentified`.
+    /// found again with its id: the least look distance plus a tenth of the way moved
+    /// over the reach (a lost track before a remembered one at equal cost), counted as
+    /// `reidentified` (a lost track's also as a `reacquisition`). They were confirmed
+    /// before: their track is reported at once.
     pub fn born_like(&mut self, region: CropBox, look: Option<&Appearance>) -> Option<u32> {
+        // Room first: a lost track ended for it is remembered, and may be this person.
+        if !self.make_room() {
+            return None;
+        }
         if let Some(look) = look
             && let Some(id) = self.reidentify(region, look)
         {
             return Some(id);
         }
-        if !self.make_room() {
-            return None;
-        }
+        // Never 0 (no id, in HeatMaps), nor an id live or remembered.
         let mut id = self.next_id;
-        while self.tracks.iter().any(|t| t.id == id) || self.memory.holds(id) {
+        while id == 0 || self.tracks.iter().any(|t| t.id == id) || self.memory.holds(id) {
             id = id.wrapping_add(1);
         }
         self.next_id = id.wrapping_add(1);
@@ -589,11 +597,8 @@ impl Tracker {
                 t.id
             }
             (_, Some((i, _))) => {
+                // Room was made by `born_like`.
                 let person = self.memory.take(i)?;
-                if !self.make_room() {
-                    self.memory.remember(person, self.settings.reid_capacity);
-                    return None;
-                }
                 self.tracks.push(Track {
                     id: person.id,
                     state: State::Confirmed,
@@ -610,6 +615,7 @@ impl Tracker {
             }
             _ => return None,
         };
+        tracing::debug!("reid: a newcomer at {region:?} is {id}");
         self.claimed.push(id);
         self.stats.reidentified += 1;
         Some(id)

@@ -427,8 +427,15 @@ impl ImageDetector {
                     self.tracker.seen(id, next);
                     id
                 }
-                // A newcomer who looks like someone lost may be them.
-                _ => match self.tracker.born_like(next, appearance(frame, &l).as_ref()) {
+                // A newcomer who looks like someone lost may be them (a candidate is
+                // not: a low score must be followed `birth_frames` before it counts).
+                Assignment::Birth => {
+                    match self.tracker.born_like(next, appearance(frame, &l).as_ref()) {
+                        Some(id) => id,
+                        None => continue,
+                    }
+                }
+                _ => match self.tracker.born(next) {
                     Some(id) => id,
                     None => continue,
                 },

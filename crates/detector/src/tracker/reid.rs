@@ -113,7 +113,7 @@ pub(super) fn cost(
     gate: f64,
 ) -> Option<f64> {
     let distance = model.distance(look)?;
-    if distance.is_nan() || distance > gate {
+    if distance.is_nan() || gate.is_nan() || distance > gate {
         return None;
     }
     let (ax, ay, a_side) = centre_side(last);

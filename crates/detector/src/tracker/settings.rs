@@ -28,8 +28,9 @@ pub struct TrackingSettings {
     /// A confident box overlapping a track seen this frame by more than this (IoU) is
     /// that person, not a new one.
     pub duplicate_iou: f64,
-    /// Seconds an ended track's look is remembered: a newcomer who looks like them,
-    /// where they could have gone, gets their id back (0: forgotten at once).
+    /// Seconds after a person was last seen that their ended track's look is
+    /// remembered: a newcomer who looks like them, where they could have gone, gets
+    /// their id back (a track ends `lost_frames` after it was last seen).
     pub reid_seconds: f64,
     /// Ended tracks remembered at most (the oldest forgotten first).
     pub reid_capacity: usize,

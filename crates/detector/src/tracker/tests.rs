@@ -287,10 +287,11 @@ fn ids_wrap_around_and_skip_live_ones() {
     .into_iter()
     .map(|(id, _)| id)
     .collect();
-    assert_eq!(ids, vec![u32::MAX, 0]);
+    // 0 is no id (HeatMaps' "unknown").
+    assert_eq!(ids, vec![u32::MAX, 1]);
     t.next_id = u32::MAX;
     t.begin();
-    assert_eq!(t.born(square(700.0, 100.0, 80.0)), Some(1));
+    assert_eq!(t.born(square(700.0, 100.0, 80.0)), Some(2));
 }
 
 #[test]
@@ -439,6 +440,34 @@ fn a_person_gone_three_seconds_comes_back_with_their_id_and_a_stranger_does_not(
 }
 
 #[test]
+fn a_lost_person_found_far_from_their_expected_box_gets_their_id_back_by_their_look() {
+    // Red is lost for 20 frames (still a live track) and found 110 px from where their
+    // box was expected, where boxes alone would not have them (no overlap).
+    let mut t = Tracker::new(settings(), 0.5);
+    let (red, blue) = (look([200, 30, 30]), look([30, 30, 200]));
+    let frame = |n: u64| n * SECOND / 30;
+    let mut red_id = None;
+    for n in 0..20 {
+        let ids = frame_of_looks(&mut t, frame(n), &[(square(300.0, 300.0, 100.0), red)]);
+        assert_eq!(*red_id.get_or_insert(ids[0]), ids[0]);
+    }
+    for n in 20..40 {
+        assert!(frame_of_looks(&mut t, frame(n), &[]).is_empty());
+    }
+    let red_id = red_id.expect("seen");
+    assert!(t.is_live(red_id));
+    let back = square(410.0, 300.0, 100.0);
+    assert_eq!(iou(&back, &square(300.0, 300.0, 100.0)), 0.0);
+    // A blue stranger near there first gets a new id; red then gets theirs.
+    let stranger = square(410.0, 420.0, 100.0);
+    let ids = frame_of_looks(&mut t, frame(40), &[(stranger, blue), (back, red)]);
+    assert!(ids[0] != red_id, "{ids:?}");
+    assert_eq!(ids[1], red_id);
+    assert_eq!(t.stats().reidentified, 1);
+    assert_eq!(t.stats().reacquisitions, 1);
+}
+
+#[test]
 fn a_forgotten_person_is_a_newcomer_and_the_memory_stays_bounded() {
     let mut t = Tracker::new(
         TrackingSettings {
@@ -461,7 +490,13 @@ fn a_forgotten_person_is_a_newcomer_and_the_memory_stays_bounded() {
     t.begin_at(10_000 * SECOND);
     assert_eq!(t.remembered(), 0);
     t.end();
-    // A clock that runs backwards is taken as standing still.
+    // The same spot came round every 3.3 s, but those there were forgotten for want
+    // of room, and the others were too far for the time gone: nobody came back.
+    assert_eq!(t.stats().reidentified, 0);
+    // A clock that runs backwards (or a stamp left unset) moves on a frame.
     t.begin_at(0);
-    assert_eq!(t.now_ns, 10_000 * SECOND);
+    assert_eq!(t.now_ns, 10_000 * SECOND + FRAME_NS);
+    t.end();
+    t.begin_at(0);
+    assert_eq!(t.now_ns, 10_000 * SECOND + 2 * FRAME_NS);
 }
