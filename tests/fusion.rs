@@ -825,6 +825,18 @@ fn one_room_alone_is_scored_and_a_room_that_is_not_there_refused_before_any_work
         assert!(stderr.contains("--room"), "{args:?}: {stderr}");
         assert!(!stderr.contains("panicked"), "{stderr}");
     }
+    // `--room` and `--record` belong to `--rooms`: beside `--distances` they are
+    // refused, not ignored (the distances ran without a word).
+    for args in [
+        ["scenes", "--distances", "--room", "3"],
+        ["scenes", "--distances", "--record", "room.mcap"],
+    ] {
+        let out = posestream(&args);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{args:?} accepted");
+        assert!(out.stdout.is_empty(), "{args:?} ran");
+        assert!(stderr.contains(args[2]), "{args:?}: {stderr}");
+    }
     // Room 12 (two cameras, one kick) alone: its row and nothing else.
     let out = posestream(&["scenes", "--rooms", "--room", "12"]);
     let stdout = String::from_utf8_lossy(&out.stdout);

@@ -68,11 +68,18 @@ pub struct ScenesArgs {
     /// send it to this recording (MCAP: each camera's heat maps and calibration, the
     /// cameras' poses on /tf_static, the truth), and beside it FILE.toml, the
     /// configuration `posestream fuse` reads it with.
-    #[arg(long, value_name = "FILE", requires = "rooms")]
+    // `conflicts_with` too: clap does not enforce `requires` beside `--distances`,
+    // which conflicts with `--rooms` (the distances ran, `--room` ignored).
+    #[arg(
+        long,
+        value_name = "FILE",
+        requires = "rooms",
+        conflicts_with = "distances"
+    )]
     pub record: Option<PathBuf>,
     /// With `--rooms`: only this room (1-based, as `--rooms` lists them); with
     /// `--record`, the room written (default 3).
-    #[arg(long, requires = "rooms")]
+    #[arg(long, requires = "rooms", conflicts_with = "distances")]
     pub room: Option<usize>,
 }
 

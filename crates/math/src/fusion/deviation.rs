@@ -16,12 +16,11 @@
 //! its reprojection distance ([`DeviationSettings::outlier_cells`]): a swapped joint or
 //! a wrong camera weighs little where the others agree (iteratively reweighted, from
 //! the views' robust triangulation when two see the joint, else the model's joint).
-//! One view pins the joint to its ray and leaves the depth to the model; none leaves
-//! the model's joint. Seen by more views the evidence outweighs the prior.
+//! One view pins the joint to its ray, the depth the model's; none leaves the model's
+//! joint; more views outweigh the prior.
 //!
 //! The deviations `x - m_j` are then the median over [`DeviationSettings::frames`]
-//! frames centred on the one put out (the model's motion stays smooth; a peak wrong in
-//! one frame moves nothing).
+//! frames centred on the one put out (smooth motion; a peak wrong once moves nothing).
 
 use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
@@ -53,8 +52,8 @@ pub struct DeviationSettings {
     /// Gaussian prior everywhere).
     pub prior_dof: f64,
     /// Views that must agree on a joint (each within `outlier_cells` of their robust
-    /// triangulation) before the prior's tail is heavy (at least 2; a rig of fewer
-    /// cameras needs all of them).
+    /// triangulation) before the prior's tail is heavy (at least 2; fewer views sending
+    /// the frame need all of them).
     pub agreeing_views: usize,
     /// The fused joints' standard deviation as a factor of the deviations' own (the
     /// views' spreads and the prior, grown by the views' disagreement): the median over
@@ -234,7 +233,8 @@ fn joint_point(
     } else {
         model
     };
-    let prior = prior * heavy_tail(settings, cameras.len(), &x, &model, b);
+    let sending = views.iter().filter(|vd| !vd.bridged && vd.evidence).count();
+    let prior = prior * heavy_tail(settings, sending, &x, &model, b);
     let mut variance = f64::NAN;
     for round in 0..settings.rounds {
         agreement(settings, &x, b);
@@ -273,17 +273,17 @@ fn joint_point(
 }
 
 /// The prior's weight where [`DeviationSettings::agreeing_views`] or more views agree
-/// on the joint at `x` (their robust triangulation; in a rig of fewer cameras, all of
-/// them, at least 2): a Student-t prior of
-/// [`DeviationSettings::prior_dof`] degrees of freedom, its EM weight
-/// `(dof + 3) / (dof + m^2)` (at most 1), `m^2` the squared Mahalanobis distance of `x`
-/// from `model` under the views' covariance plus the prior's. Where views that agree
-/// place a joint far from the model (a kicking foot the dictionary cannot bend to), the
-/// model lets go; elsewhere (fewer views, or a disagreement) it is the Gaussian prior.
+/// on the joint at `x` (their robust triangulation; of fewer views sending the frame,
+/// `sending`, all, at least 2): a Student-t prior of [`DeviationSettings::prior_dof`]
+/// degrees of freedom, its EM weight `(dof + 3) / (dof + m^2)` (at most 1), `m^2` the
+/// squared Mahalanobis distance of `x` from `model` under the views' covariance plus
+/// the prior's. Where views that agree place a joint far from the model (a kicking foot
+/// the dictionary cannot bend to), the model lets go; elsewhere (fewer views, or a
+/// disagreement) it is the Gaussian prior.
 /// Leaves `b.agree` the agreement at `x`.
 fn heavy_tail(
     settings: &DeviationSettings,
-    rig: usize,
+    sending: usize,
     x: &Vector3<f64>,
     model: &Vector3<f64>,
     b: &mut DeviationBuffers,
@@ -294,9 +294,8 @@ fn heavy_tail(
     }
     agreement(settings, x, b);
     let agreeing = b.agree.iter().filter(|&&a| a >= 0.5).count();
-    // A rig of two cameras has no third to outvote a pair that agrees on a wrong point:
-    // both must agree there.
-    if agreeing < settings.agreeing_views.min(rig).max(2) {
+    // Two views sending have no third to outvote a pair agreeing on a wrong point.
+    if agreeing < settings.agreeing_views.min(sending).max(2) {
         return 1.0;
     }
     let information: Matrix3<f64> = weighted_rays(settings, x, b)
@@ -563,8 +562,9 @@ mod tests {
             &views[..2],
         )
         .0;
-        // In a rig of two, both agreeing is all there can be: it lets go too.
+        // In a rig of two (or of three, one silent), both agreeing lets go too.
         assert!((two - truth).norm() < 0.5 * (gaussian_two - truth).norm());
+        assert!((moved(&cams, model, &views[..2]) - two).norm() < 1e-9);
         let mut third_missing = views.clone();
         third_missing[2].peaks[0][2] = 0.0;
         let held = moved(&cams, model, &third_missing);
