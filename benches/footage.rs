@@ -105,7 +105,7 @@ fn main() {
         std::fs::write(&found_path, serde_json::to_string(&rows).expect("json")).expect("write");
         let mot = mot_metrics(&root.join("benches/footage/mot.py"), &path, &found_path);
         let mot_cell = mot.as_ref().map_or_else(
-            || "(motmetrics not installed)".to_string(),
+            || "(motmetrics: no figures)".to_string(),
             |m| {
                 format!(
                     "{:.2}, {:.2}, {}, {}",
@@ -172,12 +172,16 @@ fn mot_metrics(script: &Path, clip: &Path, found: &Path) -> Option<serde_json::V
         .map_err(|e| eprintln!("{python}: {e}"))
         .ok()?;
     if !out.status.success() {
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        let hint = if stderr.contains("No module named 'motmetrics'") {
+            " (pip install motmetrics)"
+        } else {
+            ""
+        };
         eprintln!(
-            "motmetrics did not run (pip install motmetrics): {}",
-            String::from_utf8_lossy(&out.stderr)
-                .lines()
-                .last()
-                .unwrap_or("")
+            "{} did not run{hint}: {}",
+            script.display(),
+            stderr.lines().last().unwrap_or("")
         );
         return None;
     }

@@ -89,13 +89,46 @@ def accumulate(clip, found):
     return acc
 
 
+def load(path):
+    try:
+        with open(path) as f:
+            return json.load(f)
+    except (OSError, ValueError) as e:
+        sys.exit(f"{path}: {e}")
+
+
+def checked(clip, found):
+    """One clear error for inputs that are not an annotation file and a found list."""
+    number = (int, float)
+    try:
+        assert isinstance(clip, dict), "the annotations are not an object"
+        assert isinstance(clip["clip"], str), "clip is not a name"
+        for frame in clip["frames"]:
+            assert isinstance(frame["frame"], int), f"frame {frame['frame']!r} is not an integer"
+            ids = [p["id"] for p in frame["people"]]
+            assert len(set(ids)) == len(ids), f"frame {frame['frame']}: an id twice"
+            for p in frame["people"]:
+                b = p["box"]
+                assert len(b) == 4 and all(isinstance(v, number) for v in b), f"box {b!r}"
+                assert isinstance(p.get("uncertain", False), bool), "uncertain is not a boolean"
+        frames = [f["frame"] for f in clip["frames"]]
+        assert len(set(frames)) == len(frames), "a frame annotated twice"
+        assert isinstance(found, list), "the found skeletons are not a list"
+        for f in found:
+            assert isinstance(f["frame"], int) and isinstance(f["track"], int), f"{f!r}"
+            assert all(isinstance(f[k], number) for k in ("x", "y")), f"{f!r}"
+    except (AssertionError, KeyError, TypeError) as e:
+        sys.exit(f"{sys.argv[1]}, {sys.argv[2]}: not annotations and found skeletons: {e!r}")
+
+
 def main():
     if len(sys.argv) != 3:
         sys.exit(__doc__)
-    with open(sys.argv[1]) as f:
-        clip = json.load(f)
-    with open(sys.argv[2]) as f:
-        found = json.load(f)
+    clip, found = load(sys.argv[1]), load(sys.argv[2])
+    checked(clip, found)
+    annotated = {f["frame"] for f in clip["frames"]}
+    if found and not any(f["frame"] in annotated for f in found):
+        print("no skeleton falls on an annotated frame (another clip's?)", file=sys.stderr)
     acc = accumulate(clip, found)
     metrics = [
         "idf1",
@@ -116,8 +149,8 @@ def main():
     out = {}
     for m in metrics:
         v = float(row[m])
-        # NaN (nobody counted) is JSON's null.
-        out[m] = None if math.isnan(v) else (v if "num" not in m and m != "mostly_tracked" else int(v))
+        # NaN or infinite (nobody counted) is JSON's null.
+        out[m] = None if not math.isfinite(v) else (v if "num" not in m and m != "mostly_tracked" else int(v))
     out["clip"] = clip["clip"]
     out["tracks"] = len({f["track"] for f in found})
     print(json.dumps(out))

@@ -39,7 +39,50 @@ fn program_error(program: &str, e: std::io::Error) -> String {
     }
 }
 
-/// Width, height and frames per second of the first video stream of `path`.
+/// What `ffprobe -of json` says of a file's first video stream.
+#[derive(serde::Deserialize)]
+struct Probed {
+    #[serde(default)]
+    streams: Vec<ProbedStream>,
+}
+
+#[derive(serde::Deserialize)]
+struct ProbedStream {
+    width: Option<u32>,
+    height: Option<u32>,
+    r_frame_rate: Option<String>,
+    #[serde(default)]
+    side_data_list: Vec<SideData>,
+}
+
+#[derive(serde::Deserialize)]
+struct SideData {
+    rotation: Option<f64>,
+}
+
+/// Width, height and frames per second of the frames ffmpeg decodes from `json`
+/// (ffprobe's): a stream turned a quarter (a phone's video, its rotation in side data)
+/// is decoded turned, so its width and height swap.
+fn probed(json: &[u8]) -> Option<(u32, u32, f64)> {
+    let probed: Probed = serde_json::from_slice(json).ok()?;
+    let stream = probed.streams.into_iter().next()?;
+    let rate = stream.r_frame_rate?;
+    let fps = match rate.split_once('/') {
+        Some((n, d)) => n.parse::<f64>().ok()? / d.parse::<f64>().ok()?,
+        None => rate.parse().ok()?,
+    };
+    let (w, h) = (stream.width?, stream.height?);
+    let quarter = stream
+        .side_data_list
+        .iter()
+        .filter_map(|d| d.rotation)
+        .any(|r| (r.rem_euclid(180.0) - 90.0).abs() < 1.0);
+    let (w, h) = if quarter { (h, w) } else { (w, h) };
+    (w > 0 && h > 0 && fps.is_finite() && fps > 0.0).then_some((w, h, fps))
+}
+
+/// Width, height and frames per second of the first video stream of `path`, as ffmpeg
+/// decodes it.
 pub fn probe(path: &Path) -> Result<(u32, u32, f64), TransportError> {
     // A regular file only: a device or a FIFO would keep ffprobe waiting.
     if let Err(e) = posestream_base::files::open_regular(path) {
@@ -49,39 +92,25 @@ pub fn probe(path: &Path) -> Result<(u32, u32, f64), TransportError> {
         };
         return Err(setup(path, why));
     }
+    // JSON: the CSV form repeats a line per program (MPEG-TS) and adds side data.
     let out = Command::new("ffprobe")
         .args(["-v", "error", "-select_streams", "v:0"])
-        .args(["-show_entries", "stream=width,height,r_frame_rate"])
-        .args(["-of", "csv=p=0"])
+        .args([
+            "-show_entries",
+            "stream=width,height,r_frame_rate:stream_side_data=rotation",
+        ])
+        .args(["-of", "json"])
         .arg(path)
         .output()
         .map_err(|e| setup(path, program_error("ffprobe", e)))?;
-    let text = String::from_utf8_lossy(&out.stdout);
-    let fields: Vec<&str> = text.trim().split(',').collect();
-    let parsed = match fields.as_slice() {
-        [w, h, rate] => {
-            let fps = match rate.split_once('/') {
-                Some((n, d)) => n
-                    .parse::<f64>()
-                    .ok()
-                    .zip(d.parse::<f64>().ok())
-                    .map(|(n, d)| n / d),
-                None => rate.parse().ok(),
-            };
-            w.parse().ok().zip(h.parse().ok()).zip(fps)
-        }
-        _ => None,
-    };
-    match parsed {
-        Some(((w, h), fps)) if w > 0 && h > 0 && fps.is_finite() && fps > 0.0 => Ok((w, h, fps)),
-        _ => Err(setup(
-            path,
-            format!(
-                "not a video ffprobe can read: {}",
-                String::from_utf8_lossy(&out.stderr).trim()
-            ),
-        )),
-    }
+    probed(&out.stdout).ok_or_else(|| {
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        let why = match stderr.trim() {
+            "" => "no video stream",
+            text => text,
+        };
+        setup(path, format!("not a video ffprobe can read: {why}"))
+    })
 }
 
 impl VideoSource {
@@ -234,5 +263,61 @@ mod tests {
             .expect_err("missing")
             .to_string();
         assert!(e.contains("no such file"), "{e}");
+    }
+
+    /// `ffmpeg` makes `name` in `dir` from a test pattern with `more` arguments.
+    fn made(dir: &Path, name: &str, more: &[&str]) -> PathBuf {
+        let path = dir.join(name);
+        let status = Command::new("ffmpeg")
+            .args([
+                "-v",
+                "error",
+                "-f",
+                "lavfi",
+                "-i",
+                "testsrc=size=64x48:rate=10:duration=1",
+            ])
+            .args(more)
+            .arg(&path)
+            .status()
+            .expect("ffmpeg runs");
+        assert!(status.success(), "{name}");
+        path
+    }
+
+    #[test]
+    fn mpeg_ts_and_a_phone_s_turned_video_are_read_at_the_size_ffmpeg_decodes() {
+        // Found by trying: an MPEG-TS file's probe printed its stream once per program
+        // and a turned one's a side-data field, and both were refused with no reason;
+        // a turned video is decoded turned (48 x 64 here).
+        let dir = tempfile::tempdir().expect("tempdir");
+        let ts = made(dir.path(), "a.ts", &[]);
+        assert_eq!(probe(&ts).expect("MPEG-TS"), (64, 48, 10.0));
+        let plain = made(dir.path(), "plain.mp4", &[]);
+        let turned = dir.path().join("turned.mp4");
+        let status = Command::new("ffmpeg")
+            .args(["-v", "error", "-i"])
+            .arg(&plain)
+            .args(["-c", "copy", "-metadata:s:v:0", "rotate=90"])
+            .arg(&turned)
+            .status()
+            .expect("ffmpeg runs");
+        assert!(status.success());
+        assert_eq!(probe(&turned).expect("turned"), (48, 64, 10.0));
+        let mut video = VideoSource::open(&turned, "camera", &Limits::default()).expect("opens");
+        let Ok(Received::Message(frame, _)) = video.recv(Duration::from_secs(10)) else {
+            panic!("a frame")
+        };
+        assert_eq!(frame.rgb.dimensions(), (48, 64));
+        // Sound only: one clear reason.
+        let sound = dir.path().join("sound.wav");
+        let status = Command::new("ffmpeg")
+            .args(["-v", "error", "-f", "lavfi", "-i", "sine=duration=1"])
+            .arg(&sound)
+            .status()
+            .expect("ffmpeg runs");
+        assert!(status.success());
+        let e = probe(&sound).expect_err("no video").to_string();
+        assert!(e.contains("no video stream"), "{e}");
     }
 }
