@@ -566,6 +566,9 @@ impl Tracker {
     /// anyone: their track seen there, its id.
     fn reidentify(&mut self, region: CropBox, look: &Appearance) -> Option<u32> {
         let (now, gate) = (self.now_ns, self.settings.reid_distance);
+        if gate <= 0.0 {
+            return None;
+        }
         let lost = self
             .tracks
             .iter()

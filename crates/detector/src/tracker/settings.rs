@@ -35,7 +35,7 @@ pub struct TrackingSettings {
     /// Ended tracks remembered at most (the oldest forgotten first).
     pub reid_capacity: usize,
     /// A newcomer's look at most this far (Bhattacharyya distance, 0 to 1) from a lost
-    /// or remembered person's may be them.
+    /// or remembered person's may be them (0: nobody is found again by their look).
     pub reid_distance: f64,
 }
 

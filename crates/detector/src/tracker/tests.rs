@@ -465,6 +465,24 @@ fn a_lost_person_found_far_from_their_expected_box_gets_their_id_back_by_their_l
     assert_eq!(ids[1], red_id);
     assert_eq!(t.stats().reidentified, 1);
     assert_eq!(t.stats().reacquisitions, 1);
+    // With `reid_distance` 0 nobody is found again by their look, not even one that
+    // looks the very same (distance 0).
+    let mut off = Tracker::new(
+        TrackingSettings {
+            reid_distance: 0.0,
+            ..settings()
+        },
+        0.5,
+    );
+    let first = frame_of_looks(&mut off, 0, &[(square(300.0, 300.0, 100.0), red)]);
+    for n in 1..20 {
+        frame_of_looks(&mut off, frame(n), &[]);
+    }
+    let again = frame_of_looks(&mut off, frame(20), &[(square(300.0, 300.0, 100.0), red)]);
+    assert!(
+        first != again && off.stats().reidentified == 0,
+        "{first:?} {again:?}"
+    );
 }
 
 #[test]
