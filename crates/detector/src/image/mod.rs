@@ -400,12 +400,14 @@ impl ImageDetector {
             let sightings = sightings.unwrap_or_default();
             self.acquire(frame, now, searching, &sightings, unexplained, &mut kept)?;
         }
-        // How each person looks, learnt while they are clear of the others.
+        // How each person looks, learnt while they are clear of the others (their look
+        // is taken only then).
         for (k, (id, l)) in kept.iter().enumerate() {
-            if let Some(look) = looks::appearance(frame, l) {
-                let others = kept.iter().enumerate().filter(|(o, _)| *o != k);
-                let clear = looks::clear_of(l, others.map(|(_, (_, o))| o));
-                self.tracker.looked_like(*id, &look, clear);
+            let others = kept.iter().enumerate().filter(|(o, _)| *o != k);
+            if looks::clear_of(l, others.map(|(_, (_, o))| o))
+                && let Some(look) = looks::appearance(frame, l)
+            {
+                self.tracker.looked_like(*id, &look, true);
             }
         }
         let reported = self.tracker.end();
