@@ -1268,6 +1268,22 @@ fn configuration_values_outside_their_domain_are_one_error_naming_the_key() {
             "[detector.images.tracking]\nreid_distance = -inf\n",
             "detector.images.tracking.reid_distance",
         ),
+        (
+            "[detector.images.tracking]\nlooks_per_frame = 65\n",
+            "detector.images.tracking.looks_per_frame",
+        ),
+        (
+            "[detector.images.tracking]\nlooks_per_frame = 18446744073709551615\n",
+            "detector.images.tracking.looks_per_frame",
+        ),
+        (
+            "[detector.images.tracking]\nmax_wait_frames = 31\n",
+            "detector.images.tracking.max_wait_frames",
+        ),
+        (
+            "[detector.images.tracking]\nmax_wait_frames = 4294967295\n",
+            "detector.images.tracking.max_wait_frames",
+        ),
         ("[detector]\nnice = 20\n", "detector.nice"),
         (
             "[detector.images]\nsearch_tiles = 0\n",

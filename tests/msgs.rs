@@ -216,16 +216,26 @@ fn messages_round_trip_through_cdr_with_the_encapsulation_header() {
 }
 
 #[test]
-fn a_skeleton_recorded_before_metric_source_or_views_decodes_with_none() {
-    let skel = Skeleton3D {
+fn a_skeleton_recorded_before_metric_source_views_or_looks_decodes_with_none() {
+    let looked = Skeleton3D {
         sequence: 3,
         units: 1,
         state: 1,
         metric_source: msgs::MetricSource::Floor as u8,
+        frames_since_look: 2,
         ..Skeleton3D::default()
     };
-    let bytes = msgs::encode(&skel).expect("encodes");
-    // `views` (empty) ends it: its length, 4 bytes, after the alignment (zeros) that
+    let full = msgs::encode(&looked).expect("encodes");
+    // `frames_since_look` ends it (4 bytes, aligned after the empty `views`): the
+    // layout before it reads it as 0.
+    let before_looks: Skeleton3D = msgs::decode(&full[..full.len() - 4]).expect("decodes");
+    let skel = Skeleton3D {
+        frames_since_look: 0,
+        ..looked
+    };
+    assert_eq!(before_looks, skel);
+    let bytes = &full[..full.len() - 4];
+    // `views` (empty) ends that: its length, 4 bytes, after the alignment (zeros) that
     // follows `metric_source` (2, not zero).
     let count = bytes.len() - 4;
     let metric = bytes[..count]
@@ -257,17 +267,43 @@ fn a_skeleton_recorded_before_metric_source_or_views_decodes_with_none() {
 
 #[test]
 fn malformed_bytes_are_errors_not_panics() {
-    let good = msgs::encode(&sample_maps(HeatMapEncoding::Float32)).expect("encodes");
+    let message = HeatMaps {
+        frames_since_look: 0x0102_0304,
+        ..sample_maps(HeatMapEncoding::Float32)
+    };
+    let good = msgs::encode(&message).expect("encodes");
     // Big-endian encapsulation, too short, every truncation, garbage.
     let mut big = good.clone();
     big[1] = 0x00;
     assert!(msgs::decode::<HeatMaps>(&big).is_err());
     assert!(msgs::decode::<HeatMaps>(&[0, 1]).is_err());
+    // Without its last field (`frames_since_look`, 4 bytes) it is a message of the
+    // layout before it, read with 0. A cut inside that field reads the bytes left of it
+    // (little-endian: its low bytes) and zeros for the rest, as the layout before it
+    // padded: CDR cannot tell the two apart (as for Skeleton3D's added fields). Any
+    // other cut is an error.
+    let older = good.len() - 4;
     for cut in 4..good.len() {
-        assert!(
-            msgs::decode::<HeatMaps>(&good[..cut]).is_err(),
-            "cut at {cut}"
-        );
+        match msgs::decode::<HeatMaps>(&good[..cut]) {
+            Ok(m) if cut >= older => {
+                let kept = 8 * (cut - older) as u32;
+                let low = if kept == 0 {
+                    0
+                } else {
+                    0x0102_0304 & (u32::MAX >> (32 - kept))
+                };
+                assert_eq!(
+                    m,
+                    HeatMaps {
+                        frames_since_look: low,
+                        ..message.clone()
+                    },
+                    "cut at {cut}"
+                );
+            }
+            Ok(_) => panic!("cut at {cut} decodes"),
+            Err(_) => assert_ne!(cut, older, "the layout before frames_since_look"),
+        }
     }
     let garbage: Vec<u8> = (0..200).map(|i| (i * 37 % 251) as u8).collect();
     let mut with_header = CDR_LE_HEADER.to_vec();

@@ -40,6 +40,7 @@ fn skeleton(seq: u64) -> Skeleton3D {
         metric_source: 1 + (seq % 2) as u8,
         // Not in iceoryx2's fixed-size sample (one camera's skeletons have none).
         views: Vec::new(),
+        frames_since_look: (seq % 3) as u32,
     }
 }
 
@@ -620,6 +621,7 @@ fn assert_is_our_skeleton(v: &serde_json::Value) {
     assert_eq!(v["lag"], want.lag);
     assert_eq!(v["state"], want.state);
     assert_eq!(v["metric_source"], want.metric_source);
+    assert_eq!(v["frames_since_look"], want.frames_since_look);
     let names: Vec<String> = v["joint_names"]
         .as_array()
         .expect("names")

@@ -217,6 +217,7 @@ impl Source<HeatMaps> for ImageHeatMaps {
                     self.encoding,
                 );
                 msg.track_id = d.track_id;
+                msg.frames_since_look = d.frames_since_look;
                 self.pending.push_back((msg, stamp));
             }
         });

@@ -45,6 +45,7 @@ def maps(seq, h, w, values=None, quantized=None, encoding=0, joints=JOINTS, crop
         values=values if values is not None else [],
         quantized_values=quantized if quantized is not None else [],
         quantization_scale=scale,
+        frames_since_look=0,
     )
 
 

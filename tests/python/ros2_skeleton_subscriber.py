@@ -41,6 +41,7 @@ class Skeleton3D(IdlStruct, typename="posestream_msgs::msg::dds_::Skeleton3D_"):
     state: uint8
     metric_source: uint8
     views: sequence[str]
+    frames_since_look: uint32
 
 
 qos = Qos(
@@ -75,6 +76,7 @@ while got < count and time.time() < deadline:
                     "state": s.state,
                     "metric_source": s.metric_source,
                     "views": list(s.views),
+                    "frames_since_look": s.frames_since_look,
                 }
             ),
             flush=True,

@@ -50,3 +50,4 @@ class HeatMaps(IdlStruct, typename="posestream_msgs::msg::dds_::HeatMaps_"):
     values: sequence[float32]
     quantized_values: sequence[uint8]
     quantization_scale: float32
+    frames_since_look: uint32

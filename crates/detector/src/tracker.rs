@@ -40,6 +40,7 @@ use crate::appearance::Appearance;
 use posestream_base::CropBox;
 
 mod reid;
+pub mod schedule;
 mod settings;
 
 pub use settings::TrackingSettings;
@@ -119,9 +120,19 @@ struct Track {
     seen_ns: u64,
     /// How they look, from the looks clear of other people.
     look: Option<Appearance>,
+    /// Followed but not looked at this frame ([`Tracker::wait`]).
+    waiting: bool,
+    /// Frames in a row followed without a look.
+    waited: u32,
 }
 
 impl Track {
+    /// Seen this frame, or waiting for a look (there, as far as boxes go: a box on
+    /// them is them, not a newcomer, and not worth a look).
+    fn present(&self) -> bool {
+        self.seen.is_some() || self.waiting
+    }
+
     /// Where the track is expected `frames` after its newest box: moved by its velocity,
     /// grown by 10 % a frame unseen (the longer it is gone, the less sure where). The
     /// side is not extrapolated: a box that follows its own landmarks would feed its
@@ -268,6 +279,7 @@ impl Tracker {
         self.claimed.clear();
         for t in &mut self.tracks {
             t.seen = None;
+            t.waiting = false;
         }
     }
 
@@ -305,7 +317,7 @@ impl Tracker {
     /// Whether boxes from the person detector are wanted this frame (after the
     /// followed tracks are [`seen`](Self::seen) or [`missed`](Self::missed)).
     pub fn wants_detections(&self) -> bool {
-        let followed = self.tracks.iter().filter(|t| t.seen.is_some()).count();
+        let followed = self.tracks.iter().filter(|t| t.present()).count();
         followed == 0
             || self.lost_this_frame
             || self.frames_since_detection >= self.settings.detect_every
@@ -358,7 +370,7 @@ impl Tracker {
         let mut absorbed = vec![false; observations.len()];
         for (i, k) in self.assign(observations, &high, &all) {
             taken[k] = true;
-            if self.tracks[k].seen.is_none() {
+            if !self.tracks[k].present() {
                 out[i] = Assignment::Track(self.tracks[k].id);
             } else {
                 absorbed[i] = true;
@@ -370,7 +382,7 @@ impl Tracker {
         let open: Vec<usize> = all
             .iter()
             .copied()
-            .filter(|&k| !taken[k] && self.tracks[k].seen.is_none())
+            .filter(|&k| !taken[k] && !self.tracks[k].present())
             .collect();
         for (i, k) in self.assign(observations, &low, &open) {
             out[i] = Assignment::Track(self.tracks[k].id);
@@ -384,7 +396,7 @@ impl Tracker {
         let seen: Vec<usize> = all
             .iter()
             .copied()
-            .filter(|&k| !taken[k] && self.tracks[k].seen.is_some())
+            .filter(|&k| !taken[k] && self.tracks[k].present())
             .collect();
         for (i, _) in self.assign(observations, &left, &seen) {
             absorbed[i] = true;
@@ -408,7 +420,7 @@ impl Tracker {
             !matched[i]
                 && !self.tracks.iter().enumerate().any(|(k, t)| {
                     let on = t.seen.unwrap_or_else(|| t.predicted(t.misses + 1));
-                    (taken[k] || t.seen.is_some())
+                    (taken[k] || t.present())
                         && iou(&on, &observations[i].region) > self.settings.duplicate_iou
                 })
         };
@@ -537,6 +549,8 @@ impl Tracker {
             seen: Some(region),
             seen_ns: self.now_ns,
             look: None,
+            waiting: false,
+            waited: 0,
         });
         Some(id)
     }
@@ -613,6 +627,8 @@ impl Tracker {
                     seen: Some(region),
                     seen_ns: now,
                     look: Some(person.look),
+                    waiting: false,
+                    waited: 0,
                 });
                 person.id
             }
@@ -700,6 +716,7 @@ impl Tracker {
                 t.region = now;
                 t.hits = t.hits.saturating_add(1);
                 t.misses = 0;
+                t.waited = 0;
                 if t.state == State::Tentative && (t.hits >= birth || first_of_scene) {
                     t.state = State::Confirmed;
                     stats.confirmed += 1;
@@ -707,6 +724,13 @@ impl Tracker {
                 if t.state == State::Confirmed {
                     out.push((t.id, now));
                 }
+                true
+            }
+            // Not looked at (the schedule's): carried on by its velocity, neither seen
+            // nor missed.
+            None if t.waiting => {
+                t.region = t.predicted(1);
+                t.waited = t.waited.saturating_add(1);
                 true
             }
             None => {

@@ -34,7 +34,7 @@ impl HeatMapEncoding {
 ros_message! {
     /// One frame of per-joint heat maps (`msgs/msg/HeatMaps.msg` documents each field).
     HeatMaps = "posestream_msgs/msg/HeatMaps", "posestream_msgs/HeatMaps",
-        include_str!("../../../msgs/msg/HeatMaps.msg");
+        include_str!("../../../msgs/msg/HeatMaps.msg"), added_tail = 4;
     /// Capture time and camera frame id.
     header: Header,
     /// The detector's frame number.
@@ -65,6 +65,9 @@ ros_message! {
     quantized_values: Vec<u8>,
     /// Score per quantisation step (uint8 encoding).
     quantization_scale: f32,
+    /// 0: looked at in this image; n: the maps of the look n images before, moved to
+    /// the box expected now. Absent (older recordings): 0 (`added_tail`).
+    frames_since_look: u32,
 }
 
 impl HeatMaps {
@@ -123,6 +126,7 @@ impl HeatMaps {
             values: &self.values,
             quantized_values: &self.quantized_values,
             quantization_scale: self.quantization_scale,
+            frames_since_look: self.frames_since_look,
         }
     }
 
@@ -181,6 +185,8 @@ pub struct HeatMapsView<'a> {
     pub quantized_values: &'a [u8],
     /// Score per quantisation step (uint8 encoding).
     pub quantization_scale: f32,
+    /// 0: looked at in this image; n: carried over from the look n images before.
+    pub frames_since_look: u32,
 }
 
 impl<'a> HeatMapsView<'a> {
@@ -256,6 +262,7 @@ impl<'a> HeatMapsView<'a> {
             values: self.values.to_vec(),
             quantized_values: self.quantized_values.to_vec(),
             quantization_scale: self.quantization_scale,
+            frames_since_look: self.frames_since_look,
         }
     }
 

@@ -39,7 +39,7 @@ pub enum MetricSource {
 ros_message! {
     /// One estimated 3D skeleton (`msgs/msg/Skeleton3D.msg` documents each field).
     Skeleton3D = "posestream_msgs/msg/Skeleton3D", "posestream_msgs/Skeleton3D",
-        include_str!("../../../msgs/msg/Skeleton3D.msg"), added_tail = 8;
+        include_str!("../../../msgs/msg/Skeleton3D.msg"), added_tail = 12;
     /// Stamp of the frame described and the camera frame id.
     header: Header,
     /// Sequence number of the frame described.
@@ -72,6 +72,10 @@ ros_message! {
     /// empty (`added_tail`: up to 3 bytes of alignment and the length, with the byte
     /// before).
     views: Vec<String>,
+    /// The heat maps of the frame described: 0, a look at this person in that image;
+    /// n, carried over from the look n images before. Absent (older recordings): 0
+    /// (`added_tail`: up to 3 bytes of alignment after `views`, and the value).
+    frames_since_look: u32,
 }
 
 ros_message! {

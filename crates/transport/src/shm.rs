@@ -96,8 +96,8 @@ pub struct SkeletonSample {
     pub units: u8,
     /// `Skeleton3D::metric_source`.
     pub metric_source: u8,
-    /// Zero.
-    pub reserved: u8,
+    /// `Skeleton3D::frames_since_look`, at most 255 (more: 255).
+    pub frames_since_look: u8,
     /// Camera frame id.
     pub frame_id: [u8; FRAME_ID_BYTES],
     /// Joint names.
@@ -114,7 +114,7 @@ pub struct SkeletonSample {
     pub projected: [f64; 2 * MAX_JOINTS],
 }
 
-/// The header of a heat-map slice (fixed size, 896 bytes, alignment 8).
+/// The header of a heat-map slice (fixed size, 904 bytes, alignment 8).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, ZeroCopySend)]
 #[type_name("posestream::HeatMapsHeader")]
@@ -137,6 +137,10 @@ pub struct HeatMapsHeader {
     pub frame_id: [u8; FRAME_ID_BYTES],
     /// Joint names.
     pub joint_names: [[u8; NAME_BYTES]; MAX_JOINTS],
+    /// `HeatMaps::frames_since_look`.
+    pub frames_since_look: u32,
+    /// Zero.
+    pub reserved: u32,
 }
 
 fn error(
@@ -281,7 +285,7 @@ impl SkeletonSample {
             state: m.state,
             units: m.units,
             metric_source: m.metric_source,
-            reserved: 0,
+            frames_since_look: m.frames_since_look.min(255) as u8,
             frame_id: pack(&m.header.frame_id, "frame id")?,
             joint_names: pack_names(&m.joint_names)?,
             positions: [0.0; 3 * MAX_JOINTS],
@@ -324,6 +328,7 @@ impl SkeletonSample {
             // Not in the fixed-size sample (msgs/SHARED_MEMORY.md): a fused skeleton's
             // views go over ROS 2 and recordings only.
             views: Vec::new(),
+            frames_since_look: u32::from(self.frames_since_look),
         })
     }
 }
@@ -340,6 +345,8 @@ impl Default for HeatMapsHeader {
             crop: [0.0; 4],
             frame_id: [0; FRAME_ID_BYTES],
             joint_names: [[0; NAME_BYTES]; MAX_JOINTS],
+            frames_since_look: 0,
+            reserved: 0,
         }
     }
 }
@@ -357,6 +364,8 @@ impl HeatMapsHeader {
             crop: [m.crop_x, m.crop_y, m.crop_width, m.crop_height],
             frame_id: pack(&m.header.frame_id, "frame id")?,
             joint_names: pack_names(&m.joint_names)?,
+            frames_since_look: m.frames_since_look,
+            reserved: 0,
         })
     }
 }
@@ -684,6 +693,7 @@ pub fn sample_view<'a>(
         values: payload,
         quantized_values: &[],
         quantization_scale: 0.0,
+        frames_since_look: h.frames_since_look,
     })
 }
 

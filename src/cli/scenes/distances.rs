@@ -172,7 +172,12 @@ pub fn markdown(args: &ScenesArgs) -> Result<String, CliError> {
         let recording = dir.join("walk.mcap");
         synth(args, walk, &dir, &recording)?;
         let tracked = dir.join("tracked.mcap");
-        let tracking = track(&recording, &tracked, &base.topics)?;
+        let tracking = track(
+            &recording,
+            &tracked,
+            &base.topics,
+            &base.detector.images.tracking,
+        )?;
         let (_, to_truth) = tracking.idf1();
         // One person of one scene: ids of their own across scenes.
         let scene_id = |id: u32| id + 100 * i as u32;

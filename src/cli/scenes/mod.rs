@@ -19,8 +19,9 @@ use std::time::Instant;
 use clap::{Args, Parser};
 use pathfinding::kuhn_munkres::kuhn_munkres;
 use pathfinding::matrix::Matrix;
+use posestream::CropBox;
 use posestream::accuracy::p_mpjpe;
-use posestream::detector::tracker::{Observation, Tracker, TrackingSettings, iou};
+use posestream::detector::tracker::{Assignment, Observation, Tracker, TrackingSettings, iou};
 use posestream::msgs::sensor::CameraInfo;
 use posestream::msgs::tf::TFMessage;
 use posestream::msgs::{HeatMaps, Skeleton3D, SkeletonState, Units};
@@ -183,6 +184,9 @@ pub(super) struct Tracking {
     reported: usize,
     /// The most two people's boxes overlapped (IoU).
     closest: f64,
+    /// Of the boxes reported, those of people who waited for a look (their maps
+    /// carried over).
+    carried: usize,
 }
 
 impl Tracking {
@@ -223,9 +227,16 @@ impl Tracking {
 }
 
 /// Strips the ids of `input`'s heat maps, shuffles each image's people, gives them the
-/// tracker's ids and writes them (with the camera, and its place over the floor) to
-/// `output`.
-pub(super) fn track(input: &Path, output: &Path, topics: &Topics) -> Result<Tracking, CliError> {
+/// tracker's ids (`settings`, as the image detector's: with `looks_per_frame` set, the
+/// people its schedule has no look for wait, their newest maps carried over as the
+/// detector carries them) and writes them (with the camera, and its place over the
+/// floor) to `output`.
+pub(super) fn track(
+    input: &Path,
+    output: &Path,
+    topics: &Topics,
+    settings: &TrackingSettings,
+) -> Result<Tracking, CliError> {
     let maps = read_topic::<HeatMaps>(input, "/posestream/heatmaps")?;
     let infos = read_topic::<CameraInfo>(input, "/camera/camera_info")?;
     let transforms = read_topic::<TFMessage>(input, &topics.tf_static)?;
@@ -233,7 +244,7 @@ pub(super) fn track(input: &Path, output: &Path, topics: &Topics) -> Result<Trac
     for (t, m) in maps {
         images.entry(t).or_default().push(m);
     }
-    let mut tracker = Tracker::new(TrackingSettings::default(), 0.5);
+    let mut tracker = Tracker::new(settings.clone(), 0.5);
     let mut rec = Recorder::create(output)?;
     // The camera over the floor, when the scene has one.
     for (t, tf) in &transforms {
@@ -244,7 +255,13 @@ pub(super) fn track(input: &Path, output: &Path, topics: &Topics) -> Result<Trac
         truth_boxes: 0,
         reported: 0,
         closest: 0.0,
+        carried: 0,
     };
+    // Each track's newest maps written, the box its person filled then, and who they
+    // were.
+    let mut newest: BTreeMap<u32, (HeatMaps, CropBox, u32)> = BTreeMap::new();
+    let mut waiting = Vec::new();
+    let mut height = 0.0;
     for (n, (t, people)) in images.iter_mut().enumerate() {
         let turn = n % people.len().max(1);
         people.rotate_left(turn);
@@ -262,19 +279,62 @@ pub(super) fn track(input: &Path, output: &Path, topics: &Topics) -> Result<Trac
         }
         for (_, info) in infos.iter().filter(|(u, _)| u == t) {
             rec.write(&topics.camera_info, *t, info)?;
+            height = f64::from(info.height);
         }
-        let ids = tracker.frame_of_boxes(&observations);
+        // As the image detector's frame: the schedule, the boxes (a box on someone who
+        // waits is theirs, unseen), the people seen and the newcomers.
+        tracker.begin();
+        tracker.scheduled(height, &mut waiting);
+        let what = tracker.associate(&observations);
+        let mut ids = vec![None; observations.len()];
+        for (i, (o, a)) in observations.iter().zip(&what).enumerate() {
+            if let Assignment::Track(id) = a {
+                tracker.seen(*id, o.region);
+                ids[i] = Some(*id);
+            }
+        }
+        for (i, (o, a)) in observations.iter().zip(&what).enumerate() {
+            if *a == Assignment::Birth {
+                ids[i] = tracker.born(o.region);
+            }
+        }
+        let reported: Vec<u32> = tracker.end().into_iter().map(|(id, _)| id).collect();
         for (k, id) in ids.into_iter().enumerate() {
-            let Some(id) = id else { continue };
+            let Some(id) = id.filter(|i| reported.contains(i)) else {
+                continue;
+            };
             tracking.given.entry(truth[k]).or_default().push(id);
             tracking.reported += 1;
             let mut m = people[k].clone();
             m.track_id = id;
             rec.write(&topics.heatmaps, *t, &m)?;
+            newest.insert(id, (m, observations[k].region, truth[k]));
         }
+        // Those who waited: their newest maps, moved as they are expected to have moved.
+        for (id, now, waited) in tracker.carried() {
+            let Some((m, person, who)) = newest.get_mut(&id) else {
+                continue;
+            };
+            tracking.given.entry(*who).or_default().push(id);
+            tracking.reported += 1;
+            tracking.carried += 1;
+            let (a, b) = (centre(person), centre(&now));
+            m.crop_x += b[0] - a[0];
+            m.crop_y += b[1] - a[1];
+            *person = now;
+            m.frames_since_look = waited;
+            m.sequence = people[0].sequence;
+            m.header = people[0].header.clone();
+            rec.write(&topics.heatmaps, *t, m)?;
+        }
+        newest.retain(|id, _| tracker.is_live(*id));
     }
     rec.finish()?;
     Ok(tracking)
+}
+
+fn centre(b: &CropBox) -> [f64; 2] {
+    [b.x0 + 0.5 * b.width, b.y0 + 0.5 * b.height]
 }
 
 /// The errors of `skeletons` (ids already the true ones) at `lag` against `truth`, one
@@ -497,7 +557,12 @@ pub fn markdown(args: &ScenesArgs) -> Result<String, CliError> {
             .map_err(|e| CliError::Usage(format!("scene {i}: {e}")))?;
         super::synth::run(&synth.args)?;
         let tracked = dir.join("tracked.mcap");
-        let tracking = track(&recording, &tracked, &config.topics)?;
+        let tracking = track(
+            &recording,
+            &tracked,
+            &config.topics,
+            &config.detector.images.tracking,
+        )?;
         let (idf1, to_truth) = tracking.idf1();
         let options = ReplayOptions {
             record: Some(dir.join("skeletons.mcap")),
@@ -528,7 +593,8 @@ pub fn markdown(args: &ScenesArgs) -> Result<String, CliError> {
             )));
         }
         text.push_str(&format!(
-            "### {}\n\nTracker: {} id switches, IDF1 {:.3} ({} of {} true boxes reported; \
+            "### {}\n\nTracker: {} id switches, IDF1 {:.3} ({} of {} true boxes reported, {} of \
+             them carried over; \
              two people's boxes overlapped by IoU {:.2} at most); \
              estimator {} tracks, {} resets, {:.0} frames/s (all people, replay as fast as it goes); \
              skeletons of no person's id (not scored) {}, not in metres (not scored) {}.\n\n\
@@ -539,6 +605,7 @@ pub fn markdown(args: &ScenesArgs) -> Result<String, CliError> {
             idf1,
             tracking.reported,
             tracking.truth_boxes,
+            tracking.carried,
             tracking.closest,
             report.counters.tracks,
             report.counters.resets,

@@ -465,8 +465,10 @@ impl EstimatorNode {
                 to_image,
                 map_size,
                 frame_id: String::new(),
+                frames_since_look: 0,
             });
             info.sequence = msg.sequence;
+            info.frames_since_look = msg.frames_since_look;
             info.to_image = to_image;
             info.map_size = map_size;
             info.frame_id.clear();

@@ -20,6 +20,8 @@ pub(super) struct FrameInfo {
     /// The heat maps' size (columns, rows).
     pub(super) map_size: (f64, f64),
     pub(super) frame_id: String,
+    /// The heat maps' `frames_since_look` (0: a look in this image).
+    pub(super) frames_since_look: u32,
 }
 
 /// One person's track in the estimator node: its window and what the node remembers of
@@ -152,6 +154,7 @@ pub(super) fn write_skeleton(
         to_image(&e.projected, &mut m.projected);
     }
     m.lag = e.lag as u32;
+    m.frames_since_look = info.frames_since_look;
     m.state = match e.state {
         TrackState::Initialising => msgs::SkeletonState::Initialising,
         TrackState::Tracking => msgs::SkeletonState::Tracking,

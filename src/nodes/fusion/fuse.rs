@@ -159,6 +159,8 @@ impl FusionNode {
                 .iter()
                 .map(|&v| self.cameras[v].frame_id.clone().unwrap_or_default())
                 .collect(),
+            // Several cameras' looks: not told apart (msgs/msg/Skeleton3D.msg).
+            frames_since_look: 0,
         }
     }
 }

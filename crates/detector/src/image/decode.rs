@@ -2,7 +2,7 @@
 //! the next frame's masks, and the heat maps of the people the tracker reports, made
 //! from their looks' logits through the channel mapping.
 
-use super::looks::{Found, Head, Look};
+use super::looks::{Found, Head, Look, centre};
 use super::{Detection, DetectorError, ImageDetector};
 use crate::models::landmarks::HEATMAP_SIZE;
 use posestream_base::CropBox;
@@ -34,52 +34,106 @@ impl ImageDetector {
     }
 
     /// The heat maps of the people `reported` (the tracker's, in its order) from their
-    /// looks among `kept`, into `found` (its buffers reused); counts the frame as with
-    /// or without anyone.
+    /// looks among `kept`, then those of the people who waited for a look (their newest
+    /// look's maps, moved with them): into `found` (its buffers reused, a slot per
+    /// person tracked), the frame's in `shown`; counts the frame as with or without
+    /// anyone.
     pub(super) fn decode(
         &mut self,
         reported: &[(u32, CropBox)],
         kept: &[(u32, Look)],
     ) -> Result<(), DetectorError> {
-        self.found_len = 0;
-        for (id, _) in reported {
-            let Some((_, l)) = kept.iter().find(|(k, _)| k == id) else {
+        self.shown.clear();
+        // The slots of people no longer tracked are free (bounded by max_people).
+        for f in &mut self.found {
+            if f.track_id != 0 && !self.tracker.is_live(f.track_id) {
+                f.track_id = 0;
+            }
+        }
+        for &(id, person) in reported {
+            let Some((_, l)) = kept.iter().find(|(k, _)| *k == id) else {
                 continue;
             };
-            if self.found.len() == self.found_len {
-                self.found.push(Found {
-                    crop: l.crop,
-                    track_id: *id,
-                    maps: Vec::new(),
-                });
-            }
-            let slot = &mut self.found[self.found_len];
-            slot.crop = l.crop;
-            slot.track_id = *id;
+            let slot = self.slot_of(id);
+            let f = &mut self.found[slot];
+            f.crop = l.crop;
+            f.person = person;
+            f.frames_since_look = 0;
             self.mapping
-                .apply(&l.logits, HEATMAP_SIZE, HEATMAP_SIZE, &mut slot.maps)
+                .apply(&l.logits, HEATMAP_SIZE, HEATMAP_SIZE, &mut f.maps)
                 .map_err(|source| DetectorError::Maps(Box::new(source)))?;
-            self.found_len += 1;
+            self.shown.push(slot);
         }
-        if self.found_len == 0 {
+        // Whoever waited for a look: the maps of their newest one, in its box moved as
+        // they are expected to have moved since.
+        for (id, now, waited) in self.tracker.carried() {
+            let Some(slot) = self
+                .found
+                .iter()
+                .position(|f| f.track_id == id && !f.maps.is_empty())
+            else {
+                continue;
+            };
+            let f = &mut self.found[slot];
+            let (a, b) = (centre(&f.person), centre(&now));
+            f.crop.x0 += b[0] - a[0];
+            f.crop.y0 += b[1] - a[1];
+            f.person = now;
+            f.frames_since_look = waited;
+            self.shown.push(slot);
+        }
+        if self.shown.is_empty() {
             self.stats.no_person += 1;
         } else {
             self.stats.detected += 1;
-            self.stats.people += self.found_len as u64;
+            self.stats.people += self.shown.len() as u64;
         }
         Ok(())
+    }
+
+    /// The slot of person `id` in `found`: theirs, else a free one, else a new one.
+    fn slot_of(&mut self, id: u32) -> usize {
+        if let Some(k) = self.found.iter().position(|f| f.track_id == id) {
+            return k;
+        }
+        let k = match self.found.iter().position(|f| f.track_id == 0) {
+            Some(k) => k,
+            None => {
+                // Written over before it is shown.
+                let none = CropBox {
+                    x0: 0.0,
+                    y0: 0.0,
+                    width: 0.0,
+                    height: 0.0,
+                };
+                self.found.push(Found {
+                    crop: none,
+                    person: none,
+                    track_id: 0,
+                    maps: Vec::new(),
+                    frames_since_look: 0,
+                });
+                self.found.len() - 1
+            }
+        };
+        self.found[k].track_id = id;
+        k
     }
 
     /// The people of the current frame (what `decode` made), their
     /// heat maps lent until the next frame.
     pub(super) fn detections(&self) -> Vec<Detection<'_>> {
-        self.found[..self.found_len]
+        self.shown
             .iter()
-            .map(|f| Detection {
-                crop: f.crop,
-                maps: &f.maps,
-                size: HEATMAP_SIZE,
-                track_id: f.track_id,
+            .map(|&k| {
+                let f = &self.found[k];
+                Detection {
+                    crop: f.crop,
+                    maps: &f.maps,
+                    size: HEATMAP_SIZE,
+                    track_id: f.track_id,
+                    frames_since_look: f.frames_since_look,
+                }
             })
             .collect()
     }

@@ -6,7 +6,7 @@
 
 use super::looks::{
     BODY_LANDMARKS, HEAD_PER_HEIGHT, Look, SAME_PERSON_IOU, Sighting, appearance, around, centre,
-    confirms, extent, masks_for, part_of, same_person, within_body,
+    confirms, contains, extent, masks_for, part_of, same_person, within_body,
 };
 use super::{DetectorError, ImageDetector};
 use crate::images::ImageFrame;
@@ -96,7 +96,9 @@ impl ImageDetector {
             .into_iter()
             .filter(|_| !fruitless)
             .filter(|b| {
-                !kept.iter().any(|(_, k)| within_body(k, centre(b)))
+                let c = centre(b);
+                !kept.iter().any(|(_, k)| within_body(k, c))
+                    && !self.waiting.iter().any(|(_, w)| contains(w, c))
                     && !self.refused.iter().any(|(r, _)| iou(r, b) > REFUSED_IOU)
             })
             .take(MOTION_LOOKS)
@@ -411,9 +413,16 @@ impl ImageDetector {
             // Someone already present, or a part of them (a box on a person's legs
             // gives a small skeleton there).
             let newcomer = !matches!(verdicts[i], Assignment::Track(_));
+            // A newcomer on someone who waits for their look is them.
+            let on_waiting = |b: &CropBox| {
+                self.waiting
+                    .iter()
+                    .any(|(_, w)| iou(w, b) > SAME_PERSON_IOU)
+            };
             if kept
                 .iter()
                 .any(|(_, o)| same_person(o, &l) || (newcomer && part_of(o, &l)))
+                || (newcomer && l.person(self.threshold).is_some_and(|b| on_waiting(&b)))
                 || (verdicts[i] == Assignment::Candidate
                     && !confirms(heads[i].as_ref(), &l, kept.iter().map(|(_, k)| k)))
             {

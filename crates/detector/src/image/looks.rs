@@ -288,7 +288,7 @@ pub(super) fn centre(b: &CropBox) -> [f64; 2] {
 }
 
 /// Whether `p` lies in `b`.
-fn contains(b: &CropBox, p: [f64; 2]) -> bool {
+pub(super) fn contains(b: &CropBox, p: [f64; 2]) -> bool {
     (b.x0..=b.x0 + b.width).contains(&p[0]) && (b.y0..=b.y0 + b.height).contains(&p[1])
 }
 
@@ -428,9 +428,15 @@ pub(super) struct Head {
     pub(super) seen: u64,
 }
 
-/// One person's heat maps in the current frame.
+/// One person's heat maps, from their newest look (kept while they are tracked: a
+/// person waiting for a look gets them again, moved; `track_id` 0: a free slot).
 pub(super) struct Found {
+    /// The box the maps cover.
     pub(super) crop: CropBox,
+    /// The box the person filled then (the tracker's).
+    pub(super) person: CropBox,
     pub(super) track_id: u32,
     pub(super) maps: Vec<f32>,
+    /// Frames since the look the maps are of.
+    pub(super) frames_since_look: u32,
 }

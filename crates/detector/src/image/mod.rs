@@ -5,7 +5,9 @@
 //! Per frame (MediaPipe's tracking, without the rotation, for several people):
 //! 1. each person followed looks at the box their previous landmarks gave, moved by
 //!    their velocity; the landmark runs of different people go in parallel across
-//!    cores (`rayon`);
+//!    cores (`rayon`); with `tracking.looks_per_frame` set, the people a frame has no
+//!    time for wait a frame or so, the most urgent looked at first
+//!    (`crate::tracker::schedule`): their boxes move on, they get no heat maps;
 //! 2. when the [`Tracker`] wants new boxes (nobody followed, someone just lost, every
 //!    `detect_every` frames), BlazePose's person detector searches the configured
 //!    `person_box`, else the whole image letterboxed to a square; its boxes (placed by
@@ -99,9 +101,13 @@ pub struct ImageDetector {
     motion_looks: Vec<(u64, bool)>,
     /// One model input per run in parallel (landmark looks, a search's detector runs).
     inputs: Vec<Vec<f32>>,
+    /// The people followed who wait for a look this frame (the schedule's): id and
+    /// box expected.
+    waiting: Vec<(u32, CropBox)>,
     /// The people of the current frame (their maps buffers reused).
     found: Vec<Found>,
-    found_len: usize,
+    /// The slots of `found` shown this frame, in order.
+    shown: Vec<usize>,
     stats: DetectorStats,
 }
 
@@ -333,8 +339,9 @@ impl ImageDetector {
             refused: Vec::new(),
             motion_looks: Vec::new(),
             inputs: Vec::new(),
+            waiting: Vec::new(),
             found: Vec::new(),
-            found_len: 0,
+            shown: Vec::new(),
             stats: DetectorStats {
                 runtime,
                 ..DetectorStats::default()
@@ -390,6 +397,7 @@ impl ImageDetector {
             frame: now,
             scene_first: now == self.scene_start,
             followed: !kept.is_empty(),
+            crowded: !self.waiting.is_empty(),
         };
         let wanted = self.tracker.wants_detections();
         let sightings = self
@@ -450,4 +458,8 @@ pub struct Detection<'a> {
     pub size: usize,
     /// The person: their track's id, kept while they are followed or re-acquired.
     pub track_id: u32,
+    /// 0: the landmark model looked at them in this frame; n: it had no time for them
+    /// (`tracking.looks_per_frame`), and these are the maps of its look n frames
+    /// before, their box moved as the person is expected to have moved.
+    pub frames_since_look: u32,
 }

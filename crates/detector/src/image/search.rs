@@ -73,6 +73,10 @@ pub(super) struct SearchRequest {
     pub scene_first: bool,
     /// Someone is followed in the frame.
     pub followed: bool,
+    /// Someone followed waits for a look this frame (the schedule's): the search
+    /// stage, on a core the looks need, searches every other such frame only (but
+    /// when the tracker wants boxes).
+    pub crowded: bool,
 }
 
 /// What searches cost and found, added to [`DetectorStats`] when their sightings are

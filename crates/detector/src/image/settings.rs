@@ -352,6 +352,9 @@ pub struct DetectorStats {
     /// Seconds in the pedestrian detector's runs, summed over the runs (parallel ones
     /// too).
     pub pedestrian_seconds: f64,
+    /// Frames a person followed went without a look, by the schedule
+    /// (`tracking.looks_per_frame`): no heat maps of them those frames.
+    pub waits: u64,
     /// Looks whose landmarks had collapsed to a point (a box drifted off its person).
     pub collapsed: u64,
     /// Looks at a person followed whose head jumped onto another person's: the model had

@@ -222,7 +222,13 @@ impl Searches {
                 Ok(Some(sightings))
             }
             Self::Stage(stage) => {
-                stage.submit(frame.clone(), request);
+                // A crowded frame rests the stage every other frame, unless it is to
+                // wait for its search (below) or the tracker wants boxes.
+                let waits = request.scene_first || !request.followed;
+                let rests = request.crowded && !waits && !wanted && request.frame % 2 == 1;
+                if !rests {
+                    stage.submit(frame.clone(), request);
+                }
                 // A frame where nobody is followed has nothing to do but wait for its
                 // search (a file's frames would otherwise race past the searches).
                 let done = if request.scene_first || !request.followed {
@@ -260,6 +266,7 @@ mod tests {
             frame,
             scene_first: frame == 1,
             followed,
+            crowded: false,
         }
     }
 

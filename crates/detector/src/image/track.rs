@@ -13,14 +13,21 @@ const MASKED_HEAD_FRAMES: u64 = 2;
 
 impl ImageDetector {
     /// Follows the people tracked in `frame` (the `now`th): a look at the box the
-    /// tracker predicts for each, seen or missed as the look says. Returns the people
-    /// seen (track id and look), the older track first, each person once.
+    /// tracker predicts for each the schedule chose, seen or missed as the look says
+    /// (the others wait, in `waiting`). Returns the people seen (track id and look),
+    /// the older track first, each person once.
     pub(super) fn follow(
         &mut self,
         frame: &ImageFrame,
         now: u64,
     ) -> Result<Vec<(u32, Look)>, DetectorError> {
-        let (ids, boxes): (Vec<u32>, Vec<CropBox>) = self.tracker.predictions().unzip();
+        let height = f64::from(frame.rgb.height());
+        let (ids, boxes): (Vec<u32>, Vec<CropBox>) = self
+            .tracker
+            .scheduled(height, &mut self.waiting)
+            .into_iter()
+            .unzip();
+        self.stats.waits += self.waiting.len() as u64;
         let masks = self.follow_masks(&ids, now);
         let looks = self.look_all(frame, &boxes, &masks)?;
         let mut kept = self.judge_follow(ids, looks);

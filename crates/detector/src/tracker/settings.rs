@@ -37,6 +37,14 @@ pub struct TrackingSettings {
     /// A newcomer's look at most this far (Bhattacharyya distance, 0 to 1) from a lost
     /// or remembered person's may be them (0: nobody is found again by their look).
     pub reid_distance: f64,
+    /// Landmark looks at the people followed per frame, about (0: everyone every
+    /// frame): the others wait, the most urgent looked at first (`tracker/schedule.rs`),
+    /// their newest heat maps carried over. 4 keeps 8-10 people at 15 frames/s on 2
+    /// cores with LiteRT; more cores afford more.
+    pub looks_per_frame: usize,
+    /// Frames in a row a followed person waits for a look at most (looked at then even
+    /// past `looks_per_frame`).
+    pub max_wait_frames: u32,
 }
 
 impl Default for TrackingSettings {
@@ -52,6 +60,8 @@ impl Default for TrackingSettings {
             reid_seconds: 5.0,
             reid_capacity: 64,
             reid_distance: 0.3,
+            looks_per_frame: 4,
+            max_wait_frames: 1,
         }
     }
 }
@@ -123,6 +133,18 @@ impl TrackingSettings {
             0.0,
             1.0,
             false,
+        )?;
+        count(
+            "tracking.looks_per_frame",
+            self.looks_per_frame as u64,
+            0,
+            Self::MAX_PEOPLE as u64,
+        )?;
+        count(
+            "tracking.max_wait_frames",
+            self.max_wait_frames.into(),
+            0,
+            30,
         )?;
 
         Ok(())

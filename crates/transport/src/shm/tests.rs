@@ -19,7 +19,7 @@ fn payload_layouts_are_the_documented_ones() {
         offset_of!(SkeletonSample, state),
         offset_of!(SkeletonSample, units),
         offset_of!(SkeletonSample, metric_source),
-        offset_of!(SkeletonSample, reserved),
+        offset_of!(SkeletonSample, frames_since_look),
         offset_of!(SkeletonSample, frame_id),
         offset_of!(SkeletonSample, joint_names),
         offset_of!(SkeletonSample, positions),
@@ -36,7 +36,7 @@ fn payload_layouts_are_the_documented_ones() {
     );
     assert_eq!(
         (size_of::<HeatMapsHeader>(), align_of::<HeatMapsHeader>()),
-        (896, 8)
+        (904, 8)
     );
     let h = [
         offset_of!(HeatMapsHeader, stamp_ns),
@@ -48,8 +48,10 @@ fn payload_layouts_are_the_documented_ones() {
         offset_of!(HeatMapsHeader, crop),
         offset_of!(HeatMapsHeader, frame_id),
         offset_of!(HeatMapsHeader, joint_names),
+        offset_of!(HeatMapsHeader, frames_since_look),
+        offset_of!(HeatMapsHeader, reserved),
     ];
-    assert_eq!(h, [0, 8, 16, 20, 24, 28, 32, 64, 128]);
+    assert_eq!(h, [0, 8, 16, 20, 24, 28, 32, 64, 128, 896, 900]);
     let doc = include_str!("../../../../msgs/SHARED_MEMORY.md");
     for line in [
         "| 3168 | `projected`",
@@ -57,7 +59,9 @@ fn payload_layouts_are_the_documented_ones() {
         "| 1632 | `position_std`",
         "| 128 | `joint_names`",
         "3,680 bytes",
-        "896 bytes",
+        "904 bytes",
+        "| 31 | `frames_since_look`",
+        "| 896 | `frames_since_look`",
     ] {
         assert!(doc.contains(line), "{line}");
     }
