@@ -140,4 +140,5 @@ fn copy_into(view: &HeatMapsView<'_>, out: &mut HeatMaps) {
     out.quantized_values
         .extend_from_slice(view.quantized_values);
     out.quantization_scale = view.quantization_scale;
+    out.frames_since_look = view.frames_since_look;
 }

@@ -8,14 +8,16 @@
 //!    its landmark model, whose landmarks give the next box;
 //! 3. when new boxes are needed ([`Tracker::wants_detections`]: nobody followed, a track
 //!    just lost, or every `detect_every` frames), unlabelled boxes from a person detector
-//!    are matched to tracks not seen this frame by a minimum-cost assignment
+//!    are matched to tracks not seen this frame (nor waiting for a look: a box on
+//!    someone who waits is theirs) by a minimum-cost assignment
 //!    (Hungarian, `pathfinding`'s Kuhn-Munkres) on 1 - IoU with the tracks' predicted
 //!    boxes, in two passes: confident boxes first, then the low-scoring ones against
 //!    the tracks still unmatched ([`Tracker::associate`]); confident boxes left over
 //!    start tracks, while there is room for `max_people`, and low-scoring ones on
 //!    nobody are candidates: they start a track only if the caller's second opinion
 //!    (the image detector's landmark model) finds a person there;
-//! 4. [`Tracker::end`]: a track unseen misses a frame (as one the caller found on a
+//! 4. [`Tracker::end`]: a track unseen (and not waiting for a look:
+//!    [`Tracker::scheduled`]) misses a frame (as one the caller found on a
 //!    person another track has: [`Tracker::duplicate`]), and ends after
 //!    `lost_frames` misses in a row (until then, a box near where its velocity has
 //!    taken it re-acquires it with its id); a new track is confirmed after
@@ -131,6 +133,12 @@ impl Track {
     /// them is them, not a newcomer, and not worth a look).
     fn present(&self) -> bool {
         self.seen.is_some() || self.waiting
+    }
+
+    /// Frames from its newest box (the last seen) to this one: those missed or waited
+    /// since, and this.
+    fn ahead(&self) -> u32 {
+        self.misses.saturating_add(self.waited).saturating_add(1)
     }
 
     /// Where the track is expected `frames` after its newest box: moved by its velocity,
@@ -289,7 +297,7 @@ impl Tracker {
         self.tracks
             .iter()
             .filter(|t| t.misses == 0)
-            .map(|t| (t.id, t.predicted(1)))
+            .map(|t| (t.id, t.predicted(t.ahead())))
     }
 
     /// Track `id` was seen this frame at `region` (the box its person fills).
@@ -346,7 +354,7 @@ impl Tracker {
         out
     }
 
-    /// What each of `observations` is: a track not yet seen this frame (matched by
+    /// What each of `observations` is: a track not yet seen nor waiting this frame (matched by
     /// minimum total 1 - IoU with its predicted box, confident boxes first, then the
     /// low-score ones), a new person, or nothing. Changes no track: the caller checks
     /// each and reports with [`seen`](Self::seen) or [`born`](Self::born).
@@ -419,7 +427,7 @@ impl Tracker {
         let on_nobody = |&i: &usize| {
             !matched[i]
                 && !self.tracks.iter().enumerate().any(|(k, t)| {
-                    let on = t.seen.unwrap_or_else(|| t.predicted(t.misses + 1));
+                    let on = t.seen.unwrap_or_else(|| t.predicted(t.ahead()));
                     (taken[k] || t.present())
                         && iou(&on, &observations[i].region) > self.settings.duplicate_iou
                 })
@@ -486,7 +494,7 @@ impl Tracker {
             .iter()
             .map(|&k| {
                 let t = &self.tracks[k];
-                t.seen.unwrap_or_else(|| t.predicted(t.misses + 1))
+                t.seen.unwrap_or_else(|| t.predicted(t.ahead()))
             })
             .collect();
         let overlap = |i: usize, k: usize| iou(&observations[obs[i]].region, &expected[k]);
@@ -702,7 +710,8 @@ impl Tracker {
         self.tracks.retain_mut(|t| match t.seen {
             Some(now) => {
                 t.seen_ns = now_ns;
-                let gap = f64::from(t.misses + 1);
+                // From the last box seen, over the frames missed or waited since.
+                let gap = f64::from(t.ahead());
                 let (a, b) = (centre_side(&t.region), centre_side(&now));
                 let step = [(b.0 - a.0) / gap, (b.1 - a.1) / gap];
                 if t.hits > 0 || t.misses > 0 {
@@ -726,10 +735,9 @@ impl Tracker {
                 }
                 true
             }
-            // Not looked at (the schedule's): carried on by its velocity, neither seen
-            // nor missed.
+            // Not looked at (the schedule's): neither seen nor missed; expected where
+            // its velocity takes it from the box last seen.
             None if t.waiting => {
-                t.region = t.predicted(1);
                 t.waited = t.waited.saturating_add(1);
                 true
             }

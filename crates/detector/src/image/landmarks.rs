@@ -413,16 +413,21 @@ impl ImageDetector {
             // Someone already present, or a part of them (a box on a person's legs
             // gives a small skeleton there).
             let newcomer = !matches!(verdicts[i], Assignment::Track(_));
-            // A newcomer on someone who waits for their look is them.
+            // Someone else who waits for their look: them (a newcomer, or a lost track
+            // found on them).
+            let own = match verdicts[i] {
+                Assignment::Track(id) => Some(id),
+                _ => None,
+            };
             let on_waiting = |b: &CropBox| {
                 self.waiting
                     .iter()
-                    .any(|(_, w)| iou(w, b) > SAME_PERSON_IOU)
+                    .any(|(id, w)| Some(*id) != own && iou(w, b) > SAME_PERSON_IOU)
             };
             if kept
                 .iter()
                 .any(|(_, o)| same_person(o, &l) || (newcomer && part_of(o, &l)))
-                || (newcomer && l.person(self.threshold).is_some_and(|b| on_waiting(&b)))
+                || l.person(self.threshold).is_some_and(|b| on_waiting(&b))
                 || (verdicts[i] == Assignment::Candidate
                     && !confirms(heads[i].as_ref(), &l, kept.iter().map(|(_, k)| k)))
             {

@@ -7,7 +7,8 @@
 //!    their velocity; the landmark runs of different people go in parallel across
 //!    cores (`rayon`); with `tracking.looks_per_frame` set, the people a frame has no
 //!    time for wait a frame or so, the most urgent looked at first
-//!    (`crate::tracker::schedule`): their boxes move on, they get no heat maps;
+//!    (`crate::tracker::schedule`): their boxes move on, their newest look's heat maps
+//!    are sent again, moved with them (`frames_since_look`);
 //! 2. when the [`Tracker`] wants new boxes (nobody followed, someone just lost, every
 //!    `detect_every` frames), BlazePose's person detector searches the configured
 //!    `person_box`, else the whole image letterboxed to a square; its boxes (placed by

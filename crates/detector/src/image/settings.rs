@@ -353,7 +353,7 @@ pub struct DetectorStats {
     /// too).
     pub pedestrian_seconds: f64,
     /// Frames a person followed went without a look, by the schedule
-    /// (`tracking.looks_per_frame`): no heat maps of them those frames.
+    /// (`tracking.looks_per_frame`): their newest look's heat maps sent again, moved.
     pub waits: u64,
     /// Looks whose landmarks had collapsed to a point (a box drifted off its person).
     pub collapsed: u64,

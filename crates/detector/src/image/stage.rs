@@ -19,7 +19,8 @@ use crate::images::ImageFrame;
 pub(super) enum Searches {
     /// On the frame's thread, when the tracker wants boxes.
     Inline(Box<Searcher>),
-    /// On a thread of their own, all the time.
+    /// On a thread of their own, all the time (every other frame while someone waits
+    /// for a look).
     Stage(Stage),
 }
 
@@ -202,9 +203,10 @@ fn run(shared: &Shared, searcher: &mut Searcher) {
 impl Searches {
     /// The sightings for frame `request.frame` of `frame`, if any, and whether they come
     /// from a search (else the tracker's schedule wants none this frame). Inline: a
-    /// search now when `wanted`. Stage: this frame goes to the stage, and the newest
-    /// result ready is taken (a scene's first frame, and one where nobody is followed,
-    /// waits for its own).
+    /// search now when `wanted`. Stage: this frame goes to the stage (but every other
+    /// crowded frame the tracker does not want boxes for: `SearchRequest::crowded`), and
+    /// the newest result ready is taken (a scene's first frame, and one where nobody is
+    /// followed, waits for its own, and always goes to the stage).
     pub(super) fn sightings(
         &mut self,
         frame: &Arc<ImageFrame>,
@@ -309,5 +311,35 @@ mod tests {
             searches.sightings(&frame(16, 52), request(52, true), false, &mut stats),
             Err(DetectorError::SearchStage(_))
         ));
+    }
+
+    #[test]
+    fn a_crowded_frame_rests_the_stage_every_other_frame_unless_boxes_are_wanted() {
+        let mut searches = Searches::Stage(Stage::start(Searcher::default()).expect("starts"));
+        let mut stats = DetectorStats::default();
+        searches
+            .sightings(&frame(16, 0), request(1, false), true, &mut stats)
+            .expect("searched");
+        // Crowded frames 2..=41: the odd ones rest (20 of them) but frame 11, whose
+        // boxes the tracker wants.
+        for n in 2..42 {
+            let crowded = SearchRequest {
+                crowded: true,
+                ..request(n, true)
+            };
+            searches
+                .sightings(&frame(16, n), crowded, n == 11, &mut stats)
+                .expect("no error");
+        }
+        // Nobody followed: waits for its own search (submitted whatever the crowd).
+        let last = SearchRequest {
+            crowded: true,
+            ..request(42, false)
+        };
+        searches
+            .sightings(&frame(16, 42), last, false, &mut stats)
+            .expect("the newest frame is searched");
+        // Submitted: frame 1, the 20 even frames of 2..=41, frame 11 and frame 42.
+        assert_eq!(stats.searches + stats.searches_dropped, 23, "{stats:?}");
     }
 }

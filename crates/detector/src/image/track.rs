@@ -36,8 +36,9 @@ impl ImageDetector {
     }
 
     /// The heads to black out in each of the looks at the people `ids`: the other
-    /// people's seen in the last `MASKED_HEAD_FRAMES` frames, but for one overlapping
-    /// the person's own (`masks_for`).
+    /// people's seen in the last `MASKED_HEAD_FRAMES` frames or waiting for a look now
+    /// (where their last look saw it), but for one overlapping the person's own
+    /// (`masks_for`).
     fn follow_masks(&self, ids: &[u32], now: u64) -> Vec<Vec<CropBox>> {
         let heads = &self.heads;
         // Not tried again: all around a person's body as last seen blacked out when
@@ -51,7 +52,11 @@ impl ImageDetector {
                     own,
                     heads
                         .iter()
-                        .filter(|h| h.id != id && now - h.seen <= MASKED_HEAD_FRAMES)
+                        .filter(|h| {
+                            h.id != id
+                                && (now - h.seen <= MASKED_HEAD_FRAMES
+                                    || self.waiting.iter().any(|(w, _)| *w == h.id))
+                        })
                         .map(|h| h.region),
                 )
             })

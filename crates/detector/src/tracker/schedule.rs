@@ -1,8 +1,8 @@
 //! Which of the people followed get a landmark look this frame (`looks_per_frame`,
 //! `max_wait_frames`): with many people in view a look each every frame costs more than
-//! a frame's time, so the others wait a frame or two, their boxes carried on by their
-//! velocity, and get no heat maps that frame (the estimator's window carries them over
-//! the gap, as over any missed look).
+//! a frame's time, so the others wait a frame or two, expected where their velocity
+//! takes them, neither seen nor missed; the image detector sends their newest look's
+//! heat maps again, moved with them ([`Tracker::carried`], `frames_since_look`).
 //!
 //! Who is looked at first (the project's own rule, after the list: new, fast,
 //! near someone else, near the camera): everyone newly found and everyone who waited
@@ -13,6 +13,8 @@
 //! height). The people who must be looked at are looked at even past the budget: the
 //! wait is bounded, the budget is what is spent when it can be.
 
+#[cfg(test)]
+use super::Assignment;
 use super::{Tracker, centre_side, iou};
 use posestream_base::CropBox;
 
@@ -134,13 +136,13 @@ impl Tracker {
         self.tracks
             .iter()
             .filter(|t| t.waiting && t.seen.is_none() && t.state == super::State::Confirmed)
-            .map(|t| (t.id, t.region, t.waited))
+            .map(|t| (t.id, t.predicted(t.waited), t.waited))
             .collect()
     }
 
-    /// Track `id`, followed, is not looked at this frame: at the frame's end its box
-    /// moves on by its velocity, it is neither seen (not reported: no heat maps) nor
-    /// missed.
+    /// Track `id`, followed, is not looked at this frame: it is neither seen (not among
+    /// [`Tracker::end`]'s, but among [`Tracker::carried`]) nor missed, and expected
+    /// where its velocity takes it from the box last seen.
     pub fn wait(&mut self, id: u32) {
         if let Some(t) = self.tracks.iter_mut().find(|t| t.id == id) {
             t.waiting = true;
@@ -290,5 +292,105 @@ mod tests {
         let stats = tracker.stats();
         assert_eq!((stats.deaths, stats.reacquisitions), (0, 0));
         assert_eq!(looks, [7, 7]);
+    }
+
+    /// People `0..n` walking right 10 pixels a frame, 300 apart: their box in `frame`.
+    fn walker(person: usize, frame: usize) -> CropBox {
+        CropBox::new(
+            300.0 * person as f64 + 10.0 * frame as f64,
+            50.0,
+            100.0,
+            100.0,
+        )
+        .expect("a box")
+    }
+
+    fn walkers(n: usize, frame: usize) -> Vec<crate::tracker::Observation> {
+        (0..n)
+            .map(|p| crate::tracker::Observation {
+                region: walker(p, frame),
+                score: 0.9,
+            })
+            .collect()
+    }
+
+    #[test]
+    fn people_who_wait_five_frames_in_a_row_are_still_expected_where_they_are() {
+        // Six people, one look a frame, up to five frames' wait: each looked at every
+        // sixth frame; their velocity, learnt over the waits, keeps their expected box
+        // on them (measured from the box carried on, its error doubled at every look).
+        let settings = crate::tracker::TrackingSettings {
+            looks_per_frame: 1,
+            max_wait_frames: 5,
+            ..crate::tracker::TrackingSettings::default()
+        };
+        let mut tracker = Tracker::new(settings, 0.5);
+        let ids: Vec<u32> = tracker
+            .frame_of_boxes(&walkers(6, 0))
+            .into_iter()
+            .map(|id| id.expect("reported on the scene's first frame"))
+            .collect();
+        let person = |id: &u32| ids.iter().position(|i| i == id).expect("a known id");
+        let mut waiting = Vec::new();
+        for frame in 1..120 {
+            tracker.begin();
+            let looked = tracker.scheduled(480.0, &mut waiting);
+            // Once each has been looked at after a wait.
+            let settled = frame >= 14;
+            if settled {
+                assert_eq!(looked.len(), 1, "frame {frame}");
+                for (id, region) in looked.iter().chain(&waiting) {
+                    let truth = walker(person(id), frame);
+                    assert!(iou(region, &truth) > 0.9, "frame {frame}: {region:?}");
+                }
+            }
+            for (id, _) in &looked {
+                tracker.seen(*id, walker(person(id), frame));
+            }
+            tracker.end();
+            for (id, now, waited) in tracker.carried() {
+                assert!(waited <= 5, "frame {frame}: {id} waited {waited}");
+                let on = iou(&now, &walker(person(&id), frame));
+                assert!(!settled || on > 0.9, "frame {frame}: {on}");
+            }
+        }
+        let stats = tracker.stats();
+        assert_eq!((stats.deaths, stats.reacquisitions), (0, 0));
+    }
+
+    #[test]
+    fn a_search_s_box_on_someone_who_waits_is_theirs_not_a_newcomer() {
+        let settings = crate::tracker::TrackingSettings {
+            looks_per_frame: 1,
+            ..crate::tracker::TrackingSettings::default()
+        };
+        let mut tracker = Tracker::new(settings, 0.5);
+        tracker.frame_of_boxes(&walkers(2, 0));
+        let mut waiting = Vec::new();
+        for frame in 1..8 {
+            tracker.begin();
+            let looked = tracker.scheduled(480.0, &mut waiting);
+            if waiting.len() == 1 {
+                // Both boxes found by a search: the one on the person looked at is
+                // theirs; the one on who waits is passed over (no birth, no look).
+                let what = tracker.associate(&walkers(2, frame));
+                let on = |p: usize| iou(&walker(p, frame), &waiting[0].1);
+                let wait_index = if on(0) > on(1) { 0 } else { 1 };
+                assert_eq!(what[wait_index], Assignment::Ignored, "{what:?}");
+                assert_eq!(what[1 - wait_index], Assignment::Track(looked[0].0));
+                assert_eq!(tracker.stats().births, 2);
+                return;
+            }
+            for (id, b) in &looked {
+                let p = if iou(b, &walker(0, frame)) > 0.5 {
+                    0
+                } else {
+                    1
+                };
+                tracker.seen(*id, walker(p, frame));
+            }
+            tracker.end();
+        }
+        panic!("nobody waited");
     }
 }
