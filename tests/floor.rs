@@ -14,7 +14,7 @@ use common::root;
 use nalgebra::{Quaternion as Quat, UnitQuaternion, Vector3 as V3};
 use posestream::floor::{FloorModel, FloorSource};
 use posestream::msgs::sensor::CameraInfo;
-use posestream::msgs::tf::{TFMessage, TransformStamped};
+use posestream::msgs::tf::{TFMessage, TfTopic, TransformStamped};
 use posestream::msgs::{Header, Skeleton3D, SkeletonState, Units};
 use posestream::nodes::config::{ReplayRate, Transport};
 use posestream::nodes::replay::{ReplayOptions, replay};
@@ -201,23 +201,41 @@ fn transform(parent: &str, child: &str, xyz: [f64; 3], q: [f64; 4]) -> Transform
 fn hostile_transforms_are_refused_and_counted_and_the_buffer_stays_bounded() {
     let mut node = EstimatorNode::from_service_config(&config(FloorSource::Tf)).expect("node");
     let id = [0.0, 0.0, 0.0, 1.0];
-    node.transforms(&TFMessage {
-        transforms: vec![
-            transform("map", "map", [0.0; 3], id),
-            transform("map", "camera", [f64::NAN, 0.0, 1.0], id),
-            transform("map", "camera", [0.0, 0.0, 1.0], [0.0; 4]),
-            transform("", "camera", [0.0; 3], id),
-            transform("camera", "x", [0.0; 3], id),
-            transform("x", "camera", [0.0; 3], id),
-        ],
-    });
+    node.transforms(
+        &TFMessage {
+            transforms: vec![
+                transform("map", "map", [0.0; 3], id),
+                transform("map", "camera", [f64::NAN, 0.0, 1.0], id),
+                transform("map", "camera", [0.0, 0.0, 1.0], [0.0; 4]),
+                transform("", "camera", [0.0; 3], id),
+                transform("camera", "x", [0.0; 3], id),
+                transform("x", "camera", [0.0; 3], id),
+            ],
+        },
+        TfTopic::Static,
+    );
     assert_eq!(node.refused().of("tf"), 5, "{:?}", node.refused());
-    // So many frames that the buffer is full: refused, counted, never unbounded.
-    node.transforms(&TFMessage {
-        transforms: (0..10_000)
-            .map(|i| transform("map", &format!("f{i}"), [0.0; 3], id))
-            .collect(),
-    });
+    // Another tracker's flood of people's frames on /tf: the oldest nobody asked for
+    // make room, nothing refused, the buffer bounded.
+    node.transforms(
+        &TFMessage {
+            transforms: (0..10_000)
+                .map(|i| transform("camera", &format!("person_{i}"), [0.0; 3], id))
+                .collect(),
+        },
+        TfTopic::Dynamic,
+    );
+    assert_eq!(node.refused().of("tf"), 5, "{:?}", node.refused());
+    // So many latched frames that the buffer is full of them: refused, counted, never
+    // unbounded.
+    node.transforms(
+        &TFMessage {
+            transforms: (0..10_000)
+                .map(|i| transform("map", &format!("f{i}"), [0.0; 3], id))
+                .collect(),
+        },
+        TfTopic::Static,
+    );
     assert!(node.refused().of("tf") > 9_000);
 }
 

@@ -26,7 +26,7 @@ use super::publish::{Taps, live_view};
 use super::{EstimatorNode, Refusals, SetupError};
 use crate::files::{OutputIsInput, check_output};
 use crate::msgs::sensor::CameraInfo;
-use crate::msgs::tf::TFMessage;
+use crate::msgs::tf::{TFMessage, TfTopic};
 use crate::msgs::{self, HeatMaps, HeatMapsView, RosMessage, Skeleton3D};
 use crate::recording::{RecordedMessage, RecordingError, RecordingReader, write_rosbag2_metadata};
 use crate::streaming::StreamCounters;
@@ -367,7 +367,12 @@ impl RecordingFrames<'_> {
                 let _ = taps.send_encoded::<TFMessage>(topic, stamp_ns, &self.truth);
             }
         }
-        take(Lent::Transforms(&tf), stamp_ns);
+        let kind = if topic == self.tf_topics[0] {
+            TfTopic::Static
+        } else {
+            TfTopic::Dynamic
+        };
+        take(Lent::Transforms(&tf, kind), stamp_ns);
         Ok(Received::Message((), stamp_ns))
     }
 

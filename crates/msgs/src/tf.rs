@@ -7,6 +7,15 @@ use super::Header;
 use super::visualization::{Quaternion, Vector3};
 use crate::ros_message;
 
+/// The topic transforms came on, as tf2 tells them apart.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TfTopic {
+    /// `/tf_static`: each sent once, latched; kept for good.
+    Static,
+    /// `/tf`: sent again and again; kept while they are fresh or asked for.
+    Dynamic,
+}
+
 ros_message! {
     /// `geometry_msgs/Transform`: a frame's origin and axes in its parent frame.
     Transform = "geometry_msgs/msg/Transform", "geometry_msgs/Transform",

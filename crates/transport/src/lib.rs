@@ -33,7 +33,7 @@ use serde::de::DeserializeOwned;
 
 pub use posestream_base::ports::{Received, Sink, Source, TransportError};
 use posestream_msgs::sensor::CameraInfo;
-use posestream_msgs::tf::TFMessage;
+use posestream_msgs::tf::{TFMessage, TfTopic};
 use posestream_msgs::{HeatMaps, HeatMapsView, RosMessage};
 
 /// A message any transport can carry.
@@ -86,8 +86,8 @@ pub enum Lent<'a> {
     Frame(&'a HeatMapsView<'a>),
     /// The camera's calibration.
     Calibration(&'a CameraInfo),
-    /// Transforms (`/tf_static`, `/tf`).
-    Transforms(&'a TFMessage),
+    /// Transforms, and the topic they came on (`/tf_static`, `/tf`).
+    Transforms(&'a TFMessage, TfTopic),
 }
 
 /// Heat-map frames lent to the caller one at a time, instead of handed over as

@@ -24,7 +24,7 @@ use crate::nodes::errors::ServiceError;
 
 pub use blocking::{run_estimator, run_estimator_with};
 pub use detector::{DetectorReport, DetectorSide, run_detector, run_detector_on_runtime};
-pub use side_inputs::SideInputs;
+pub use side_inputs::{SideInputs, TransformSource};
 pub use tokio::{run_estimator_on_runtime, run_estimator_on_runtime_with};
 
 /// How long a source is asked to wait before the loop checks for a stop.

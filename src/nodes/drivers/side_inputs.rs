@@ -7,7 +7,7 @@
 use std::time::Duration;
 
 use crate::msgs::sensor::CameraInfo;
-use crate::msgs::tf::TFMessage;
+use crate::msgs::tf::{TFMessage, TfTopic};
 use crate::nodes::estimator::core::Input;
 use crate::transport::{Received, Source};
 
@@ -16,13 +16,17 @@ use crate::transport::{Received, Source};
 /// rest wait for the next frame, DDS's history keeping the newest).
 const MESSAGES_PER_FRAME: usize = 64;
 
+/// A source of transforms, and the topic it reads (`/tf_static`, `/tf`).
+pub type TransformSource = (TfTopic, Box<dyn Source<TFMessage>>);
+
 /// The estimator's inputs beside its heat maps.
 #[derive(Default)]
 pub struct SideInputs {
     /// The camera's calibration (`topics.camera_info`).
     pub camera: Option<Box<dyn Source<CameraInfo>>>,
-    /// Transforms (`topics.tf_static`, `topics.tf`), read with the floor from TF.
-    pub transforms: Vec<Box<dyn Source<TFMessage>>>,
+    /// Transforms (`topics.tf_static`, `topics.tf`), read with the floor from TF, each
+    /// with its topic.
+    pub transforms: Vec<TransformSource>,
 }
 
 impl SideInputs {
@@ -46,9 +50,9 @@ impl SideInputs {
         {
             self.camera = None;
         }
-        self.transforms.retain_mut(|source| {
+        self.transforms.retain_mut(|(topic, source)| {
             drain(source.as_mut(), "transforms", step, |m| {
-                Input::Transforms(m)
+                Input::Transforms(m, *topic)
             })
         });
     }

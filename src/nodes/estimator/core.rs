@@ -23,7 +23,7 @@ use serde::Serialize;
 
 use super::{EstimatorNode, FloorReport, MetricTiming};
 use crate::msgs::sensor::CameraInfo;
-use crate::msgs::tf::TFMessage;
+use crate::msgs::tf::{TFMessage, TfTopic};
 use crate::msgs::{HeatMapsView, Skeleton3D};
 use crate::nodes::errors::Refusals;
 use crate::nodes::latency::{LatencyHistogram, LatencySummary};
@@ -39,8 +39,8 @@ pub enum Input<'a> {
     Frame(&'a HeatMapsView<'a>, u64),
     /// The camera's calibration.
     Calibration(&'a CameraInfo),
-    /// Transforms (`/tf_static`, `/tf`).
-    Transforms(&'a TFMessage),
+    /// Transforms, and the topic they came on (`/tf_static`, `/tf`).
+    Transforms(&'a TFMessage, TfTopic),
     /// A message the transport refused before it reached the node.
     Refused(&'a TransportError),
     /// Nothing arrived for a while.
@@ -53,7 +53,7 @@ impl<'a> Input<'a> {
         match lent {
             Lent::Frame(frame) => Self::Frame(frame, stamp),
             Lent::Calibration(info) => Self::Calibration(info),
-            Lent::Transforms(tf) => Self::Transforms(tf),
+            Lent::Transforms(tf, topic) => Self::Transforms(tf, topic),
         }
     }
 }
@@ -187,7 +187,7 @@ impl<'a> EstimatorCore<'a> {
                 // Counted and logged by the node if refused.
                 let _ = self.node.camera_info(info);
             }
-            Input::Transforms(tf) => self.node.transforms(tf),
+            Input::Transforms(tf, topic) => self.node.transforms(tf, topic),
             Input::Refused(error) => {
                 self.node.count_refused(error);
                 // A stream of refused messages holds no idle track open.

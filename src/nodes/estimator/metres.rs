@@ -13,7 +13,7 @@ use crate::msgs::tf::TFMessage;
 use crate::msgs::{self};
 use crate::nodes::errors::{NodeError, SetupError};
 use crate::nodes::frames;
-use crate::nodes::tf_buffer::TfBuffer;
+use crate::nodes::tf_buffer::{TfBuffer, TfTopic};
 use crate::streaming::FrameEstimate;
 use posestream_base::PixelMap;
 
@@ -220,14 +220,14 @@ impl EstimatorNode {
     /// buffer cannot hold are refused and counted (`tf`); without a floor from TF they
     /// are not looked at. People's frames (posestream's own body and joint frames, heard
     /// back on `/tf`: [`frames::is_body_transform`]) are passed over.
-    pub fn transforms(&mut self, message: &TFMessage) {
+    pub fn transforms(&mut self, message: &TFMessage, topic: TfTopic) {
         let Some(tf) = &mut self.tf else {
             return;
         };
         let wanted = |t: &msgs::tf::TransformStamped| {
             !frames::is_body_transform(&t.header.frame_id, &t.child_frame_id)
         };
-        for reason in tf.buffer.take_where(message, wanted) {
+        for reason in tf.buffer.take_where(message, topic, wanted) {
             let e = NodeError::Transform { reason };
             self.refused.note(e.kind(), &e);
         }

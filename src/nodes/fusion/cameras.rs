@@ -110,14 +110,14 @@ impl FusionNode {
     /// Takes transforms (`/tf_static`, `/tf`): with extrinsics from TF, each camera's
     /// pose is `world_frame` to its frame. Transforms the buffer cannot hold are
     /// refused (`tf`); people's frames (ours, heard back) are passed over.
-    pub fn transforms(&mut self, message: &TFMessage) {
+    pub fn transforms(&mut self, message: &TFMessage, topic: TfTopic) {
         if self.extrinsics != ExtrinsicsSource::Tf {
             return;
         }
         let wanted = |t: &msgs::tf::TransformStamped| {
             !crate::nodes::frames::is_body_transform(&t.header.frame_id, &t.child_frame_id)
         };
-        for reason in self.tf.take_where(message, wanted) {
+        for reason in self.tf.take_where(message, topic, wanted) {
             let e = NodeError::Transform { reason };
             self.refused.note(e.kind(), &e);
         }

@@ -29,7 +29,7 @@ use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
 
 use super::config::{ExtrinsicsSource, FusionConfig};
 use super::errors::{NodeError, Refusals, SetupError};
-use super::tf_buffer::TfBuffer;
+use super::tf_buffer::{TfBuffer, TfTopic};
 use crate::camera::Intrinsics;
 use crate::estimator::Estimator;
 use crate::fusion::{

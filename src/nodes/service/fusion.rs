@@ -12,7 +12,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use crate::msgs::sensor::CameraInfo;
-use crate::msgs::tf::TFMessage;
+use crate::msgs::tf::{TFMessage, TfTopic};
 use crate::msgs::{Header, HeatMaps, Skeleton3D, Skeleton3DArray};
 use crate::nodes::config::{ExtrinsicsSource, FusionConfig, ServiceConfig};
 use crate::nodes::errors::Refusals;
@@ -38,14 +38,14 @@ const PER_TURN: usize = 16;
 enum Item {
     Maps(usize, HeatMaps),
     Info(usize, CameraInfo),
-    Transforms(TFMessage),
+    Transforms(TFMessage, TfTopic),
 }
 
 /// One input of the node.
 enum Feed {
     Maps(usize, Box<dyn Source<HeatMaps>>),
     Info(usize, Box<dyn Source<CameraInfo>>),
-    Transforms(Box<dyn Source<TFMessage>>),
+    Transforms(TfTopic, Box<dyn Source<TFMessage>>),
 }
 
 impl Feed {
@@ -66,7 +66,10 @@ impl Feed {
                 let c = *c;
                 map(s.recv(Duration::ZERO)?, |m| Item::Info(c, m))
             }
-            Feed::Transforms(s) => map(s.recv(Duration::ZERO)?, Item::Transforms),
+            Feed::Transforms(topic, s) => {
+                let topic = *topic;
+                map(s.recv(Duration::ZERO)?, |m| Item::Transforms(m, topic))
+            }
         })
     }
 
@@ -74,7 +77,7 @@ impl Feed {
         match self {
             Feed::Maps(..) => "heat maps",
             Feed::Info(..) => "camera info",
-            Feed::Transforms(_) => "transforms",
+            Feed::Transforms(..) => "transforms",
         }
     }
 }
@@ -104,14 +107,19 @@ impl FusionInput {
         }
         if config.fusion.extrinsics == ExtrinsicsSource::Tf {
             use crate::transport::ros2::QosSettings;
-            feeds.push(Feed::Transforms(Box::new(ros.source_with::<TFMessage>(
-                &config.topics.tf_static,
-                &QosSettings::tf_static_listener(),
-            )?)));
-            feeds.push(Feed::Transforms(Box::new(ros.source_with::<TFMessage>(
-                &config.topics.tf,
-                &QosSettings::tf_listener(),
-            )?)));
+            feeds.push(Feed::Transforms(
+                TfTopic::Static,
+                Box::new(ros.source_with::<TFMessage>(
+                    &config.topics.tf_static,
+                    &QosSettings::tf_static_listener(),
+                )?),
+            ));
+            feeds.push(Feed::Transforms(
+                TfTopic::Dynamic,
+                Box::new(
+                    ros.source_with::<TFMessage>(&config.topics.tf, &QosSettings::tf_listener())?,
+                ),
+            ));
         }
         Ok(Self::of(feeds, false))
     }
@@ -133,10 +141,14 @@ impl FusionInput {
         // maps.
         let mut feeds = Vec::new();
         if config.fusion.extrinsics == ExtrinsicsSource::Tf {
-            for topic in [&config.topics.tf_static, &config.topics.tf] {
-                feeds.push(Feed::Transforms(Box::new(open(
-                    config, path, topic, limit,
-                )?)));
+            for (kind, topic) in [
+                (TfTopic::Static, &config.topics.tf_static),
+                (TfTopic::Dynamic, &config.topics.tf),
+            ] {
+                feeds.push(Feed::Transforms(
+                    kind,
+                    Box::new(open(config, path, topic, limit)?),
+                ));
             }
         }
         for (c, name) in config.fusion.cameras.iter().enumerate() {
@@ -173,7 +185,7 @@ impl FusionInput {
                 }
                 Ok(Received::Idle) => return None,
                 Ok(Received::Closed) => {
-                    self.feeds[i] = Feed::Transforms(Box::new(Closed));
+                    self.feeds[i] = Feed::Transforms(TfTopic::Dynamic, Box::new(Closed));
                     return None;
                 }
                 Err(
@@ -186,14 +198,14 @@ impl FusionInput {
                         Feed::Maps(..) => tracing::warn!("heat maps: {e}"),
                         other => tracing::info!("{}: {e}", other.what()),
                     }
-                    self.feeds[i] = Feed::Transforms(Box::new(Closed));
+                    self.feeds[i] = Feed::Transforms(TfTopic::Dynamic, Box::new(Closed));
                     return None;
                 }
                 Err(e) => {
                     let what = self.feeds[i].what();
                     tracing::warn!("{what}: {e}; no more is read from it");
                     self.error.get_or_insert_with(|| format!("{what}: {e}"));
-                    self.feeds[i] = Feed::Transforms(Box::new(Closed));
+                    self.feeds[i] = Feed::Transforms(TfTopic::Dynamic, Box::new(Closed));
                     return None;
                 }
             }
@@ -394,7 +406,7 @@ pub fn run_fusion(
                 let _ = node.heat_maps(c, &m, now, out);
             }
             Item::Info(c, m) => node.camera_info(c, &m),
-            Item::Transforms(m) => node.transforms(&m),
+            Item::Transforms(m, topic) => node.transforms(&m, topic),
         }
         update.record(t.elapsed());
     };

@@ -7,9 +7,9 @@ use std::sync::atomic::AtomicBool;
 use crate::floor::FloorSource;
 use crate::msgs::HeatMaps;
 use crate::msgs::sensor::CameraInfo;
-use crate::msgs::tf::TFMessage;
+use crate::msgs::tf::{TFMessage, TfTopic};
 use crate::nodes::config::{ServiceConfig, Transport};
-use crate::nodes::drivers::side_inputs::SideInputs;
+use crate::nodes::drivers::side_inputs::{SideInputs, TransformSource};
 use crate::nodes::drivers::{run_estimator_on_runtime_with, run_estimator_with};
 use crate::nodes::errors::ServiceError;
 use crate::nodes::estimator::EstimatorNode;
@@ -58,7 +58,7 @@ impl Middleware {
     pub fn transform_sources(
         &mut self,
         config: &ServiceConfig,
-    ) -> Result<Vec<Box<dyn Source<TFMessage>>>, TransportError> {
+    ) -> Result<Vec<TransformSource>, TransportError> {
         if config.estimator.metric.floor.source != FloorSource::Tf {
             return Ok(Vec::new());
         }
@@ -73,11 +73,19 @@ impl Middleware {
             return Ok(Vec::new());
         };
         Ok(vec![
-            Box::new(ros.source_with::<TFMessage>(
-                &config.topics.tf_static,
-                &QosSettings::tf_static_listener(),
-            )?),
-            Box::new(ros.source_with::<TFMessage>(&config.topics.tf, &QosSettings::tf_listener())?),
+            (
+                TfTopic::Static,
+                Box::new(ros.source_with::<TFMessage>(
+                    &config.topics.tf_static,
+                    &QosSettings::tf_static_listener(),
+                )?),
+            ),
+            (
+                TfTopic::Dynamic,
+                Box::new(
+                    ros.source_with::<TFMessage>(&config.topics.tf, &QosSettings::tf_listener())?,
+                ),
+            ),
         ])
     }
 }

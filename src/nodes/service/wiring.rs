@@ -9,8 +9,9 @@ use super::detector_input::{DetectorInput, detector_input, detector_outputs};
 use super::middleware::EstimatorInput;
 use crate::msgs::HeatMaps;
 use crate::msgs::sensor::CameraInfo;
-use crate::msgs::tf::TFMessage;
+use crate::msgs::tf::{TFMessage, TfTopic};
 use crate::nodes::config::{DetectorSource, ServiceConfig, Transport};
+use crate::nodes::drivers::TransformSource;
 use crate::nodes::errors::ServiceError;
 use crate::nodes::estimator::EstimatorNode;
 use crate::nodes::frames::is_body_transform;
@@ -190,18 +191,21 @@ impl Wiring {
     pub fn transform_sources(
         &mut self,
         config: &ServiceConfig,
-    ) -> Result<Vec<Box<dyn Source<TFMessage>>>, ServiceError> {
+    ) -> Result<Vec<TransformSource>, ServiceError> {
         let sources = self.middleware.transform_sources(config)?;
-        let topics = [&config.topics.tf_static, &config.topics.tf];
         sources
             .into_iter()
-            .zip(topics)
-            .map(|(source, topic)| {
-                Ok(Box::new(RecordedTransforms {
+            .map(|(kind, source)| {
+                let topic = match kind {
+                    TfTopic::Static => &config.topics.tf_static,
+                    TfTopic::Dynamic => &config.topics.tf,
+                };
+                let recorded = Box::new(RecordedTransforms {
                     source,
                     sink: self.taps.publishers::<TFMessage>(topic)?,
                     kept: TFMessage::default(),
-                }) as Box<dyn Source<TFMessage>>)
+                }) as Box<dyn Source<TFMessage>>;
+                Ok((kind, recorded))
             })
             .collect()
     }
