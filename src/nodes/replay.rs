@@ -192,6 +192,7 @@ pub fn replay(
         ground_truth: (passed_on.recorder.is_some() || passed_on.live.is_some())
             .then_some((&passed_on, topics.ground_truth.as_str())),
         truth: Vec::new(),
+        shown: Vec::new(),
         live: live.as_ref(),
         camera_topic: &topics.camera_info,
         tf_topics: [&topics.tf_static, &topics.tf],
@@ -326,6 +327,8 @@ struct RecordingFrames<'a> {
     ground_truth: Option<(&'a Taps, &'a str)>,
     /// A truth message encoded again (reused).
     truth: Vec<u8>,
+    /// A heat-map message encoded again for the live view (reused).
+    shown: Vec<u8>,
     /// The live view, which is shown the heat maps as they are read.
     live: Option<&'a LiveView>,
     /// The camera-info topic.
@@ -488,17 +491,24 @@ impl RecordingFrames<'_> {
             }
             if msg.topic == self.heatmaps_topic {
                 self.heatmaps += 1;
-                if let Some(live) = self.live
-                    && msg.schema == HeatMaps::NAME
-                {
-                    let _ = live.send_encoded::<HeatMaps>(
-                        self.heatmaps_topic,
-                        msg.log_time_ns,
-                        &msg.data,
-                    );
-                }
                 return match msgs::decode_into::<HeatMaps>(&msg.data, &mut self.frame) {
                     Ok(()) => {
+                        // Encoded again for the live view: heat maps recorded before a
+                        // field was added go out in the layout of the schema it
+                        // announces (a viewer decoding the old bytes by the new schema
+                        // fails).
+                        if let Some(live) = self.live
+                            && msg.schema == HeatMaps::NAME
+                        {
+                            self.shown.clear();
+                            if msgs::encode_into(&self.frame, &mut self.shown).is_ok() {
+                                let _ = live.send_encoded::<HeatMaps>(
+                                    self.heatmaps_topic,
+                                    msg.log_time_ns,
+                                    &self.shown,
+                                );
+                            }
+                        }
                         take(Lent::Frame(&self.frame.view()), msg.log_time_ns);
                         Ok(Received::Message((), msg.log_time_ns))
                     }
