@@ -4,22 +4,26 @@
 //! one used (no interpolation between stamps: the estimator asks for a camera's place
 //! over the floor, which a fixed camera or a robot standing still keeps).
 //!
-//! Bounded by frames and by age, evicting what nobody asks for (as tf2 keeps `/tf` for
-//! its cache time and `/tf_static` for good):
-//! - a frame from `/tf_static` ([`TfTopic::Static`]: sent once, latched) stays;
-//! - a frame from `/tf` ([`TfTopic::Dynamic`]: sent again and again) that no lookup
-//!   passed through is dropped once its newest stamp is [`MAX_AGE_NS`] (10 s) older
-//!   than the newest stamp taken (swept every [`SWEEP_EVERY`] transforms);
+//! Bounded by frames ([`MAX_FRAMES`]), evicting by age what nobody asks for:
+//! - a frame first heard on `/tf_static` ([`TfTopic::Static`]: sent once, latched, never
+//!   again) stays, whatever comes for it on `/tf` later;
 //! - with [`MAX_FRAMES`] frames known, a new one takes the place of the `/tf` frame
-//!   taken least recently, those no lookup passed through first (another tracker's flood
-//!   of people's frames cannot crowd out a robot's chain or a camera's place); when all
-//!   are `/tf_static`'s, it is refused.
+//!   ([`TfTopic::Dynamic`]: sent again and again) taken least recently, those no lookup
+//!   passed through first (counted, [`TfBuffer::evicted`]; said once): another
+//!   tracker's flood of people's frames cannot crowd out the floor, a camera's place or
+//!   a chain looked up; when all are `/tf_static`'s, it is refused.
+//!
+//! Nothing expires by time alone: a robot standing still may send a frame only when it
+//! changes, and it is needed when the next person comes (tf2 too keeps each frame's
+//! newest transform; its cache time prunes older ones of the same frame, which this
+//! buffer does not keep).
 //!
 //! A transform with a non-finite value, a translation beyond [`MAX_TRANSLATION_M`], a
 //! quaternion not of unit length, an empty or over-long frame id, or making a frame its
 //! own ancestor (within 64 parents) is refused (its reason returned), and what was
 //! known stays.
 
+use std::cell::Cell;
 use std::collections::HashMap;
 
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
@@ -29,11 +33,6 @@ use crate::msgs::tf::{TFMessage, TransformStamped};
 
 /// Frames a buffer holds at most.
 pub const MAX_FRAMES: usize = 256;
-/// A `/tf` frame nobody asked for is dropped when its newest stamp is this much older
-/// than the newest stamp taken (tf2's default cache time, 10 s).
-pub const MAX_AGE_NS: i64 = 10_000_000_000;
-/// Transforms taken between two sweeps of the frames too old.
-pub const SWEEP_EVERY: u64 = 64;
 /// Parents a lookup climbs at most (deeper trees are refused).
 const MAX_DEPTH: usize = 64;
 /// A frame id's bytes at most.
@@ -49,14 +48,13 @@ struct Frame {
     parent: String,
     /// Its pose in the parent.
     pose: Isometry3<f64>,
-    /// The topic it came on last.
+    /// `Static` once heard on `/tf_static`.
     topic: TfTopic,
-    /// Its newest transform's stamp.
-    stamp_ns: i64,
     /// The buffer's version when it was taken last.
     taken: u64,
-    /// A lookup passed through it.
-    asked: bool,
+    /// A lookup passed through it (set through a shared borrow: a lookup allocates
+    /// nothing).
+    asked: Cell<bool>,
 }
 
 /// The newest transform of each frame, under its parent.
@@ -66,9 +64,7 @@ pub struct TfBuffer {
     frames: HashMap<String, Frame>,
     /// Transforms taken, in all (so that a user of a lookup knows when to ask again).
     version: u64,
-    /// The newest stamp taken (`/tf`'s).
-    newest_ns: i64,
-    /// Frames dropped, by age or to make room.
+    /// Frames dropped to make room.
     evicted: u64,
 }
 
@@ -116,19 +112,9 @@ impl TfBuffer {
         self.frames.is_empty()
     }
 
-    /// Frames dropped so far, by age or to make room.
+    /// Frames dropped so far to make room.
     pub fn evicted(&self) -> u64 {
         self.evicted
-    }
-
-    /// Drops the `/tf` frames nobody asked for whose newest stamp is more than
-    /// [`MAX_AGE_NS`] older than the newest taken.
-    fn sweep(&mut self) {
-        let oldest = self.newest_ns.saturating_sub(MAX_AGE_NS);
-        let before = self.frames.len();
-        self.frames
-            .retain(|_, f| f.topic == TfTopic::Static || f.asked || f.stamp_ns >= oldest);
-        self.evicted += (before - self.frames.len()) as u64;
     }
 
     /// Makes room for one more frame: drops the `/tf` frame taken least recently, one
@@ -138,10 +124,17 @@ impl TfBuffer {
             .frames
             .iter()
             .filter(|(_, f)| f.topic == TfTopic::Dynamic)
-            .min_by_key(|(_, f)| (f.asked, f.taken))
+            .min_by_key(|(_, f)| (f.asked.get(), f.taken))
             .map(|(id, _)| id.clone());
         match victim {
             Some(id) => {
+                if self.evicted == 0 {
+                    tracing::info!(
+                        "the transform buffer holds {MAX_FRAMES} frames: /tf frames nobody \
+                         looked up make room, the least recently sent first (first: {id})"
+                    );
+                }
+                tracing::debug!("transform buffer full: {id} dropped");
                 self.frames.remove(&id);
                 self.evicted += 1;
                 true
@@ -184,21 +177,21 @@ impl TfBuffer {
                 "{parent} -> {child}: a quaternion not of unit length"
             ));
         }
+        // Not its own ancestor: the parent's chain must not pass through the child.
+        if self.ancestors(parent).any(|a| a == child) {
+            return Err(format!("{parent} -> {child}: a cycle"));
+        }
+        // Room is made last: a transform refused evicts nothing.
         if !self.frames.contains_key(child) && self.frames.len() >= MAX_FRAMES && !self.make_room()
         {
             return Err(format!(
                 "{child}: more than {MAX_FRAMES} frames, all from the static topic"
             ));
         }
-        // Not its own ancestor: the parent's chain must not pass through the child.
-        if self.ancestors(parent).any(|a| a == child) {
-            return Err(format!("{parent} -> {child}: a cycle"));
-        }
         let pose = Isometry3::from_parts(
             Translation3::new(v.x, v.y, v.z),
             UnitQuaternion::from_quaternion(q),
         );
-        let stamp_ns = t.header.stamp.nanos();
         self.version += 1;
         // A frame known already keeps its buffers (a robot's /tf streams).
         match self.frames.get_mut(child) {
@@ -206,8 +199,10 @@ impl TfBuffer {
                 f.parent.clear();
                 f.parent.push_str(parent);
                 f.pose = pose;
-                f.topic = topic;
-                f.stamp_ns = stamp_ns;
+                // Latched once, static for good (a relay may send it on /tf too).
+                if topic == TfTopic::Static {
+                    f.topic = TfTopic::Static;
+                }
                 f.taken = self.version;
             }
             None => {
@@ -217,18 +212,11 @@ impl TfBuffer {
                         parent: parent.to_owned(),
                         pose,
                         topic,
-                        stamp_ns,
                         taken: self.version,
-                        asked: false,
+                        asked: Cell::new(false),
                     },
                 );
             }
-        }
-        if topic == TfTopic::Dynamic {
-            self.newest_ns = self.newest_ns.max(stamp_ns);
-        }
-        if self.version.is_multiple_of(SWEEP_EVERY) {
-            self.sweep();
         }
         Ok(())
     }
@@ -259,14 +247,14 @@ impl TfBuffer {
     }
 
     /// Marks `frame` and its ancestors as asked for (kept before the others).
-    fn mark_asked(&mut self, frame: &str) {
-        let mut at = frame.to_owned();
+    fn mark_asked(&self, frame: &str) {
+        let mut at = frame;
         for _ in 0..MAX_DEPTH {
-            let Some(f) = self.frames.get_mut(&at) else {
+            let Some(f) = self.frames.get(at) else {
                 break;
             };
-            f.asked = true;
-            at.clone_from(&f.parent);
+            f.asked.set(true);
+            at = &f.parent;
         }
     }
 
@@ -274,7 +262,7 @@ impl TfBuffer {
     /// axes: what `tf2`'s `lookupTransform(target, frame)` gives), `None` when they are
     /// not in one tree. The frames of both chains are asked for from then on: kept
     /// before the others.
-    pub fn lookup(&mut self, target: &str, frame: &str) -> Option<Isometry3<f64>> {
+    pub fn lookup(&self, target: &str, frame: &str) -> Option<Isometry3<f64>> {
         let (target, frame) = (
             target.trim_start_matches('/'),
             frame.trim_start_matches('/'),
@@ -409,52 +397,43 @@ mod tests {
     }
 
     #[test]
-    fn a_flood_of_another_tracker_s_frames_keeps_the_floor_and_the_robot_s_chain() {
+    fn a_flood_of_another_tracker_s_frames_keeps_the_floor_and_the_chains_looked_up() {
         let mut b = TfBuffer::new();
-        // The camera over the floor, latched; a robot's chain streaming on /tf, asked
-        // for.
+        // The camera over the floor, latched (and relayed once on /tf: still latched),
+        // never looked up yet; a robot's chain sent once on /tf and looked up; a
+        // streaming one, never looked up.
         b.take(&one(at("base_footprint", "camera", 0)), TfTopic::Static);
+        b.take(&one(at("base_footprint", "camera", 0)), TfTopic::Dynamic);
         b.take(&one(at("odom", "base_link", 0)), TfTopic::Dynamic);
         assert!(b.lookup("odom", "base_link").is_some());
-        // Another tracker's people, 20,000 of them, 1 ms apart, each once, with the
-        // robot's base_link sent every 100.
+        b.take(&one(at("map", "odom", 0)), TfTopic::Dynamic);
+        // Another tracker's people, 20,000 of them, each once.
         for i in 0..20_000_i64 {
-            let ns = i * 1_000_000;
             let refused = b.take(
-                &one(at("camera", &format!("person_{i}"), ns)),
+                &one(at("camera", &format!("person_{i}"), i)),
                 TfTopic::Dynamic,
             );
             assert!(refused.is_empty(), "{refused:?}");
-            if i % 100 == 0 {
-                b.take(&one(at("odom", "base_link", ns)), TfTopic::Dynamic);
-            }
             assert!(b.len() <= MAX_FRAMES);
         }
         assert!(b.lookup("base_footprint", "camera").is_some());
         assert!(b.lookup("odom", "base_link").is_some());
         assert!(b.lookup("camera", "person_19999").is_some());
+        // Nobody asked for these: the least recently sent went first.
         assert!(b.lookup("camera", "person_0").is_none(), "evicted");
-        assert!(b.evicted() >= 20_000 - MAX_FRAMES as u64);
+        assert!(b.lookup("map", "odom").is_none(), "evicted");
+        assert_eq!(b.evicted(), 20_000 + 3 - MAX_FRAMES as u64);
     }
 
     #[test]
-    fn tf_frames_nobody_asked_for_age_out_and_static_or_asked_ones_stay() {
+    fn a_transform_refused_evicts_nothing() {
         let mut b = TfBuffer::new();
-        b.take(&one(at("map", "static_thing", 0)), TfTopic::Static);
-        b.take(&one(at("map", "asked", 0)), TfTopic::Dynamic);
-        assert!(b.lookup("map", "asked").is_some());
-        for k in 0..10 {
-            b.take(&one(at("map", &format!("old_{k}"), 0)), TfTopic::Dynamic);
+        for i in 0..MAX_FRAMES {
+            b.take(&one(at("a", &format!("f{i}"), 0)), TfTopic::Dynamic);
         }
-        assert_eq!(b.len(), 12);
-        // 11 s later, a sweep's worth of transforms of one frame: the old ones go.
-        for _ in 0..SWEEP_EVERY {
-            b.take(&one(at("map", "new", 11_000_000_000)), TfTopic::Dynamic);
-        }
-        assert!(b.lookup("map", "old_3").is_none());
-        assert!(b.lookup("map", "static_thing").is_some());
-        assert!(b.lookup("map", "asked").is_some());
-        assert!(b.lookup("map", "new").is_some());
-        assert_eq!((b.len(), b.evicted()), (3, 10));
+        // a under f0 would make a cycle (f0 is under a).
+        let refused = b.take(&one(at("f0", "a", 0)), TfTopic::Dynamic);
+        assert_eq!(refused.len(), 1, "{refused:?}");
+        assert_eq!((b.len(), b.evicted()), (MAX_FRAMES, 0));
     }
 }
