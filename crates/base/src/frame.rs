@@ -53,6 +53,18 @@ impl CropBox {
         })
     }
 
+    /// This box moved as `from` moved to `to` (by the move of their centres; its size
+    /// kept): a crop carried with the person it was made for.
+    pub fn moved_as(&self, from: &CropBox, to: &CropBox) -> Self {
+        let dx = (to.x0 + 0.5 * to.width) - (from.x0 + 0.5 * from.width);
+        let dy = (to.y0 + 0.5 * to.height) - (from.y0 + 0.5 * from.height);
+        Self {
+            x0: self.x0 + dx,
+            y0: self.y0 + dy,
+            ..*self
+        }
+    }
+
     /// The map from a `map_width x map_height` heat map spread over this box to image
     /// pixels.
     pub fn pixel_map(&self, map_width: usize, map_height: usize) -> PixelMap {
@@ -200,5 +212,18 @@ mod tests {
         assert_eq!(out, [0.0, 1.0, 127.5]);
         Scores::F32(&[-1.0, 0.25, 3.0]).clipped_into(&mut out);
         assert_eq!(out, [0.0, 0.25, 3.0]);
+    }
+
+    #[test]
+    fn a_box_moves_as_another_moved_and_keeps_its_size() {
+        let crop = CropBox::new(10.0, 20.0, 100.0, 100.0).unwrap();
+        let from = CropBox::new(30.0, 40.0, 50.0, 60.0).unwrap();
+        let to = CropBox::new(35.0, 38.0, 70.0, 60.0).unwrap();
+        // Centres (55, 70) -> (70, 68).
+        assert_eq!(
+            crop.moved_as(&from, &to),
+            CropBox::new(25.0, 18.0, 100.0, 100.0).unwrap()
+        );
+        assert_eq!(crop.moved_as(&from, &from), crop);
     }
 }

@@ -648,12 +648,10 @@ impl Tracker {
         Some(id)
     }
 
-    /// Track `id` looked like `look` this frame: while `clear` of other people, its look
-    /// moves towards this one (the first one taken whole); else it is kept as it was.
-    pub fn looked_like(&mut self, id: u32, look: &Appearance, clear: bool) {
-        if !clear {
-            return;
-        }
+    /// Track `id` looked like `look` this frame, clear of other people (the caller
+    /// gives only such looks: a look beside someone is not taken, the track's kept as it
+    /// was): its look moves towards this one (the first one taken whole).
+    pub fn looked_like(&mut self, id: u32, look: &Appearance) {
         if let Some(t) = self.tracks.iter_mut().find(|t| t.id == id) {
             match &mut t.look {
                 Some(mine) => mine.blend(look, LOOK_RATE),
@@ -673,6 +671,12 @@ impl Tracker {
     /// (`None`: not reported: ignored, refused, or a track not yet confirmed).
     pub fn frame_of_boxes(&mut self, observations: &[Observation]) -> Vec<Option<u32>> {
         self.begin();
+        self.boxes_seen(observations)
+    }
+
+    /// The boxes of a frame begun: [`associate`](Self::associate), the tracks found
+    /// again, the newcomers, [`end`](Self::end); each box's reported track id.
+    fn boxes_seen(&mut self, observations: &[Observation]) -> Vec<Option<u32>> {
         let what = self.associate(observations);
         let mut ids = vec![None; observations.len()];
         for (i, (o, a)) in observations.iter().zip(&what).enumerate() {

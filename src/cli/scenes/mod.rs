@@ -21,7 +21,7 @@ use pathfinding::kuhn_munkres::kuhn_munkres;
 use pathfinding::matrix::Matrix;
 use posestream::CropBox;
 use posestream::accuracy::p_mpjpe;
-use posestream::detector::tracker::{Assignment, Observation, Tracker, TrackingSettings, iou};
+use posestream::detector::tracker::{Observation, Tracker, TrackingSettings, iou};
 use posestream::msgs::sensor::CameraInfo;
 use posestream::msgs::tf::TFMessage;
 use posestream::msgs::{HeatMaps, Skeleton3D, SkeletonState, Units};
@@ -260,7 +260,6 @@ pub(super) fn track(
     // Each track's newest maps written, the box its person filled then, and who they
     // were.
     let mut newest: BTreeMap<u32, (HeatMaps, CropBox, u32)> = BTreeMap::new();
-    let mut waiting = Vec::new();
     let mut height = 0.0;
     for (n, (t, people)) in images.iter_mut().enumerate() {
         let turn = n % people.len().max(1);
@@ -281,26 +280,10 @@ pub(super) fn track(
             rec.write(&topics.camera_info, *t, info)?;
             height = f64::from(info.height);
         }
-        // As the image detector's frame: the schedule, the boxes (a box on someone who
-        // waits is theirs, unseen), the people seen and the newcomers.
-        tracker.begin();
-        tracker.scheduled(height, &mut waiting);
-        let what = tracker.associate(&observations);
-        let mut ids = vec![None; observations.len()];
-        for (i, (o, a)) in observations.iter().zip(&what).enumerate() {
-            if let Assignment::Track(id) = a {
-                tracker.seen(*id, o.region);
-                ids[i] = Some(*id);
-            }
-        }
-        for (i, (o, a)) in observations.iter().zip(&what).enumerate() {
-            if *a == Assignment::Birth {
-                ids[i] = tracker.born(o.region);
-            }
-        }
-        let reported: Vec<u32> = tracker.end().into_iter().map(|(id, _)| id).collect();
+        // As the image detector's frame: the schedule, then the boxes.
+        let ids = tracker.scheduled_frame_of_boxes(&observations, height);
         for (k, id) in ids.into_iter().enumerate() {
-            let Some(id) = id.filter(|i| reported.contains(i)) else {
+            let Some(id) = id else {
                 continue;
             };
             tracking.given.entry(truth[k]).or_default().push(id);
@@ -318,9 +301,11 @@ pub(super) fn track(
             tracking.given.entry(*who).or_default().push(id);
             tracking.reported += 1;
             tracking.carried += 1;
-            let (a, b) = (centre(person), centre(&now));
-            m.crop_x += b[0] - a[0];
-            m.crop_y += b[1] - a[1];
+            let crop = m
+                .crop()
+                .map_err(|e| CliError::Usage(format!("a crop box: {e}")))?;
+            let moved = crop.moved_as(person, &now);
+            (m.crop_x, m.crop_y) = (moved.x0, moved.y0);
             *person = now;
             m.frames_since_look = waited;
             m.sequence = people[0].sequence;
@@ -331,10 +316,6 @@ pub(super) fn track(
     }
     rec.finish()?;
     Ok(tracking)
-}
-
-fn centre(b: &CropBox) -> [f64; 2] {
-    [b.x0 + 0.5 * b.width, b.y0 + 0.5 * b.height]
 }
 
 /// The errors of `skeletons` (ids already the true ones) at `lag` against `truth`, one

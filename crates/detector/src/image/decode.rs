@@ -2,7 +2,7 @@
 //! the next frame's masks, and the heat maps of the people the tracker reports, made
 //! from their looks' logits through the channel mapping.
 
-use super::looks::{Found, Head, Look, centre};
+use super::looks::{Found, Head, Look};
 use super::{Detection, DetectorError, ImageDetector};
 use crate::models::landmarks::HEATMAP_SIZE;
 use posestream_base::CropBox;
@@ -54,7 +54,7 @@ impl ImageDetector {
             let Some((_, l)) = kept.iter().find(|(k, _)| *k == id) else {
                 continue;
             };
-            let slot = self.slot_of(id);
+            let slot = self.slot_of(id, l.crop);
             let f = &mut self.found[slot];
             f.crop = l.crop;
             f.person = person;
@@ -75,9 +75,7 @@ impl ImageDetector {
                 continue;
             };
             let f = &mut self.found[slot];
-            let (a, b) = (centre(&f.person), centre(&now));
-            f.crop.x0 += b[0] - a[0];
-            f.crop.y0 += b[1] - a[1];
+            f.crop = f.crop.moved_as(&f.person, &now);
             f.person = now;
             f.frames_since_look = waited;
             self.shown.push(slot);
@@ -91,24 +89,18 @@ impl ImageDetector {
         Ok(())
     }
 
-    /// The slot of person `id` in `found`: theirs, else a free one, else a new one.
-    fn slot_of(&mut self, id: u32) -> usize {
+    /// The slot of person `id` in `found`: theirs, else a free one, else a new one
+    /// (its boxes `crop` until written).
+    fn slot_of(&mut self, id: u32, crop: CropBox) -> usize {
         if let Some(k) = self.found.iter().position(|f| f.track_id == id) {
             return k;
         }
         let k = match self.found.iter().position(|f| f.track_id == 0) {
             Some(k) => k,
             None => {
-                // Written over before it is shown.
-                let none = CropBox {
-                    x0: 0.0,
-                    y0: 0.0,
-                    width: 0.0,
-                    height: 0.0,
-                };
                 self.found.push(Found {
-                    crop: none,
-                    person: none,
+                    crop,
+                    person: crop,
                     track_id: 0,
                     maps: Vec::new(),
                     frames_since_look: 0,

@@ -416,7 +416,7 @@ impl ImageDetector {
             if looks::clear_of(l, others.map(|(_, (_, o))| o))
                 && let Some(look) = looks::appearance(frame, l)
             {
-                self.tracker.looked_like(*id, &look, true);
+                self.tracker.looked_like(*id, &look);
             }
         }
         let reported = self.tracker.end();

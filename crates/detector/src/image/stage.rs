@@ -233,7 +233,7 @@ impl Searches {
                 }
                 // A frame where nobody is followed has nothing to do but wait for its
                 // search (a file's frames would otherwise race past the searches).
-                let done = if request.scene_first || !request.followed {
+                let done = if waits {
                     Some(stage.wait_for(request.frame)?)
                 } else {
                     stage.take()?

@@ -15,7 +15,7 @@
 
 #[cfg(test)]
 use super::Assignment;
-use super::{Tracker, centre_side, iou};
+use super::{Observation, Tracker, centre_side, iou};
 use posestream_base::CropBox;
 
 /// A track seen in fewer frames in a row than this is newly found: looked at every frame.
@@ -140,6 +140,21 @@ impl Tracker {
             .collect()
     }
 
+    /// [`Tracker::frame_of_boxes`] as the image detector's frame goes: the schedule
+    /// first ([`Tracker::scheduled`], in an image `image_height` pixels high), so that a
+    /// box on someone who waits is theirs, unseen (their maps carried:
+    /// [`Tracker::carried`]). Each box's reported track id.
+    pub fn scheduled_frame_of_boxes(
+        &mut self,
+        observations: &[Observation],
+        image_height: f64,
+    ) -> Vec<Option<u32>> {
+        self.begin();
+        let mut waiting = Vec::new();
+        self.scheduled(image_height, &mut waiting);
+        self.boxes_seen(observations)
+    }
+
     /// Track `id`, followed, is not looked at this frame: it is neither seen (not among
     /// [`Tracker::end`]'s, but among [`Tracker::carried`]) nor missed, and expected
     /// where its velocity takes it from the box last seen.
@@ -225,31 +240,14 @@ mod tests {
 
     #[test]
     fn people_who_wait_are_carried_on_by_their_velocity_neither_seen_nor_missed() {
-        use crate::tracker::{Observation, TrackingSettings};
-        let settings = TrackingSettings {
+        let settings = crate::tracker::TrackingSettings {
             looks_per_frame: 1,
             max_wait_frames: 1,
-            ..TrackingSettings::default()
+            ..crate::tracker::TrackingSettings::default()
         };
         let mut tracker = Tracker::new(settings, 0.5);
         // Two people walking right 10 pixels a frame, 300 apart.
-        let at = |person: usize, frame: usize| {
-            CropBox::new(
-                300.0 * person as f64 + 10.0 * frame as f64,
-                50.0,
-                100.0,
-                100.0,
-            )
-            .expect("a box")
-        };
-        let obs = |frame: usize| -> Vec<Observation> {
-            (0..2)
-                .map(|p| Observation {
-                    region: at(p, frame),
-                    score: 0.9,
-                })
-                .collect()
-        };
+        let (at, obs) = (walker, |frame: usize| walkers(2, frame));
         let ids: Vec<u32> = tracker
             .frame_of_boxes(&obs(0))
             .into_iter()
@@ -305,9 +303,9 @@ mod tests {
         .expect("a box")
     }
 
-    fn walkers(n: usize, frame: usize) -> Vec<crate::tracker::Observation> {
+    fn walkers(n: usize, frame: usize) -> Vec<Observation> {
         (0..n)
-            .map(|p| crate::tracker::Observation {
+            .map(|p| Observation {
                 region: walker(p, frame),
                 score: 0.9,
             })

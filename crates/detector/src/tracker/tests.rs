@@ -378,7 +378,7 @@ fn frame_of_looks(t: &mut Tracker, stamp_ns: u64, people: &[(CropBox, Appearance
             None => t.born_like(*region, Some(l)),
         };
         if let Some(id) = id {
-            t.looked_like(id, l, true);
+            t.looked_like(id, l);
             ids.push(id);
         }
     }

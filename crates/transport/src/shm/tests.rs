@@ -86,3 +86,25 @@ fn too_many_joints_and_long_names_are_refused() {
     m.positions.pop();
     assert!(SkeletonSample::from_message(&m).is_err());
 }
+
+#[test]
+fn a_look_age_past_the_sample_s_byte_is_held_at_255_and_the_header_s_whole() {
+    for (age, byte) in [(0, 0), (3, 3), (255, 255), (256, 255), (u32::MAX, 255)] {
+        let m = Skeleton3D {
+            frames_since_look: age,
+            ..Skeleton3D::default()
+        };
+        let s = SkeletonSample::from_message(&m).expect("sample");
+        assert_eq!(s.frames_since_look, byte, "{age}");
+        assert_eq!(
+            s.to_message().expect("message").frames_since_look,
+            u32::from(byte)
+        );
+        let h = HeatMapsHeader::from_message(&HeatMaps {
+            frames_since_look: age,
+            ..HeatMaps::default()
+        })
+        .expect("header");
+        assert_eq!(h.frames_since_look, age);
+    }
+}
