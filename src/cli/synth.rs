@@ -11,6 +11,7 @@ use posestream::msgs::{self, Header, HeatMapEncoding, Skeleton3D, SkeletonState,
 use posestream::nodes::config::Topics;
 use posestream::npy;
 use posestream::recording::Recorder;
+use posestream::synth::motion::{self, Motion};
 use posestream::synth::{self, CameraSpec, ErrorModel, Placement, Projection, heatmaps};
 
 use super::CliError;
@@ -133,6 +134,12 @@ pub struct SynthArgs {
     /// degrees counter-clockwise, metres per second). One per `--bvh` after the first.
     #[arg(long, value_parser = placement)]
     pub place: Vec<Placement>,
+    /// What each person does beyond the take (none given: as captured; else one per
+    /// `--bvh`, in order): `captured`, `step:HEIGHT,UP[,DOWN]`, `jump:HEIGHT,EVERY`,
+    /// `crouch:DEPTH,EVERY`, `kneel:AT,HOLD` or `sit:AT,HOLD` (metres, seconds; made
+    /// from the take, see `synth::motion`).
+    #[arg(long, value_parser = Motion::parse)]
+    pub motion: Vec<Motion>,
     /// Skeleton mapping of the BVH (config/skeletons/*.toml).
     #[arg(long)]
     pub mapping: PathBuf,
@@ -229,6 +236,14 @@ pub fn run(args: &SynthArgs) -> Result<(), CliError> {
             args.place.len()
         )));
     }
+    if !args.motion.is_empty() && args.motion.len() != args.bvh.len() {
+        return Err(CliError::Usage(format!(
+            "{} --bvh need none or {} --motion (one per person), got {}",
+            args.bvh.len(),
+            args.bvh.len(),
+            args.motion.len()
+        )));
+    }
     let cam = args.camera.spec();
     cam.validate().map_err(CliError::Usage)?;
     let model = args.errors.model();
@@ -258,6 +273,9 @@ pub fn run(args: &SynthArgs) -> Result<(), CliError> {
         *t = t.frames_from(0, frames).expect("every take has frames");
     }
     let skel = &mapping.layout;
+    for (take, motion) in takes.iter_mut().zip(&args.motion) {
+        *take = motion::apply(take, skel, motion).map_err(CliError::Failed)?;
+    }
     let first = takes[0].clone();
     let mut views = Vec::new();
     for (i, take) in takes.iter().enumerate() {
@@ -356,6 +374,7 @@ fn write_npy(
     let meta = serde_json::json!({
         "source": if sources.len() == 1 { serde_json::json!(sources[0]) } else { serde_json::json!(sources) },
         "placements": args.place,
+        "motions": args.motion,
         "mapping": mapping,
         "joints": skel.joints,
         "frames": f,

@@ -65,14 +65,15 @@ pub struct FloorSettings {
     /// factors).
     pub contact_frames: usize,
     /// A contact is trusted only when its scale factor lies within this factor of 1 (the
-    /// assumed size): 1.5 takes people from 1/1.5 to 1.5 times the assumed size.
+    /// assumed size): 1.5 takes people from 1/1.5 to 1.5 times the assumed size. (A foot
+    /// off the floor is told by its own evidence: `crate::metres`.)
     pub max_scale: f64,
     /// `learnt`: a standing or walking person's root (the pelvis) is this far above the
     /// floor, in mean bone lengths (the training takes': 0.883 m on 0.2235 m).
     pub root_height: f64,
     /// A skeleton placed by the floor: its `position_std` (the 2D spread along the rays
-    /// and the contacts' spread, composed) times this. 0.63: on the training walks 68 %
-    /// of the per-axis errors fell within 0.63 of the composed standard deviation (their
+    /// and the contacts' spread, composed) times this. 0.55: on the training walks 69 %
+    /// of the per-axis errors fell within 0.55 of the composed standard deviation (their
     /// tails are heavier than a normal distribution's: 89 % within 2).
     pub std_factor: f64,
 }
@@ -90,7 +91,7 @@ impl Default for FloorSettings {
             contact_frames: 60,
             max_scale: 1.5,
             root_height: 3.95,
-            std_factor: 0.63,
+            std_factor: 0.55,
         }
     }
 }
@@ -274,7 +275,18 @@ pub struct BodyScale {
     contacts: std::collections::VecDeque<(u64, f64)>,
     capacity: usize,
     scratch: Vec<f64>,
+    /// `(frame sequence, its feet in the image)`, oldest first (at most `FEET_FRAMES`):
+    /// a foot on the floor stands still.
+    feet: std::collections::VecDeque<(u64, [[f64; 2]; MAX_FEET])>,
 }
+
+/// Feet a [`BodyScale`] follows at most (a skeleton's ankles: 2).
+pub const MAX_FEET: usize = 4;
+/// Frames of feet a [`BodyScale`] keeps (more than the lag between a frame's first
+/// estimate and its refined one, so that each finds the frame before it).
+const FEET_FRAMES: usize = 64;
+/// A foot's speed is measured against a frame at most this many frames before.
+const FEET_GAP: u64 = 3;
 
 /// A person's scale factor and its relative spread ([`BodyScale::estimate`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -296,12 +308,50 @@ impl BodyScale {
             contacts: std::collections::VecDeque::with_capacity(capacity + 1),
             capacity,
             scratch: Vec::with_capacity(capacity + 1),
+            feet: std::collections::VecDeque::with_capacity(FEET_FRAMES + 1),
         }
     }
 
     /// Forgets every contact (a new person).
     pub fn clear(&mut self) {
         self.contacts.clear();
+        self.feet.clear();
+    }
+
+    /// How fast foot `k` (of [`BodyScale::note_feet`]'s) moved into `xy` (image pixels)
+    /// at frame `sequence`: pixels per frame since the nearest earlier frame noted, at
+    /// most `FEET_GAP` before; `None` without one.
+    pub fn foot_speed(&self, sequence: u64, k: usize, xy: [f64; 2]) -> Option<f64> {
+        if k >= MAX_FEET {
+            return None;
+        }
+        let (before, feet) = self
+            .feet
+            .iter()
+            .rev()
+            .find(|(s, _)| *s < sequence && sequence - *s <= FEET_GAP)?;
+        let d = (xy[0] - feet[k][0]).hypot(xy[1] - feet[k][1]);
+        let speed = d / (sequence - before) as f64;
+        speed.is_finite().then_some(speed)
+    }
+
+    /// Notes frame `sequence`'s feet in the image (the first [`MAX_FEET`]); a frame
+    /// noted again (its refined estimate) replaces its first.
+    pub fn note_feet(&mut self, sequence: u64, feet: impl Iterator<Item = [f64; 2]>) {
+        let mut at = [[f64::NAN; 2]; MAX_FEET];
+        for (slot, xy) in at.iter_mut().zip(feet) {
+            *slot = xy;
+        }
+        if let Some(slot) = self.feet.iter_mut().rev().find(|(s, _)| *s == sequence) {
+            slot.1 = at;
+            return;
+        }
+        // In frame order (a refined estimate's frame is older than the newest's).
+        let place = self.feet.partition_point(|(s, _)| *s < sequence);
+        self.feet.insert(place, (sequence, at));
+        while self.feet.len() > FEET_FRAMES {
+            self.feet.pop_front();
+        }
     }
 
     /// Notes frame `sequence`'s factor (positive and finite; others are ignored): it
@@ -452,5 +502,31 @@ mod tests {
         assert!((b.estimate().unwrap().factor - 2.0).abs() < 1e-12);
         b.clear();
         assert_eq!(b.estimate(), None);
+    }
+
+    #[test]
+    fn a_foot_s_speed_is_against_the_nearest_earlier_frame_noted_refined_or_not() {
+        let mut b = BodyScale::new(5);
+        assert_eq!(b.foot_speed(3, 0, [0.0, 0.0]), None);
+        // Frames 10 and 11's newest estimates, then frame 10's refined one.
+        b.note_feet(10, [[100.0, 200.0], [140.0, 200.0]].into_iter());
+        b.note_feet(11, [[100.0, 200.0], [150.0, 196.0]].into_iter());
+        b.note_feet(10, [[101.0, 200.0], [140.0, 200.0]].into_iter());
+        assert_eq!(b.foot_speed(11, 0, [101.0, 200.0]), Some(0.0));
+        assert_eq!(b.foot_speed(12, 1, [150.0, 200.0]), Some(4.0));
+        // Two frames on: per frame; more than FEET_GAP frames: none; no such foot: none.
+        assert_eq!(b.foot_speed(13, 1, [150.0, 204.0]), Some(4.0));
+        assert_eq!(b.foot_speed(11 + FEET_GAP + 1, 0, [0.0, 0.0]), None);
+        assert_eq!(b.foot_speed(12, MAX_FEET, [0.0, 0.0]), None);
+        // A foot never noted (one of three with two noted): none, not a NaN.
+        b.note_feet(20, [[0.0, 0.0]].into_iter());
+        assert_eq!(b.foot_speed(21, 1, [0.0, 0.0]), None);
+        // Bounded; forgotten with the person.
+        for s in 100..1000 {
+            b.note_feet(s, [[0.0, 0.0]; 2].into_iter());
+        }
+        assert_eq!(b.feet.len(), FEET_FRAMES);
+        b.clear();
+        assert_eq!(b.foot_speed(1001, 0, [0.0, 0.0]), None);
     }
 }

@@ -398,18 +398,29 @@ struct Contact<'a> {
     max_scale: f64,
 }
 
-/// How much a frame's own contact counts against the person's median over the last
-/// frames (in `ln` of the factor): on `posestream scenes --distances` (before the
-/// upright step) 0.6 gave a root error of 1.6 % of the distance (median) against 1.9 %
-/// for the median alone and 1.7 % for the frame's own (which follows the frame's pose,
-/// but with its feet's 2D noise).
-const OWN_CONTACT_WEIGHT: f64 = 0.6;
+/// A foot stands still (may be on the floor) while it moves less than this share of the
+/// person's height in the image a frame: a walker's swing foot moves about 0.035 a frame
+/// at 30 frames/s, a jumping one more; the heat maps' noise about 0.01.
+const STILL_FOOT: f64 = 0.04;
+/// Once a person has this many contacts, a frame's own contact is trusted only up to
+/// `CONTACT_GATE` spreads above their median (at least `MIN_CONTACT_GATE` in `ln`): a
+/// foot on a step, or still at a jump's top, is above the floor, and its ray meets the
+/// floor further away than the foot (cameras look down on feet), so its factor is too
+/// large. Only that side is gated: a factor below the median is taken, so that a median
+/// made of a person's first, poorly fitted frames can move.
+const GATE_AFTER: usize = 10;
+const CONTACT_GATE: f64 = 3.0;
+const MIN_CONTACT_GATE: f64 = 0.06;
 
 impl Contact<'_> {
     /// The factor that stands the fitted body (its size the assumed one) on the floor
-    /// and its relative std: this frame's contact noted in `scale` (the ankle whose
-    /// observed ray meets the floor nearest: the one in contact, the other is lifted
-    /// or further), blended with the person's median. `None` without any contact yet.
+    /// and its relative std: this frame's own contact when it has a trusted one (noted
+    /// in `scale`), else the person's median over their last contacts (their size, kept
+    /// through frames without a contact); `None` before any contact. A contact is a foot
+    /// the evidence puts on the floor: still in the image since the frame before (a
+    /// swinging or jumping foot is not), the one whose observed ray meets the floor
+    /// nearest (the other is lifted or further), and, once the person has contacts, its
+    /// factor not far above their median (a foot on a step or at a jump's top is not).
     #[allow(clippy::too_many_arguments, reason = "one frame's inputs")]
     fn scale(
         &self,
@@ -421,32 +432,47 @@ impl Contact<'_> {
         sequence: u64,
         scale: &mut BodyScale,
     ) -> Option<(f64, f64)> {
+        let foot = |j: usize| [keypoints[2 * j], keypoints[2 * j + 1]];
+        // The person's height in the image: how far a foot may move and stand still.
+        let (lo, hi) = keypoints
+            .chunks_exact(2)
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| {
+                (lo.min(p[1]), hi.max(p[1]))
+            });
+        let still = STILL_FOOT * (hi - lo).max(1.0);
+        let before = scale.estimate();
         let own = self
             .feet
             .iter()
-            .filter_map(|&j| {
+            .enumerate()
+            .filter(|&(k, &j)| {
+                scale
+                    .foot_speed(sequence, k, foot(j))
+                    .is_some_and(|v| v <= still)
+            })
+            .filter_map(|(_, &j)| {
                 let ray = camera.ray(keypoints[2 * j], keypoints[2 * j + 1]);
                 let t = floor.scale_to(&ray, self.ankle_height)?;
                 Some((ray.z * t, joint(fit, shape, j).z))
             })
             .min_by(|a, b| a.0.total_cmp(&b.0))
             .map(|(seen, fitted)| seen / fitted)
-            .filter(|f| *f <= self.max_scale && f * self.max_scale >= 1.0);
+            .filter(|f| *f <= self.max_scale && f * self.max_scale >= 1.0)
+            .filter(|f| {
+                before.is_none_or(|m| {
+                    m.contacts < GATE_AFTER
+                        || f.ln() - m.factor.ln() <= (CONTACT_GATE * m.spread).max(MIN_CONTACT_GATE)
+                })
+            });
+        scale.note_feet(sequence, self.feet.iter().map(|&j| foot(j)));
         if let Some(f) = own {
             scale.note(sequence, f);
         }
         let median = scale.estimate()?;
-        let factor = match own {
-            Some(f) => (OWN_CONTACT_WEIGHT * f.ln()
-                + (1.0 - OWN_CONTACT_WEIGHT) * median.factor.ln())
-            .exp(),
-            None => median.factor,
-        };
-        // A frame's factor strays from the median by its own contact's deviation, at
-        // its weight.
+        // A frame's own factor strays from the median by the contacts' spread.
         Some((
-            factor,
-            (median.spread * OWN_CONTACT_WEIGHT).max(MIN_FLOOR_SCALE_STD),
+            own.unwrap_or(median.factor),
+            median.spread.max(MIN_FLOOR_SCALE_STD),
         ))
     }
 }

@@ -18,20 +18,21 @@ use posestream::msgs::{MetricSource, Skeleton3D};
 use posestream::nodes::config::{ReplayRate, ServiceConfig};
 use posestream::nodes::replay::{ReplayOptions, replay};
 use posestream::recording::read_topic;
+use posestream::synth::motion::Motion;
 
 use super::{FrameError, ScenesArgs, SynthCommand, frame_errors, track};
 use crate::cli::CliError;
 
-/// A scene of people walking at several distances: the camera's height, tilt, and where
-/// it stands from the first person (`synth --distance`, `--azimuth`), and the people
-/// (take, `synth --place`).
+/// A scene of people at several distances: the camera's height, tilt, and where it
+/// stands from the first person (`synth --distance`, `--azimuth`), and the people (take,
+/// `synth --place`, `synth --motion`; empty: none).
 struct Walk {
     name: &'static str,
     height: f64,
     tilt: f64,
     distance: f64,
     azimuth: f64,
-    people: &'static [(&'static str, &'static str)],
+    people: &'static [(&'static str, &'static str, &'static str)],
 }
 
 /// Held-out walking takes (the `proud` style) seen from several heights and tilts.
@@ -43,8 +44,8 @@ const WALKS: [Walk; 4] = [
         distance: 2.5,
         azimuth: 165.0,
         people: &[
-            ("dataset-1_walk_proud_001.bvh", ""),
-            ("dataset-1_walk-back_proud_001.bvh", "0,-1.5,180"),
+            ("dataset-1_walk_proud_001.bvh", "", ""),
+            ("dataset-1_walk-back_proud_001.bvh", "0,-1.5,180", ""),
         ],
     },
     Walk {
@@ -54,8 +55,8 @@ const WALKS: [Walk; 4] = [
         distance: 3.0,
         azimuth: 195.0,
         people: &[
-            ("dataset-1_walk_proud_002.bvh", ""),
-            ("dataset-1_walk_proud_001.bvh", "-1.0,1.5"),
+            ("dataset-1_walk_proud_002.bvh", "", ""),
+            ("dataset-1_walk_proud_001.bvh", "-1.0,1.5", ""),
         ],
     },
     Walk {
@@ -65,8 +66,8 @@ const WALKS: [Walk; 4] = [
         distance: 4.0,
         azimuth: 100.0,
         people: &[
-            ("dataset-1_walk-left_proud_001.bvh", ""),
-            ("dataset-1_walk-right_proud_001.bvh", "3.0,-3.0"),
+            ("dataset-1_walk-left_proud_001.bvh", "", ""),
+            ("dataset-1_walk-right_proud_001.bvh", "3.0,-3.0", ""),
         ],
     },
     Walk {
@@ -76,17 +77,68 @@ const WALKS: [Walk; 4] = [
         distance: 9.0,
         azimuth: 80.0,
         people: &[
-            ("dataset-1_walk_proud_001.bvh", ""),
-            ("dataset-1_walk_proud_002.bvh", "0,-3.0,180"),
+            ("dataset-1_walk_proud_001.bvh", "", ""),
+            ("dataset-1_walk_proud_002.bvh", "0,-3.0,180", ""),
         ],
     },
 ];
 
-/// The takes of the walks.
+/// People who do not just walk: held-out takes made to climb, jump, crouch, kneel and
+/// sit (`synth --motion`: the collection has no such takes), 4 to 10 m from cameras at
+/// three heights and tilts.
+const MOVES: [Walk; 3] = [
+    Walk {
+        name: "camera 2 m high, 10 degrees down: one walks away from 4 m and climbs a 0.4 m \
+               step and off it, one jumps 0.35 m high 7 m away",
+        height: 2.0,
+        tilt: 10.0,
+        distance: 4.0,
+        azimuth: 175.0,
+        people: &[
+            ("dataset-1_walk_proud_001.bvh", "", "step:0.4,1.5,4"),
+            (
+                "dataset-1_bye_proud_001.bvh",
+                "3.0,-1.5,180",
+                "jump:0.35,1.5",
+            ),
+        ],
+    },
+    Walk {
+        name: "camera 1.4 m high, 5 degrees down: one squats 0.45 m deep 4.5 m away, one \
+               kneels 7 m away",
+        height: 1.4,
+        tilt: 5.0,
+        distance: 4.5,
+        azimuth: 10.0,
+        people: &[
+            ("dataset-1_bye_proud_001.bvh", "", "crouch:0.45,2.5"),
+            (
+                "dataset-1_bye_proud_001.bvh",
+                "-2.5,1.5,-20",
+                "kneel:1.2,2.3",
+            ),
+        ],
+    },
+    Walk {
+        name: "camera 2.5 m high, 20 degrees down: one sits 5 m away, one walks away from \
+               7 m and climbs a 0.3 m step",
+        height: 2.5,
+        tilt: 20.0,
+        distance: 5.0,
+        azimuth: 0.0,
+        people: &[
+            ("dataset-1_bye_proud_001.bvh", "", "sit:1.2,2.3"),
+            ("dataset-1_walk_proud_002.bvh", "-2.0,1.5,180", "step:0.3,1"),
+        ],
+    },
+];
+
+/// The takes of the scenes.
 pub fn takes() -> impl Iterator<Item = &'static str> {
     WALKS
         .iter()
-        .flat_map(|walk| walk.people.iter().map(|(file, _)| *file))
+        .chain(&MOVES)
+        .flat_map(|walk| walk.people.iter().map(|(file, _, _)| *file))
 }
 
 /// The take of a walk: the held-out one, or with `train` the training style's.
@@ -166,8 +218,12 @@ pub fn markdown(args: &ScenesArgs) -> Result<String, CliError> {
     let mapping = SkeletonMapping::load(&args.mapping)?;
     let bones = mapping.layout.bones().collect::<Vec<_>>();
     let mut errors: Vec<Vec<FrameError>> = vec![Vec::new(); MODES.len()];
+    // The people who do not just walk: their motion's name, their frame's errors.
+    let mut moved: Vec<Vec<(&'static str, FrameError)>> = vec![Vec::new(); MODES.len()];
     let mut learnt = Vec::new();
-    for (i, walk) in WALKS.iter().enumerate() {
+    // The training takes are too short for the moves.
+    let moves: &[Walk] = if args.train { &[] } else { &MOVES };
+    for (i, walk) in WALKS.iter().chain(moves).enumerate() {
         let dir = args.work.join(format!("walk-{i}"));
         let recording = dir.join("walk.mcap");
         synth(args, walk, &dir, &recording)?;
@@ -209,7 +265,17 @@ pub fn markdown(args: &ScenesArgs) -> Result<String, CliError> {
                     .collect();
             let lag = u32::try_from(config.estimator.window.lag).unwrap_or(u32::MAX);
             let (frames, _) = frame_errors(&skeletons, &truth, lag, &bones);
-            errors[m].extend(frames);
+            for e in frames {
+                // The truth's ids are people 1, 2, ... of the scene.
+                let person = (e.person % 100) as usize;
+                match walk.people.get(person.wrapping_sub(1)) {
+                    Some((_, _, motion)) if !motion.is_empty() => {
+                        let name = Motion::parse(motion).map_or("?", |m| m.name());
+                        moved[m].push((name, e));
+                    }
+                    _ => errors[m].push(e),
+                }
+            }
             if mode.floor == FloorSource::Learnt {
                 let refined = skeletons.iter().filter(|s| s.lag == lag);
                 learnt.push(Learnt {
@@ -227,8 +293,53 @@ pub fn markdown(args: &ScenesArgs) -> Result<String, CliError> {
         }
     }
     let mut text = table(args, &base, &errors);
+    if !args.train {
+        text.push_str(&moves_table(&moved));
+    }
     text.push_str(&learnt_table(&learnt));
     Ok(text)
+}
+
+/// The people who do not just walk (`MOVES`), 4 to 10 m away: per motion and mode.
+fn moves_table(moved: &[Vec<(&'static str, FrameError)>]) -> String {
+    let mut text = String::from(
+        "People who do not just walk (held-out takes made to move, `synth --motion`): one \
+         walks onto a 0.4 m step and off it, one onto a 0.3 m step (step), one jumps \
+         0.35 m high every 1.5 s (jump), one squats 0.45 m deep every 2.5 s (crouch), one \
+         kneels, one sits on a chair, each for 2.3 s; frames 4 to 10 m from the camera. \
+         Columns as above.\n\n\
+         | person | mode | frames | root | depth (signed) | MPJPE | root-aligned | within 1 / 2 std |\n\
+         |---|---|---:|---:|---:|---:|---:|---:|\n",
+    );
+    for name in ["step", "jump", "crouch", "kneel", "sit"] {
+        for (mode, frames) in MODES.iter().zip(moved) {
+            let of: Vec<&FrameError> = frames
+                .iter()
+                .filter(|(n, e)| *n == name && e.distance >= 4.0 && e.distance < 10.0)
+                .map(|(_, e)| e)
+                .collect();
+            if of.is_empty() {
+                continue;
+            }
+            let n = of.len() as f64;
+            let mean = |f: &dyn Fn(&FrameError) -> f64| of.iter().map(|e| f(e)).sum::<f64>() / n;
+            let axes = of.iter().map(|e| e.axes).sum::<usize>().max(1) as f64;
+            let within = |k: usize| of.iter().map(|e| e.within[k]).sum::<usize>() as f64;
+            text.push_str(&format!(
+                "| {name} | {} | {} | {:.1} % | {:+.1} % | {:.0} mm | {:.0} mm | {:.0} % / {:.0} % |\n",
+                mode.name,
+                of.len(),
+                100.0 * median(of.iter().map(|e| e.root / e.distance).collect()),
+                100.0 * mean(&|e| e.depth),
+                1000.0 * mean(&|e| e.mpjpe),
+                1000.0 * mean(&|e| e.root_aligned),
+                100.0 * within(0) / axes,
+                100.0 * within(1) / axes,
+            ));
+        }
+    }
+    text.push('\n');
+    text
 }
 
 /// The floors learnt: per scene and mode, where learning stood at its end.
@@ -271,11 +382,20 @@ fn learnt_table(learnt: &[Learnt]) -> String {
 fn synth(args: &ScenesArgs, walk: &Walk, dir: &Path, recording: &Path) -> Result<(), CliError> {
     let mut argv: Vec<String> = vec!["synth".into(), "--mapping".into()];
     argv.push(args.mapping.display().to_string());
-    for (file, place) in walk.people {
+    let moves = walk.people.iter().any(|(_, _, motion)| !motion.is_empty());
+    for (file, place, motion) in walk.people {
         argv.push("--bvh".into());
         argv.push(args.data.join(take(file, args.train)).display().to_string());
         if !place.is_empty() {
             argv.push(format!("--place={place}"));
+        }
+        if moves {
+            let motion = if motion.is_empty() {
+                "captured"
+            } else {
+                motion
+            };
+            argv.push(format!("--motion={motion}"));
         }
     }
     argv.extend([

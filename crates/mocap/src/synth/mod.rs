@@ -6,6 +6,7 @@
 //! z up. The camera frame is x right, y down, z forward, as everywhere in posestream.
 
 pub mod heatmaps;
+pub mod motion;
 pub mod room;
 
 use nalgebra::{Matrix3, Vector3};
