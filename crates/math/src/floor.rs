@@ -346,11 +346,32 @@ impl BodyScale {
             slot.1 = at;
             return;
         }
+        // Numbers that went back past what is kept: a restarted numbering, whose frames
+        // the old ones would hide (the person's contacts, their size, stay).
+        if self
+            .feet
+            .back()
+            .is_some_and(|(newest, _)| *newest > sequence.saturating_add(FEET_FRAMES as u64))
+        {
+            self.feet.clear();
+        }
         // In frame order (a refined estimate's frame is older than the newest's).
         let place = self.feet.partition_point(|(s, _)| *s < sequence);
         self.feet.insert(place, (sequence, at));
         while self.feet.len() > FEET_FRAMES {
             self.feet.pop_front();
+        }
+    }
+
+    /// Forgets frame `sequence`'s contact, if one was noted among the last few (its
+    /// refined estimate found none).
+    pub fn forget(&mut self, sequence: u64) {
+        let n = self.contacts.len();
+        if let Some(i) = (n.saturating_sub(64)..n)
+            .rev()
+            .find(|&i| self.contacts[i].0 == sequence)
+        {
+            self.contacts.remove(i);
         }
     }
 
@@ -521,6 +542,10 @@ mod tests {
         // A foot never noted (one of three with two noted): none, not a NaN.
         b.note_feet(20, [[0.0, 0.0]].into_iter());
         assert_eq!(b.foot_speed(21, 1, [0.0, 0.0]), None);
+        // A numbering that starts again: the old frames go, the new ones are measured.
+        b.note_feet(3, [[0.0, 0.0]; 2].into_iter());
+        b.note_feet(4, [[1.0, 0.0]; 2].into_iter());
+        assert_eq!(b.foot_speed(4, 0, [1.0, 0.0]), Some(1.0));
         // Bounded; forgotten with the person.
         for s in 100..1000 {
             b.note_feet(s, [[0.0, 0.0]; 2].into_iter());

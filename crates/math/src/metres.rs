@@ -165,6 +165,19 @@ pub struct MetricPose {
     pub root_at_size: Vector3<f64>,
 }
 
+/// The floor under a person, for [`MetricStep::adjust`].
+#[derive(Debug)]
+pub struct OnFloor<'a> {
+    /// The floor.
+    pub floor: &'a FloorModel,
+    /// The person's scale from their contacts.
+    pub scale: &'a mut BodyScale,
+    /// Their heat maps come from a look in this image (`frames_since_look` 0), not
+    /// carried over from an earlier one with the body's expected motion: only then are
+    /// their feet evidence of a contact.
+    pub looked: bool,
+}
+
 /// Where a metric pose's scale came from (`Skeleton3D.metric_source`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum PlacedBy {
@@ -227,17 +240,18 @@ impl MetricStep {
     }
 
     /// Writes estimate `e` in metres into `out`: `to_image` maps its heat-map pixels to
-    /// image pixels (the crop box), `camera` is the camera's. With a `floor` and the
-    /// person's [`BodyScale`], the ankle in contact (its observed ray meets the floor
-    /// nearest) is noted and the pose scaled about the camera centre by the person's
-    /// factor ([`PlacedBy::Floor`]); without, it keeps the assumed size. An error (the pose has no size, or the result
-    /// is not finite) leaves `out` to be ignored.
+    /// image pixels (the crop box), `camera` is the camera's. With a floor ([`OnFloor`]),
+    /// a foot the evidence puts on it (its contact) is noted in the person's
+    /// [`BodyScale`] and the pose scaled about the camera centre by the frame's factor,
+    /// else the person's ([`PlacedBy::Floor`]); without, or before any contact, it keeps
+    /// the assumed size. An error (the pose has no size, or the result is not finite)
+    /// leaves `out` to be ignored.
     pub fn adjust(
         &mut self,
         e: &FrameEstimate,
         to_image: &PixelMap,
         camera: &Intrinsics,
-        floor: Option<(&FloorModel, &mut BodyScale)>,
+        floor: Option<OnFloor<'_>>,
         out: &mut MetricPose,
     ) -> Result<(), EstimateError> {
         let p = self.dict.num_joints();
@@ -294,7 +308,11 @@ impl MetricStep {
         self.dict.compose_into(&fit.coefficients, shape);
         // On the floor: upright, then the scale that stands the person on it.
         let (factor, scale_std) = match floor {
-            Some((floor, scale)) => {
+            Some(OnFloor {
+                floor,
+                scale,
+                looked,
+            }) => {
                 if let Some(top) = self.torso_top {
                     upright(fit, shape, self.root, top, floor);
                 }
@@ -303,7 +321,10 @@ impl MetricStep {
                     ankle_height: self.settings.floor.ankle_height * self.settings.mean_limb_length,
                     max_scale: self.settings.floor.max_scale,
                 };
-                match contact.scale(fit, shape, &out.keypoints, camera, floor, e.sequence, scale) {
+                let keypoints = &out.keypoints;
+                match contact.scale(
+                    fit, shape, keypoints, camera, floor, e.sequence, scale, looked,
+                ) {
                     Some((factor, spread)) => {
                         out.source = PlacedBy::Floor;
                         (factor, spread)
@@ -431,6 +452,7 @@ impl Contact<'_> {
         floor: &FloorModel,
         sequence: u64,
         scale: &mut BodyScale,
+        looked: bool,
     ) -> Option<(f64, f64)> {
         let foot = |j: usize| [keypoints[2 * j], keypoints[2 * j + 1]];
         // The person's height in the image: how far a foot may move and stand still.
@@ -446,9 +468,10 @@ impl Contact<'_> {
             .iter()
             .enumerate()
             .filter(|&(k, &j)| {
-                scale
-                    .foot_speed(sequence, k, foot(j))
-                    .is_some_and(|v| v <= still)
+                looked
+                    && scale
+                        .foot_speed(sequence, k, foot(j))
+                        .is_some_and(|v| v <= still)
             })
             .filter_map(|(_, &j)| {
                 let ray = camera.ray(keypoints[2 * j], keypoints[2 * j + 1]);
@@ -464,9 +487,14 @@ impl Contact<'_> {
                         || f.ln() - m.factor.ln() <= (CONTACT_GATE * m.spread).max(MIN_CONTACT_GATE)
                 })
             });
-        scale.note_feet(sequence, self.feet.iter().map(|&j| foot(j)));
-        if let Some(f) = own {
-            scale.note(sequence, f);
+        // Carried-over heat maps moved with the body: their feet say nothing.
+        if looked {
+            scale.note_feet(sequence, self.feet.iter().map(|&j| foot(j)));
+        }
+        match own {
+            Some(f) => scale.note(sequence, f),
+            // A refined estimate takes back its newest estimate's contact.
+            None => scale.forget(sequence),
         }
         let median = scale.estimate()?;
         // A frame's own factor strays from the median by the contacts' spread.

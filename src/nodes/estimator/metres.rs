@@ -8,7 +8,7 @@ use crate::error::EstimateError;
 use crate::floor::{BodyScale, FloorModel, FloorSource};
 use crate::learnt_floor::{FloorLearner, LearningSettings, LearningState, LearntFloor};
 use crate::limits::Limits;
-use crate::metres::{MetricPose, MetricSettings, MetricStep};
+use crate::metres::{MetricPose, MetricSettings, MetricStep, OnFloor};
 use crate::msgs::tf::TFMessage;
 use crate::msgs::{self};
 use crate::nodes::errors::{NodeError, SetupError};
@@ -342,13 +342,15 @@ pub(super) fn describe(f: &LearntFloor) -> String {
 
 /// The metric pose of estimate `e` into `m.pose`: refused when the frame's crop box is
 /// not in the camera's images (it does not overlap them; a crop may reach past an
-/// image's edge, as BlazePose's body circle does).
+/// image's edge, as BlazePose's body circle does). `looked`: the frame's heat maps come
+/// from a look in its image ([`OnFloor::looked`]).
 pub(super) fn metric_pose(
     m: &mut Metric,
     e: &FrameEstimate,
     to_image: &PixelMap,
     map_size: (f64, f64),
     scale: &mut BodyScale,
+    looked: bool,
 ) -> Result<(), String> {
     if let Some((width, height)) = m.size {
         let [x0, y0] = to_image.apply(-0.5, -0.5);
@@ -367,7 +369,11 @@ pub(super) fn metric_pose(
             e,
             to_image,
             &m.camera,
-            m.floor.as_ref().map(|f| (f, scale)),
+            m.floor.as_ref().map(|floor| OnFloor {
+                floor,
+                scale,
+                looked,
+            }),
             &mut m.pose,
         )
         .map_err(|e| e.to_string());

@@ -71,7 +71,14 @@ pub(super) fn release(
             continue;
         };
         let metres = match metric.as_deref_mut() {
-            Some(m) => match metric_pose(m, e, &info.to_image, info.map_size, &mut track.scale) {
+            Some(m) => match metric_pose(
+                m,
+                e,
+                &info.to_image,
+                info.map_size,
+                &mut track.scale,
+                info.frames_since_look == 0,
+            ) {
                 Ok(()) => Some(&m.pose),
                 Err(error) => {
                     m.failures += 1;

@@ -31,7 +31,7 @@ const JUMP_CROUCH: (f64, f64) = (0.15, 0.3);
 pub enum Motion {
     /// As captured.
     Captured,
-    /// Onto a step at `up` seconds, off it at `down` (never when infinite): the whole
+    /// Onto a step at `up` seconds, off it at `down` (never when `None`): the whole
     /// body lifted.
     Step {
         /// The step's height, metres.
@@ -39,7 +39,7 @@ pub enum Motion {
         /// Seconds when the climb starts.
         up: f64,
         /// Seconds when the way down starts.
-        down: f64,
+        down: Option<f64>,
     },
     /// Jumps from 1 s on, each with a crouch before take-off and after landing.
     Jump {
@@ -111,26 +111,25 @@ impl Motion {
             ("step", &[height, up]) => Motion::Step {
                 height,
                 up,
-                down: f64::INFINITY,
+                down: None,
             },
-            ("step", &[height, up, down]) if down >= up + RISE_S => {
-                Motion::Step { height, up, down }
-            }
-            ("jump", &[height, every]) => Motion::Jump {
-                height: positive(height, "the height")?.min(1.0),
+            ("step", &[height, up, down]) if down >= up + RISE_S => Motion::Step {
+                height,
+                up,
+                down: Some(down),
+            },
+            ("jump", &[height, every]) if height <= 1.0 => Motion::Jump {
+                height: positive(height, "the height")?,
                 every,
             },
-            ("crouch", &[depth, every]) => Motion::Crouch {
-                depth,
-                every: positive(every, "the period")?,
-            },
+            ("crouch", &[depth, every]) if every >= 0.5 => Motion::Crouch { depth, every },
             ("kneel", &[at, hold]) => Motion::Kneel { at, hold },
             ("sit", &[at, hold]) => Motion::Sit { at, hold },
             _ => {
                 return Err(format!(
                     "{text:?}: expected captured, step:HEIGHT,UP[,DOWN] (DOWN at least \
-                     {RISE_S} s after UP), jump:HEIGHT,EVERY, crouch:DEPTH,EVERY, \
-                     kneel:AT,HOLD or sit:AT,HOLD"
+                     {RISE_S} s after UP), jump:HEIGHT,EVERY (HEIGHT at most 1 m), \
+                     crouch:DEPTH,EVERY (EVERY at least 0.5 s), kneel:AT,HOLD or sit:AT,HOLD"
                 ));
             }
         };
@@ -214,11 +213,13 @@ pub fn apply(
     }
     let legs = legs(skeleton)?;
     let mut out = seq.clone();
+    // Where the body faces: the previous frame's where a frame does not tell.
+    let mut facing = Vector3::x();
     for t in 0..seq.frames {
         let s = t as f64 * seq.frame_time;
         let frame = &mut out.positions[3 * p * t..3 * p * (t + 1)];
         let at = |f: &[f64], j: usize| Vector3::from_column_slice(&f[3 * j..3 * j + 3]);
-        let facing = skeleton.facing(frame).unwrap_or_else(Vector3::x);
+        facing = skeleton.facing(frame).unwrap_or(facing);
         let hip_z = 0.5 * (at(frame, legs[0].0).z + at(frame, legs[1].0).z);
         // The thigh and shin of each leg as captured in this frame.
         let bones = legs.map(|(h, k, a)| {
@@ -235,7 +236,8 @@ pub fn apply(
         let (lift, ankles): (f64, [Option<Vector3<f64>>; 2]) = match *motion {
             Motion::Captured => (0.0, [None; 2]),
             Motion::Step { height, up, down } => {
-                let h = height * ease((s - up) / RISE_S) * (1.0 - ease((s - down) / RISE_S));
+                let down = down.map_or(1.0, |down| 1.0 - ease((s - down) / RISE_S));
+                let h = height * ease((s - up) / RISE_S) * down;
                 (h, [None; 2])
             }
             Motion::Jump { height, every } => {
@@ -263,6 +265,16 @@ pub fn apply(
                 }
             }
             Motion::Crouch { depth, every } => {
+                // The legs must reach the feet: the hips stay above them by the bones'
+                // difference and 5 cm.
+                let ankle_z = at(frame, legs[0].2).z.max(at(frame, legs[1].2).z);
+                if hip_z - depth < ankle_z + (thigh - shin).abs() + 0.05 {
+                    return Err(format!(
+                        "crouch: {depth} m is deeper than the legs bend (the hips are {:.2} m \
+                         above the feet at {s:.2} s)",
+                        hip_z - ankle_z
+                    ));
+                }
                 let d = 0.5 * depth * (1.0 - (std::f64::consts::TAU * s / every).cos());
                 (-d, legs.map(|(_, _, a)| Some(at(frame, a))))
             }
@@ -382,7 +394,7 @@ mod tests {
             Ok(Motion::Step {
                 height: 0.4,
                 up: 2.0,
-                down: f64::INFINITY
+                down: None
             })
         );
         assert!(matches!(
@@ -397,7 +409,9 @@ mod tests {
             "step:0.4,2,2.1",
             "jump:0.4,0.5",
             "jump:0,2",
+            "jump:1.5,9",
             "crouch:0.3,0",
+            "crouch:0.3,1e-320",
             "kneel:1,-2",
             "sit:1,NaN",
             "sit:1,inf",
@@ -446,6 +460,9 @@ mod tests {
         assert!((joint(&crouched, 30, pelvis).z - 0.5).abs() < 1e-9);
         assert!((joint(&crouched, 30, la) - joint(&seq, 30, la)).norm() < 1e-9);
         assert!(joint(&crouched, 30, lk).x > 0.2);
+
+        // Deeper than the legs bend: refused.
+        assert!(apply(&seq, &skel, &Motion::parse("crouch:0.8,2").unwrap()).is_err());
 
         let knelt = apply(&seq, &skel, &Motion::parse("kneel:1,2").unwrap()).unwrap();
         bones_kept(&seq, &knelt, &skel);
