@@ -513,6 +513,9 @@ fn synth_refuses_a_camera_or_a_motion_out_of_its_domain_in_one_error() {
         ("--motion=sit:1,inf", "[0, 1e4]"),
         ("--motion=step:0.4,2,1", "DOWN at least"),
         ("--motion=captured --motion=captured", "none or 1 --motion"),
+        ("--loop-to=0", "--loop-to must be in"),
+        ("--loop-to=61", "--loop-to must be in"),
+        ("--loop-to=nan", "--loop-to must be in"),
     ] {
         let out = Command::new(env!("CARGO_BIN_EXE_posestream"))
             .current_dir(root())

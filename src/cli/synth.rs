@@ -152,6 +152,11 @@ pub struct SynthArgs {
     /// Frames (0 = to the end; several people: to the end of the shortest take).
     #[arg(long, default_value_t = 0)]
     pub frames: usize,
+    /// Seconds each take lasts, played forward, then backward, and so on (no jump in
+    /// place or pose; at most 60): longer scenes from short takes. After `--start` and
+    /// `--frames`, before `--motion`.
+    #[arg(long, value_name = "SECONDS")]
+    pub loop_to: Option<f64>,
     /// Also write an MCAP recording (rosbag2-compatible) of the heat maps on
     /// `/posestream/heatmaps`, the ground truth on `/posestream/ground_truth` (track id
     /// = person) and a pinhole camera's `sensor_msgs/CameraInfo` on `/camera/camera_info`
@@ -205,6 +210,12 @@ fn placement(text: &str) -> Result<Placement, String> {
         _ => Err("expected ahead,left[,turn[,ahead_speed,left_speed]]".into()),
     }
 }
+
+/// `--loop-to` at most, seconds: a person's heat maps are held in memory (64 x 64 cells
+/// of 17 joints: 17 MB a second at 30 frames/s).
+const MAX_LOOP_S: f64 = 60.0;
+/// `--loop-to` at most, frames (60 s at 120 frames/s).
+const MAX_LOOP_FRAMES: f64 = 7200.0;
 
 /// The width of a body part (a bone: arms about 10 cm, legs 15, the trunk 30), metres,
 /// when people hide each other.
@@ -273,6 +284,23 @@ pub fn run(args: &SynthArgs) -> Result<(), CliError> {
         *t = t.frames_from(0, frames).expect("every take has frames");
     }
     let skel = &mapping.layout;
+    if let Some(seconds) = args.loop_to {
+        if !(seconds > 0.0 && seconds <= MAX_LOOP_S) {
+            return Err(CliError::Usage(format!(
+                "--loop-to must be in (0, {MAX_LOOP_S}] seconds, got {seconds}"
+            )));
+        }
+        for take in &mut takes {
+            let frames = (seconds / take.frame_time).round();
+            if frames.is_nan() || frames > MAX_LOOP_FRAMES {
+                return Err(CliError::Usage(format!(
+                    "--loop-to {seconds} s is {frames} frames of {} s: more than {MAX_LOOP_FRAMES}",
+                    take.frame_time
+                )));
+            }
+            *take = motion::ping_pong(take, frames as usize);
+        }
+    }
     for (take, motion) in takes.iter_mut().zip(&args.motion) {
         *take = motion::apply(take, skel, motion).map_err(CliError::Failed)?;
     }

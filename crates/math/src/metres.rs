@@ -72,13 +72,23 @@ pub struct MetricSettings {
     pub floor: FloorSettings,
 }
 
+/// The size prior: an adult's mean bone length over the skeleton's bones, metres, and its
+/// relative spread. Adults' stature, men and women pooled, is about 1.65 m with a standard
+/// deviation of about 9 cm (5.5 %; NCD Risk Factor Collaboration, "A century of trends
+/// in adult human height", eLife 2016); the motion capture's training takes have a mean
+/// bone length of 0.141 of their stature (0.2237 m on 1.57-1.61 m, head top to floor).
+/// The spread rounds 5.5 % up for the proportions, which differ between people too.
+pub const POPULATION_MEAN_LIMB: f64 = 0.233;
+/// The size prior's relative spread ([`POPULATION_MEAN_LIMB`]).
+pub const POPULATION_SIZE_STD: f64 = 0.06;
+
 impl Default for MetricSettings {
     fn default() -> Self {
         let p = PerspectiveParams::default();
         Self {
             intrinsics: Vec::new(),
-            mean_limb_length: p.mean_limb_length,
-            scale_std: 0.1,
+            mean_limb_length: POPULATION_MEAN_LIMB,
+            scale_std: POPULATION_SIZE_STD,
             depth_correction: 0.94,
             alpha: p.alpha,
             // With momentum (`perspective`), 35 matched 100 without it.

@@ -192,7 +192,7 @@ const MODES: [Mode; 5] = [
 
 /// A learnt floor at the end of a scene, against the camera's.
 struct Learnt {
-    scene: &'static str,
+    scene: String,
     mode: &'static str,
     /// The camera's true height and pitch.
     truth: (f64, f64),
@@ -200,12 +200,19 @@ struct Learnt {
     /// Of the refined skeletons, those placed by the floor.
     on_floor: usize,
     refined: usize,
+    /// Their root's error over its distance, median.
+    placed_root: Option<f64>,
 }
 
 /// `scale_std` when the subjects' size is given: the spread of the depth error left with
 /// the true size, measured on the training walks (68 % of the per-axis errors within
 /// 0.348 of the standard deviation composed with 0.1).
 const KNOWN_SIZE_SCALE_STD: f64 = 0.035;
+
+/// Seconds the walks are looped to (`synth --loop-to`) to learn the floor: the training
+/// and held-out takes last 4-11 s, and learning takes 300 person-frames before its first
+/// fit.
+const LEARN_SECONDS: f64 = 30.0;
 
 /// Frames after a person's first before their size is scored (2 s at 30 frames/s).
 const SIZE_AFTER_FRAMES: u64 = 60;
@@ -221,12 +228,16 @@ pub fn markdown(args: &ScenesArgs) -> Result<String, CliError> {
     // The people who do not just walk: their motion's name, their frame's errors.
     let mut moved: Vec<Vec<(&'static str, FrameError)>> = vec![Vec::new(); MODES.len()];
     let mut learnt = Vec::new();
-    // The training takes are too short for the moves.
+    // The training takes are too short for the moves. Each walk looped to
+    // `LEARN_SECONDS` learns the floor too.
     let moves: &[Walk] = if args.train { &[] } else { &MOVES };
-    for (i, walk) in WALKS.iter().chain(moves).enumerate() {
+    let mut runs: Vec<(&Walk, Option<f64>)> =
+        WALKS.iter().chain(moves).map(|w| (w, None)).collect();
+    runs.extend(WALKS.iter().map(|w| (w, Some(LEARN_SECONDS))));
+    for (i, (walk, looped)) in runs.into_iter().enumerate() {
         let dir = args.work.join(format!("walk-{i}"));
         let recording = dir.join("walk.mcap");
-        synth(args, walk, &dir, &recording)?;
+        synth(args, walk, looped, &dir, &recording)?;
         let tracked = dir.join("tracked.mcap");
         let tracking = track(
             &recording,
@@ -246,6 +257,10 @@ pub fn markdown(args: &ScenesArgs) -> Result<String, CliError> {
                 })
                 .collect();
         for (m, mode) in MODES.iter().enumerate() {
+            // The looped scenes only learn the floor.
+            if looped.is_some() && mode.floor != FloorSource::Learnt {
+                continue;
+            }
             let config = mode_config(&base, mode, args.mean_limb_length)?;
             let out = dir.join(format!("skeletons-{m}.mcap"));
             let options = ReplayOptions {
@@ -265,7 +280,7 @@ pub fn markdown(args: &ScenesArgs) -> Result<String, CliError> {
                     .collect();
             let lag = u32::try_from(config.estimator.window.lag).unwrap_or(u32::MAX);
             let (frames, _) = frame_errors(&skeletons, &truth, lag, &bones);
-            for e in frames {
+            for e in frames.into_iter().filter(|_| looped.is_none()) {
                 // The truth's ids are people 1, 2, ... of the scene.
                 let person = (e.person % 100) as usize;
                 match walk.people.get(person.wrapping_sub(1)) {
@@ -278,8 +293,17 @@ pub fn markdown(args: &ScenesArgs) -> Result<String, CliError> {
             }
             if mode.floor == FloorSource::Learnt {
                 let refined = skeletons.iter().filter(|s| s.lag == lag);
+                let placed: Vec<Skeleton3D> = refined
+                    .clone()
+                    .filter(|s| s.metric_source == MetricSource::Floor as u8)
+                    .cloned()
+                    .collect();
+                let (placed, _) = frame_errors(&placed, &truth, lag, &bones);
                 learnt.push(Learnt {
-                    scene: walk.name,
+                    scene: match looped {
+                        Some(seconds) => format!("{} (looped to {seconds:.0} s)", walk.name),
+                        None => walk.name.to_owned(),
+                    },
                     mode: mode.name,
                     truth: (walk.height, walk.tilt),
                     report: report.learnt_floor,
@@ -288,6 +312,8 @@ pub fn markdown(args: &ScenesArgs) -> Result<String, CliError> {
                         .filter(|s| s.metric_source == MetricSource::Floor as u8)
                         .count(),
                     refined: refined.count(),
+                    placed_root: (!placed.is_empty())
+                        .then(|| median(placed.iter().map(|e| e.root / e.distance).collect())),
                 });
             }
         }
@@ -346,40 +372,85 @@ fn moves_table(moved: &[Vec<(&'static str, FrameError)>]) -> String {
 fn learnt_table(learnt: &[Learnt]) -> String {
     let mut text = String::from(
         "The floors learnt (`source = \"learnt\"`, each scene from nothing): where learning \
-         stood at the scene's end, the camera's height and pitch against the truth, and the \
-         refined skeletons placed by the floor (the others by the assumed size, while the \
-         floor was not yet trusted).\n\n\
-         | scene | mode | state | height (true) | pitch (true) | roll | inliers | on the floor |\n\
-         |---|---|---|---:|---:|---:|---:|---:|\n",
+         stood at the scene's end, the camera's height and pitch against the truth (off: \
+         the error in the reported standard deviations; the height's composes the fit's \
+         with the size prior's, `scale_std` of it), the refined skeletons placed by the \
+         floor (the others by the assumed size, while the floor was not yet trusted) and \
+         their root's error over the distance (median).\n\n\
+         | scene | mode | state | height (true) | off | pitch (true) | off | roll | inliers | on the floor | their root |\n\
+         |---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|\n",
     );
     let pm = |v: Option<f64>, s: Option<f64>, unit: &str| match (v, s) {
         (Some(v), Some(s)) => format!("{v:.2} +- {s:.2}{unit}"),
         _ => "-".into(),
     };
+    // The error in standard deviations.
+    let off = |v: Option<f64>, s: Option<f64>, truth: f64| match (v, s) {
+        (Some(v), Some(s)) if s > 0.0 => Some((v - truth) / s),
+        _ => None,
+    };
+    let show = |z: Option<f64>| z.map_or("-".into(), |z| format!("{z:+.1}"));
+    // Of the trusted floors, and of all fits: height and pitch within 2 std.
+    let (mut fits, mut height_in, mut pitch_in) = (0, 0, 0);
+    let (mut trusted, mut trusted_height, mut trusted_pitch) = (0, 0, 0);
     for l in learnt {
         let r = l.report.as_ref();
+        let height = off(
+            r.and_then(|r| r.height),
+            r.and_then(|r| r.height_std),
+            l.truth.0,
+        );
+        let pitch = off(
+            r.and_then(|r| r.pitch),
+            r.and_then(|r| r.pitch_std),
+            l.truth.1,
+        );
+        if let (Some(h), Some(p)) = (height, pitch) {
+            fits += 1;
+            height_in += usize::from(h.abs() <= 2.0);
+            pitch_in += usize::from(p.abs() <= 2.0);
+            if r.is_some_and(|r| r.state == "accepted") {
+                trusted += 1;
+                trusted_height += usize::from(h.abs() <= 2.0);
+                trusted_pitch += usize::from(p.abs() <= 2.0);
+            }
+        }
         text.push_str(&format!(
-            "| {} | {} | {} | {} ({:.2} m) | {} ({:.0}°) | {} | {} | {} of {} |\n",
+            "| {} | {} | {} | {} ({:.2} m) | {} | {} ({:.0}°) | {} | {} | {} | {} of {} | {} |\n",
             l.scene,
             l.mode,
             r.map_or("no camera", |r| r.state.as_str()),
             pm(r.and_then(|r| r.height), r.and_then(|r| r.height_std), " m"),
             l.truth.0,
+            show(height),
             pm(r.and_then(|r| r.pitch), r.and_then(|r| r.pitch_std), "°"),
             l.truth.1,
+            show(pitch),
             pm(r.and_then(|r| r.roll), r.and_then(|r| r.roll_std), "°"),
             r.and_then(|r| r.inliers)
                 .map_or("-".into(), |i| format!("{:.0} %", 100.0 * i)),
             l.on_floor,
             l.refined,
+            l.placed_root
+                .map_or("-".into(), |e| format!("{:.1} %", 100.0 * e)),
         ));
     }
-    text.push('\n');
+    text.push_str(&format!(
+        "\nOf the {trusted} floors trusted, the height within 2 standard deviations of the \
+         truth in {trusted_height}, the pitch in {trusted_pitch}; of all {fits} fits (those \
+         rejected or still learning too), in {height_in} and {pitch_in}.\n\n"
+    ));
     text
 }
 
 /// `synth` of one walk into `recording`.
-fn synth(args: &ScenesArgs, walk: &Walk, dir: &Path, recording: &Path) -> Result<(), CliError> {
+fn synth(
+    args: &ScenesArgs,
+    walk: &Walk,
+    looped: Option<f64>,
+    dir: &Path,
+    recording: &Path,
+) -> Result<(), CliError> {
     let mut argv: Vec<String> = vec!["synth".into(), "--mapping".into()];
     argv.push(args.mapping.display().to_string());
     let moves = walk.people.iter().any(|(_, _, motion)| !motion.is_empty());
@@ -409,9 +480,15 @@ fn synth(args: &ScenesArgs, walk: &Walk, dir: &Path, recording: &Path) -> Result
         "--mcap".into(),
         recording.display().to_string(),
     ]);
+    if let Some(seconds) = looped {
+        argv.push(format!("--loop-to={seconds}"));
+    }
     let synth = SynthCommand::try_parse_from(&argv)
         .map_err(|e| CliError::Usage(format!("{}: {e}", walk.name)))?;
-    crate::cli::synth::run(&synth.args)
+    crate::cli::synth::run(&synth.args)?;
+    // Only the recording is used: the NPY files go (hundreds of MB a scene).
+    let seq = dir.join("seq");
+    std::fs::remove_dir_all(&seq).map_err(|source| CliError::File { path: seq, source })
 }
 
 /// The configuration of one mode.

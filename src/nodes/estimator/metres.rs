@@ -75,12 +75,17 @@ pub struct FloorReport {
     pub points: usize,
     /// The camera's height above the floor, metres.
     pub height: Option<f64>,
-    /// Its standard deviation, metres.
+    /// Its standard deviation, metres: the fit's and the size prior's
+    /// (`scale_std` of it), composed.
     pub height_std: Option<f64>,
+    /// The fit's share of it, metres.
+    pub height_fit_std: Option<f64>,
     /// Pitch, degrees, positive looking down.
     pub pitch: Option<f64>,
-    /// Its standard deviation, degrees.
+    /// Its standard deviation, degrees: the fit's and a bias it does not see, composed.
     pub pitch_std: Option<f64>,
+    /// The fit's share of it, degrees.
+    pub pitch_fit_std: Option<f64>,
     /// Roll, degrees.
     pub roll: Option<f64>,
     /// Its standard deviation, degrees.
@@ -102,8 +107,10 @@ impl FloorReport {
             points: learner.points(),
             height: newest.map(|f| f.model.height()),
             height_std: newest.map(|f| f.height_std),
+            height_fit_std: newest.map(|f| f.height_fit_std),
             pitch: angles.map(|a| a.0),
             pitch_std: newest.map(|f| f.pitch_std),
+            pitch_fit_std: newest.map(|f| f.pitch_fit_std),
             roll: angles.map(|a| a.1),
             roll_std: newest.map(|f| f.roll_std),
             inliers: newest.map(|f| f.inliers),
@@ -154,6 +161,7 @@ impl EstimatorNode {
             let s = &self.metric_settings;
             let settings = LearningSettings {
                 root_height_m: s.floor.root_height * s.mean_limb_length,
+                size_std: s.scale_std,
                 ..LearningSettings::default()
             };
             let window = self.template.settings();
@@ -329,10 +337,12 @@ pub(super) fn learn_floor(m: &mut Metric, id: u32, lag: usize) {
 pub(super) fn describe(f: &LearntFloor) -> String {
     let (pitch, roll) = f.model.pitch_roll();
     format!(
-        "camera {:.2} +- {:.2} m high, pitch {pitch:.1} +- {:.1}, roll {roll:.1} +- {:.1} degrees, \
-         from {} person-frames ({:.0} % on the plane)",
+        "camera {:.2} +- {:.2} m high (the fit's +- {:.2}, the rest people's sizes), pitch \
+         {pitch:.1} +- {:.1}, roll {roll:.1} +- {:.1} degrees, from {} person-frames ({:.0} % \
+         on the plane)",
         f.model.height(),
         f.height_std,
+        f.height_fit_std,
         f.pitch_std,
         f.roll_std,
         f.points,

@@ -62,7 +62,13 @@ fn learns_a_tilted_rolled_floor_from_two_walkers_and_how_sure_it_is() {
         (pitch - 20.0).abs() < 1.0 && (roll - 5.0).abs() < 1.0,
         "{pitch} {roll}"
     );
-    assert!(f.height_std > 0.0 && f.height_std < 0.075, "{f:?}");
+    assert!(f.height_fit_std > 0.0 && f.height_fit_std < 0.075, "{f:?}");
+    // The reported one adds the size prior's 6 %.
+    let prior = crate::metres::POPULATION_SIZE_STD * f.model.height();
+    assert!(
+        (f.height_std - f.height_fit_std.hypot(prior)).abs() < 1e-12,
+        "{f:?}"
+    );
     assert!(f.inliers > 0.9, "{f:?}");
 }
 
@@ -74,6 +80,9 @@ fn a_size_error_scales_the_height_but_keeps_the_tilt() {
     let (pitch, _) = f.model.pitch_roll();
     assert!((f.model.height() / 2.0 - 1.12).abs() < 0.03, "{f:?}");
     assert!((pitch - 15.0).abs() < 1.0, "{pitch}");
+    // As reported: 12 % off is 1.8 standard deviations of a 6 % prior (of 2.24 m).
+    let off = (f.model.height() - 2.0) / f.height_std;
+    assert!(off > 1.6 && off < 2.0, "{off} {f:?}");
 }
 
 #[test]

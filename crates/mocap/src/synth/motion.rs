@@ -198,6 +198,29 @@ fn bend(
     (hip + u * along + side * across, ankle)
 }
 
+/// `seq` played forward, then backward, and so on, to `frames` frames: a longer take
+/// with no jump in place or pose (the motion runs backward from each end: a walker walks
+/// back the way they came, facing on). `frames` 0 or a take of one frame: unchanged.
+pub fn ping_pong(seq: &MappedSequence, frames: usize) -> MappedSequence {
+    let n = seq.frames;
+    if frames == 0 || n < 2 {
+        return seq.clone();
+    }
+    let row = 3 * seq.joints;
+    let period = 2 * (n - 1);
+    let mut positions = Vec::with_capacity(frames * row);
+    for t in 0..frames {
+        let u = t % period;
+        let i = if u < n { u } else { period - u };
+        positions.extend_from_slice(&seq.positions[i * row..(i + 1) * row]);
+    }
+    MappedSequence {
+        frames,
+        positions,
+        ..seq.clone()
+    }
+}
+
 /// `seq` moved as `motion` says (`Captured`: unchanged).
 pub fn apply(
     seq: &MappedSequence,
@@ -384,6 +407,23 @@ mod tests {
                 );
             }
         }
+    }
+
+    #[test]
+    fn ping_pong_runs_the_take_back_and_forth_without_a_jump() {
+        let seq = MappedSequence {
+            joints: 1,
+            frames: 3,
+            frame_time: 0.1,
+            positions: vec![0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 2.0, 0.0, 0.0],
+        };
+        let long = ping_pong(&seq, 8);
+        let x: Vec<f64> = long.positions.chunks(3).map(|p| p[0]).collect();
+        assert_eq!(x, [0.0, 1.0, 2.0, 1.0, 0.0, 1.0, 2.0, 1.0]);
+        assert_eq!((long.frames, long.joints, long.frame_time), (8, 1, 0.1));
+        // Shorter than the take: its first frames; nothing to loop: unchanged.
+        assert_eq!(ping_pong(&seq, 2).positions, seq.positions[..6]);
+        assert_eq!(ping_pong(&seq, 0), seq);
     }
 
     #[test]
