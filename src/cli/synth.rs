@@ -153,8 +153,9 @@ pub struct SynthArgs {
     #[arg(long, default_value_t = 0)]
     pub frames: usize,
     /// Seconds each take lasts, played forward, then backward, and so on (no jump in
-    /// place or pose; at most 60): longer scenes from short takes. After `--start` and
-    /// `--frames`, before `--motion`.
+    /// place or pose; at most 60; shorter than the take: cut): longer scenes from short
+    /// takes. After `--start` and `--frames`, before `--motion`; a `--place` speed goes
+    /// on the whole time.
     #[arg(long, value_name = "SECONDS")]
     pub loop_to: Option<f64>,
     /// Also write an MCAP recording (rosbag2-compatible) of the heat maps on
@@ -292,9 +293,9 @@ pub fn run(args: &SynthArgs) -> Result<(), CliError> {
         }
         for take in &mut takes {
             let frames = (seconds / take.frame_time).round();
-            if frames.is_nan() || frames > MAX_LOOP_FRAMES {
+            if frames.is_nan() || !(1.0..=MAX_LOOP_FRAMES).contains(&frames) {
                 return Err(CliError::Usage(format!(
-                    "--loop-to {seconds} s is {frames} frames of {} s: more than {MAX_LOOP_FRAMES}",
+                    "--loop-to {seconds} s is {frames} frames of {} s: not 1 to {MAX_LOOP_FRAMES}",
                     take.frame_time
                 )));
             }
@@ -406,6 +407,7 @@ fn write_npy(
         "mapping": mapping,
         "joints": skel.joints,
         "frames": f,
+        "loop_to": args.loop_to,
         "start": args.start,
         "frame_time": person.frame_time,
         "camera": cam,

@@ -16,17 +16,19 @@
 //! each person's roots span an area (the tilt then exact whatever their sizes), else one
 //! plane for everyone (people walking on lines: the tilt across the lines comes from
 //! where the people are). The camera's height is the people's median (the body-size
-//! prior, averaged over the people seen). Its uncertainty is the jackknife's over ten
-//! blocks of consecutive points (a tenth of the points kept: half a second of two people
-//! at the first fit, six seconds once 3600 are kept): the spread of the fit, not the
-//! size prior's error nor a bias of the placed roots, which it does not see (a roll
-//! learnt 1.7 degrees off had a standard deviation of 0.3).
+//! prior, averaged over the people seen). The fit's uncertainty is the jackknife's over
+//! ten blocks of consecutive points (a tenth of the points kept: half a second of two
+//! people at the first fit, six seconds once 3600 are kept): its spread, not the size
+//! prior's error nor a bias of the placed roots, which it does not see. The height's and
+//! pitch's reported deviations add those ([`LearningSettings::size_std`], `PITCH_BIAS`);
+//! the roll's is the fit's alone (a roll learnt 1.7 degrees off had one of 0.3).
 //!
 //! A fit is trusted ([`LearningState::Accepted`]) only when it is consistent (the
 //! people's heights of the camera agree within what body sizes differ by: not people on
 //! two levels, as on stairs or a balcony, nor someone sitting; most roots on their
 //! plane), spread (the roots span an area, not one line, which would leave the roll about
-//! it unknown), certain (height, pitch and roll within their limits) and plausible (a
+//! it unknown), certain (the fit's deviations of height, pitch and roll within their
+//! limits) and plausible (a
 //! camera above the floor, not upside down); otherwise it is rejected or still learning,
 //! and the metric step keeps the assumed size.
 
@@ -104,7 +106,7 @@ impl Default for LearningSettings {
             points: 3600,
             min_points: 300,
             refit_every: 30,
-            root_height_m: 0.99,
+            root_height_m: 0.92,
             min_inliers: 0.8,
             max_height_spread: 0.2,
             min_spread: 0.1,

@@ -386,7 +386,7 @@ fn learnt_table(learnt: &[Learnt]) -> String {
     };
     // The error in standard deviations.
     let off = |v: Option<f64>, s: Option<f64>, truth: f64| match (v, s) {
-        (Some(v), Some(s)) if s > 0.0 => Some((v - truth) / s),
+        (Some(v), Some(s)) if s > 0.0 && s.is_finite() => Some((v - truth) / s),
         _ => None,
     };
     let show = |z: Option<f64>| z.map_or("-".into(), |z| format!("{z:+.1}"));

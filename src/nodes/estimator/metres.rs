@@ -338,12 +338,13 @@ pub(super) fn describe(f: &LearntFloor) -> String {
     let (pitch, roll) = f.model.pitch_roll();
     format!(
         "camera {:.2} +- {:.2} m high (the fit's +- {:.2}, the rest people's sizes), pitch \
-         {pitch:.1} +- {:.1}, roll {roll:.1} +- {:.1} degrees, from {} person-frames ({:.0} % \
-         on the plane)",
+         {pitch:.1} +- {:.1} (the fit's +- {:.1}), roll {roll:.1} +- {:.1} degrees, from {} \
+         person-frames ({:.0} % on the plane)",
         f.model.height(),
         f.height_std,
         f.height_fit_std,
         f.pitch_std,
+        f.pitch_fit_std,
         f.roll_std,
         f.points,
         100.0 * f.inliers

@@ -31,7 +31,11 @@ fn walkers(
             let z = level.get(k).copied().unwrap_or(0.0);
             // A person `size` times too small for the assumed size has their root
             // that much lower.
-            let root = nalgebra::Point3::new(ahead, left, z + 0.99 / size + bob);
+            let root = nalgebra::Point3::new(
+                ahead,
+                left,
+                z + LearningSettings::default().root_height_m / size + bob,
+            );
             let camera = (inverse * root).coords * *size;
             out.push((
                 k as u32,
@@ -133,7 +137,9 @@ fn one_walker_on_one_line_is_still_learning() {
             let ahead = 6.0 + 3.0 * (t as f64 / 60.0).sin();
             (
                 1,
-                (inverse * nalgebra::Point3::new(ahead, 0.0, 0.99)).coords,
+                (inverse
+                    * nalgebra::Point3::new(ahead, 0.0, LearningSettings::default().root_height_m))
+                .coords,
             )
         })
         .collect();

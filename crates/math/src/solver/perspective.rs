@@ -49,8 +49,9 @@ use posestream_base::PixelMap;
 #[serde(deny_unknown_fields, default)]
 pub struct PerspectiveParams {
     /// Mean bone length of the skeleton, metres: sets the metric scale. The default,
-    /// 0.25 m, is a typical adult's over the 16 bones of the 17-joint layout; a dictionary
-    /// learned from mocap should use its training subjects' value.
+    /// 0.25 m, is a tall adult's over the 16 bones of the 17-joint layout (the streaming
+    /// metric step assumes a prior of adults instead: `metres::POPULATION_MEAN_LIMB`); a
+    /// dictionary learned from mocap should use its training subjects' value.
     pub mean_limb_length: f64,
     /// L1 weight of the C-step, in the units of `alpha` (light: the weak fit already
     /// chose the atoms).
