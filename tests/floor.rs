@@ -247,6 +247,8 @@ fn hostile_transforms_are_refused_and_counted_and_the_buffer_stays_bounded() {
         TfTopic::Dynamic,
     );
     assert_eq!(node.refused().of("tf"), 5, "{:?}", node.refused());
+    // Counted for the reports: all but the room the buffer had.
+    assert!(node.tf_evicted() > 9_000, "{}", node.tf_evicted());
     // So many latched frames that the buffer is full of them: refused, counted, never
     // unbounded.
     node.transforms(

@@ -93,6 +93,12 @@ impl Summary for service::EstimatorReport {
                 self.unknown_id_tracks
             ));
         }
+        if self.tf_evicted > 0 {
+            text.push_str(&format!(
+                "; {} transforms dropped from the full TF buffer (the least recently sent)",
+                self.tf_evicted
+            ));
+        }
         if let Some(e) = &self.input_error {
             text.push_str(&format!("\ninput ended early: {e}"));
         }

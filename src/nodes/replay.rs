@@ -70,6 +70,8 @@ pub struct ReplayReport {
     /// Where learning the floor stood at the end (`[estimator.metric.floor] source =
     /// "learnt"`).
     pub learnt_floor: Option<super::FloorReport>,
+    /// With the floor from TF: frames the transform buffer dropped to make room.
+    pub tf_evicted: u64,
 }
 
 /// Why a replay failed.
@@ -272,6 +274,7 @@ pub fn replay(
         skipped,
         unknown_id_tracks: report.unknown_id_tracks,
         learnt_floor: report.learnt_floor,
+        tf_evicted: report.tf_evicted,
     })
 }
 

@@ -128,6 +128,8 @@ pub struct EstimatorReport {
     /// Where learning the floor stood at the end (`[estimator.metric.floor] source =
     /// "learnt"`).
     pub learnt_floor: Option<FloorReport>,
+    /// With the floor from TF: frames the transform buffer dropped to make room.
+    pub tf_evicted: u64,
 }
 
 /// The estimator node's decision core; see the module docs.
@@ -263,6 +265,7 @@ impl<'a> EstimatorCore<'a> {
             input_error: self.input_error.clone(),
             unknown_id_tracks: node.tracks_from_unknown_ids(),
             learnt_floor: node.learnt_floor(),
+            tf_evicted: node.tf_evicted(),
         }
     }
 

@@ -247,6 +247,12 @@ impl EstimatorNode {
         self.metric.as_ref().and_then(|m| m.floor)
     }
 
+    /// With the floor from TF: frames the transform buffer dropped to make room for new
+    /// ones (the `/tf` frame sent least recently, one no lookup passed through first).
+    pub fn tf_evicted(&self) -> u64 {
+        self.tf.as_ref().map_or(0, |tf| tf.buffer.evicted())
+    }
+
     /// Where learning the floor stands (`None` unless it is learnt and the camera known).
     pub fn learnt_floor(&self) -> Option<FloorReport> {
         let (learner, _) = self.metric.as_ref()?.learner.as_ref()?;
