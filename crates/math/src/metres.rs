@@ -73,11 +73,12 @@ pub struct MetricSettings {
 }
 
 /// The size prior: an adult's mean bone length over the skeleton's bones, metres, and its
-/// relative spread. Adults' stature, men and women pooled, is about 1.65 m with a standard
-/// deviation of about 9 cm (5.5 %; NCD Risk Factor Collaboration, "A century of trends
-/// in adult human height", eLife 2016); the motion capture's training takes have a mean
-/// bone length of 0.141 of their stature (0.2237 m on 1.57-1.61 m, head top to floor).
-/// The spread rounds 5.5 % up for the proportions, which differ between people too.
+/// relative spread. Adults' mean stature, men and women pooled, is about 1.65 m (NCD Risk
+/// Factor Collaboration, "A century of trends in adult human height", eLife 2016), with a
+/// spread of about 9 cm (5.5 %) derived from about 7 cm within each sex and the gap
+/// between them; the motion capture's training takes (three actors) have a mean bone
+/// length of 0.141 of their stature (0.2235 m on 1.57-1.61 m, head top to floor). The
+/// spread rounds 5.5 % up for the proportions, which differ between people too.
 pub const POPULATION_MEAN_LIMB: f64 = 0.233;
 /// The size prior's relative spread ([`POPULATION_MEAN_LIMB`]).
 pub const POPULATION_SIZE_STD: f64 = 0.06;
@@ -448,8 +449,8 @@ impl Contact<'_> {
     /// and its relative std: this frame's own contact when it has a trusted one (noted
     /// in `scale`), else the person's median over their last contacts (their size, kept
     /// through frames without a contact); `None` before any contact. A contact is a foot
-    /// the evidence puts on the floor: still in the image since the frame before (a
-    /// swinging or jumping foot is not), the one whose observed ray meets the floor
+    /// the evidence puts on the floor: still in the image against the nearest of the 3
+    /// frames before (a foot kicked forward or taking off is not), the one whose observed ray meets the floor
     /// nearest (the other is lifted or further), and, once the person has contacts, its
     /// factor not far above their median (a foot on a step or at a jump's top is not).
     #[allow(clippy::too_many_arguments, reason = "one frame's inputs")]
@@ -472,8 +473,7 @@ impl Contact<'_> {
                 (lo.min(p[1]), hi.max(p[1]))
             });
         let still = STILL_FOOT * (hi - lo).max(1.0);
-        let before = scale.estimate();
-        let own = self
+        let candidate = self
             .feet
             .iter()
             .enumerate()
@@ -490,13 +490,14 @@ impl Contact<'_> {
             })
             .min_by(|a, b| a.0.total_cmp(&b.0))
             .map(|(seen, fitted)| seen / fitted)
-            .filter(|f| *f <= self.max_scale && f * self.max_scale >= 1.0)
-            .filter(|f| {
-                before.is_none_or(|m| {
-                    m.contacts < GATE_AFTER
-                        || f.ln() - m.factor.ln() <= (CONTACT_GATE * m.spread).max(MIN_CONTACT_GATE)
-                })
-            });
+            .filter(|f| *f <= self.max_scale && f * self.max_scale >= 1.0);
+        // The person's median before this frame, only when there is a contact to gate.
+        let own = candidate.filter(|f| {
+            scale.estimate().is_none_or(|m| {
+                m.contacts < GATE_AFTER
+                    || f.ln() - m.factor.ln() <= (CONTACT_GATE * m.spread).max(MIN_CONTACT_GATE)
+            })
+        });
         // Carried-over heat maps moved with the body: their feet say nothing.
         if looked {
             scale.note_feet(sequence, self.feet.iter().map(|&j| foot(j)));

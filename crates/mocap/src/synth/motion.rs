@@ -108,6 +108,9 @@ impl Motion {
         };
         let motion = match (kind, &v[..]) {
             ("captured", []) => Motion::Captured,
+            ("step", &[height, _, ..]) if height > 2.0 => {
+                return Err(format!("{text:?}: a step of {height} m: at most 2 m"));
+            }
             ("step", &[height, up]) => Motion::Step {
                 height,
                 up,
@@ -447,6 +450,7 @@ mod tests {
             "fly:1",
             "step:0.4",
             "step:0.4,2,2.1",
+            "step:1e4,1",
             "jump:0.4,0.5",
             "jump:0,2",
             "jump:1.5,9",
