@@ -316,6 +316,67 @@ fn wait_for_line(lines: &std::sync::mpsc::Receiver<String>, wanted: &str, limit:
     }
 }
 
+/// The estimator of `est` serving over ROS 2 (heat maps and the camera's calibration in,
+/// its outputs out, recorded as `est` says) on a thread of its own, until `stop`.
+fn estimator_over_ros2(
+    est: &ServiceConfig,
+    stop: &'static AtomicBool,
+) -> std::thread::JoinHandle<service::EstimatorReport> {
+    let mut est = est.clone();
+    est.outputs.ros2 = true;
+    est.ros.node_name = "estimator".into();
+    let mut node = EstimatorNode::from_service_config(&est).expect("node");
+    let mut wiring = Wiring::open(&est, Some(Transport::Ros2)).expect("wiring");
+    wiring.start_recording(&est).expect("recording");
+    let mut outputs = wiring.estimator_outputs(&est, &node).expect("outputs");
+    let input = wiring
+        .estimator_input(&est, Transport::Ros2)
+        .expect("input");
+    common::spawn("estimator", move || {
+        let report = serve_estimator(&mut node, input, &mut outputs, stop).expect("serves");
+        drop(outputs);
+        wiring.conclude(None).expect("recording finished");
+        report
+    })
+}
+
+/// The detector's side over ROS 2, once an estimator is discovered: the camera's
+/// calibration, then the heat maps of `rec` at their pace. Its middleware is returned,
+/// to be kept until the estimator is done.
+fn detect_over_ros2(c: &ServiceConfig, rec: &Path) -> Middleware {
+    let mut det = c.clone();
+    det.outputs.ros2 = true;
+    det.ros.node_name = "detector".into();
+    let mut middleware = Middleware::open(&det, None).expect("middleware");
+    let sinks = service::detector_outputs(&det, &mut middleware, &service::Taps::default())
+        .expect("outputs");
+    let ros = middleware.ros.clone().expect("ros");
+    let mut camera = ros.sink::<CameraInfo>(&c.topics.camera_info).expect("sink");
+    let start = Instant::now();
+    while ros.subscriptions(&c.topics.heatmaps) == 0
+        || ros.subscriptions(&c.topics.camera_info) == 0
+    {
+        assert!(
+            start.elapsed() < Duration::from_secs(30),
+            "no estimator discovered"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    std::thread::sleep(ros.match_settle());
+    let info: Vec<CameraInfo> = common::messages(rec, &c.topics.camera_info);
+    camera.send(&info[0], 0).expect("camera info sent");
+    let source = service::recording_source(&det, rec).expect("source");
+    let report = service::run_detector_on_runtime(
+        source,
+        sinks,
+        ReplayRate::Recorded,
+        &AtomicBool::new(false),
+    )
+    .expect("runs");
+    assert_eq!(report.failed_sends, 0);
+    middleware
+}
+
 /// The deployment: a robot's `/tf_static` published by another ROS 2 stack (Python's
 /// `cyclonedds`, as tf2's static broadcaster does: latched, once) before the estimator
 /// starts; the estimator, reading heat maps and the camera's calibration over ROS 2 and
@@ -349,57 +410,11 @@ fn a_ros2_estimator_reads_the_floor_from_a_tf_static_publisher_that_came_before_
     wait_for_line(&lines, "published", Duration::from_secs(60));
     // The estimator: ROS 2 in, skeletons and its body frames out on ROS 2, recorded.
     let mut est = c.clone();
-    est.outputs.ros2 = true;
     est.outputs.tf = true;
     est.outputs.record = dir.path().join("estimator.mcap");
-    est.ros.node_name = "estimator".into();
-    let estimator = {
-        let mut node = EstimatorNode::from_service_config(&est).expect("node");
-        let mut wiring = Wiring::open(&est, Some(Transport::Ros2)).expect("wiring");
-        wiring.start_recording(&est).expect("recording");
-        let mut outputs = wiring.estimator_outputs(&est, &node).expect("outputs");
-        let input = wiring
-            .estimator_input(&est, Transport::Ros2)
-            .expect("input");
-        common::spawn("estimator", move || {
-            let report = serve_estimator(&mut node, input, &mut outputs, &STOP).expect("serves");
-            drop(outputs);
-            wiring.conclude(None).expect("recording finished");
-            report
-        })
-    };
+    let estimator = estimator_over_ros2(&est, &STOP);
     wait_for_line(&lines, "matched", Duration::from_secs(30));
-    // The detector's side: the camera's calibration, then the heat maps, over ROS 2.
-    let mut det = c.clone();
-    det.outputs.ros2 = true;
-    det.ros.node_name = "detector".into();
-    let mut middleware = Middleware::open(&det, None).expect("middleware");
-    let sinks = service::detector_outputs(&det, &mut middleware, &service::Taps::default())
-        .expect("outputs");
-    let ros = middleware.ros.clone().expect("ros");
-    let mut camera = ros.sink::<CameraInfo>(&c.topics.camera_info).expect("sink");
-    let start = Instant::now();
-    while ros.subscriptions(&c.topics.heatmaps) == 0
-        || ros.subscriptions(&c.topics.camera_info) == 0
-    {
-        assert!(
-            start.elapsed() < Duration::from_secs(30),
-            "no estimator discovered"
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    std::thread::sleep(ros.match_settle());
-    let info: Vec<CameraInfo> = common::messages(&rec, &c.topics.camera_info);
-    camera.send(&info[0], 0).expect("camera info sent");
-    let source = service::recording_source(&det, &rec).expect("source");
-    let report = service::run_detector_on_runtime(
-        source,
-        sinks,
-        ReplayRate::Recorded,
-        &AtomicBool::new(false),
-    )
-    .expect("runs");
-    assert_eq!(report.failed_sends, 0);
+    let middleware = detect_over_ros2(&c, &rec);
     // The estimator ends the track after its gap; then stops.
     std::thread::sleep(Duration::from_secs(3));
     STOP.store(true, std::sync::atomic::Ordering::Relaxed);
@@ -741,6 +756,100 @@ fn a_floor_learnt_from_two_walkers_is_trusted_and_places_them() {
     assert!(
         median < 0.05 && depth.abs() < 0.05,
         "root {median:.4}, depth {depth:.4}"
+    );
+}
+
+/// The learnt floor's deployment: the estimator learns the floor from two walkers it
+/// reads over ROS 2 and publishes it on `topics.floor` with its covariance, latched: a
+/// client of another ROS 2 stack (Python's `cyclonedds`) that joins after it was
+/// published gets it, and it is the floor the estimator reports and recorded.
+#[test]
+fn a_ros2_estimator_publishes_its_learnt_floor_with_covariance_to_a_late_subscriber() {
+    use posestream::msgs::tf::PoseWithCovarianceStamped;
+    static STOP: AtomicBool = AtomicBool::new(false);
+    let dir = tempfile::tempdir().expect("tempdir");
+    let rec = two_walkers(dir.path());
+    let mut c = config(FloorSource::Learnt);
+    c.estimator.metric.mean_limb_length = 0.2235;
+    c.ros.localhost_only = true;
+    c.ros.domain_id = (std::process::id() % 90) as u16 + 30;
+    let mut est = c.clone();
+    est.outputs.record = dir.path().join("estimator.mcap");
+    let estimator = estimator_over_ros2(&est, &STOP);
+    let middleware = detect_over_ros2(&c, &rec);
+    std::thread::sleep(Duration::from_secs(3));
+    let domain = c.ros.domain_id.to_string();
+    let heard = common::python_client(
+        "ros2_floor_subscriber.py",
+        &[&domain, &c.topics.floor, "30"],
+    );
+    STOP.store(true, std::sync::atomic::Ordering::Relaxed);
+    let report = estimator.join().expect("estimator");
+    drop(middleware);
+    let floor = report.learnt_floor.expect("a learnt floor's report");
+    assert_eq!(floor.state, "accepted", "{floor:?}");
+    let recorded: Vec<PoseWithCovarianceStamped> =
+        common::messages(&est.outputs.record, &c.topics.floor);
+    eprintln!(
+        "{} floors published; the last heard: {heard}",
+        recorded.len()
+    );
+    let last = recorded.last().expect("the floor published");
+    assert_eq!(heard["frame_id"], "posestream_floor", "{heard}");
+    let number = |v: &serde_json::Value| v.as_f64().expect("a number");
+    let (position, covariance) = (&heard["position"], &heard["covariance"]);
+    let covariance: Vec<f64> = covariance
+        .as_array()
+        .expect("36 numbers")
+        .iter()
+        .map(number)
+        .collect();
+    assert_eq!(covariance.len(), 36);
+    assert_eq!(covariance, last.pose.covariance.0.to_vec());
+    assert_eq!(number(&position[2]), last.pose.pose.position.z);
+    // Python's MCAP readers decode the recording's floors alike.
+    let read = common::python_client(
+        "read_recording.py",
+        &[est.outputs.record.to_str().expect("utf-8")],
+    );
+    let floors = read["floors"].as_array().expect("floors");
+    assert_eq!(floors.len(), recorded.len(), "{read}");
+    assert_eq!(
+        floors.last(),
+        Some(&serde_json::json!({
+            "frame_id": "posestream_floor",
+            "position": position,
+            "covariance": covariance,
+        }))
+    );
+    // The floor reported, its deviations squared on the diagonal (z; roll, pitch about x, y).
+    let height = floor.height.expect("height");
+    assert!(
+        (number(&position[2]) - height).abs() < 1e-9,
+        "{heard} {floor:?}"
+    );
+    let std = |i: usize| covariance[i * 6 + i].sqrt();
+    assert!((std(2) - floor.height_std.expect("std")).abs() < 1e-9);
+    assert!((std(3).to_degrees() - floor.roll_std.expect("std")).abs() < 1e-9);
+    assert!((std(4).to_degrees() - floor.pitch_std.expect("std")).abs() < 1e-9);
+    // And it holds the truth within 2 of them.
+    assert!((height - HEIGHT).abs() < 2.0 * std(2), "{floor:?}");
+    let pitch = floor.pitch.expect("pitch");
+    assert!(
+        (pitch - PITCH).abs() < 2.0 * std(4).to_degrees(),
+        "{floor:?}"
+    );
+    let q = &heard["orientation"];
+    let rotation = UnitQuaternion::from_quaternion(Quat::new(
+        number(&q[3]),
+        number(&q[0]),
+        number(&q[1]),
+        number(&q[2]),
+    ));
+    let model = FloorModel::new(rotation, V3::new(0.0, 0.0, height)).expect("a floor");
+    assert!(
+        (model.pitch_roll().0 - pitch).abs() < 1e-6,
+        "{heard} {floor:?}"
     );
 }
 

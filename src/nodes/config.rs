@@ -282,6 +282,7 @@ impl ServiceConfig {
             ("camera_info", &t.camera_info),
             ("tf", &t.tf),
             ("tf_static", &t.tf_static),
+            ("floor", &t.floor),
         ];
         // The bodies' namespace: its topics are names of their own (`/humans/bodies/tracked`).
         check_topic_name("hri_bodies", &t.hri_bodies).map_err(|x| x.within("topics"))?;
@@ -674,6 +675,10 @@ pub struct Topics {
     /// Transforms valid at all times (`tf2_msgs/TFMessage`, latched): where the estimator
     /// reads a fixed camera's place over the floor (`[estimator.metric.floor] source = "tf"`).
     pub tf_static: String,
+    /// The learnt floor with its uncertainty (`geometry_msgs/PoseWithCovarianceStamped`,
+    /// latched: the camera's pose over `[estimator.metric.floor] published_frame`), each
+    /// time a fit is trusted (`source = "learnt"`).
+    pub floor: String,
     /// The namespace of REP-155's bodies: `<this>/tracked` lists the ids, and
     /// `<this>/<id>/roi` and `<this>/<id>/skeleton2d` describe each.
     pub hri_bodies: String,
@@ -691,6 +696,7 @@ impl Default for Topics {
             camera_info: "/camera/camera_info".into(),
             tf: "/tf".into(),
             tf_static: "/tf_static".into(),
+            floor: "/posestream/floor".into(),
             hri_bodies: "/humans/bodies".into(),
         }
     }

@@ -22,6 +22,7 @@ def read_mcap(path, allow_truncated):
         "heatmaps": [],
         "markers": [],
         "arrays": [],
+        "floors": [],
         "error": None,
     }
 
@@ -78,6 +79,15 @@ def read_mcap(path, allow_truncated):
                     "first_positions": list(decoded.skeletons[0].positions)
                     if decoded.skeletons
                     else [],
+                }
+            )
+        if schema.name == "geometry_msgs/msg/PoseWithCovarianceStamped":
+            p = decoded.pose.pose.position
+            out["floors"].append(
+                {
+                    "frame_id": decoded.header.frame_id,
+                    "position": [p.x, p.y, p.z],
+                    "covariance": [float(v) for v in decoded.pose.covariance],
                 }
             )
         if schema.name == "sensor_msgs/msg/CameraInfo" and "camera_info" not in out:

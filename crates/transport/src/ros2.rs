@@ -188,6 +188,16 @@ impl QosSettings {
         }
     }
 
+    /// A topic whose newest message stands until the next, as a map's or `/tf_static`'s:
+    /// reliable, transient local (a subscriber that joins later gets it), the last one.
+    pub fn latched() -> Self {
+        Self {
+            reliability: ReliabilityKind::Reliable,
+            durability: DurabilityKind::TransientLocal,
+            depth: 1,
+        }
+    }
+
     /// What tf2's listener asks of `/tf` (`tf2_ros::DynamicListenerQoS`): reliable,
     /// volatile, the last 100.
     pub fn tf_listener() -> Self {
@@ -414,10 +424,28 @@ impl Ros2 {
 
     /// A publisher of `M` on `topic` (e.g. `/posestream/skeletons`).
     pub fn sink<M: Message>(&self, topic: &str) -> Result<Ros2Sink<M>, TransportError> {
+        self.publisher(topic, self.qos.clone())
+    }
+
+    /// A publisher of `M` on `topic` with a QoS of its own (a topic whose convention is
+    /// not the service's: a latched one, [`QosSettings::latched`]).
+    pub fn sink_with<M: Message>(
+        &self,
+        topic: &str,
+        qos: &QosSettings,
+    ) -> Result<Ros2Sink<M>, TransportError> {
+        self.publisher(topic, qos.profile())
+    }
+
+    fn publisher<M: Message>(
+        &self,
+        topic: &str,
+        qos: QosProfile,
+    ) -> Result<Ros2Sink<M>, TransportError> {
         let mut node = self.node();
         let t = self.topic::<M>(&mut node, topic)?;
         let publisher = node
-            .create_publisher::<Shared<M>>(&t, Some(self.qos.clone()))
+            .create_publisher::<Shared<M>>(&t, Some(qos))
             .map_err(|e| setup_error(format!("a publisher on {topic}"), e))?;
         Ok(Ros2Sink {
             publisher,

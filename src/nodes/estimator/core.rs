@@ -274,6 +274,10 @@ impl<'a> EstimatorCore<'a> {
         let (size, floor) = (self.node.image_size(), self.node.floor());
         self.planner
             .skeletons(image, &mut self.out, size, floor, plan);
+        if let Some((capture_ns, _)) = image {
+            self.planner
+                .learnt_floor(self.node.learnt_floor_fit(), capture_ns, plan);
+        }
         // What the plan's skeletons held before, to be written over by the node.
         self.node.recycle(&mut self.out);
     }

@@ -57,6 +57,9 @@ pub(super) struct Metric {
     /// With the floor learnt: the learner, and the lag of the estimates it learns from
     /// (the refined ones when the window publishes them).
     pub(super) learner: Option<(FloorLearner, usize)>,
+    /// With the floor learnt: how many times the floor trusted changed (a new fit, or
+    /// none trusted), so that each is published once.
+    pub(super) floor_changes: u64,
     /// The frame in hand, in metres (reused).
     pub(super) pose: MetricPose,
     /// Estimates the step failed on (published in dictionary units).
@@ -177,6 +180,7 @@ impl EstimatorNode {
                     // Another camera: what was learnt was of the other's floor.
                     m.learner = learner;
                     m.floor = None;
+                    m.floor_changes += 1;
                 }
                 m.camera = camera;
                 m.size = size;
@@ -188,6 +192,7 @@ impl EstimatorNode {
                     size,
                     floor: self.metric_settings.floor.configured(),
                     learner,
+                    floor_changes: 0,
                     pose: MetricPose::default(),
                     failures: 0,
                     timing: MetricTiming::default(),
@@ -245,6 +250,14 @@ impl EstimatorNode {
     /// trusted).
     pub fn floor(&self) -> Option<FloorModel> {
         self.metric.as_ref().and_then(|m| m.floor)
+    }
+
+    /// With the floor learnt and the camera known: the floor trusted now (`None`: none),
+    /// and how many times that changed, so that a publisher can send each once.
+    pub fn learnt_floor_fit(&self) -> Option<(u64, Option<&LearntFloor>)> {
+        let m = self.metric.as_ref()?;
+        let (learner, _) = m.learner.as_ref()?;
+        Some((m.floor_changes, learner.floor()))
     }
 
     /// With the floor from TF: frames the transform buffer dropped to make room for new
@@ -321,6 +334,7 @@ pub(super) fn learn_floor(m: &mut Metric, id: u32, lag: usize) {
     let before = learner.state();
     if learner.note(id, m.pose.root_at_size) {
         m.floor = learner.floor().map(|f| f.model);
+        m.floor_changes += 1;
     }
     let after = learner.state();
     if std::mem::discriminant(&before) != std::mem::discriminant(&after) {

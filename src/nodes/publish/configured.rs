@@ -8,6 +8,7 @@ use super::taps::Taps;
 use crate::nodes::config::ServiceConfig;
 use crate::nodes::errors::ServiceError;
 use crate::nodes::middleware::Middleware;
+use crate::transport::ros2::QosSettings;
 use crate::transport::{Message, Sink, TransportError};
 
 /// The configured descriptions of bodies (`[outputs] tf`, `hri`) of skeletons of
@@ -46,10 +47,26 @@ pub fn publishers<M: Message>(
     topic: &str,
     shm: Option<Result<Box<dyn Sink<M>>, TransportError>>,
 ) -> Result<Publishers<M>, ServiceError> {
+    publishers_with(config, middleware, taps, topic, shm, None)
+}
+
+/// [`publishers`], the ROS 2 one with QoS `qos` (`None`: the node's, `[ros.qos]`).
+pub fn publishers_with<M: Message>(
+    config: &ServiceConfig,
+    middleware: &mut Middleware,
+    taps: &Taps,
+    topic: &str,
+    shm: Option<Result<Box<dyn Sink<M>>, TransportError>>,
+    qos: Option<&QosSettings>,
+) -> Result<Publishers<M>, ServiceError> {
     let mut out = Publishers::default();
     if config.outputs.ros2 {
         let ros = middleware.ros()?;
-        out.add_ros2(format!("ros2 {topic}"), ros.sink::<M>(topic)?);
+        let sink = match qos {
+            Some(qos) => ros.sink_with::<M>(topic, qos)?,
+            None => ros.sink::<M>(topic)?,
+        };
+        out.add_ros2(format!("ros2 {topic}"), sink);
     }
     if let Some(sink) = shm {
         out.add(format!("iceoryx2 {topic}"), sink?);

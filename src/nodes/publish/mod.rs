@@ -4,6 +4,7 @@
 //! - [`planner`]: the estimator's plan of each step ([`Planner`]: skeletons, markers,
 //!   images' arrays and markers, bodies);
 //! - [`bodies`]: what is said of bodies ([`BodyPlanner`]: frames on `/tf`, REP-155);
+//! - [`floor`]: the learnt floor with its covariance ([`FloorPlanner`]);
 //! - [`publishers`]: one message type's publishers on every output ([`Publishers`]);
 //! - [`body_topics`]: REP-155's body topics, made and retired as people come and go;
 //! - [`sinks`]: a node's publishers, a plan sent to them ([`Sinks::send`],
@@ -16,6 +17,7 @@
 pub mod bodies;
 pub mod body_topics;
 pub mod configured;
+pub mod floor;
 pub mod outputs;
 pub mod plan;
 pub mod planner;
@@ -25,6 +27,7 @@ pub mod taps;
 
 pub use bodies::{Bodies, BodyPlanner};
 pub use body_topics::{HriSinks, MAX_BODIES_MADE, MAX_BODY_TOPICS, RETIRE_AFTER, TopicMaker};
+pub use floor::FloorPlanner;
 pub use outputs::{EstimatorOutputs, SkeletonLayout};
 pub use plan::{Plan, Publication};
 pub use planner::Planner;

@@ -12,9 +12,10 @@ use crate::nodes::config::ServiceConfig;
 use crate::nodes::errors::ServiceError;
 use crate::nodes::latency::FrameClock;
 use crate::nodes::middleware::Middleware;
-use crate::nodes::publish::configured::{configured_bodies, publishers};
+use crate::nodes::publish::configured::{configured_bodies, publishers, publishers_with};
 use crate::nodes::publish::taps::Taps;
 use crate::transport::Sink;
+use crate::transport::ros2::QosSettings;
 
 /// What a node publishes skeletons of: their joints, the bones drawn between them, and the
 /// lag whose skeletons describe bodies.
@@ -141,9 +142,22 @@ impl EstimatorOutputs {
             }
             FloorSource::Config | FloorSource::Learnt => {}
         }
-        Ok(Self::new(skeletons, markers, node.bones())
+        let mut outputs = Self::new(skeletons, markers, node.bones())
             .with_arrays(arrays)
             .with_image_markers(overlay, lag)
-            .with_bodies(bodies))
+            .with_bodies(bodies);
+        if floor.source == FloorSource::Learnt && !floor.published_frame.is_empty() {
+            let latched = QosSettings::latched();
+            outputs.planner = outputs.planner.with_learnt_floor(&floor.published_frame);
+            outputs.sinks.floor = publishers_with(
+                config,
+                middleware,
+                taps,
+                &config.topics.floor,
+                None,
+                Some(&latched),
+            )?;
+        }
+        Ok(outputs)
     }
 }

@@ -7,7 +7,7 @@ use std::sync::Arc;
 
 use crate::msgs::hri::{IdsList, NormalizedRegionOfInterest2D, Skeleton2D};
 use crate::msgs::sensor::RegionOfInterest;
-use crate::msgs::tf::TFMessage;
+use crate::msgs::tf::{PoseWithCovarianceStamped, TFMessage};
 use crate::msgs::visualization::ImageMarker;
 use crate::msgs::{MarkerArray, Skeleton3D, Skeleton3DArray};
 
@@ -29,6 +29,8 @@ pub enum Publication {
     Transforms(usize),
     /// [`Plan::bodies`]: a body's REP-155 topics.
     Body(usize),
+    /// [`Plan::floors`]: the learnt floor with its covariance (`topics.floor`).
+    Floor(usize),
 }
 
 /// A body's region, as its `roi` topic carries it (`[outputs] hri_roi`).
@@ -127,6 +129,8 @@ pub struct Plan {
     pub transforms: Pool<TFMessage>,
     /// Bodies' REP-155 messages.
     pub bodies: Pool<BodyMessages>,
+    /// The learnt floor, when it changed.
+    pub floors: Pool<PoseWithCovarianceStamped>,
 }
 
 impl Plan {
@@ -160,5 +164,6 @@ impl Plan {
         self.tracked.clear();
         self.transforms.clear();
         self.bodies.clear();
+        self.floors.clear();
     }
 }

@@ -4,6 +4,7 @@
 //! REP-155's tracked ids) go out once the image is complete.
 
 use super::bodies::BodyPlanner;
+use super::floor::FloorPlanner;
 use super::plan::{Plan, Publication};
 use crate::floor::FloorModel;
 use crate::msgs::{Skeleton3D, Skeleton3DArray};
@@ -21,6 +22,8 @@ pub struct Planner {
     image_markers: Option<u32>,
     /// Bodies' frames and REP-155 messages.
     pub bodies: BodyPlanner,
+    /// The learnt floor with its covariance, when published.
+    pub floor: Option<FloorPlanner>,
     /// Groups the skeletons into arrays, when the arrays, the image's markers or
     /// REP-155's tracked ids are published.
     grouping: ImageArrays,
@@ -40,6 +43,7 @@ impl Planner {
             arrays: false,
             image_markers: None,
             bodies: BodyPlanner::default(),
+            floor: None,
             grouping: ImageArrays::default(),
             stamp_at_release: false,
             released_at: 0,
@@ -66,6 +70,27 @@ impl Planner {
     pub fn stamped_at_release(mut self) -> Self {
         self.stamp_at_release = true;
         self
+    }
+
+    /// The same, publishing the learnt floor as the camera's pose over frame `frame`
+    /// ([`FloorPlanner`]).
+    pub fn with_learnt_floor(mut self, frame: &str) -> Self {
+        self.floor = Some(FloorPlanner::new(frame));
+        self
+    }
+
+    /// Plans the learnt floor (`fit`: `EstimatorNode::learnt_floor_fit`) when it changed,
+    /// learnt by the image captured at `capture_ns`.
+    pub fn learnt_floor(
+        &mut self,
+        fit: Option<(u64, Option<&crate::learnt_floor::LearntFloor>)>,
+        capture_ns: i64,
+        plan: &mut Plan,
+    ) {
+        let sent = self.stamp(capture_ns);
+        if let Some(floor) = &mut self.floor {
+            floor.plan(fit, capture_ns, sent, plan);
+        }
     }
 
     /// Whether skeletons are grouped by image (for arrays, the image's markers, or

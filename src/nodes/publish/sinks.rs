@@ -8,7 +8,7 @@ use std::sync::Arc;
 use super::body_topics::{BodyTopics, HriSinks, RoiSend};
 use super::plan::{Plan, Publication};
 use super::publishers::Publishers;
-use crate::msgs::tf::TFMessage;
+use crate::msgs::tf::{PoseWithCovarianceStamped, TFMessage};
 use crate::msgs::visualization::ImageMarker;
 use crate::msgs::{MarkerArray, Skeleton3D, Skeleton3DArray, SkeletonState};
 use crate::nodes::latency::FrameClock;
@@ -28,6 +28,8 @@ pub struct Sinks {
     pub tf: Publishers<TFMessage>,
     /// REP-155's topics, when on.
     pub hri: Option<HriSinks>,
+    /// The learnt floor with its covariance.
+    pub floor: Publishers<PoseWithCovarianceStamped>,
     /// Notes when each newest skeleton goes out (latency from its image).
     pub clock: Option<FrameClock>,
 }
@@ -44,6 +46,10 @@ enum Send<'s, 'p> {
     ),
     Transforms(&'s mut Publishers<TFMessage>, &'p TFMessage),
     Body(&'s mut BodyTopics, &'p super::plan::BodyMessages),
+    Floor(
+        &'s mut Publishers<PoseWithCovarianceStamped>,
+        &'p PoseWithCovarianceStamped,
+    ),
     Nothing,
 }
 
@@ -61,6 +67,7 @@ impl Sinks {
                 Send::ImageMarker(p, m) => p.publish(m, stamp),
                 Send::Tracked(p, m) => p.publish(m, stamp),
                 Send::Transforms(p, m) => p.publish(m, stamp),
+                Send::Floor(p, m) => p.publish(m, stamp),
                 Send::Body(body, b) => {
                     // Not waited for here, on the node's thread: see `send_async`.
                     body.settle();
@@ -94,6 +101,7 @@ impl Sinks {
                 Send::ImageMarker(p, m) => p.publish_async(m, stamp).await,
                 Send::Tracked(p, m) => p.publish_async(m, stamp).await,
                 Send::Transforms(p, m) => p.publish_async(m, stamp).await,
+                Send::Floor(p, m) => p.publish_async(m, stamp).await,
                 Send::Body(body, b) => {
                     if let Some(wait) = body.settle() {
                         tokio::time::sleep(wait).await;
@@ -140,6 +148,10 @@ impl Sinks {
                 Some(m) => Send::Transforms(&mut self.tf, m),
                 None => Send::Nothing,
             },
+            Publication::Floor(i) => match plan.floors.get(i) {
+                Some(m) => Send::Floor(&mut self.floor, m),
+                None => Send::Nothing,
+            },
             Publication::Body(i) => match (plan.bodies.get(i), &mut self.hri) {
                 (Some(b), Some(hri)) => match hri.body(b) {
                     Some(body) => Send::Body(body, b),
@@ -168,6 +180,7 @@ impl Sinks {
         self.arrays.flush();
         self.image_markers.flush();
         self.tf.flush();
+        self.floor.flush();
         if let Some(hri) = &mut self.hri {
             hri.flush();
         }
@@ -180,6 +193,7 @@ impl Sinks {
             + self.arrays.failed
             + self.image_markers.failed
             + self.tf.failed
+            + self.floor.failed
             + self.hri.as_ref().map_or(0, HriSinks::failed)
     }
 }
