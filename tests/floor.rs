@@ -176,6 +176,37 @@ fn the_floor_on_tf_static_stands_a_walker_where_they_are_and_config_gives_the_sa
         "root {:.4}, depth {bias_with:.4}",
         median(&with)
     );
+    // The person's size the skeletons say: the assumed one without the floor; with it,
+    // after 2 s (60 frames), the subject's (the truth's mean bone length) within 5 %.
+    assert!(none.iter().all(|s| s.mean_bone_length == 0.25));
+    let mapping =
+        posestream::mocap::SkeletonMapping::load(root().join("config/skeletons/bandai-namco.toml"))
+            .expect("mapping");
+    let layout: Vec<(usize, usize)> = mapping.layout.bones().collect();
+    let bones = |s: &Skeleton3D| {
+        let at = |j: usize| V3::from_column_slice(&s.positions[3 * j..3 * j + 3]);
+        layout
+            .iter()
+            .map(|&(a, b)| (at(a) - at(b)).norm())
+            .sum::<f64>()
+            / layout.len() as f64
+    };
+    let subject = bones(&truth[0]);
+    let first = tf.iter().map(|s| s.sequence).min().expect("skeletons");
+    let mut sizes: Vec<f64> = tf
+        .iter()
+        .filter(|s| s.sequence >= first + 60)
+        .map(|s| (s.mean_bone_length / subject - 1.0).abs())
+        .collect();
+    sizes.sort_by(f64::total_cmp);
+    let worst = sizes.last().copied().expect("sizes");
+    // Measured: median 0.4 %, at most 0.7 %.
+    eprintln!("size: median {:.4}, worst {worst:.4}", median(&sizes));
+    assert!(
+        worst < 0.05,
+        "median {:.4}, worst {worst:.4}",
+        median(&sizes)
+    );
     // The floor from the configuration is the same floor: the same skeletons.
     assert_eq!(tf.len(), configured.len());
     for (a, b) in tf.iter().zip(&configured) {
@@ -557,7 +588,7 @@ fn synth_refuses_a_camera_or_a_motion_out_of_its_domain_in_one_error() {
 }
 
 #[test]
-fn a_person_back_under_their_id_after_3_s_keeps_their_body_frame_and_their_rep155_id() {
+fn a_person_back_under_their_id_after_3_s_keeps_their_body_frame_rep155_id_and_size() {
     // The image detector gives a person who comes back their old id (re-identified by
     // their look). The walk with 3 s (90 images) of its heat maps left out, the person
     // gone: downstream their body frame (REP-155's body_b<id>) and their entry in
@@ -630,6 +661,25 @@ fn a_person_back_under_their_id_after_3_s_keeps_their_body_frame_and_their_rep15
     assert!(
         before.1 > 0 && after.1 > 0,
         "{body}: {before:?} / {after:?}"
+    );
+    // And their size: placed by the floor from their first frame back, the size they
+    // left with (the old code started over from the assumed size until a contact).
+    use posestream::msgs::MetricSource;
+    let (gone, back): (Vec<&Skeleton3D>, Vec<&Skeleton3D>) = skeletons
+        .iter()
+        .filter(|s| s.lag == 0)
+        .partition(|s| s.header.stamp.nanos() < back_ns);
+    let left_with = gone.last().expect("before").mean_bone_length;
+    assert!(
+        back.iter()
+            .all(|s| s.metric_source == MetricSource::Floor as u8),
+        "{:?}",
+        back.iter().map(|s| s.metric_source).collect::<Vec<_>>()
+    );
+    let first_back = back.first().expect("after").mean_bone_length;
+    assert!(
+        (first_back / left_with - 1.0).abs() < 0.01,
+        "{left_with} -> {first_back}"
     );
 }
 

@@ -216,16 +216,28 @@ fn messages_round_trip_through_cdr_with_the_encapsulation_header() {
 }
 
 #[test]
-fn a_skeleton_recorded_before_metric_source_views_or_looks_decodes_with_none() {
+fn a_skeleton_recorded_before_metric_source_views_looks_or_sizes_decodes_with_none() {
     let looked = Skeleton3D {
         sequence: 3,
         units: 1,
         state: 1,
         metric_source: msgs::MetricSource::Floor as u8,
         frames_since_look: 2,
+        mean_bone_length: 0.231,
         ..Skeleton3D::default()
     };
-    let full = msgs::encode(&looked).expect("encodes");
+    let sized = msgs::encode(&looked).expect("encodes");
+    // `mean_bone_length` ends it: 8 bytes, here right after `frames_since_look` (2),
+    // which ends on an 8-byte boundary. The layout before it reads it as 0.
+    let n = sized.len();
+    assert_eq!(sized[n - 12..n - 8], [2, 0, 0, 0]);
+    let full = &sized[..n - 8];
+    let looked = Skeleton3D {
+        mean_bone_length: 0.0,
+        ..looked
+    };
+    let before_size: Skeleton3D = msgs::decode(full).expect("decodes");
+    assert_eq!(before_size, looked);
     // `frames_since_look` ends it (4 bytes, aligned after the empty `views`): the
     // layout before it reads it as 0.
     let before_looks: Skeleton3D = msgs::decode(&full[..full.len() - 4]).expect("decodes");

@@ -41,6 +41,7 @@ fn skeleton(seq: u64) -> Skeleton3D {
         // Not in iceoryx2's fixed-size sample (one camera's skeletons have none).
         views: Vec::new(),
         frames_since_look: (seq % 3) as u32,
+        mean_bone_length: 0.2 + 0.001 * f,
     }
 }
 
@@ -622,6 +623,7 @@ fn assert_is_our_skeleton(v: &serde_json::Value) {
     assert_eq!(v["state"], want.state);
     assert_eq!(v["metric_source"], want.metric_source);
     assert_eq!(v["frames_since_look"], want.frames_since_look);
+    assert_eq!(v["mean_bone_length"], want.mean_bone_length);
     let names: Vec<String> = v["joint_names"]
         .as_array()
         .expect("names")

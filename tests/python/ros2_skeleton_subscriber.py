@@ -42,6 +42,7 @@ class Skeleton3D(IdlStruct, typename="posestream_msgs::msg::dds_::Skeleton3D_"):
     metric_source: uint8
     views: sequence[str]
     frames_since_look: uint32
+    mean_bone_length: float64
 
 
 qos = Qos(
@@ -77,6 +78,7 @@ while got < count and time.time() < deadline:
                     "metric_source": s.metric_source,
                     "views": list(s.views),
                     "frames_since_look": s.frames_since_look,
+                    "mean_bone_length": s.mean_bone_length,
                 }
             ),
             flush=True,

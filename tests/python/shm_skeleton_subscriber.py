@@ -37,6 +37,7 @@ class SkeletonSample(ctypes.Structure):
         ("keypoints", ctypes.c_double * (2 * MAX_JOINTS)),
         ("keypoint_std", ctypes.c_double * MAX_JOINTS),
         ("projected", ctypes.c_double * (2 * MAX_JOINTS)),
+        ("mean_bone_length", ctypes.c_double),
     ]
 
     @staticmethod
@@ -44,7 +45,7 @@ class SkeletonSample(ctypes.Structure):
         return "posestream::SkeletonSample"
 
 
-assert ctypes.sizeof(SkeletonSample) == 3680, ctypes.sizeof(SkeletonSample)
+assert ctypes.sizeof(SkeletonSample) == 3688, ctypes.sizeof(SkeletonSample)
 
 service_name, count, timeout = sys.argv[1], int(sys.argv[2]), float(sys.argv[3])
 iox2.set_log_level_from_env_or(iox2.LogLevel.Warn)
@@ -86,6 +87,7 @@ while got < count and time.time() < deadline:
                 "keypoints": list(s.keypoints[: 2 * p]),
                 "keypoint_std": list(s.keypoint_std[:p]),
                 "projected": list(s.projected[: 2 * p]),
+                "mean_bone_length": s.mean_bone_length,
             }
         ),
         flush=True,

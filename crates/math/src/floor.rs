@@ -312,6 +312,12 @@ impl BodyScale {
         }
     }
 
+    /// Forgets the feet kept, not the contacts (the person's size stays: they come back
+    /// under their id in frames of their own).
+    pub fn forget_feet(&mut self) {
+        self.feet.clear();
+    }
+
     /// Forgets every contact (a new person).
     pub fn clear(&mut self) {
         self.contacts.clear();

@@ -174,6 +174,11 @@ pub struct MetricPose {
     /// The root (the pelvis), camera frame, metres, placed by the assumed size whatever
     /// `source` is: what the floor is learnt from ([`crate::learnt_floor`]).
     pub root_at_size: Vector3<f64>,
+    /// The person's size, metres of mean bone length: placed by the floor, the median of
+    /// their contacts' scales with the fitted pose's flatness in depth undone
+    /// ([`MetricSettings::depth_correction`]: the placed skeleton's bones are that much
+    /// shorter); by the size, the assumed one.
+    pub size: f64,
 }
 
 /// The floor under a person, for [`MetricStep::adjust`].
@@ -336,18 +341,22 @@ impl MetricStep {
                 match contact.scale(
                     fit, shape, keypoints, camera, floor, e.sequence, scale, looked,
                 ) {
-                    Some((factor, spread)) => {
+                    Some((factor, spread, median)) => {
                         out.source = PlacedBy::Floor;
+                        out.size = median / self.settings.depth_correction
+                            * self.settings.mean_limb_length;
                         (factor, spread)
                     }
                     None => {
                         out.source = PlacedBy::Size;
+                        out.size = self.settings.mean_limb_length;
                         (self.settings.depth_correction, self.settings.scale_std)
                     }
                 }
             }
             None => {
                 out.source = PlacedBy::Size;
+                out.size = self.settings.mean_limb_length;
                 (self.settings.depth_correction, self.settings.scale_std)
             }
         };
@@ -453,6 +462,7 @@ impl Contact<'_> {
     /// frames before (a foot kicked forward or taking off is not), the one whose observed ray meets the floor
     /// nearest (the other is lifted or further), and, once the person has contacts, its
     /// factor not far above their median (a foot on a step or at a jump's top is not).
+    /// With the factor and its spread, the median itself (the person's size).
     #[allow(clippy::too_many_arguments, reason = "one frame's inputs")]
     fn scale(
         &self,
@@ -464,7 +474,7 @@ impl Contact<'_> {
         sequence: u64,
         scale: &mut BodyScale,
         looked: bool,
-    ) -> Option<(f64, f64)> {
+    ) -> Option<(f64, f64, f64)> {
         let foot = |j: usize| [keypoints[2 * j], keypoints[2 * j + 1]];
         // The person's height in the image: how far a foot may move and stand still.
         let (lo, hi) = keypoints
@@ -512,6 +522,7 @@ impl Contact<'_> {
         Some((
             own.unwrap_or(median.factor),
             median.spread.max(MIN_FLOOR_SCALE_STD),
+            median.factor,
         ))
     }
 }

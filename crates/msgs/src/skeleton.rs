@@ -39,7 +39,7 @@ pub enum MetricSource {
 ros_message! {
     /// One estimated 3D skeleton (`msgs/msg/Skeleton3D.msg` documents each field).
     Skeleton3D = "posestream_msgs/msg/Skeleton3D", "posestream_msgs/Skeleton3D",
-        include_str!("../../../msgs/msg/Skeleton3D.msg"), added_tail = 12;
+        include_str!("../../../msgs/msg/Skeleton3D.msg"), added_tail = 24;
     /// Stamp of the frame described and the camera frame id.
     header: Header,
     /// Sequence number of the frame described.
@@ -76,6 +76,10 @@ ros_message! {
     /// n, carried over from the look n images before. Absent (older recordings): 0
     /// (`added_tail`: up to 3 bytes of alignment after `views`, and the value).
     frames_since_look: u32,
+    /// The person's mean bone length as the metric step takes it, metres; 0: not
+    /// estimated. Absent (older recordings): 0 (`added_tail`: up to 4 bytes of alignment
+    /// after `frames_since_look`, and the value).
+    mean_bone_length: f64,
 }
 
 ros_message! {

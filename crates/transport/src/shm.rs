@@ -75,7 +75,7 @@ impl Default for ShmSettings {
     }
 }
 
-/// One [`Skeleton3D`] in shared memory (fixed size, 3,168 bytes, alignment 8).
+/// One [`Skeleton3D`] in shared memory (fixed size, 3,688 bytes, alignment 8).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, ZeroCopySend)]
 #[type_name("posestream::SkeletonSample")]
@@ -112,6 +112,8 @@ pub struct SkeletonSample {
     pub keypoint_std: [f64; MAX_JOINTS],
     /// Reprojection `[u, v]`, image pixels.
     pub projected: [f64; 2 * MAX_JOINTS],
+    /// `Skeleton3D::mean_bone_length`, metres (0: not estimated).
+    pub mean_bone_length: f64,
 }
 
 /// The header of a heat-map slice (fixed size, 904 bytes, alignment 8).
@@ -293,6 +295,7 @@ impl SkeletonSample {
             keypoints: [0.0; 2 * MAX_JOINTS],
             keypoint_std: [0.0; MAX_JOINTS],
             projected: [0.0; 2 * MAX_JOINTS],
+            mean_bone_length: m.mean_bone_length,
         };
         put(&mut s.positions, &m.positions, p, 3, "positions")?;
         put(&mut s.position_std, &m.position_std, p, 3, "position_std")?;
@@ -329,6 +332,7 @@ impl SkeletonSample {
             // views go over ROS 2 and recordings only.
             views: Vec::new(),
             frames_since_look: u32::from(self.frames_since_look),
+            mean_bone_length: self.mean_bone_length,
         })
     }
 }

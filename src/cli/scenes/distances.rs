@@ -5,8 +5,8 @@
 //! floor with the assumed body size, no floor with the subjects' true size, and the floor
 //! from TF with the assumed size. Per distance band of the true root: the root's error
 //! relative to its distance (median over frames and people), the signed depth error, the
-//! MPJPE in the camera frame, the body size from the skeleton's bones against the
-//! subject's after 2 s, the share of per-axis errors within 1 and 2 `position_std`.
+//! MPJPE in the camera frame, the body size from the skeleton's bones and the one it
+//! says (`mean_bone_length`) against the subject's after 2 s, the share of per-axis errors within 1 and 2 `position_std`.
 
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
@@ -535,10 +535,13 @@ fn table(args: &ScenesArgs, base: &ServiceConfig, errors: &[Vec<FrameError>]) ->
          skeletons against the truth, camera frame. Assumed size: mean bone length {} m \
          (the configuration's); the subjects' is {} m. Root: the root's error over its \
          distance, median over frames and people; depth: the signed error of its depth, \
-         mean (+: too far); size: the skeleton's mean bone length against the subject's \
-         after {SIZE_AFTER_FRAMES} frames (2 s), median of the relative error.\n\n\
-         | mode | distance | frames | root | depth (signed) | MPJPE | root-aligned | size | size (signed) | within 1 / 2 std |\n\
-         |---|---|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+         mean (+: too far); bones: the skeleton's mean bone length against the subject's \
+         after {SIZE_AFTER_FRAMES} frames (2 s), mean of the signed relative error; size: the \
+         person's size the skeleton says (`mean_bone_length`) against the subject's mean \
+         bone length after {SIZE_AFTER_FRAMES} frames, median of the relative error and mean \
+         of the signed one.\n\n\
+         | mode | distance | frames | root | depth (signed) | MPJPE | root-aligned | bones (signed) | size | size (signed) | within 1 / 2 std |\n\
+         |---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
         if args.train { " --train" } else { "" },
         if args.train { "Training" } else { "Held-out" },
         if args.train { "normal" } else { "proud" },
@@ -571,20 +574,30 @@ fn table(args: &ScenesArgs, base: &ServiceConfig, errors: &[Vec<FrameError>]) ->
             let root = median(in_band.iter().map(|e| e.root / e.distance).collect());
             let depth = in_band.iter().map(|e| e.depth).sum::<f64>() / n;
             let mpjpe = in_band.iter().map(|e| e.mpjpe).sum::<f64>() / n;
-            let sizes: Vec<f64> = in_band
+            let after: Vec<&&FrameError> = in_band
                 .iter()
                 .filter(|e| e.sequence >= first[&e.person] + SIZE_AFTER_FRAMES)
-                .map(|e| e.limb / e.true_limb - 1.0)
                 .collect();
+            let bones = after
+                .iter()
+                .map(|e| e.limb / e.true_limb - 1.0)
+                .sum::<f64>()
+                / after.len().max(1) as f64;
+            let sizes: Vec<f64> = after.iter().map(|e| e.size / e.true_limb - 1.0).collect();
             let signed_size = sizes.iter().sum::<f64>() / sizes.len().max(1) as f64;
             let size = median(sizes.iter().map(|s| s.abs()).collect());
             let aligned = in_band.iter().map(|e| e.root_aligned).sum::<f64>() / n;
             let axes = in_band.iter().map(|e| e.axes).sum::<usize>().max(1) as f64;
             let within = |k: usize| in_band.iter().map(|e| e.within[k]).sum::<usize>() as f64;
             let size = if sizes.is_empty() {
-                "- | -".to_string()
+                "- | - | -".to_string()
             } else {
-                format!("{:.1} % | {:+.1} %", 100.0 * size, 100.0 * signed_size)
+                format!(
+                    "{:+.1} % | {:.1} % | {:+.1} %",
+                    100.0 * bones,
+                    100.0 * size,
+                    100.0 * signed_size
+                )
             };
             text.push_str(&format!(
                 "| {} | {band} | {} | {:.1} % | {:+.1} % | {:.0} mm | {:.0} mm | {size} | {:.0} % / {:.0} % |\n",

@@ -171,6 +171,8 @@ pub(super) struct FrameError {
     /// The skeleton's mean bone length over its bones, and the truth's.
     pub limb: f64,
     pub true_limb: f64,
+    /// The person's size the skeleton says (`Skeleton3D::mean_bone_length`; 0: none).
+    pub size: f64,
 }
 
 /// What the tracker did in a scene.
@@ -392,6 +394,7 @@ pub(super) fn frame_errors(
         e.distance = dist(q0, [0.0; 3]);
         e.limb = limb(p);
         e.true_limb = limb(q);
+        e.size = s.mean_bone_length;
         out.push(e);
     }
     (out, not_metric)

@@ -30,6 +30,9 @@ use metres::{FloorFromTf, Metric};
 use posestream_base::CropBox;
 use track::{FrameInfo, Track, frames_kept, release};
 
+/// The sizes of people whose tracks ended kept at most ([`EstimatorNode`]'s: the newest).
+const KEPT_SIZES: usize = 64;
+
 /// Heat-map messages in, skeleton messages out, through one [`WindowEstimator`] per
 /// track.
 ///
@@ -62,6 +65,10 @@ pub struct EstimatorNode {
     spare_window: Option<WindowEstimator>,
     /// The counters of the ended tracks' windows, and of frames no track took.
     ended: StreamCounters,
+    /// The sizes of people whose tracks ended (their contacts with the floor), by id, the
+    /// newest last, at most [`KEPT_SIZES`]: a person back under their id (re-identified
+    /// by the detector) keeps theirs.
+    kept_sizes: VecDeque<(u32, BodyScale)>,
     /// The track being handled (for the boundary: the one a panic resets).
     current: Option<usize>,
     /// Frames the tracks took, in all (orders them by recency).
@@ -98,6 +105,7 @@ impl EstimatorNode {
             metric_settings: MetricSettings::default(),
             spare_window: None,
             ended: StreamCounters::default(),
+            kept_sizes: VecDeque::new(),
             current: None,
             taken: 0,
             estimates: Estimates::default(),
@@ -510,7 +518,11 @@ impl EstimatorNode {
             last_sequence: 0,
             last_taken: 0,
             duplicate_warned: false,
-            scale: BodyScale::new(self.metric_settings.floor.contact_frames),
+            scale: match self.kept_sizes.iter().position(|(kept, _)| *kept == id) {
+                Some(k) => self.kept_sizes.remove(k).map(|(_, scale)| scale),
+                None => None,
+            }
+            .unwrap_or_else(|| BodyScale::new(self.metric_settings.floor.contact_frames)),
         });
         Ok(self.tracks.len() - 1)
     }
@@ -572,6 +584,14 @@ impl EstimatorNode {
         self.release(i, out);
         let mut track = self.tracks.remove(i);
         self.current = None;
+        // Their size stays, their feet (frames of the track that ended) do not.
+        track.scale.forget_feet();
+        self.kept_sizes.retain(|(kept, _)| *kept != track.id);
+        if self.kept_sizes.len() == KEPT_SIZES {
+            self.kept_sizes.pop_front();
+        }
+        self.kept_sizes
+            .push_back((track.id, std::mem::take(&mut track.scale)));
         self.ended += track.window.take_counters();
         if self.spare_window.is_none() {
             self.spare_window = Some(track.window);

@@ -149,9 +149,11 @@ pub(super) fn write_skeleton(
         m.keypoints.clone_from(&metres.keypoints);
         m.keypoint_std.clone_from(&metres.keypoint_std);
         m.projected.clone_from(&metres.projected);
+        m.mean_bone_length = metres.size;
     } else {
         m.units = Units::Dictionary as u8;
         m.metric_source = msgs::MetricSource::None as u8;
+        m.mean_bone_length = 0.0;
         m.positions.clone_from(&e.pose);
         m.position_std.clone_from(&e.pose_std);
         to_image(&e.keypoints, &mut m.keypoints);

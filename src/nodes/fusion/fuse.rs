@@ -161,6 +161,8 @@ impl FusionNode {
                 .collect(),
             // Several cameras' looks: not told apart (msgs/msg/Skeleton3D.msg).
             frames_since_look: 0,
+            // Measured from its bones, not assumed: see Skeleton3D.msg.
+            mean_bone_length: 0.0,
         }
     }
 }

@@ -8,7 +8,7 @@ fn payload_layouts_are_the_documented_ones() {
     use std::mem::{align_of, offset_of, size_of};
     assert_eq!(
         (size_of::<SkeletonSample>(), align_of::<SkeletonSample>()),
-        (3680, 8)
+        (3688, 8)
     );
     let s = [
         offset_of!(SkeletonSample, stamp_ns),
@@ -27,11 +27,12 @@ fn payload_layouts_are_the_documented_ones() {
         offset_of!(SkeletonSample, keypoints),
         offset_of!(SkeletonSample, keypoint_std),
         offset_of!(SkeletonSample, projected),
+        offset_of!(SkeletonSample, mean_bone_length),
     ];
     assert_eq!(
         s,
         [
-            0, 8, 16, 20, 24, 28, 29, 30, 31, 32, 96, 864, 1632, 2400, 2912, 3168
+            0, 8, 16, 20, 24, 28, 29, 30, 31, 32, 96, 864, 1632, 2400, 2912, 3168, 3680
         ]
     );
     assert_eq!(
@@ -58,7 +59,8 @@ fn payload_layouts_are_the_documented_ones() {
         "| 30 | `metric_source`",
         "| 1632 | `position_std`",
         "| 128 | `joint_names`",
-        "3,680 bytes",
+        "3,688 bytes",
+        "| 3680 | `mean_bone_length`",
         "904 bytes",
         "| 31 | `frames_since_look`",
         "| 896 | `frames_since_look`",
