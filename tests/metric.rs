@@ -201,7 +201,7 @@ fn with_the_camera_known_skeletons_are_metres_where_the_person_stands() {
     // Measured when written (docs/metric.md): 348 frames, MPJPE 0.347 m, root-aligned
     // 0.127 m, pelvis 0.302 m off, depth 6.0 %, 93 % / 99 % within 1 / 2 std; with
     // `depth_correction` (0.94): 0.232 m, 0.109 m, 0.209 m, 4.2 %, 96 % / 99 % (91 % /
-    // 98 % with the size prior's `scale_std`, 0.06). The
+    // 98 % with the size prior's `scale_std`, 0.06; 87 % / 97 % times `std_factor`, 0.8). The
     // bounds leave room for run-to-run changes of the solver, not for a lost metric
     // step (dictionary units, or a body at the wrong depth, are off by metres).
     assert_eq!(e.frames, 348);

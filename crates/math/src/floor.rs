@@ -71,8 +71,9 @@ pub struct FloorSettings {
     /// `learnt`: a standing or walking person's root (the pelvis) is this far above the
     /// floor, in mean bone lengths (the training takes': 0.883 m on 0.2235 m).
     pub root_height: f64,
-    /// A skeleton placed by the floor: its `position_std` (the 2D spread along the rays
-    /// and the contacts' spread, composed) times this. 0.55: on the training walks 69 %
+    /// A skeleton placed by the floor: its `position_std` (the 2D spread along the rays,
+    /// the contacts' spread and a learnt floor's own at the person's distance, composed)
+    /// times this. 0.55: on the training walks 69 %
     /// of the per-axis errors fell within 0.55 of the composed standard deviation (their
     /// tails are heavier than a normal distribution's: 89 % within 2).
     pub std_factor: f64,
@@ -162,6 +163,32 @@ pub struct FloorModel {
     translation: Vector3<f64>,
     /// The floor's up direction in the camera frame.
     up: Vector3<f64>,
+}
+
+/// How far off a floor may be: a learnt floor's standard deviations (a floor from the
+/// configuration or TF is taken as exact).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct FloorStd {
+    /// The camera's height, metres.
+    pub height: f64,
+    /// Its pitch, radians.
+    pub pitch: f64,
+}
+
+impl FloorStd {
+    /// The relative standard deviation of the distance to a point of `floor` that is
+    /// `horizontal` metres from the point under the camera: the point's ray meets the
+    /// floor at `d = h / tan(angle)`, so a height off by `dh` moves it by `dh / h` of
+    /// itself, a pitch off by `da` by `da (h^2 + d^2) / (h d)` (grazing rays the most).
+    /// At most 1 (a point under the camera, whose distance no pitch error moves much,
+    /// is where the formula runs away).
+    pub fn distance(&self, floor: &FloorModel, horizontal: f64) -> f64 {
+        let h = floor.height();
+        let d = horizontal.max(1e-3);
+        (self.height / h)
+            .hypot(self.pitch * (h * h + d * d) / (h * d))
+            .min(1.0)
+    }
 }
 
 /// The camera frame (x right, y down, z forward) in its body frame (x forward, y left,
@@ -459,6 +486,33 @@ mod tests {
         // To the floor frame: x forward, y left, z up.
         let q = floor.to_floor(&Vector3::new(0.3, 1.5, 4.0));
         assert!((q - Vector3::new(4.0, -0.3, 0.0)).norm() < 1e-12);
+    }
+
+    #[test]
+    fn a_floor_s_deviations_move_a_point_on_it_as_its_ray_says() {
+        let (h, d) = (2.0, 6.0);
+        let floor = FloorModel::from_height_pitch_roll(h, 10.0, 0.0).unwrap();
+        // The height: by its share of the height, wherever the point is.
+        let height = FloorStd {
+            height: 0.1,
+            pitch: 0.0,
+        };
+        assert!((height.distance(&floor, d) - 0.05).abs() < 1e-12);
+        // The pitch: as the ray's angle below the horizon moves the point it meets.
+        let da = 1e-4;
+        let pitch = FloorStd {
+            height: 0.0,
+            pitch: da,
+        };
+        let angle = (h / d).atan();
+        let moved = h / (angle - da).tan() / d - 1.0;
+        assert!((pitch.distance(&floor, d) / moved - 1.0).abs() < 1e-3);
+        // Under the camera, bounded.
+        let degree = FloorStd {
+            height: 0.0,
+            pitch: 1f64.to_radians(),
+        };
+        assert_eq!(degree.distance(&floor, 0.0), 1.0);
     }
 
     #[test]

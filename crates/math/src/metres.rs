@@ -30,7 +30,7 @@ use crate::camera::Intrinsics;
 use crate::dictionary::Dictionary;
 use crate::error::EstimateError;
 use crate::estimator::Estimator;
-use crate::floor::{BodyScale, FloorModel, FloorSettings};
+use crate::floor::{BodyScale, FloorModel, FloorSettings, FloorStd};
 use crate::solver::perspective::{
     self, PerspectiveFit, PerspectiveParams, PerspectiveWorkspace, start_from_weak_fit,
 };
@@ -60,6 +60,12 @@ pub struct MetricSettings {
     /// Measured on the training walks (`posestream scenes --distances --train`, no floor,
     /// the subjects' true size): depth +6.4 %, so 1 / 1.064.
     pub depth_correction: f64,
+    /// A skeleton placed by its size (`METRIC_SIZE`): its `position_std` (the 2D spread
+    /// along the rays and `scale_std`, composed) times this (see `floor.std_factor` for
+    /// one placed by the floor). 0.8: on the training walks 71 % of the per-axis errors
+    /// fell within it at the size prior, 73 % with the subjects' true size (95 and 91 %
+    /// within 2).
+    pub std_factor: f64,
     /// L1 weight of the perspective C-step ([`PerspectiveParams::alpha`]).
     pub alpha: f64,
     /// Iterations per frame at most ([`PerspectiveParams::max_iterations`]).
@@ -91,6 +97,7 @@ impl Default for MetricSettings {
             mean_limb_length: POPULATION_MEAN_LIMB,
             scale_std: POPULATION_SIZE_STD,
             depth_correction: 0.94,
+            std_factor: 0.8,
             alpha: p.alpha,
             // With momentum (`perspective`), 35 matched 100 without it.
             max_iterations: 35,
@@ -116,6 +123,7 @@ impl MetricSettings {
         check_real("mean_limb_length", self.mean_limb_length, 0.0, 10.0, true)?;
         check_real("scale_std", self.scale_std, 0.0, 1.0, false)?;
         check_real("depth_correction", self.depth_correction, 0.5, 2.0, false)?;
+        check_real("std_factor", self.std_factor, 0.0, 10.0, true)?;
         check_real("alpha", self.alpha, 0.0, 1e3, false)?;
         check_range("max_iterations", self.max_iterations, 1, 100_000)?;
         check_range("apg_steps", self.apg_steps, 1, 10_000)?;
@@ -192,6 +200,10 @@ pub struct OnFloor<'a> {
     /// carried over from an earlier one with the body's expected motion: only then are
     /// their feet evidence of a contact.
     pub looked: bool,
+    /// How far off the floor may be (a learnt one's deviations; `None`: exact). A person
+    /// placed by it is that much less certain: its relative spread at their distance
+    /// ([`FloorStd::distance`]) composes with their `position_std`.
+    pub std: Option<FloorStd>,
 }
 
 /// Where a metric pose's scale came from (`Skeleton3D.metric_source`).
@@ -323,11 +335,12 @@ impl MetricStep {
         let shape = &mut self.shape;
         self.dict.compose_into(&fit.coefficients, shape);
         // On the floor: upright, then the scale that stands the person on it.
-        let (factor, scale_std) = match floor {
+        let (factor, scale_std, floor_std) = match floor {
             Some(OnFloor {
                 floor,
                 scale,
                 looked,
+                std,
             }) => {
                 if let Some(top) = self.torso_top {
                     upright(fit, shape, self.root, top, floor);
@@ -345,19 +358,24 @@ impl MetricStep {
                         out.source = PlacedBy::Floor;
                         out.size = median / self.settings.depth_correction
                             * self.settings.mean_limb_length;
-                        (factor, spread)
+                        // The floor's own uncertainty where the person stands.
+                        let floor_std = std.map_or(0.0, |s| {
+                            let root = floor.to_floor(&(joint(fit, shape, self.root) * factor));
+                            s.distance(floor, root.x.hypot(root.y))
+                        });
+                        (factor, spread, floor_std)
                     }
                     None => {
                         out.source = PlacedBy::Size;
                         out.size = self.settings.mean_limb_length;
-                        (self.settings.depth_correction, self.settings.scale_std)
+                        (self.settings.depth_correction, self.settings.scale_std, 0.0)
                     }
                 }
             }
             None => {
                 out.source = PlacedBy::Size;
                 out.size = self.settings.mean_limb_length;
-                (self.settings.depth_correction, self.settings.scale_std)
+                (self.settings.depth_correction, self.settings.scale_std, 0.0)
             }
         };
         out.root_at_size = joint(fit, shape, self.root) * self.settings.depth_correction;
@@ -367,7 +385,7 @@ impl MetricStep {
         // the training walks (`FloorSettings::std_factor`).
         let std_factor = match out.source {
             PlacedBy::Floor => self.settings.floor.std_factor,
-            PlacedBy::Size => 1.0,
+            PlacedBy::Size => self.settings.std_factor,
         };
         for j in 0..p {
             let q = joint(fit, shape, j) * factor;
@@ -377,8 +395,8 @@ impl MetricStep {
             out.keypoint_std.push(s_px);
             let lateral = q.z.abs() * s_px / focal;
             for v in [q.x, q.y, q.z] {
-                out.position_std
-                    .push(std_factor * lateral.hypot(v * scale_std));
+                let spread = lateral.hypot(v * scale_std).hypot(v * floor_std);
+                out.position_std.push(std_factor * spread);
             }
         }
         out.depth = fit.translation.z * factor;

@@ -5,7 +5,7 @@
 use super::EstimatorNode;
 use crate::camera::Intrinsics;
 use crate::error::EstimateError;
-use crate::floor::{BodyScale, FloorModel, FloorSource};
+use crate::floor::{BodyScale, FloorModel, FloorSource, FloorStd};
 use crate::learnt_floor::{FloorLearner, LearningSettings, LearningState, LearntFloor};
 use crate::limits::Limits;
 use crate::metres::{MetricPose, MetricSettings, MetricStep, OnFloor};
@@ -57,6 +57,8 @@ pub(super) struct Metric {
     /// With the floor learnt: the learner, and the lag of the estimates it learns from
     /// (the refined ones when the window publishes them).
     pub(super) learner: Option<(FloorLearner, usize)>,
+    /// How far off the floor may be: a learnt floor's deviations (`None`: exact).
+    pub(super) floor_std: Option<FloorStd>,
     /// With the floor learnt: how many times the floor trusted changed (a new fit, or
     /// none trusted), so that each is published once.
     pub(super) floor_changes: u64,
@@ -180,6 +182,7 @@ impl EstimatorNode {
                     // Another camera: what was learnt was of the other's floor.
                     m.learner = learner;
                     m.floor = None;
+                    m.floor_std = None;
                     m.floor_changes += 1;
                 }
                 m.camera = camera;
@@ -192,6 +195,7 @@ impl EstimatorNode {
                     size,
                     floor: self.metric_settings.floor.configured(),
                     learner,
+                    floor_std: None,
                     floor_changes: 0,
                     pose: MetricPose::default(),
                     failures: 0,
@@ -334,6 +338,10 @@ pub(super) fn learn_floor(m: &mut Metric, id: u32, lag: usize) {
     let before = learner.state();
     if learner.note(id, m.pose.root_at_size) {
         m.floor = learner.floor().map(|f| f.model);
+        m.floor_std = learner.floor().map(|f| FloorStd {
+            height: f.height_std,
+            pitch: f.pitch_std.to_radians(),
+        });
         m.floor_changes += 1;
     }
     let after = learner.state();
@@ -404,6 +412,7 @@ pub(super) fn metric_pose(
                 floor,
                 scale,
                 looked,
+                std: m.floor_std,
             }),
             &mut m.pose,
         )
