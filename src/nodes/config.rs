@@ -677,7 +677,7 @@ pub struct Topics {
     pub tf_static: String,
     /// The learnt floor with its uncertainty (`geometry_msgs/PoseWithCovarianceStamped`,
     /// latched: the camera's pose over `[estimator.metric.floor] published_frame`), each
-    /// time a fit is trusted (`source = "learnt"`).
+    /// time a fit is trusted (`source = "learnt"`, with a `published_frame`).
     pub floor: String,
     /// The namespace of REP-155's bodies: `<this>/tracked` lists the ids, and
     /// `<this>/<id>/roi` and `<this>/<id>/skeleton2d` describe each.

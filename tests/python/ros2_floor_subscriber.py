@@ -1,7 +1,7 @@
 """An independent ROS 2 client: subscribes to posestream's learnt floor
 (`geometry_msgs/PoseWithCovarianceStamped`) with Eclipse Cyclone DDS (PyPI `cyclonedds`)
 as a late joiner (reliable, transient local: the latched floor arrives though it was
-published before this reader existed), and prints each message as one JSON line. The
+published before this reader existed), and prints the first message as JSON. The
 types are written here by hand from `geometry_msgs`' `.msg` files.
 
 usage: ros2_floor_subscriber.py DOMAIN TOPIC TIMEOUT_S

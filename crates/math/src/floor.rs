@@ -73,9 +73,9 @@ pub struct FloorSettings {
     pub root_height: f64,
     /// A skeleton placed by the floor: its `position_std` (the 2D spread along the rays,
     /// the contacts' spread and a learnt floor's own at the person's distance, composed)
-    /// times this. 0.55: on the training walks 69 %
-    /// of the per-axis errors fell within 0.55 of the composed standard deviation (their
-    /// tails are heavier than a normal distribution's: 89 % within 2).
+    /// times this. 0.55: on the training walks 69 % of the per-axis errors fell within
+    /// 0.55 of the composed standard deviation at the size 0.25 m, 67 % at the size prior
+    /// (their tails are heavier than a normal distribution's: 89 and 88 % within 2).
     pub std_factor: f64,
 }
 
@@ -305,6 +305,9 @@ pub struct BodyScale {
     /// `(frame sequence, its feet in the image)`, oldest first (at most `FEET_FRAMES`):
     /// a foot on the floor stands still.
     feet: std::collections::VecDeque<(u64, [[f64; 2]; MAX_FEET])>,
+    /// Of `contacts`, the newest this many were noted since the person's track began
+    /// (or resumed, [`BodyScale::suspend`]).
+    fresh: usize,
 }
 
 /// Feet a [`BodyScale`] follows at most (a skeleton's ankles: 2).
@@ -336,19 +339,60 @@ impl BodyScale {
             capacity,
             scratch: Vec::with_capacity(capacity + 1),
             feet: std::collections::VecDeque::with_capacity(FEET_FRAMES + 1),
+            fresh: 0,
         }
     }
 
-    /// Forgets the feet kept, not the contacts (the person's size stays: they come back
-    /// under their id in frames of their own).
-    pub fn forget_feet(&mut self) {
+    /// The person's track ended: their feet are forgotten, their contacts kept (their
+    /// size, for when they come back under their id), counted as not fresh.
+    pub fn suspend(&mut self) {
         self.feet.clear();
+        self.fresh = 0;
+    }
+
+    /// Contacts noted since the track began or resumed ([`BodyScale::suspend`]).
+    pub fn fresh(&self) -> usize {
+        self.fresh
+    }
+
+    /// Forgets the contacts kept from before the track resumed (they were of someone
+    /// else given the same id, or the person changed).
+    pub fn keep_fresh(&mut self) {
+        while self.contacts.len() > self.fresh {
+            self.contacts.pop_front();
+        }
+    }
+
+    /// The median of the contacts kept from before the track resumed (`None`: none).
+    pub fn kept_median(&mut self) -> Option<f64> {
+        let old = self
+            .contacts
+            .len()
+            .checked_sub(self.fresh)
+            .filter(|&n| n > 0)?;
+        self.scratch.clear();
+        self.scratch
+            .extend(self.contacts.iter().take(old).map(|c| c.1));
+        Some(median(&mut self.scratch).exp())
+    }
+
+    /// The median of the fresh contacts (`None`: none).
+    pub fn fresh_median(&mut self) -> Option<f64> {
+        let old = self.contacts.len().checked_sub(self.fresh)?;
+        if self.fresh == 0 {
+            return None;
+        }
+        self.scratch.clear();
+        self.scratch
+            .extend(self.contacts.iter().skip(old).map(|c| c.1));
+        Some(median(&mut self.scratch).exp())
     }
 
     /// Forgets every contact (a new person).
     pub fn clear(&mut self) {
         self.contacts.clear();
         self.feet.clear();
+        self.fresh = 0;
     }
 
     /// How fast foot `k` (of [`BodyScale::note_feet`]'s) moved into `xy` (image pixels)
@@ -405,6 +449,9 @@ impl BodyScale {
             .find(|&i| self.contacts[i].0 == sequence)
         {
             self.contacts.remove(i);
+            if i >= n - self.fresh.min(n) {
+                self.fresh -= 1;
+            }
         }
     }
 
@@ -426,9 +473,11 @@ impl BodyScale {
             return;
         }
         self.contacts.push_back((sequence, value));
+        self.fresh += 1;
         while self.contacts.len() > self.capacity {
             self.contacts.pop_front();
         }
+        self.fresh = self.fresh.min(self.contacts.len());
     }
 
     /// The median factor and spread of the contacts noted, `None` without any.
@@ -468,6 +517,38 @@ fn median(v: &mut [f64]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_resumed_person_keeps_their_contacts_and_counts_fresh_ones_apart() {
+        let mut scale = BodyScale::new(60);
+        for s in 0..20 {
+            scale.note(s, 1.0);
+        }
+        assert_eq!(scale.fresh(), 20);
+        assert_eq!(scale.kept_median(), None);
+        scale.suspend();
+        assert_eq!((scale.fresh(), scale.fresh_median()), (0, None));
+        for s in 100..105 {
+            scale.note(s, 1.2);
+        }
+        // A refined estimate's contact taken back is no longer fresh.
+        scale.forget(104);
+        assert_eq!(scale.fresh(), 4);
+        assert!((scale.kept_median().unwrap() - 1.0).abs() < 1e-12);
+        assert!((scale.fresh_median().unwrap() - 1.2).abs() < 1e-12);
+        assert_eq!(scale.estimate().unwrap().contacts, 24);
+        scale.keep_fresh();
+        assert_eq!(scale.estimate().unwrap().contacts, 4);
+        assert_eq!(scale.kept_median(), None);
+        // Past the capacity the oldest go, fresh or not.
+        let mut small = BodyScale::new(3);
+        small.note(0, 1.0);
+        small.suspend();
+        for s in 1..6 {
+            small.note(s, 2.0);
+        }
+        assert_eq!((small.fresh(), small.estimate().unwrap().contacts), (3, 3));
+    }
 
     #[test]
     fn level_camera_sees_the_floor_below_the_horizon() {

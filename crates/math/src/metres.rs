@@ -461,7 +461,8 @@ struct Contact<'a> {
 /// person's height in the image a frame: a walker's swing foot moves about 0.035 a frame
 /// at 30 frames/s, a jumping one more; the heat maps' noise about 0.01.
 const STILL_FOOT: f64 = 0.04;
-/// Once a person has this many contacts, a frame's own contact is trusted only up to
+/// Once a person has this many contacts since their track began (or resumed: then too
+/// their size kept is checked against these), a frame's own contact is trusted only up to
 /// `CONTACT_GATE` spreads above their median (at least `MIN_CONTACT_GATE` in `ln`): a
 /// foot on a step, or still at a jump's top, is above the floor, and its ray meets the
 /// floor further away than the foot (cameras look down on feet), so its factor is too
@@ -519,12 +520,15 @@ impl Contact<'_> {
             .min_by(|a, b| a.0.total_cmp(&b.0))
             .map(|(seen, fitted)| seen / fitted)
             .filter(|f| *f <= self.max_scale && f * self.max_scale >= 1.0);
-        // The person's median before this frame, only when there is a contact to gate.
+        // The person's median before this frame, only when there is a contact to gate,
+        // and once they have contacts of their own since their track began (a person back
+        // under their id keeps their size, [`BodyScale::suspend`], unless their new
+        // contacts say otherwise: below).
         let own = candidate.filter(|f| {
-            scale.estimate().is_none_or(|m| {
-                m.contacts < GATE_AFTER
-                    || f.ln() - m.factor.ln() <= (CONTACT_GATE * m.spread).max(MIN_CONTACT_GATE)
-            })
+            scale.fresh() < GATE_AFTER
+                || scale.estimate().is_none_or(|m| {
+                    f.ln() - m.factor.ln() <= (CONTACT_GATE * m.spread).max(MIN_CONTACT_GATE)
+                })
         });
         // Carried-over heat maps moved with the body: their feet say nothing.
         if looked {
@@ -534,6 +538,15 @@ impl Contact<'_> {
             Some(f) => scale.note(sequence, f),
             // A refined estimate takes back its newest estimate's contact.
             None => scale.forget(sequence),
+        }
+        // Back under their id: their first contacts since decide whether the size kept
+        // is theirs (an id given again to someone else, or a restarted detector's).
+        if own.is_some()
+            && scale.fresh() == GATE_AFTER
+            && let (Some(kept), Some(fresh)) = (scale.kept_median(), scale.fresh_median())
+            && (fresh.ln() - kept.ln()).abs() > MIN_CONTACT_GATE
+        {
+            scale.keep_fresh();
         }
         let median = scale.estimate()?;
         // A frame's own factor strays from the median by the contacts' spread.

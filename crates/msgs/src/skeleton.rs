@@ -110,14 +110,15 @@ impl Skeleton3D {
 
     /// True if every number in the message is finite (nothing else is published).
     pub fn is_finite(&self) -> bool {
-        [
-            &self.positions,
-            &self.position_std,
-            &self.keypoints,
-            &self.keypoint_std,
-            &self.projected,
-        ]
-        .iter()
-        .all(|v| v.iter().all(|x| x.is_finite()))
+        self.mean_bone_length.is_finite()
+            && [
+                &self.positions,
+                &self.position_std,
+                &self.keypoints,
+                &self.keypoint_std,
+                &self.projected,
+            ]
+            .iter()
+            .all(|v| v.iter().all(|x| x.is_finite()))
     }
 }

@@ -140,6 +140,8 @@ pub struct EstimatorCore<'a> {
     idle_after_ns: u64,
     /// When a frame was last taken; `None` while no track is open.
     last_taken: Option<u64>,
+    /// The capture time of the newest image handled (the learnt floor's stamp).
+    newest_capture_ns: Option<i64>,
     /// The skeletons the node released (moved into the plan).
     out: Vec<Skeleton3D>,
     frames: u64,
@@ -156,6 +158,7 @@ impl<'a> EstimatorCore<'a> {
             planner,
             idle_after_ns: u64::try_from(gap.as_nanos()).unwrap_or(u64::MAX),
             last_taken: None,
+            newest_capture_ns: None,
             out: Vec::new(),
             frames: 0,
             latency: LatencyHistogram::default(),
@@ -275,6 +278,11 @@ impl<'a> EstimatorCore<'a> {
         self.planner
             .skeletons(image, &mut self.out, size, floor, plan);
         if let Some((capture_ns, _)) = image {
+            self.newest_capture_ns = Some(capture_ns);
+        }
+        // A floor trusted by estimates released without an image (a quiet input, the
+        // end) goes out too, stamped with the newest image.
+        if let Some(capture_ns) = self.newest_capture_ns {
             self.planner
                 .learnt_floor(self.node.learnt_floor_fit(), capture_ns, plan);
         }

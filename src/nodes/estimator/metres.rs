@@ -178,6 +178,11 @@ impl EstimatorNode {
         });
         match &mut self.metric {
             Some(m) => {
+                if m.camera != camera {
+                    // Another camera: sizes kept by id were of its people (or of ids
+                    // given again).
+                    self.kept_sizes.clear();
+                }
                 if m.camera != camera && learner.is_some() {
                     // Another camera: what was learnt was of the other's floor.
                     m.learner = learner;

@@ -585,7 +585,7 @@ impl EstimatorNode {
         let mut track = self.tracks.remove(i);
         self.current = None;
         // Their size stays, their feet (frames of the track that ended) do not.
-        track.scale.forget_feet();
+        track.scale.suspend();
         self.kept_sizes.retain(|(kept, _)| *kept != track.id);
         if self.kept_sizes.len() == KEPT_SIZES {
             self.kept_sizes.pop_front();

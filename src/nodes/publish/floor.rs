@@ -2,13 +2,19 @@
 //! on `topics.floor`, beside the floor frame on `/tf` ([`super::BodyPlanner::with_floor`]).
 //! The pose is the camera's over the floor frame (`header.frame_id`, x forward under the
 //! camera, y left, z up): the inverse of the `/tf` transform, as a localisation's pose
-//! is the robot's over its map. Its covariance, in the floor frame's axes: the camera's
-//! height (z) and its roll and pitch (the rotations about x and y), from the fit and the
-//! size prior ([`LearntFloor`]'s deviations). x, y and the yaw are the floor frame's own
-//! definition (under the camera, facing its way): exact, zero.
+//! is the robot's over its map. Its covariance, in the floor frame's axes (x forward
+//! under the camera, y left, z up), from the fit and the size prior ([`LearntFloor`]'s
+//! deviations): the camera's height on z; its pitch, a turn about y; its roll, a turn
+//! about the camera's own forward axis, which a camera pitched down by `p` has at
+//! `(cos p, 0, -sin p)`: its variance shared between the turns about x and z (`cos^2 p`,
+//! `sin^2 p`, and `-sin p cos p` between them). x and y are the floor frame's own
+//! definition (under the camera): exact, zero; the yaw too but for the roll's share.
 //!
-//! Each floor trusted goes out once, when it is trusted (each new fit); a floor no longer
-//! trusted is not retracted here (the skeletons' `metric_source` says what placed them).
+//! Each floor trusted goes out once, when it is trusted (each new fit), stamped with the
+//! newest image the node had handled then; a floor no longer trusted is not retracted
+//! here (the skeletons' `metric_source` says what placed them), nor one of another
+//! camera (after a new `CameraInfo` the floor is learnt again, and published when
+//! trusted).
 
 use super::plan::{Plan, Publication};
 use crate::learnt_floor::LearntFloor;
@@ -36,7 +42,8 @@ impl FloorPlanner {
 
     /// Plans the floor trusted now (`fit`: the number of changes so far, and the floor,
     /// `EstimatorNode::learnt_floor_fit`) if it changed since the last one planned,
-    /// stamped `stamp_ns` (the image it was learnt by) and sent with `sent_ns`.
+    /// stamped `stamp_ns` (the newest image handled) and sent with `sent_ns`. A floor
+    /// with a value that is not finite is not sent.
     pub fn plan(
         &mut self,
         fit: Option<(u64, Option<&LearntFloor>)>,
@@ -54,8 +61,22 @@ impl FloorPlanner {
         let Some(floor) = floor else {
             return;
         };
+        let pose = floor_pose(floor, &self.frame, stamp_ns);
+        let p = &pose.pose.pose;
+        let values = [p.position.x, p.position.y, p.position.z]
+            .into_iter()
+            .chain([
+                p.orientation.x,
+                p.orientation.y,
+                p.orientation.z,
+                p.orientation.w,
+            ])
+            .chain(pose.pose.covariance.0);
+        if !values.into_iter().all(f64::is_finite) {
+            return;
+        }
         let (k, message) = plan.floors.add();
-        *message = floor_pose(floor, &self.frame, stamp_ns);
+        *message = pose;
         plan.order.push((Publication::Floor(k), sent_ns));
     }
 }
@@ -69,6 +90,18 @@ pub fn floor_pose(floor: &LearntFloor, frame: &str, stamp_ns: i64) -> PoseWithCo
         floor.pitch_std.to_radians(),
         floor.roll_std.to_radians(),
     );
+    // The roll's axis, the camera's forward, in the floor frame: (cos p, 0, -sin p).
+    let (sin, cos) = floor.model.pitch_roll().0.to_radians().sin_cos();
+    let mut covariance = Covariance::diagonal([
+        0.0,
+        0.0,
+        height * height,
+        roll * roll * cos * cos,
+        pitch * pitch,
+        roll * roll * sin * sin,
+    ]);
+    covariance.0[3 * 6 + 5] = -roll * roll * sin * cos;
+    covariance.0[5 * 6 + 3] = -roll * roll * sin * cos;
     PoseWithCovarianceStamped {
         header: Header {
             stamp: Time::from_nanos(stamp_ns),
@@ -88,14 +121,7 @@ pub fn floor_pose(floor: &LearntFloor, frame: &str, stamp_ns: i64) -> PoseWithCo
                     w: q.w,
                 },
             },
-            covariance: Covariance::diagonal([
-                0.0,
-                0.0,
-                height * height,
-                roll * roll,
-                pitch * pitch,
-                0.0,
-            ]),
+            covariance,
         },
     }
 }
@@ -129,9 +155,17 @@ mod tests {
         assert!(p.x.abs() < 1e-12 && p.y.abs() < 1e-12 && (p.z - 2.0).abs() < 1e-12);
         let c = &m.pose.covariance.0;
         assert!((c[2 * 6 + 2] - 0.0025).abs() < 1e-12);
-        assert!((c[3 * 6 + 3] - 2f64.to_radians().powi(2)).abs() < 1e-15);
         assert!((c[4 * 6 + 4] - 1f64.to_radians().powi(2)).abs() < 1e-15);
-        assert_eq!(c.iter().filter(|v| **v != 0.0).count(), 3);
+        // The roll about the camera's forward axis, 15 degrees down: mostly about x.
+        let (roll, (sin, cos)) = (2f64.to_radians().powi(2), 15f64.to_radians().sin_cos());
+        assert!((c[3 * 6 + 3] - roll * cos * cos).abs() < 1e-15);
+        assert!((c[5 * 6 + 5] - roll * sin * sin).abs() < 1e-15);
+        assert!((c[3 * 6 + 5] + roll * sin * cos).abs() < 1e-15);
+        assert_eq!(c[3 * 6 + 5], c[5 * 6 + 3]);
+        assert_eq!(c.iter().filter(|v| **v != 0.0).count(), 6);
+        // Level: the roll about x alone.
+        let level = floor_pose(&learnt(2.0, 0.0), "f", 0).pose.covariance.0;
+        assert_eq!(level.iter().filter(|v| **v != 0.0).count(), 3);
     }
 
     #[test]
@@ -147,5 +181,12 @@ mod tests {
         planner.plan(Some((3, Some(&floor))), 9, 9, &mut plan);
         assert_eq!(plan.order.len(), 2);
         assert_eq!(plan.floors.as_slice().len(), 2);
+        // A deviation that is not finite: nothing sent.
+        let broken = LearntFloor {
+            height_std: f64::NAN,
+            ..floor
+        };
+        planner.plan(Some((4, Some(&broken))), 10, 10, &mut plan);
+        assert_eq!(plan.order.len(), 2);
     }
 }
