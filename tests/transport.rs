@@ -798,7 +798,13 @@ fn a_fast_dds_peer_drives_our_estimator_and_receives_everything_it_publishes() {
         .output()
         .expect("fast dds publisher");
     let published: serde_json::Value =
-        serde_json::from_slice(&published.stdout).expect("publisher's json");
+        serde_json::from_slice(&published.stdout).unwrap_or_else(|e| {
+            panic!(
+                "publisher's json ({e}; {}): {}",
+                published.status,
+                String::from_utf8_lossy(&published.stderr)
+            )
+        });
     assert_eq!(published["matched"], true, "{published}");
     assert_eq!(published["published"], maps.len(), "{published}");
     // The estimator has what it needs; it ends the track and stops cleanly.
