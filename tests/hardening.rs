@@ -1212,6 +1212,23 @@ fn configuration_values_outside_their_domain_are_one_error_naming_the_key() {
             "topics.camera_info",
         ),
         ("[ros]\ndomain_id = 500\n", "ros.domain_id"),
+        (
+            "[estimator.metric]\nstd_factor = nan\n",
+            "estimator.metric.std_factor",
+        ),
+        (
+            "[estimator.metric]\nstd_factor = -1.0\n",
+            "estimator.metric.std_factor",
+        ),
+        (
+            "[estimator.metric]\nstd_factor = 1e300\n",
+            "estimator.metric.std_factor",
+        ),
+        ("[topics]\nfloor = \"floor\"\n", "topics.floor"),
+        (
+            "[topics]\nfloor = \"/posestream/skeletons\"\n",
+            "topics.floor",
+        ),
         ("[ros.qos]\ndepth = 0\n", "ros.qos.depth"),
         ("[ros.qos]\ndepth = 100000000\n", "ros.qos.depth"),
         ("[topics]\nheatmaps = \"\"\n", "topics.heatmaps"),

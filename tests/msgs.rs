@@ -238,6 +238,12 @@ fn a_skeleton_recorded_before_metric_source_views_looks_or_sizes_decodes_with_no
     };
     let before_size: Skeleton3D = msgs::decode(full).expect("decodes");
     assert_eq!(before_size, looked);
+    // A size that is not a number is not a finite message (not published).
+    let nan = Skeleton3D {
+        mean_bone_length: f64::NAN,
+        ..looked.clone()
+    };
+    assert!(looked.is_finite() && !nan.is_finite());
     // `frames_since_look` ends it (4 bytes, aligned after the empty `views`): the
     // layout before it reads it as 0.
     let before_looks: Skeleton3D = msgs::decode(&full[..full.len() - 4]).expect("decodes");

@@ -14,7 +14,7 @@ import time
 from dataclasses import dataclass
 
 domain, topic, timeout = int(sys.argv[1]), sys.argv[2], float(sys.argv[3])
-from ros2_types import Header  # noqa: E402  (DDS on loopback, set on import)
+from ros2_types import Header, Pose  # noqa: E402  (DDS on loopback, set on import)
 
 from cyclonedds.core import Policy, Qos  # noqa: E402
 from cyclonedds.domain import DomainParticipant  # noqa: E402
@@ -23,30 +23,6 @@ from cyclonedds.idl.annotations import final  # noqa: E402
 from cyclonedds.idl.types import array, float64  # noqa: E402
 from cyclonedds.sub import DataReader  # noqa: E402
 from cyclonedds.topic import Topic  # noqa: E402
-
-
-@final
-@dataclass
-class Point(IdlStruct, typename="geometry_msgs::msg::dds_::Point_"):
-    x: float64
-    y: float64
-    z: float64
-
-
-@final
-@dataclass
-class Quaternion(IdlStruct, typename="geometry_msgs::msg::dds_::Quaternion_"):
-    x: float64
-    y: float64
-    z: float64
-    w: float64
-
-
-@final
-@dataclass
-class Pose(IdlStruct, typename="geometry_msgs::msg::dds_::Pose_"):
-    position: Point
-    orientation: Quaternion
 
 
 @final

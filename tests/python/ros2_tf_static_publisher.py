@@ -16,34 +16,17 @@ import time
 from dataclasses import dataclass
 
 domain, path, seconds = int(sys.argv[1]), sys.argv[2], float(sys.argv[3])
-from ros2_types import Header, Time  # noqa: E402  (DDS on loopback, set on import)
+from ros2_types import Header, Quaternion, Time, Vector3  # noqa: E402  (DDS on loopback, set on import)
 
 from cyclonedds.core import Policy, Qos  # noqa: E402
 from cyclonedds.domain import DomainParticipant  # noqa: E402
 from cyclonedds.idl import IdlStruct  # noqa: E402
 from cyclonedds.idl.annotations import final  # noqa: E402
-from cyclonedds.idl.types import float64, sequence  # noqa: E402
+from cyclonedds.idl.types import sequence  # noqa: E402
 from cyclonedds.pub import DataWriter  # noqa: E402
 from cyclonedds.topic import Topic  # noqa: E402
 from mcap.reader import make_reader  # noqa: E402
 from rosbags.typesys import Stores, get_typestore  # noqa: E402
-
-
-@final
-@dataclass
-class Vector3(IdlStruct, typename="geometry_msgs::msg::dds_::Vector3_"):
-    x: float64
-    y: float64
-    z: float64
-
-
-@final
-@dataclass
-class Quaternion(IdlStruct, typename="geometry_msgs::msg::dds_::Quaternion_"):
-    x: float64
-    y: float64
-    z: float64
-    w: float64
 
 
 @final

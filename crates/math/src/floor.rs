@@ -363,28 +363,26 @@ impl BodyScale {
         }
     }
 
-    /// The median of the contacts kept from before the track resumed (`None`: none).
+    /// The median factor of the contacts kept from before the track resumed (`None`:
+    /// none).
     pub fn kept_median(&mut self) -> Option<f64> {
-        let old = self
-            .contacts
-            .len()
-            .checked_sub(self.fresh)
-            .filter(|&n| n > 0)?;
-        self.scratch.clear();
-        self.scratch
-            .extend(self.contacts.iter().take(old).map(|c| c.1));
-        Some(median(&mut self.scratch).exp())
+        let old = self.contacts.len() - self.fresh;
+        self.median_of(0..old)
     }
 
-    /// The median of the fresh contacts (`None`: none).
+    /// The median factor of the fresh contacts (`None`: none).
     pub fn fresh_median(&mut self) -> Option<f64> {
-        let old = self.contacts.len().checked_sub(self.fresh)?;
-        if self.fresh == 0 {
+        let old = self.contacts.len() - self.fresh;
+        self.median_of(old..self.contacts.len())
+    }
+
+    /// The median factor of contacts `range` (`None`: an empty range).
+    fn median_of(&mut self, range: std::ops::Range<usize>) -> Option<f64> {
+        if range.is_empty() {
             return None;
         }
         self.scratch.clear();
-        self.scratch
-            .extend(self.contacts.iter().skip(old).map(|c| c.1));
+        self.scratch.extend(self.contacts.range(range).map(|c| c.1));
         Some(median(&mut self.scratch).exp())
     }
 
